@@ -1,0 +1,22 @@
+PY := .venv/bin/python
+export OMP_NUM_THREADS ?= 1
+
+.PHONY: setup demo test lint bench clean
+
+setup:
+	@bash scripts/setup
+
+demo: setup
+	$(PY) -m lbshape.cli demo
+
+test: setup
+	$(PY) -m pytest -q tests
+
+lint: setup
+	$(PY) -m ruff check lbshape tests scripts meshes
+
+bench: setup
+	$(PY) scripts/bench_all.py
+
+clean:
+	rm -rf .venv build *.egg-info .pytest_cache
