@@ -1,0 +1,1 @@
+"""Sub-commands of the ``lbshape`` CLI; each module defines ``register(subparsers)``."""
