@@ -1,0 +1,227 @@
+"""Example interpolation: weights (paper eq. 5) and the nonlinear target (eqs. 4 and 6).
+
+Weights solve ``min_w ½‖Σ_k w_k e_k − c‖²`` over the simplex ``Σw = 1, w ≥ 0``
+exactly (active-set enumeration; k is a handful of examples).
+
+The target minimises ``F(z) = Σ_k w_k E_k(z − z_k)``, where ``E_k(y)`` is the elastic
+energy of deforming example shape k (its rest shape reconstructed on the object's
+mesh) by the displacement ``B y`` for a basis ``B``, evaluated with cubature, and
+``z_k`` is example k's own coordinate (so ``E_k(0) = 0``). The three routes differ
+only in the basis and the elements:
+
+* ``modal`` (the paper's): ``B = U`` (the nonlinear modal basis), z = reduced
+  coordinates q, the elastic cubature; examples enter through ``q_k = T c_k``.
+* ``lb``: ``B = L`` (LB displacement basis), z = LB coefficients, a cubature
+  trained on the LB displacement subspace.
+* ``euclidean`` (Zhu et al. 2015 baseline): ``B = L`` with *all* elements of the
+  object's mesh and unit weights.
+
+Each ``E_k`` is any object with ``force_and_tangent(y) -> (g (p,), H (p,p))`` and
+``energy(y) -> float`` (e.g. :class:`lbshape.reduced_forces.ReducedForceModel`).
+The minimiser is a damped Newton method with a backtracking line search,
+warm-started from the previous target.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import scipy.linalg
+
+from lbshape.errors import LbshapeError, SolverError
+
+
+class EnergyModel(Protocol):
+    def energy(self, y: np.ndarray) -> float: ...
+
+    def force_and_tangent(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def simplex_weights(examples: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """Exact solution of ``min ½‖Eᵀw − c‖²`` s.t. ``Σw = 1, w ≥ 0`` (paper eq. 5).
+
+    Enumerates supports (2^k − 1 of them, k ≤ 12) and solves the equality-
+    constrained least squares on each via its KKT system; the best feasible one is
+    the global optimum of this convex problem. Ties (e.g. identical examples) are
+    split evenly among the tied examples.
+
+    Args:
+        examples: (k, d) example descriptors (flattened).
+        current: (d,) the current descriptor.
+
+    Returns:
+        (k,) weights on the simplex.
+    """
+    E = np.asarray(examples, dtype=float)
+    c = np.asarray(current, dtype=float).ravel()
+    if E.ndim != 2 or E.shape[0] == 0:
+        raise LbshapeError(f"examples must be a (k, d) array with k >= 1, got shape {E.shape}")
+    if E.shape[1] != c.size:
+        raise LbshapeError(
+            f"example descriptors have dimension {E.shape[1]} but the current one has {c.size}"
+        )
+    k = E.shape[0]
+    if k > 12:
+        raise LbshapeError(f"at most 12 examples per region are supported, got {k}")
+    if k == 1:
+        return np.ones(1)
+    G = E @ E.T
+    b = E @ c
+    scale = max(float(np.trace(G)) / k, 1e-300)
+    best_w, best_value = None, np.inf
+    for size in range(1, k + 1):
+        for support in itertools.combinations(range(k), size):
+            idx = np.array(support)
+            w_s = _equality_constrained(G[np.ix_(idx, idx)], b[idx], scale)
+            if w_s is None or (w_s < -1e-12).any():
+                continue
+            w = np.zeros(k)
+            w[idx] = np.clip(w_s, 0.0, None)
+            w /= w.sum()
+            value = 0.5 * w @ G @ w - b @ w
+            if value < best_value - 1e-14 * scale:
+                best_w, best_value = w, value
+    if best_w is None:  # cannot happen for a convex problem; keep a loud failure
+        raise SolverError("simplex least squares found no feasible support")
+    return best_w
+
+
+def _equality_constrained(G: np.ndarray, b: np.ndarray, scale: float) -> np.ndarray | None:
+    """min ½wᵀGw − bᵀw s.t. Σw = 1 (G PSD; minimum-norm solution when singular)."""
+    s = G.shape[0]
+    kkt = np.zeros((s + 1, s + 1))
+    kkt[:s, :s] = G / scale
+    kkt[:s, s] = 1.0
+    kkt[s, :s] = 1.0
+    rhs = np.concatenate([b / scale, [1.0]])
+    solution, *_ = np.linalg.lstsq(kkt, rhs, rcond=1e-12)
+    w = solution[:s]
+    if not np.isfinite(w).all() or abs(w.sum() - 1.0) > 1e-8:
+        return None
+    return w
+
+
+@dataclass(frozen=True)
+class TargetResult:
+    """A solved target.
+
+    Attributes:
+        z: (p,) target coordinates (reduced coordinates or LB coefficients).
+        iterations: Newton iterations used.
+        gradient_norm: final ‖∇F‖ relative to the initial scale.
+        energy: final F(z) in J.
+    """
+
+    z: np.ndarray
+    iterations: int
+    gradient_norm: float
+    energy: float
+
+
+class TargetSolver:
+    """Minimise ``F(z) = Σ_k w_k E_k(z − z_k)`` by damped Newton (paper eq. 4).
+
+    Args:
+        models: one energy model per example (see the module docstring).
+        offsets: (k, p) the examples' own coordinates z_k.
+        tolerance: stop when ‖∇F‖ ≤ tolerance · ‖∇F(z₀)‖ or the Newton step is tiny.
+        max_iterations: Newton iterations per call.
+    """
+
+    def __init__(
+        self,
+        models: Sequence[EnergyModel],
+        offsets: np.ndarray,
+        *,
+        tolerance: float = 1e-6,
+        max_iterations: int = 20,
+    ):
+        offsets = np.atleast_2d(np.asarray(offsets, dtype=float))
+        if len(models) != offsets.shape[0]:
+            raise LbshapeError(
+                f"{len(models)} example energy models but {offsets.shape[0]} example offsets"
+            )
+        self.models = list(models)
+        self.offsets = offsets
+        self.tolerance = float(tolerance)
+        self.max_iterations = int(max_iterations)
+        self._last: np.ndarray | None = None
+
+    @property
+    def dimension(self) -> int:
+        return int(self.offsets.shape[1])
+
+    def energy(self, z: np.ndarray, weights: np.ndarray) -> float:
+        """F(z) in J."""
+        return float(
+            sum(w * m.energy(z - o) for w, m, o in zip(weights, self.models, self.offsets)
+                if w > 0.0)
+        )
+
+    def gradient_and_hessian(self, z: np.ndarray, weights: np.ndarray):
+        """(∇F (p,), ∇²F (p,p)) at z."""
+        p = self.dimension
+        g, H = np.zeros(p), np.zeros((p, p))
+        for w, model, offset in zip(weights, self.models, self.offsets):
+            if w > 0.0:
+                gk, Hk = model.force_and_tangent(z - offset)
+                g += w * gk
+                H += w * Hk
+        return g, H
+
+    def solve(self, weights: np.ndarray, *, start: np.ndarray | None = None) -> TargetResult:
+        """The target for the given example weights (k,), warm-started by default."""
+        weights = np.asarray(weights, dtype=float)
+        if weights.shape != (len(self.models),):
+            raise LbshapeError(f"expected {len(self.models)} weights, got shape {weights.shape}")
+        if start is not None:
+            z = np.array(start, dtype=float)
+        elif self._last is not None:
+            z = self._last.copy()
+        else:
+            z = weights @ self.offsets
+        g, H = self.gradient_and_hessian(z, weights)
+        g0 = max(float(np.linalg.norm(g)), 1e-300)
+        f = self.energy(z, weights)
+        iterations = 0
+        for iterations in range(1, self.max_iterations + 1):
+            if np.linalg.norm(g) <= self.tolerance * g0 or not np.linalg.norm(g) > 0:
+                iterations -= 1
+                break
+            step = _newton_direction(H, g)
+            t, f_new = 1.0, self.energy(z + step, weights)
+            while not f_new <= f + 1e-4 * t * (g @ step) and t > 1e-6:
+                t *= 0.5
+                f_new = self.energy(z + t * step, weights)
+            if not np.isfinite(f_new):
+                raise SolverError(f"target interpolation diverged (energy {f_new})")
+            z = z + t * step
+            f = f_new
+            g, H = self.gradient_and_hessian(z, weights)
+            if t * np.linalg.norm(step) <= 1e-12 * (1.0 + np.linalg.norm(z)):
+                break
+        self._last = z.copy()
+        return TargetResult(z, iterations, float(np.linalg.norm(g) / g0), f)
+
+    def reset(self) -> None:
+        """Forget the warm start."""
+        self._last = None
+
+
+def _newton_direction(H: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """−H⁻¹g with a Levenberg shift when H is not positive definite."""
+    shift = 0.0
+    scale = max(float(np.max(np.abs(np.diag(H)))), 1e-300)
+    identity = np.eye(H.shape[0])
+    for _ in range(30):
+        try:
+            factor = scipy.linalg.cho_factor(H + shift * identity, check_finite=False)
+        except np.linalg.LinAlgError:
+            shift = max(2.0 * shift, 1e-10 * scale)
+            continue
+        return -scipy.linalg.cho_solve(factor, g, check_finite=False)
+    raise SolverError("target Hessian could not be made positive definite")

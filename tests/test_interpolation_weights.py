@@ -1,0 +1,55 @@
+"""Interpolation weights (paper eq. 5): exact simplex-constrained least squares."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from lbshape.errors import LbshapeError
+from lbshape.interpolation import simplex_weights
+
+
+def test_recovers_a_known_convex_combination():
+    rng = np.random.default_rng(3)
+    E = rng.normal(size=(4, 30))
+    w_true = np.array([0.1, 0.0, 0.6, 0.3])
+    w = simplex_weights(E, w_true @ E)
+    np.testing.assert_allclose(w, w_true, atol=1e-10)
+
+
+def test_matches_a_generic_constrained_optimiser_outside_the_hull():
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        E = rng.normal(size=(3, 12))
+        c = rng.normal(size=12) * 2.0
+        w = simplex_weights(E, c)
+        assert w.min() >= 0.0 and w.sum() == pytest.approx(1.0, abs=1e-12)
+
+        def objective(v):
+            return 0.5 * np.sum((v @ E - c) ** 2)
+
+        reference = minimize(
+            objective, np.full(3, 1 / 3), method="SLSQP", bounds=[(0, 1)] * 3,
+            constraints={"type": "eq", "fun": lambda v: v.sum() - 1}, options={"ftol": 1e-14},
+        )
+        # exact solver is never worse than a generic optimiser
+        assert objective(w) <= reference.fun + 1e-9, (objective(w), reference.fun)
+
+
+def test_single_and_identical_examples():
+    e = np.array([[1.0, 2.0, 3.0]])
+    np.testing.assert_array_equal(simplex_weights(e, np.zeros(3)), [1.0])
+    twins = np.vstack([e, e])
+    w = simplex_weights(twins, np.array([5.0, 0.0, 0.0]))
+    assert w.sum() == pytest.approx(1.0) and (w >= 0).all()
+    # a point on the segment between two examples gets its barycentric weights
+    pair = np.array([[0.0, 0.0], [1.0, 0.0]])
+    np.testing.assert_allclose(simplex_weights(pair, np.array([0.25, 3.0])), [0.75, 0.25])
+
+
+def test_dimension_mismatch_is_a_clear_error():
+    with pytest.raises(LbshapeError, match="dimension"):
+        simplex_weights(np.zeros((2, 6)), np.zeros(5))
+    with pytest.raises(LbshapeError, match="k >= 1"):
+        simplex_weights(np.zeros((0, 6)), np.zeros(6))
