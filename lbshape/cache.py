@@ -1,0 +1,120 @@
+"""A content-addressed, validated cache of precomputed arrays.
+
+An artifact is a set of named numpy arrays plus JSON metadata, stored as one
+``.npz`` (arrays + an embedded ``__meta__`` JSON string) under
+``<root>/<name>-<key[:16]>.npz``. The key is a SHA-256 over everything that
+determines the artifact (see :func:`cache_key`). Writes are atomic (temporary file
+in the same folder, then rename). Loading validates the file: unreadable, wrong
+key, missing arrays or non-finite values -> the artifact is reported stale
+(``None``) with a logged reason, and the caller recomputes.
+
+The root is ``$LBSHAPE_CACHE`` if set, else ``~/.cache/lbshape``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import tempfile
+import zipfile
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+FORMAT_VERSION = 1
+
+
+def cache_root() -> Path:
+    """The cache folder (created on demand)."""
+    root = os.environ.get("LBSHAPE_CACHE")
+    return Path(root) if root else Path.home() / ".cache" / "lbshape"
+
+
+def _canonical(value):
+    if isinstance(value, Mapping):
+        return {str(k): _canonical(v) for k, v in sorted(value.items(), key=lambda kv: str(kv[0]))}
+    if isinstance(value, list | tuple):
+        return [_canonical(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return {"__array__": hashlib.sha256(np.ascontiguousarray(value).tobytes()).hexdigest(),
+                "shape": list(value.shape), "dtype": str(value.dtype)}
+    if isinstance(value, bytes):
+        return {"__bytes__": hashlib.sha256(value).hexdigest()}
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, float | int | str | bool) or value is None:
+        return value
+    raise TypeError(f"cannot hash value of type {type(value).__name__} for the cache key")
+
+
+def cache_key(*parts) -> str:
+    """SHA-256 hex digest of JSON-canonical ``parts`` (dicts, lists, numbers, strings,
+    bytes and numpy arrays; arrays and bytes enter through their own digests)."""
+    text = json.dumps([FORMAT_VERSION, _canonical(list(parts))], sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def file_digest(path: str | Path) -> str:
+    """SHA-256 of a file's bytes."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def artifact_path(name: str, key: str, root: Path | None = None) -> Path:
+    return (root or cache_root()) / f"{name}-{key[:16]}.npz"
+
+
+def save_artifact(
+    name: str, key: str, arrays: Mapping[str, np.ndarray], meta: Mapping | None = None,
+    *, root: Path | None = None,
+) -> Path:
+    """Write arrays + metadata atomically; return the path."""
+    path = artifact_path(name, key, root)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {"key": key, "format": FORMAT_VERSION, "arrays": sorted(arrays), **(meta or {})}
+    fd, tmp = tempfile.mkstemp(suffix=".npz.tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            np.savez(handle, __meta__=np.array(json.dumps(payload)), **arrays)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def load_artifact(
+    name: str, key: str, *, required: Iterable[str] = (), root: Path | None = None
+) -> tuple[dict[str, np.ndarray], dict] | None:
+    """Load and validate an artifact; ``None`` (with a logged reason) if absent or stale."""
+    path = artifact_path(name, key, root)
+    if not path.exists():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            meta = json.loads(str(data["__meta__"]))
+            arrays = {k: data[k] for k in data.files if k != "__meta__"}
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
+        log.warning("cache: %s is unreadable (%s); recomputing", path.name, exc)
+        return None
+    reason = None
+    if meta.get("key") != key or meta.get("format") != FORMAT_VERSION:
+        reason = "its key does not match"
+    elif missing := [k for k in required if k not in arrays]:
+        reason = f"it lacks {missing}"
+    else:
+        bad = [k for k, v in arrays.items() if v.dtype.kind == "f" and not np.isfinite(v).all()]
+        if bad:
+            reason = f"{bad} hold non-finite values"
+    if reason:
+        log.warning("cache: %s is stale or corrupt (%s); recomputing", path.name, reason)
+        return None
+    return arrays, meta
