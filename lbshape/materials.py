@@ -8,7 +8,9 @@ Two models:
   resisting inversion (J ≤ 0) where StVK collapses:
   ``Ψ(F) = μ'/2 (I_C − 3) + λ'/2 (J − α)² − μ'/2 log(I_C + 1)``,
   ``α = 1 + μ'/λ' − μ'/(4λ')``, with ``μ' = 4μ/3``, ``λ' = λ + 5μ/6`` so that its
-  linearisation at rest equals linear elasticity with the given (E, ν).
+  linearisation at rest equals linear elasticity with the given (E, ν). The
+  textbook form has a constant rest value ``Ψ(I) = 9μ'²/(32λ') − μ' ln 2`` (its
+  stress is zero at rest); it is subtracted so that both models have ``Ψ(I) = 0``.
 
 The numpy per-element kernels of the same energies live in
 :mod:`lbshape.element_kernels`.
@@ -16,6 +18,7 @@ The numpy per-element kernels of the same energies live in
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -86,7 +89,11 @@ def strain_energy_density_ufl(material: Material, F: ufl.core.expr.Expr) -> ufl.
     mu_s, lam_s, alpha = material.stable_nh_parameters
     Ic = ufl.tr(F.T * F)
     J = ufl.det(F)
-    return 0.5 * mu_s * (Ic - d) + 0.5 * lam_s * (J - alpha) ** 2 - 0.5 * mu_s * ufl.ln(Ic + 1.0)
+    rest = 0.5 * lam_s * (1.0 - alpha) ** 2 - 0.5 * mu_s * math.log(d + 1.0)
+    return (
+        0.5 * mu_s * (Ic - d) + 0.5 * lam_s * (J - alpha) ** 2
+        - 0.5 * mu_s * ufl.ln(Ic + 1.0) - rest
+    )
 
 
 def strain_energy_ufl(material: Material, u: ufl.Coefficient) -> ufl.Form:

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-BENCHMARKS = ("bench_eigen", "bench_cubature", "bench_precompute", "bench_interpolation",
+BENCHMARKS = ("bench_eigen", "bench_element_kernels", "bench_cubature", "bench_precompute", "bench_interpolation",
               "bench_table2")
 
 
