@@ -158,7 +158,7 @@ class TargetSolver:
     def energy(self, z: np.ndarray, weights: np.ndarray) -> float:
         """F(z) in J."""
         return float(
-            sum(w * m.energy(z - o) for w, m, o in zip(weights, self.models, self.offsets)
+            sum(w * m.energy(z - o) for w, m, o in zip(weights, self.models, self.offsets, strict=True)
                 if w > 0.0)
         )
 
@@ -166,7 +166,7 @@ class TargetSolver:
         """(∇F (p,), ∇²F (p,p)) at z."""
         p = self.dimension
         g, H = np.zeros(p), np.zeros((p, p))
-        for w, model, offset in zip(weights, self.models, self.offsets):
+        for w, model, offset in zip(weights, self.models, self.offsets, strict=True):
             if w > 0.0:
                 gk, Hk = model.force_and_tangent(z - offset)
                 g += w * gk

@@ -11,8 +11,10 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-BENCHMARKS = ("bench_eigen", "bench_element_kernels", "bench_cubature", "bench_precompute", "bench_interpolation",
-              "bench_table2")
+BENCHMARKS = (
+    "bench_eigen", "bench_element_kernels", "bench_cubature", "bench_precompute",
+    "bench_interpolation", "bench_table2",
+)
 
 
 def main(names: list[str]) -> int:

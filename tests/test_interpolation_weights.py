@@ -26,7 +26,7 @@ def test_matches_a_generic_constrained_optimiser_outside_the_hull():
         w = simplex_weights(E, c)
         assert w.min() >= 0.0 and w.sum() == pytest.approx(1.0, abs=1e-12)
 
-        def objective(v):
+        def objective(v, E=E, c=c):
             return 0.5 * np.sum((v @ E - c) ** 2)
 
         reference = minimize(
