@@ -157,10 +157,8 @@ class TargetSolver:
 
     def energy(self, z: np.ndarray, weights: np.ndarray) -> float:
         """F(z) in J."""
-        return float(
-            sum(w * m.energy(z - o) for w, m, o in zip(weights, self.models, self.offsets, strict=True)
-                if w > 0.0)
-        )
+        terms = zip(weights, self.models, self.offsets, strict=True)
+        return float(sum(w * m.energy(z - o) for w, m, o in terms if w > 0.0))
 
     def gradient_and_hessian(self, z: np.ndarray, weights: np.ndarray):
         """(∇F (p,), ∇²F (p,p)) at z."""

@@ -34,7 +34,10 @@ def structured_box(
         TetMesh with ``(nx+1)(ny+1)(nz+1)`` vertices and ``6 nx ny nz`` tets.
     """
     nx, ny, nz = (int(d) for d in divisions)
-    axes = [np.linspace(o, o + s, d + 1) for o, s, d in zip(origin, size, (nx, ny, nz), strict=True)]
+    axes = [
+        np.linspace(o, o + s, d + 1)
+        for o, s, d in zip(origin, size, (nx, ny, nz), strict=True)
+    ]
     X, Y, Z = np.meshgrid(*axes, indexing="ij")
     points = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
 
