@@ -7,35 +7,17 @@ and the interior eigenfunctions of the teddy (the paper's Figure 2).
 
 from __future__ import annotations
 
-import json
 import logging
-import os
-import tempfile
 import time
 from pathlib import Path
 
+from lbshape.atomic_io import write_json_atomic
 from lbshape.errors import LbshapeError
 
 log = logging.getLogger(__name__)
 
 #: repository-relative default output folder
 DEFAULT_OUT = Path(__file__).resolve().parents[1] / "results" / "demo"
-
-
-def write_json_atomic(path: Path, payload: dict) -> Path:
-    """Write JSON to ``path`` via a temporary file in the same folder, then rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".json", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as handle:
-            json.dump(payload, handle, indent=2)
-            handle.write("\n")
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
 
 
 def spectra_figure(out: Path, *, m: int = 6) -> dict:
