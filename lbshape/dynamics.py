@@ -1,0 +1,474 @@
+"""Implicit time integration of ``M a + D v + f(x) = f_ext(t)``.
+
+One stepper class serves both the reduced runtime (dense r×r matrices, ``M = I``
+in mass-normalised coordinates; nothing n-sized is touched) and the full-space
+reference (scipy sparse 3n×3n matrices). The caller supplies:
+
+* ``mass`` M: (N, N) dense ``ndarray`` or scipy sparse matrix; its type selects the
+  linear solver (dense: :func:`scipy.linalg.solve`, symmetric ``LDLᵀ`` by default;
+  sparse: :func:`scipy.sparse.linalg.splu`);
+* ``force_and_tangent(x) -> (f (N,), K (N, N))``: every position-dependent force
+  (internal elastic force, example-driven force, contact …) with the sign
+  ``f = +∂E/∂x`` and its tangent ``K = ∂f/∂x``;
+* ``external(t) -> (N,)``: the applied load at time t (s);
+* Rayleigh coefficients: ``D = α M + β K₀``.
+
+**Damping choice.** ``K₀`` is the tangent at rest (``x = 0``), or the matrix the
+caller passes as ``damping_stiffness`` (e.g. the elastic tangent without the
+example term). A constant ``D`` keeps the damping force linear in ``v``, so the
+Newton matrix below is exact, linear mode i is damped with the textbook ratio
+``ζ_i = α/(2ω_i) + βω_i/2``, and damping never turns into an energy source when
+the current tangent becomes indefinite under large deformation.
+
+**Schemes.** With the displacement increment ``Δx = x_{n+1} − x_n`` unknown:
+
+* ``newmark`` (average acceleration, β = ¼, γ = ½; second order, unconditionally
+  stable, no numerical damping; period elongation
+  ``T_num/T = ωΔt / (2 atan(ωΔt/2))``):
+  ``a_{n+1} = 4/Δt² (Δx − Δt v_n) − a_n``, ``v_{n+1} = 2/Δt Δx − v_n``;
+* ``backward-euler`` (first order, L-stable, dissipates):
+  ``v_{n+1} = Δx/Δt``, ``a_{n+1} = (v_{n+1} − v_n)/Δt``.
+
+Both solve ``R(Δx) = M a_{n+1} + D v_{n+1} + f(x_{n+1}) − f_ext(t_{n+1}) = 0`` by
+Newton's method with the matrix ``c_a M + c_v D + K(x_{n+1})`` (``c_a = 4/Δt²,
+c_v = 2/Δt`` for Newmark, ``1/Δt², 1/Δt`` for backward Euler), starting from the
+constant-acceleration (Newmark) or constant-velocity (backward Euler) predictor.
+Convergence: ``‖R‖ ≤ max(rtol · scale, atol, noise)``, ``scale`` being the
+largest of ``‖R‖`` at the predictor, ``‖f_ext‖``, ``‖f(x_n)‖``, ``‖f(predictor)‖``
+and ``‖M a_n‖`` (the size of the forces in balance in this step), and ``noise`` the
+round-off level of evaluating R: ``64 ε`` times the sum of the magnitudes of its
+terms (the inertial term ``c_a M Δx ≈ (4/Δt) M v`` grows like 1/Δt, so with small
+steps a tight ``rtol`` could otherwise never be met).
+
+**Divergence.** A non-finite force, tangent, residual or Newton update, a Newton
+iteration that does not converge, or an energy blow-up raises
+:class:`~lbshape.errors.SolverError` naming the step and time; the stepper keeps
+its last good state so the caller can save what was computed. Energy blow-up: the
+total energy ``½ vᵀMv + potential(x)`` exceeds ``energy_factor`` times the energy
+made available to the system so far, ``budget = E₀ + W_ext + energy_budget``:
+``E₀`` the initial energy (without a supplied potential, ``½|f(x₀)·x₀|`` stands in
+for the initial potential energy), ``W_ext`` the accumulated absolute work of the
+external load (trapezoidal rule). A conservative or dissipative system stays
+below ``budget`` (Newmark conserves the energy of linear systems exactly); a
+non-conservative force that feeds energy in (example forces chasing a moving
+target, follower forces, fictitious forces) eventually exceeds it. With a zero
+budget (starting at rest and unloaded) the monitor is inactive; pass
+``energy_budget`` to arm it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from lbshape.errors import LbshapeError, SolverError
+
+log = logging.getLogger(__name__)
+
+#: time integrators by scene name
+INTEGRATORS: tuple[str, ...] = ("newmark", "backward-euler")
+
+Matrix = np.ndarray | sp.spmatrix
+ForceAndTangent = Callable[[np.ndarray], tuple[np.ndarray, Matrix]]
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    """What one time step did.
+
+    Attributes:
+        step: 1-based index of the step just taken.
+        time: time at the end of the step (s).
+        iterations: Newton iterations (linear solves) used.
+        residual: final relative residual ``‖R‖ / scale``.
+        residuals: relative residual before each Newton update and at the end,
+            ``len == iterations + 1``.
+        energy: total energy ``½ vᵀMv + potential(x)`` at the end of the step (J).
+    """
+
+    step: int
+    time: float
+    iterations: int
+    residual: float
+    residuals: tuple[float, ...]
+    energy: float
+
+
+class ImplicitStepper:
+    """Implicit stepper for ``M a + D v + f(x) = f_ext(t)`` (see the module docstring).
+
+    Subclasses fix the scheme through :meth:`_predict` and :meth:`_kinematics`.
+
+    Args:
+        mass: (N, N) symmetric positive definite mass, dense or scipy sparse.
+        force_and_tangent: ``x (N,) -> (f (N,), K (N, N))``, K dense or sparse.
+        dt: time step (s), > 0.
+        x0: (N,) initial displacement (default 0).
+        v0: (N,) initial velocity (default 0).
+        t0: initial time (s).
+        external: ``t -> (N,)`` applied load; ``None`` means none.
+        alpha: Rayleigh mass coefficient α (1/s), ≥ 0.
+        beta: Rayleigh stiffness coefficient β (s), ≥ 0.
+        damping_stiffness: (N, N) ``K₀`` for the damping; default: the tangent of
+            ``force_and_tangent`` at ``x = 0`` (evaluated only if β > 0).
+        potential: ``x -> float`` potential energy (J) for the energy monitor;
+            ``None`` monitors the kinetic energy alone.
+        rtol: relative Newton tolerance on ‖R‖.
+        atol: absolute Newton tolerance on ‖R‖ (force units).
+        max_iterations: Newton iterations per step before giving up.
+        energy_factor: blow-up factor of the energy monitor; ``None`` disables it.
+        energy_budget: absolute energy (J) always considered acceptable.
+        symmetric: the Newton matrix is symmetric (dense solves use ``LDLᵀ``);
+            set ``False`` for non-symmetric tangents (follower forces).
+    """
+
+    #: scheme name, as in :data:`INTEGRATORS`
+    scheme = ""
+    #: dR/dΔx = c_a M + c_v D + K, as multiples of 1/dt² and 1/dt
+    _ca = 1.0
+    _cv = 1.0
+
+    def __init__(
+        self,
+        mass: Matrix,
+        force_and_tangent: ForceAndTangent,
+        *,
+        dt: float,
+        x0: np.ndarray | None = None,
+        v0: np.ndarray | None = None,
+        t0: float = 0.0,
+        external: Callable[[float], np.ndarray] | None = None,
+        alpha: float = 0.0,
+        beta: float = 0.0,
+        damping_stiffness: Matrix | None = None,
+        potential: Callable[[np.ndarray], float] | None = None,
+        rtol: float = 1e-8,
+        atol: float = 0.0,
+        max_iterations: int = 20,
+        energy_factor: float | None = 1e3,
+        energy_budget: float = 0.0,
+        symmetric: bool = True,
+    ):
+        self._sparse = sp.issparse(mass)
+        if not self._sparse:
+            mass = np.asarray(mass, dtype=float)
+        if mass.ndim != 2 or mass.shape[0] != mass.shape[1] or mass.shape[0] == 0:
+            raise LbshapeError(f"mass must be a non-empty square matrix, got shape {mass.shape}")
+        n = mass.shape[0]
+        if not (np.isfinite(dt) and dt > 0):
+            raise LbshapeError(f"time step dt must be > 0 s, got {dt}")
+        for name, value in (("alpha", alpha), ("beta", beta), ("energy_budget", energy_budget)):
+            if not (np.isfinite(value) and value >= 0):
+                raise LbshapeError(f"{name} must be a finite number >= 0, got {value}")
+        if not rtol > 0 or atol < 0:
+            raise LbshapeError(f"Newton tolerances must be rtol > 0, atol >= 0, got {rtol}, {atol}")
+        if int(max_iterations) < 1:
+            raise LbshapeError(f"max_iterations must be >= 1, got {max_iterations}")
+        if energy_factor is not None and not energy_factor > 1:
+            raise LbshapeError(f"energy_factor must be > 1 or None, got {energy_factor}")
+        self.n = n
+        self.dt = float(dt)
+        self.mass = mass.tocsr() if self._sparse else mass
+        self._force_and_tangent = force_and_tangent
+        self._external = external
+        self._potential = potential
+        self.rtol, self.atol = float(rtol), float(atol)
+        self.max_iterations = int(max_iterations)
+        self.energy_factor = energy_factor
+        self.energy_budget = float(energy_budget)
+        self._assume_a = "sym" if symmetric else "gen"
+
+        self._x = self._vector(x0, "x0")
+        self._v = self._vector(v0, "v0")
+        self._t = float(t0)
+        self._steps = 0
+
+        damping = alpha * self.mass
+        if beta > 0:
+            if damping_stiffness is None:
+                _, damping_stiffness = self._evaluate(np.zeros(n), 0, self._t, what="rest tangent")
+            damping = damping + beta * self._as_type(damping_stiffness)
+        self.damping = damping
+        self._alpha, self._beta = float(alpha), float(beta)
+        ca, cv = self._ca / self.dt**2, self._cv / self.dt
+        self._newton_base = ca * self.mass + cv * self.damping
+        if self._sparse:
+            self._newton_base = sp.csc_matrix(self._newton_base)
+
+        f0, _ = self._evaluate(self._x, 0, self._t, what="initial force")
+        self._f = f0
+        self._fext = self._load(self._t, 0)
+        rhs = self._fext - self.damping @ self._v - f0
+        self._a = self._solve_mass(rhs)
+        self._energy = self.total_energy()
+        if potential is None:
+            initial = self._energy + 0.5 * abs(float(f0 @ self._x))
+        else:
+            initial = abs(self._energy)
+        self._initial_energy = initial
+        self._work = 0.0
+        self._mass_norm = _inf_norm(self.mass)
+        self._damping_norm = _inf_norm(self.damping)
+
+    # ----------------------------------------------------------------- state
+    @property
+    def x(self) -> np.ndarray:
+        """(N,) displacement at :attr:`time` (read-only view)."""
+        return _readonly(self._x)
+
+    @property
+    def v(self) -> np.ndarray:
+        """(N,) velocity at :attr:`time` (read-only view)."""
+        return _readonly(self._v)
+
+    @property
+    def a(self) -> np.ndarray:
+        """(N,) acceleration at :attr:`time` (read-only view)."""
+        return _readonly(self._a)
+
+    @property
+    def time(self) -> float:
+        """Current time (s)."""
+        return self._t
+
+    @property
+    def steps_taken(self) -> int:
+        """Number of successful steps so far."""
+        return self._steps
+
+    @property
+    def external_work(self) -> float:
+        """Accumulated absolute work of the external load (J), trapezoidal rule."""
+        return self._work
+
+    def kinetic_energy(self, v: np.ndarray | None = None) -> float:
+        """``½ vᵀ M v`` (J) of ``v`` (default: the current velocity)."""
+        v = self._v if v is None else v
+        return 0.5 * float(v @ (self.mass @ v))
+
+    def total_energy(self, x: np.ndarray | None = None, v: np.ndarray | None = None) -> float:
+        """Kinetic plus supplied potential energy (J) of a state (default: current)."""
+        x = self._x if x is None else x
+        kinetic = self.kinetic_energy(v)
+        return kinetic if self._potential is None else kinetic + float(self._potential(x))
+
+    # ------------------------------------------------------------------ steps
+    def step(self) -> StepInfo:
+        """Advance one time step; return its :class:`StepInfo`.
+
+        Raises:
+            SolverError: non-finite values, Newton failure or energy blow-up; the
+                state stays at the end of the previous step.
+        """
+        index = self._steps + 1
+        t1 = self._t + self.dt
+        fext = self._load(t1, index)
+        dx = self._predict()
+        base_scale = max(
+            _norm(fext), _norm(self._f), _norm(self.mass @ self._a)
+        )
+        residuals: list[float] = []
+        scale = 0.0
+        for iteration in range(self.max_iterations + 1):
+            x1 = self._x + dx
+            f, K = self._evaluate(x1, index, t1)
+            v1, a1 = self._kinematics(dx)
+            R = self.mass @ a1 + self.damping @ v1 + f - fext
+            norm = float(_norm(R))
+            if not np.isfinite(norm):
+                raise SolverError(f"non-finite residual at step {index} (t = {t1:.6g} s)")
+            if iteration == 0:
+                scale = max(base_scale, norm, float(_norm(f)))
+            relative = norm / scale if scale > 0 else 0.0
+            residuals.append(relative)
+            if norm <= max(self.rtol * scale, self.atol) or norm <= self._noise(dx, f, fext):
+                break
+            if iteration == self.max_iterations:
+                raise SolverError(
+                    f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
+                    f"residual {relative:.3e} after {iteration} iterations (rtol {self.rtol:g})"
+                )
+            dx = dx - self._solve_newton(K, R, index, t1)
+        energy = self.total_energy(x1, v1)
+        work = self._work + abs(0.5 * float((self._fext + fext) @ dx))
+        self._check_energy(energy, work, index, t1)
+        self._x, self._v, self._a, self._f, self._fext = x1, v1, a1, f, fext
+        self._t, self._steps, self._work = t1, index, work
+        self._energy = energy
+        return StepInfo(index, t1, iteration, residuals[-1], tuple(residuals), energy)
+
+    def run(self, steps: int) -> list[StepInfo]:
+        """Take ``steps`` steps; return their infos (raises like :meth:`step`)."""
+        return [self.step() for _ in range(int(steps))]
+
+    # ------------------------------------------------------- scheme specifics
+    def _predict(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def _kinematics(self, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    # --------------------------------------------------------------- helpers
+    def _vector(self, value, name: str) -> np.ndarray:
+        if value is None:
+            return np.zeros(self.n)
+        out = np.array(value, dtype=float).reshape(-1)
+        if out.shape != (self.n,) or not np.isfinite(out).all():
+            raise LbshapeError(f"{name} must be a finite vector of length {self.n}")
+        return out
+
+    def _as_type(self, matrix: Matrix) -> Matrix:
+        if self._sparse:
+            return matrix if sp.issparse(matrix) else sp.csr_matrix(np.asarray(matrix))
+        return matrix.toarray() if sp.issparse(matrix) else np.asarray(matrix, dtype=float)
+
+    def _load(self, t: float, index: int) -> np.ndarray:
+        if self._external is None:
+            return np.zeros(self.n)
+        load = np.asarray(self._external(t), dtype=float).reshape(-1)
+        if load.shape != (self.n,):
+            raise LbshapeError(f"external(t) must return a vector of length {self.n}")
+        if not np.isfinite(load).all():
+            raise SolverError(f"non-finite external load at step {index} (t = {t:.6g} s)")
+        return load
+
+    def _evaluate(self, x: np.ndarray, index: int, t: float, *, what: str = "force"):
+        f, K = self._force_and_tangent(x)
+        f = np.asarray(f, dtype=float).reshape(-1)
+        if f.shape != (self.n,) or K.shape != (self.n, self.n):
+            raise LbshapeError(
+                f"force_and_tangent must return f ({self.n},) and K ({self.n}, {self.n}), "
+                f"got {f.shape} and {K.shape}"
+            )
+        K = self._as_type(K)
+        finite = np.isfinite(K.data).all() if self._sparse else np.isfinite(K).all()
+        if not (np.isfinite(f).all() and finite):
+            raise SolverError(f"non-finite {what} or tangent at step {index} (t = {t:.6g} s)")
+        return f, K
+
+    def _solve_newton(self, K: Matrix, R: np.ndarray, index: int, t: float) -> np.ndarray:
+        J = self._newton_base + K
+        try:
+            if self._sparse:
+                delta = spla.splu(sp.csc_matrix(J)).solve(R)
+            else:
+                delta = sla.solve(J, R, assume_a=self._assume_a, check_finite=False)
+        except (sla.LinAlgError, RuntimeError) as exc:
+            raise SolverError(
+                f"singular Newton matrix at step {index} (t = {t:.6g} s): {exc}"
+            ) from None
+        if not np.isfinite(delta).all():
+            raise SolverError(f"non-finite Newton update at step {index} (t = {t:.6g} s)")
+        return delta
+
+    def _solve_mass(self, rhs: np.ndarray) -> np.ndarray:
+        try:
+            if self._sparse:
+                out = spla.splu(sp.csc_matrix(self.mass)).solve(rhs)
+            else:
+                out = sla.solve(self.mass, rhs, assume_a="pos", check_finite=False)
+        except (sla.LinAlgError, RuntimeError) as exc:
+            raise LbshapeError(f"mass matrix is not positive definite: {exc}") from None
+        if not np.isfinite(out).all():
+            raise SolverError(f"non-finite initial acceleration (t = {self._t:.6g} s)")
+        return out
+
+    def _noise(self, dx: np.ndarray, f: np.ndarray, fext: np.ndarray) -> float:
+        """Round-off level (force units, 2-norm) of evaluating the residual."""
+        h, norm = self.dt, _norm
+        inertia = self._mass_norm * (
+            self._ca / h**2 * norm(dx) + self._ca / h * norm(self._v) + norm(self._a)
+        )
+        damping = self._damping_norm * (self._cv / h * norm(dx) + norm(self._v))
+        return 64.0 * np.finfo(float).eps * float(inertia + damping + norm(f) + norm(fext))
+
+    def _check_energy(self, energy: float, work: float, index: int, t: float) -> None:
+        if not np.isfinite(energy):
+            raise SolverError(f"non-finite energy at step {index} (t = {t:.6g} s)")
+        if self.energy_factor is None:
+            return
+        budget = self._initial_energy + work + self.energy_budget
+        if budget > 0 and energy > self.energy_factor * budget:
+            raise SolverError(
+                f"energy blew up at step {index} (t = {t:.6g} s): {energy:.3e} J exceeds "
+                f"{self.energy_factor:g} x budget {budget:.3e} J"
+            )
+
+
+class NewmarkStepper(ImplicitStepper):
+    """Average-acceleration Newmark (β = ¼, γ = ½); see :class:`ImplicitStepper`."""
+
+    scheme = "newmark"
+    _ca = 4.0
+    _cv = 2.0
+
+    def _predict(self) -> np.ndarray:
+        # constant-acceleration predictor
+        return self.dt * self._v + 0.5 * self.dt**2 * self._a
+
+    def _kinematics(self, dx):
+        h = self.dt
+        a1 = (4.0 / h**2) * (dx - h * self._v) - self._a
+        v1 = (2.0 / h) * dx - self._v
+        return v1, a1
+
+
+class BackwardEulerStepper(ImplicitStepper):
+    """Backward (implicit) Euler; see :class:`ImplicitStepper`."""
+
+    scheme = "backward-euler"
+    _ca = 1.0
+    _cv = 1.0
+
+    def _predict(self) -> np.ndarray:
+        return self.dt * self._v
+
+    def _kinematics(self, dx):
+        v1 = dx / self.dt
+        a1 = (v1 - self._v) / self.dt
+        return v1, a1
+
+
+_STEPPERS: dict[str, type[ImplicitStepper]] = {
+    NewmarkStepper.scheme: NewmarkStepper,
+    BackwardEulerStepper.scheme: BackwardEulerStepper,
+}
+
+
+def make_stepper(
+    integrator: str, mass: Matrix, force_and_tangent: ForceAndTangent, **options
+) -> ImplicitStepper:
+    """The stepper named ``integrator`` (one of :data:`INTEGRATORS`).
+
+    ``options`` are the keyword arguments of :class:`ImplicitStepper`.
+    """
+    try:
+        cls = _STEPPERS[integrator]
+    except KeyError:
+        raise LbshapeError(
+            f"integrator must be one of {INTEGRATORS}, got {integrator!r}"
+        ) from None
+    return cls(mass, force_and_tangent, **options)
+
+
+def _norm(vector: np.ndarray) -> float:
+    """Euclidean norm of a 1-D array (cheaper than ``np.linalg.norm`` for small ones)."""
+    return math.sqrt(float(vector @ vector))
+
+
+def _inf_norm(matrix: Matrix) -> float:
+    """Maximum absolute row sum."""
+    return float(abs(matrix).sum(axis=1).max())
+
+
+def _readonly(array: np.ndarray) -> np.ndarray:
+    view = array.view()
+    view.flags.writeable = False
+    return view
