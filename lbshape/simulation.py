@@ -72,32 +72,6 @@ def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[tuple[np.ndarray
     return patterns
 
 
-def example_driver(pre: Precomputed, *, route: str):
-    """The runtime example driver for the ``modal`` (paper) or ``euclidean`` route."""
-    from lbshape.example_driver import ExampleDriver
-    from lbshape.interpolation import TargetSolver
-
-    k = pre.example_coefficients.shape[0]
-    coefficients = pre.example_coefficients.reshape(k, -1)
-    rests = [pre.example_rest_points(i) for i in range(k)]
-    if route == "modal":
-        from lbshape.reduced_forces import ReducedForceModel
-
-        models = [ReducedForceModel(x, pre.mesh.tets, pre.material, pre.U,
-                                    pre.cubature_elements, pre.cubature_weights) for x in rests]
-        solver = TargetSolver(models, coefficients @ pre.lb_to_reduced.T)
-        return ExampleDriver(pre.descriptor_matrix, pre.example_descriptors, solver)
-    if route == "euclidean":
-        from lbshape.euclidean_energy import EuclideanExampleEnergy
-
-        L = pre.lb_basis()
-        models = [EuclideanExampleEnergy(x, pre.mesh.tets, pre.material, L) for x in rests]
-        solver = TargetSolver(models, coefficients)
-        return ExampleDriver(pre.descriptor_matrix, pre.example_descriptors, solver,
-                             to_reduced=pre.lb_to_reduced)
-    raise LbshapeError(f"unknown interpolation route {route!r}")
-
-
 def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced"):
     """The :class:`~lbshape.reduced_simulation.ReducedSimulation` of a scene."""
     from lbshape.element_kernels import mass_matrix
@@ -114,6 +88,8 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
     k_ex = scene.examples.stiffness if scene.examples is not None else 0.0
     driver = None
     if pre.has_examples and k_ex > 0:
+        from lbshape.interpolation_routes import example_driver
+
         driver = example_driver(pre, route="modal" if method == "reduced" else "euclidean")
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
