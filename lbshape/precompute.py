@@ -139,7 +139,9 @@ def _source_digest(source: MeshSource) -> dict:
     if source.shape is not None:
         from lbshape.shapes import MESHES_DIR, get_shape
 
-        key["script_sha256"] = file_digest(MESHES_DIR / get_shape(source.shape).script)
+        spec = get_shape(source.shape)
+        key["script_sha256"] = file_digest(MESHES_DIR / spec.script)
+        key["size_used"] = source.size if source.size is not None else spec.default_size
     return key
 
 
