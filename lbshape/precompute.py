@@ -251,10 +251,9 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
 
 
 def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Stages) -> dict:
-    from lbshape.alignment import align_bases
-    from lbshape.frames import align_to_object, body_frame
+    from lbshape.frames import body_frame
     from lbshape.poses import apply_pose
-    from lbshape.shape_space import example_displacement_coefficients, make_shape_space
+    from lbshape.shape_space import embed_example, make_shape_space
     from lbshape.spectrum import lb_spectrum
 
     m = scene.reduced.m
@@ -266,26 +265,22 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Sta
         for index, pose in enumerate(scene.examples.poses):
             label = f"example {index + 1} ({_example_label(pose)})"
             rest = pose.source.build()
-            posed = (apply_pose(rest, pose.pose, **dict(pose.parameters))
-                     if pose.pose is not None else rest)
-            aligned = align_to_object(rest.points, rest.tets, frame, reference_points=mesh.points)
             if rest.n_vertices <= m + 1:
                 raise LbshapeError(
                     f"{label}: m={m} is too large for an example mesh with "
                     f"{rest.n_vertices} vertices"
                 )
-            example_spectrum = lb_spectrum(rest.with_points(aligned.points), m)
+            posed = (apply_pose(rest, pose.pose, **dict(pose.parameters))
+                     if pose.pose is not None else rest)
             landmarks = np.asarray(pose.landmarks, dtype=np.int64) if pose.landmarks else None
             try:
-                alignment = align_bases(spectrum, mesh, example_spectrum, aligned.points,
-                                        landmarks=landmarks)
+                embedded = embed_example(mesh, spectrum, rest, [posed.points],
+                                         object_frame=frame, landmarks=landmarks)
             except LbshapeError as exc:
                 raise LbshapeError(f"{label}: {exc}") from None
-            coefficients.append(example_displacement_coefficients(
-                aligned.apply(posed.points), example_spectrum.eigenvectors,
-                example_spectrum.mass, alignment, rest_points=aligned.points))
-            alignments.append(alignment)
-            log.info("%s: alignment residual %.3g", label, alignment.residual)
+            coefficients.append(embedded.coefficients[0])
+            alignments.append(embedded.alignment)
+            log.info("%s: alignment residual %.3g", label, embedded.alignment.residual)
     with stages.stage("projections"):
         space = make_shape_space(
             spectrum.eigenvalues, spectrum.eigenvectors, spectrum.mass, mesh.points,
