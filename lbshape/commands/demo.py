@@ -12,8 +12,16 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    import json
+
     from lbshape.demo import run_demo
 
-    summary = run_demo(args.out)
-    print(f"demo: wrote {summary.parent}")
+    path = run_demo(args.out)
+    summary = json.loads(path.read_text())["simulation"]
+    reduced, full = summary["reduced"], summary["full"]
+    print(f"demo: {reduced['n_vertices']} vertices, m={reduced['m']} r={reduced['r']} "
+          f"s={reduced['s']}; reduced {reduced['t_total_ms']:.3f} ms/step "
+          f"(interpolation {reduced['t_interp_ms']:.3f} ms), full {full['t_total_ms']:.2f} "
+          f"ms/step; error vs full {summary['error_vs_full']:.2%}")
+    print(f"demo: pictures and summary in {path.parent}")
     return 0

@@ -1,0 +1,163 @@
+"""End to end: scenes -> precompute (cached) -> reduced / full simulation."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from lbshape.cli import main
+from lbshape.element_kernels import mass_matrix
+from lbshape.precompute import precompute
+from lbshape.scene import load_scene
+from lbshape.simulation import simulate
+
+
+@pytest.fixture(autouse=True)
+def _private_cache(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("LBSHAPE_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+@pytest.fixture(scope="module")
+def demo():
+    import os
+    import tempfile
+
+    os.environ.setdefault("LBSHAPE_CACHE", tempfile.mkdtemp(prefix="lbshape-cache-"))
+    scene = load_scene("demo")
+    return scene, precompute(scene)
+
+
+def _m_norm(u, mass):
+    flat = u.reshape(u.shape[0], -1)
+    return np.sqrt(np.einsum("ti,ti->t", flat, (mass @ flat.T).T))
+
+
+def test_precompute_is_cached_and_runtime_changes_reuse_it(demo, caplog):
+    scene, pre = demo
+    again = precompute(scene)
+    assert again.from_cache and again.key == pre.key
+    np.testing.assert_array_equal(again.U, pre.U)
+    # runtime-only changes keep the key
+    faster = dataclasses.replace(
+        scene, simulation=dataclasses.replace(scene.simulation, dt=2e-3, steps=5),
+        examples=dataclasses.replace(scene.examples, stiffness=1.0))
+    assert precompute(faster).key == pre.key
+    # a precompute field changes it
+    other = dataclasses.replace(scene, reduced=dataclasses.replace(scene.reduced, s=10))
+    from lbshape.precompute import scene_cache_key
+
+    assert scene_cache_key(other) != pre.key
+
+
+def test_mesh_file_change_invalidates_the_cache(tmp_path):
+    from lbshape.shapes import write_shape
+
+    mesh_path = tmp_path / "bar.msh"
+    write_shape("demo-bar", mesh_path)
+    scene_path = tmp_path / "bar.toml"
+    scene_path.write_text(
+        '[object]\nmesh = "bar.msh"\n[reduced]\nm = 4\nr = 6\ns = 8\n'
+        '[fixed]\nregion = "z > 0.999"\n[simulation]\nsteps = 3\n'
+    )
+    first = precompute(load_scene(str(scene_path)))
+    assert not first.from_cache
+    assert precompute(load_scene(str(scene_path))).from_cache
+    data = bytearray(mesh_path.read_bytes())
+    data[-20:-19] = b" " if data[-20:-19] != b" " else b"\n"  # one byte, same mesh
+    mesh_path.write_bytes(bytes(data))
+    assert not precompute(load_scene(str(scene_path))).from_cache
+
+
+def test_examples_pull_the_object_to_the_example_shape(demo):
+    scene, pre = demo
+    quiet = dataclasses.replace(
+        scene, loads=(), examples=dataclasses.replace(scene.examples, stiffness=400.0,
+                                                      poses=scene.examples.poses[:1]),
+        damping=dataclasses.replace(scene.damping, alpha=20.0))
+    pre1 = precompute(quiet)
+    out = simulate(quiet, pre1, steps=600)
+    assert out.stats["stable"]
+    q_example = pre1.lb_to_reduced @ pre1.example_coefficients[0].ravel()
+    u_example = (pre1.U @ q_example).reshape(-1, 3)
+    error = np.linalg.norm(out.displacements[-1] - u_example) / np.linalg.norm(u_example)
+    assert error < 0.05, f"final shape is {error:.3%} away from the example"
+
+
+def test_zero_example_stiffness_has_no_effect(demo):
+    from lbshape.simulation import reduced_simulation
+
+    scene, pre = demo
+    off = dataclasses.replace(scene, examples=dataclasses.replace(scene.examples, stiffness=0.0))
+    assert reduced_simulation(off, pre).driver is None
+    without = dataclasses.replace(scene, examples=None)
+    pre_without = precompute(without)
+    a = simulate(off, pre, steps=40).displacements
+    b = simulate(without, pre_without, steps=40).displacements
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * max(np.abs(b).max(), 1e-30))
+
+
+def test_reduced_error_against_full_falls_as_r_grows(demo):
+    scene, _ = demo
+    steps = 150
+    full_pre = precompute(scene)
+    full = simulate(scene, full_pre, method="full", steps=steps)
+    mass = mass_matrix(full_pre.mesh, scene.material.density)
+    errors = []
+    for r in (4, 8, 16):
+        variant = dataclasses.replace(scene, reduced=dataclasses.replace(scene.reduced, r=r, s=40))
+        pre = precompute(variant)
+        out = simulate(variant, pre, steps=steps)
+        diff = _m_norm(out.displacements - full.displacements, mass).max()
+        errors.append(diff / _m_norm(full.displacements, mass).max())
+    assert errors[2] < errors[0], f"errors vs full for r=4,8,16: {errors}"
+    assert errors[2] < 0.2, f"errors vs full for r=4,8,16: {errors}"
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"dt": 1.0 / 60.0},
+        {"twist": np.pi},
+        {"stiffness": 1e5},
+        {"poisson": 0.45},
+    ],
+    ids=["dt-1/60", "twist-180", "stiff-examples", "nu-0.45"],
+)
+def test_hard_cases_are_stable_or_fail_clearly(demo, change):
+    scene, _ = demo
+    if "dt" in change:
+        scene = dataclasses.replace(
+            scene, simulation=dataclasses.replace(scene.simulation, dt=change["dt"]))
+    if "twist" in change:
+        poses = tuple(dataclasses.replace(p, parameters={**p.parameters, "angle": change["twist"]})
+                      for p in scene.examples.poses)
+        scene = dataclasses.replace(scene, examples=dataclasses.replace(scene.examples, poses=poses))
+    if "stiffness" in change:
+        scene = dataclasses.replace(
+            scene, examples=dataclasses.replace(scene.examples, stiffness=change["stiffness"]))
+    if "poisson" in change:
+        scene = dataclasses.replace(
+            scene, material=dataclasses.replace(scene.material, poisson=change["poisson"]))
+    pre = precompute(scene)
+    out = simulate(scene, pre, steps=120)
+    assert np.isfinite(out.displacements).all()
+    if out.stats["stable"]:
+        # bounded: nothing moves further than the bar is long
+        assert out.stats["max_displacement"] < 1.0, out.stats
+    else:
+        assert out.message and "step" in out.message
+
+
+def test_simulate_command_writes_contract_outputs(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["simulate", "demo", "--steps", "20", "--out", str(out), "--json"]) == 0
+    stats = json.loads(capsys.readouterr().out)
+    assert list(stats) == ["scene", "method", "n_vertices", "n_tets", "m", "r", "s", "dt",
+                           "steps", "t_interp_ms", "t_total_ms", "stable", "max_displacement"]
+    assert json.loads((out / "stats.json").read_text()) == stats
+    assert (out / "trajectory.pvd").exists() and stats["steps"] == 20
+    assert main(["simulate", "no-such-scene"]) == 2
+    assert capsys.readouterr().err.startswith("error: ")
