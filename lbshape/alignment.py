@@ -53,6 +53,10 @@ log = logging.getLogger(__name__)
 
 #: default largest accepted alignment residual (see the module docstring)
 MAX_RESIDUAL = 0.5
+#: extra example eigenfunctions offered to the alignment beyond the object's m: an
+#: object mode may match a slightly higher example mode (e.g. a cuboid's
+#: cross-section mode against a cylinder's), so C is (m + extra) x m
+EXAMPLE_EXTRA_MODES = 4
 #: a vertex is inside a tet when all barycentric coordinates are ≥ −INSIDE_TOL
 INSIDE_TOL = 1e-10
 #: relative tolerance of the volume check between object and aligned example
@@ -258,7 +262,7 @@ def align_bases(
             f"example spectrum is of a shape with volume {v_ex:.6g} m^3, the object has "
             f"{v_obj:.6g} m^3: compute it on the aligned example (or use scaled_spectrum)"
         )
-    phi_ex = phi_ex_all[:, :m]
+    phi_ex = phi_ex_all  # all offered modes: C is (m_ex, m) with orthonormal columns
     M_ex = example_spectrum.mass
     W, outside = interpolation_matrix(object_mesh, points)
     F = W @ phi_obj
@@ -298,8 +302,9 @@ def _add_landmarks(A, phi_obj, phi_ex, landmarks, weight, volume) -> np.ndarray:
 
 
 def _polar(A: np.ndarray) -> np.ndarray:
-    """Nearest orthogonal matrix (Frobenius) to A: ``U Vᵀ`` from ``A = U S Vᵀ``."""
-    u, _, vt = np.linalg.svd(A)
+    """Nearest matrix with orthonormal columns (Frobenius) to A (p, m), p ≥ m:
+    ``U Vᵀ`` from the thin SVD ``A = U S Vᵀ``."""
+    u, _, vt = np.linalg.svd(A, full_matrices=False)
     return u @ vt
 
 
@@ -350,7 +355,7 @@ def compose(first: BasisAlignment, second: BasisAlignment) -> BasisAlignment:
 
     The residual is the triangle-inequality estimate ``r₁ + r₂``.
     """
-    if first.C.shape != second.C.shape:
+    if first.C.shape[1] != second.C.shape[0]:
         raise LbshapeError(f"cannot compose maps of shapes {first.C.shape} and {second.C.shape}")
     return BasisAlignment(
         C=first.C @ second.C,

@@ -209,7 +209,7 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
     from lbshape.cubature import inverse_frequency_scales, train_cubature
     from lbshape.elastic_modes import linear_modes
     from lbshape.modal_derivatives import modal_derivatives
-    from lbshape.nonlinear_basis import nonlinear_basis
+    from lbshape.nonlinear_basis import default_linear_modes, nonlinear_basis
 
     material, reduced = scene.material, scene.reduced
     with stages.stage("mesh"):
@@ -229,10 +229,9 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
         basis = nonlinear_basis(modes, derivatives, mass, reduced.r)
         U = basis.U
     with stages.stage("cubature"):
-        omega2_basis = np.asarray(basis.omega2) if hasattr(basis, "omega2") else None
         cubature = train_cubature(
             mesh, material, U, rng=np.random.default_rng(PRECOMPUTE_SEED),
-            scales=None if omega2_basis is None else inverse_frequency_scales(omega2_basis),
+            scales=inverse_frequency_scales(np.asarray(basis.omega2)),
             max_elements=reduced.s, tol=reduced.cubature_tolerance,
             n_train=CUBATURE_TRAINING_POSES, n_holdout=CUBATURE_TRAINING_POSES // 2,
         )
@@ -297,14 +296,6 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Sta
 def _example_label(pose) -> str:
     source = pose.source.shape or Path(pose.source.mesh_file).name
     return f"{source}:{pose.pose}" if pose.pose else str(source)
-
-
-def default_linear_modes(r: int) -> int:
-    """Linear modes k for a basis of r vectors: smallest k with k + k(k+1)/2 ≥ 2r."""
-    k = 1
-    while k + k * (k + 1) // 2 < 2 * r:
-        k += 1
-    return min(k, r)
 
 
 def _check_sizes(scene: Scene, mesh: TetMesh, fixed: np.ndarray) -> None:

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from lbshape.alignment import MAX_RESIDUAL, BasisAlignment, align_bases
+from lbshape.alignment import EXAMPLE_EXTRA_MODES, MAX_RESIDUAL, BasisAlignment, align_bases
 from lbshape.errors import LbshapeError
 from lbshape.frames import AlignedShape, BodyFrame, align_to_object, body_frame
 from lbshape.mesh import TetMesh
@@ -107,10 +107,11 @@ def example_displacement_coefficients(
     Returns:
         (m, 3) displacement coefficients c (see the module docstring).
     """
-    m = alignment.C.shape[0]
-    phi = np.asarray(example_eigenvectors)[:, :m]
-    if phi.shape[1] != m:
-        raise LbshapeError(f"example basis has {phi.shape[1]} eigenfunctions, the map needs {m}")
+    m_ex, m = alignment.C.shape
+    phi = np.asarray(example_eigenvectors)[:, :m_ex]
+    if phi.shape[1] != m_ex:
+        raise LbshapeError(
+            f"example basis has {phi.shape[1]} eigenfunctions, the map needs {m_ex}")
     posed = _field(posed_points, phi.shape[0])
     if rest_points is not None:
         field = posed - _field(rest_points, phi.shape[0])
@@ -192,7 +193,8 @@ def embed_example(
     frame = body_frame(object_mesh) if object_frame is None else object_frame
     aligned = align_to_object(example_rest.points, example_rest.tets, frame,
                               reference_points=object_mesh.points)
-    spectrum = lb_spectrum(example_rest.with_points(aligned.points), m)
+    offered = min(m + EXAMPLE_EXTRA_MODES, example_rest.n_vertices - 2)
+    spectrum = lb_spectrum(example_rest.with_points(aligned.points), max(offered, m))
     alignment = align_bases(object_spectrum, object_mesh, spectrum, aligned.points,
                             landmarks=landmarks, max_residual=max_residual)
     coefficients = np.array([
