@@ -112,7 +112,7 @@ class TargetResult:
     Attributes:
         z: (p,) target coordinates (reduced coordinates or LB coefficients).
         iterations: Newton iterations used.
-        gradient_norm: final ‖∇F‖ relative to the initial scale.
+        gradient_norm: ‖∇F‖ at the last Hessian evaluation (J per unit of z).
         energy: final F(z) in J.
     """
 
@@ -128,7 +128,7 @@ class TargetSolver:
     Args:
         models: one energy model per example (see the module docstring).
         offsets: (k, p) the examples' own coordinates z_k.
-        tolerance: stop when ‖∇F‖ ≤ tolerance · ‖∇F(z₀)‖ or the Newton step is tiny.
+        tolerance: stop when the Newton step is below ``tolerance · max_k ‖z_k‖``.
         max_iterations: Newton iterations per call.
     """
 
@@ -172,7 +172,11 @@ class TargetSolver:
         return g, H
 
     def solve(self, weights: np.ndarray, *, start: np.ndarray | None = None) -> TargetResult:
-        """The target for the given example weights (k,), warm-started by default."""
+        """The target for the given example weights (k,), warm-started by default.
+
+        Stops when the Newton step is below ``tolerance`` times the size of the
+        example coordinates (``max_k ‖z_k‖``), or the gradient vanishes.
+        """
         weights = np.asarray(weights, dtype=float)
         if weights.shape != (len(self.models),):
             raise LbshapeError(f"expected {len(self.models)} weights, got shape {weights.shape}")
@@ -182,14 +186,13 @@ class TargetSolver:
             z = self._last.copy()
         else:
             z = weights @ self.offsets
+        step_tolerance = self.tolerance * max(float(np.linalg.norm(self.offsets, axis=1).max()),
+                                              1e-300)
         g, H = self.gradient_and_hessian(z, weights)
-        g0 = max(float(np.linalg.norm(g)), 1e-300)
         f = self.energy(z, weights)
         iterations = 0
-        for iterations in range(1, self.max_iterations + 1):
-            if np.linalg.norm(g) <= self.tolerance * g0 or not np.linalg.norm(g) > 0:
-                iterations -= 1
-                break
+        while iterations < self.max_iterations and np.linalg.norm(g) > 0.0:
+            iterations += 1
             step = _newton_direction(H, g)
             t, f_new = 1.0, self.energy(z + step, weights)
             while not f_new <= f + 1e-4 * t * (g @ step) and t > 1e-6:
@@ -199,11 +202,11 @@ class TargetSolver:
                 raise SolverError(f"target interpolation diverged (energy {f_new})")
             z = z + t * step
             f = f_new
-            g, H = self.gradient_and_hessian(z, weights)
-            if t * np.linalg.norm(step) <= 1e-12 * (1.0 + np.linalg.norm(z)):
+            if t * np.linalg.norm(step) <= step_tolerance:
                 break
+            g, H = self.gradient_and_hessian(z, weights)
         self._last = z.copy()
-        return TargetResult(z, iterations, float(np.linalg.norm(g) / g0), f)
+        return TargetResult(z, iterations, float(np.linalg.norm(g)), f)
 
     def reset(self) -> None:
         """Forget the warm start."""
@@ -211,15 +214,15 @@ class TargetSolver:
 
 
 def _newton_direction(H: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """−H⁻¹g with a Levenberg shift when H is not positive definite."""
-    shift = 0.0
+    """−(H + μI)⁻¹g with the smallest Levenberg shift μ ∈ {0, 1e-8, 1e-7, …, 1e3}·scale
+    that makes the (symmetrised) Hessian positive definite (scale = largest |H_ii|)."""
+    H = 0.5 * (H + H.T)
     scale = max(float(np.max(np.abs(np.diag(H)))), 1e-300)
     identity = np.eye(H.shape[0])
-    for _ in range(30):
+    for shift in (0.0, *(scale * 10.0**e for e in range(-8, 4))):
         try:
             factor = scipy.linalg.cho_factor(H + shift * identity, check_finite=False)
         except np.linalg.LinAlgError:
-            shift = max(2.0 * shift, 1e-10 * scale)
             continue
         return -scipy.linalg.cho_solve(factor, g, check_finite=False)
-    raise SolverError("target Hessian could not be made positive definite")
+    raise SolverError("target Hessian could not be made positive definite (non-finite values?)")

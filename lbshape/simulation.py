@@ -109,6 +109,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
     stride = max(1, math.ceil(steps / MAX_FRAMES))
     if method == "full":
         times, frames, t_interp, t_total, stable, message = _run_full(scene, pre, steps, stride)
+        steps_done = int(round((times[-1] - times[0]) / scene.simulation.dt)) if len(times) else 0
         r, s = 3 * (pre.mesh.n_vertices - pre.fixed_vertices.size), pre.mesh.n_tets
     else:
         sim = reduced_simulation(scene, pre, method=method)
@@ -120,13 +121,14 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         t_interp = record.mean_ms(record.t_interp_ms, WARMUP_STEPS)
         t_total = record.mean_ms(record.t_total_ms, WARMUP_STEPS)
         stable, message = record.stable, record.message
+        steps_done = len(record.t_total_ms)
         r, s = pre.r, int(pre.cubature_elements.size)
     max_disp = float(np.max(np.linalg.norm(frames, axis=2))) if frames.size else 0.0
     stats = {
         "scene": scene.name, "method": method,
         "n_vertices": pre.mesh.n_vertices, "n_tets": pre.mesh.n_tets,
         "m": scene.reduced.m, "r": int(r), "s": int(s),
-        "dt": scene.simulation.dt, "steps": int(len(times) and steps),
+        "dt": scene.simulation.dt, "steps": int(steps_done),
         "t_interp_ms": t_interp, "t_total_ms": t_total,
         "stable": bool(stable), "max_displacement": max_disp,
     }

@@ -1,0 +1,403 @@
+"""The Laplace-Beltrami (LB) spectrum of a tetrahedral mesh (DOLFINx + SLEPc).
+
+The volumetric LB operator with natural (Neumann) boundary conditions is
+discretised with P1 elements: stiffness ``K = ∫ ∇φ·∇ψ`` and *consistent* mass
+``M = ∫ φψ``. The generalized problem ``K φ = λ M φ`` is solved with SLEPc (GHEP,
+shift-and-invert at a small negative target, Cholesky factorisation with MUMPS).
+
+Scale convention: eigenpairs are those of the mesh **as given** — nothing is
+rescaled here. Eigenvalues are in 1/m² and scale as ``λ(sΩ) = λ(Ω)/s²``;
+M-orthonormal eigenvectors (``φᵀ M φ = 1`` with M in m³) scale as ``s^(-3/2)``.
+The shape space normalises volume before comparing shapes; that happens there,
+not in this module.
+
+Choices:
+
+* **Target.** ``σ = -0.01 (π/D)²`` with D the diagonal of the bounding box. For a
+  convex body the Payne-Weinberger inequality gives ``λ₁ ≥ (π/d)²`` with d the
+  diameter ≤ D, so σ lies below the spectrum at a hundredth of the distance to λ₁;
+  ``K - σM`` is then symmetric positive definite and its Cholesky factor exists.
+  For non-convex bodies λ₁ is smaller but still positive, and any negative σ works.
+* **Zero mode.** ``m + 1`` pairs are computed; exactly one eigenvalue must satisfy
+  ``|λ| ≤ ZERO_RTOL (π/D)²`` (the constant mode). Several mean several disconnected
+  bodies, and an error is raised. The constant mode is dropped.
+* **Checks.** ``getConverged() ≥ m + 1`` and, for every returned pair, the relative
+  residual ``‖Kφ − λMφ‖ / (|λ| ‖Mφ‖ + ‖Kφ‖) ≤ RESIDUAL_FACTOR · tol``; otherwise
+  :class:`~lbshape.errors.SolverError` with the observed numbers.
+* **Normalisation.** The returned block is made exactly M-orthonormal by the
+  symmetric (Löwdin) orthonormalisation ``Φ (ΦᵀMΦ)^(-1/2)``, the smallest change
+  of Φ that does so; it matters inside (near-)degenerate clusters.
+* **Sign.** Each eigenvector is made positive at the first vertex (input order)
+  where ``|φ| ≥ (1 − SIGN_RTOL) max|φ|``: the vertex of largest magnitude, with
+  round-off ties between symmetric vertices broken by vertex index.
+
+PETSc options with the prefix ``lb_`` (e.g. ``-lb_eps_ncv 80``,
+``-lb_st_pc_factor_mat_solver_type petsc``) override these defaults.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+
+import numpy as np
+import scipy.sparse as sp
+from mpi4py import MPI
+
+from lbshape.dolfinx_bridge import p1_dof_vertices, petsc_to_scipy, to_dolfinx
+from lbshape.errors import LbshapeError, SolverError
+from lbshape.mesh import TetMesh
+
+log = logging.getLogger(__name__)
+
+#: PETSc/SLEPc options prefix of the LB eigensolver
+OPTIONS_PREFIX = "lb_"
+#: the target is ``-TARGET_FRACTION (π/D)²``
+TARGET_FRACTION = 0.01
+#: eigenvalues with ``|λ| ≤ ZERO_RTOL (π/D)²`` count as zero
+ZERO_RTOL = 1e-6
+#: accepted relative residual is ``RESIDUAL_FACTOR * tol``
+RESIDUAL_FACTOR = 100.0
+#: relative margin for the sign rule (see the module docstring)
+SIGN_RTOL = 1e-6
+
+
+@dataclasses.dataclass(frozen=True)
+class LBSpectrum:
+    """The m smallest non-zero LB eigenpairs of a mesh (constant mode excluded).
+
+    Attributes:
+        eigenvalues: (m,) ascending, in 1/m², all > 0.
+        eigenvectors: (n, m) in input vertex order, M-orthonormal
+            (``ΦᵀMΦ = I``), sign fixed as in the module docstring. In parallel
+            only rank 0 holds it; other ranks hold ``None``.
+        stiffness: (n, n) scipy CSR ``K`` in input vertex order (``None`` off rank 0).
+        mass: (n, n) scipy CSR consistent mass ``M`` in m³ (``None`` off rank 0).
+        residuals: (m,) relative residuals ``‖Kφ−λMφ‖ / (|λ|‖Mφ‖ + ‖Kφ‖)``
+            (all ranks).
+        zero_eigenvalue: the dropped eigenvalue of the constant mode (≈ 0), in 1/m².
+        target: the shift-and-invert target σ used, in 1/m².
+        seconds: wall-clock time of assembly and solve.
+    """
+
+    eigenvalues: np.ndarray
+    eigenvectors: np.ndarray | None
+    stiffness: sp.csr_matrix | None
+    mass: sp.csr_matrix | None
+    residuals: np.ndarray
+    zero_eigenvalue: float
+    target: float
+    seconds: float
+
+
+class LBMatrices:
+    """Owner of the assembled PETSc stiffness ``K`` and mass ``M`` (P1, Neumann).
+
+    Use as a context manager, or call :meth:`destroy`. The matrices are in DOLFINx
+    dof order (distributed over ``comm``); :meth:`to_scipy` converts to input
+    vertex order.
+
+    Attributes:
+        stiffness: ``petsc4py.PETSc.Mat`` K.
+        mass: ``petsc4py.PETSc.Mat`` M.
+        space: the DOLFINx P1 ``FunctionSpace``.
+        owned_vertices: (n_owned,) input vertex index of each owned dof.
+        n_vertices: global number of vertices n.
+        eigenvalue_scale: ``(π/D)²`` in 1/m², D the bounding-box diagonal.
+    """
+
+    def __init__(self, stiffness, mass, space, *, n_vertices: int, eigenvalue_scale: float):
+        self.stiffness = stiffness
+        self.mass = mass
+        self.space = space
+        self.n_vertices = int(n_vertices)
+        self.eigenvalue_scale = float(eigenvalue_scale)
+        imap = space.dofmap.index_map
+        self.owned_vertices = p1_dof_vertices(space)[: imap.size_local]
+
+    @property
+    def comm(self) -> MPI.Comm:
+        return self.space.mesh.comm
+
+    def to_scipy(self) -> tuple[sp.csr_matrix, sp.csr_matrix] | tuple[None, None]:
+        """(K, M) as (n, n) scipy CSR in input vertex order, on rank 0 (``None`` elsewhere)."""
+        if self.comm.size == 1:
+            dof_vertices = p1_dof_vertices(self.space)
+            return (petsc_to_scipy(self.stiffness, dof_vertices),
+                    petsc_to_scipy(self.mass, dof_vertices))
+        return self._gather_scipy(self.stiffness), self._gather_scipy(self.mass)
+
+    def _gather_scipy(self, A) -> sp.csr_matrix | None:
+        """Distributed PETSc AIJ -> scipy CSR in input vertex order on rank 0."""
+        indptr, indices, data = A.getValuesCSR()
+        start = A.getOwnershipRange()[0]
+        parts = self.comm.gather((start, indptr, indices, data, self.owned_vertices), root=0)
+        if self.comm.rank != 0:
+            return None
+        parts.sort(key=lambda part: part[0])
+        global_to_vertex = np.concatenate([part[4] for part in parts])
+        rows, cols, vals = [], [], []
+        for _, ptr, idx, val, owned in parts:
+            rows.append(np.repeat(owned, np.diff(ptr)))
+            cols.append(global_to_vertex[idx])
+            vals.append(val)
+        n = self.n_vertices
+        return sp.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
+        )
+
+    def gather_columns(self, local: np.ndarray) -> np.ndarray | None:
+        """Owned dof rows (n_owned, k) from every rank -> (n, k) input order on rank 0."""
+        parts = self.comm.gather((self.owned_vertices, local), root=0)
+        if self.comm.rank != 0:
+            return None
+        out = np.empty((self.n_vertices, local.shape[1]), dtype=np.float64)
+        for vertices, values in parts:
+            out[vertices] = values
+        return out
+
+    def destroy(self) -> None:
+        """Destroy the PETSc matrices (idempotent)."""
+        for mat in (self.stiffness, self.mass):
+            if mat is not None:
+                mat.destroy()
+        self.stiffness = self.mass = None
+
+    def __enter__(self) -> LBMatrices:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.destroy()
+
+
+def eigenvalue_scale(mesh: TetMesh) -> float:
+    """``(π/D)²`` in 1/m², D the bounding-box diagonal: ≤ λ₁ for convex bodies."""
+    diagonal = float(np.linalg.norm(np.ptp(np.asarray(mesh.points), axis=0)))
+    if not diagonal > 0.0:
+        raise LbshapeError("mesh has zero extent; cannot compute its LB spectrum")
+    return (math.pi / diagonal) ** 2
+
+
+def lb_matrices(mesh: TetMesh, *, comm: MPI.Comm = MPI.COMM_SELF) -> LBMatrices:
+    """Assemble the P1 LB stiffness and consistent mass matrices with DOLFINx.
+
+    Args:
+        mesh: a checked tetrahedral mesh (rank 0's copy is distributed).
+        comm: the communicator; serial by default.
+
+    Returns:
+        :class:`LBMatrices` owning K (1/m² · m³ = m) and M (m³); the caller destroys it.
+    """
+    import dolfinx.fem
+    import dolfinx.fem.petsc
+    import ufl
+
+    msh = to_dolfinx(mesh, comm)
+    V = dolfinx.fem.FunctionSpace(msh, ("Lagrange", 1))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    K = dolfinx.fem.petsc.assemble_matrix(dolfinx.fem.form(ufl.inner(ufl.grad(u), ufl.grad(v))
+                                                           * ufl.dx))
+    K.assemble()
+    M = dolfinx.fem.petsc.assemble_matrix(dolfinx.fem.form(ufl.inner(u, v) * ufl.dx))
+    M.assemble()
+    n = comm.bcast(mesh.n_vertices if comm.rank == 0 else None, root=0)
+    scale = comm.bcast(eigenvalue_scale(mesh) if comm.rank == 0 else None, root=0)
+    return LBMatrices(K, M, V, n_vertices=n, eigenvalue_scale=scale)
+
+
+def lb_matrices_csr(mesh: TetMesh) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+    """Serial helper: (K, M) as (n, n) scipy CSR in input vertex order."""
+    with lb_matrices(mesh, comm=MPI.COMM_SELF) as mats:
+        return mats.to_scipy()
+
+
+def lb_spectrum(
+    mesh: TetMesh,
+    m: int,
+    *,
+    comm: MPI.Comm = MPI.COMM_SELF,
+    tol: float = 1e-10,
+    target: float | None = None,
+) -> LBSpectrum:
+    """The m smallest non-zero LB eigenpairs of ``mesh`` as given (no rescaling).
+
+    Args:
+        mesh: a checked, connected tetrahedral mesh with n vertices.
+        m: number of non-constant eigenpairs, an int with ``1 ≤ m`` and ``m + 1 < n``.
+        comm: the communicator (``MPI.COMM_WORLD`` to run distributed).
+        tol: SLEPc relative tolerance; residuals must be ≤ ``RESIDUAL_FACTOR * tol``.
+        target: shift-and-invert target σ < 0 in 1/m²; default ``-0.01 (π/D)²``.
+
+    Returns:
+        :class:`LBSpectrum`; in parallel the n-sized fields are on rank 0 only.
+
+    Raises:
+        LbshapeError: bad ``m``, ``tol`` or ``target``.
+        SolverError: too few converged pairs, large residuals, or not exactly one
+            zero eigenvalue (a mesh of several disconnected bodies).
+    """
+    started = time.perf_counter()
+    n = comm.bcast(mesh.n_vertices if comm.rank == 0 else None, root=0)
+    _check_request(m, n, tol, target)
+    with lb_matrices(mesh, comm=comm) as mats:
+        result = lb_spectrum_from_matrices(mats, m, tol=tol, target=target)
+    seconds = time.perf_counter() - started
+    return dataclasses.replace(result, seconds=seconds)
+
+
+def _check_request(m, n: int, tol: float, target: float | None) -> None:
+    if isinstance(m, bool) or not isinstance(m, int | np.integer) or m < 1:
+        raise LbshapeError(f"m must be an integer >= 1, got {m!r}")
+    if m + 1 >= n:
+        raise LbshapeError(
+            f"m={m} is too large for a mesh with {n} vertices: need m + 1 < {n}"
+        )
+    if not (0.0 < tol < 1.0):
+        raise LbshapeError(f"tol must be in (0, 1), got {tol!r}")
+    if target is not None and not (math.isfinite(target) and target < 0.0):
+        raise LbshapeError(f"target must be a finite negative number, got {target!r}")
+
+
+def lb_spectrum_from_matrices(
+    mats: LBMatrices, m: int, *, tol: float = 1e-10, target: float | None = None
+) -> LBSpectrum:
+    """Solve ``Kφ = λMφ`` for assembled matrices (see :func:`lb_spectrum`).
+
+    ``seconds`` of the result is the time of this solve alone (no assembly).
+    """
+    from slepc4py import SLEPc
+
+    started = time.perf_counter()
+    comm = mats.comm
+    _check_request(m, mats.n_vertices, tol, target)
+    sigma = -TARGET_FRACTION * mats.eigenvalue_scale if target is None else float(target)
+    nev = int(m) + 1
+
+    eps = SLEPc.EPS().create(comm)
+    try:
+        eps.setOptionsPrefix(OPTIONS_PREFIX)
+        eps.setOperators(mats.stiffness, mats.mass)
+        eps.setProblemType(SLEPc.EPS.ProblemType.GHEP)
+        eps.setType(SLEPc.EPS.Type.KRYLOVSCHUR)
+        eps.setDimensions(nev=nev)
+        eps.setTarget(sigma)
+        eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
+        eps.setTolerances(tol=tol, max_it=1000)
+        # M is positive definite: purification (one extra solve per vector) is not needed
+        eps.setPurify(False)
+        st = eps.getST()
+        st.setType(SLEPc.ST.Type.SINVERT)
+        st.setShift(sigma)
+        ksp = st.getKSP()
+        ksp.setType("preonly")
+        pc = ksp.getPC()
+        pc.setType("cholesky")
+        pc.setFactorSolverType("mumps")
+        eps.setFromOptions()
+        eps.solve()
+        n_converged = eps.getConverged()
+        if n_converged < nev:
+            reason = _reason_name(eps.getConvergedReason())
+            raise SolverError(
+                f"LB eigensolver converged {n_converged} of {nev} requested pairs "
+                f"({reason}, {eps.getIterationNumber()} iterations, "
+                f"tol={tol:g}, target={sigma:.3e})"
+            )
+        iterations = eps.getIterationNumber()
+        ncv = eps.getDimensions()[1]
+        values = np.array([eps.getEigenvalue(i).real for i in range(n_converged)])
+        order = np.argsort(values)[:nev]
+        values = values[order]
+        vr = mats.stiffness.createVecRight()
+        try:
+            local = np.empty((vr.getLocalSize(), nev))
+            for column, i in enumerate(order):
+                eps.getEigenvector(int(i), vr)
+                local[:, column] = vr.getArray(readonly=True)
+        finally:
+            vr.destroy()
+    finally:
+        eps.destroy()
+
+    _check_single_zero(values, mats.eigenvalue_scale)
+    zero_eigenvalue = float(values[0])
+    values, local = values[1:], local[:, 1:]
+
+    K, M = mats.to_scipy()
+    vectors = mats.gather_columns(local)
+    residuals = None
+    if comm.rank == 0:
+        vectors = _fix_signs(_m_orthonormalise(vectors, M))
+        residuals = _relative_residuals(K, M, values, vectors)
+    residuals = comm.bcast(residuals, root=0)
+    bad = residuals > RESIDUAL_FACTOR * tol
+    if bad.any():
+        worst = int(np.argmax(residuals))
+        raise SolverError(
+            f"LB eigenpairs with large residuals: {int(bad.sum())} of {m} exceed "
+            f"{RESIDUAL_FACTOR * tol:.1e} (worst: pair {worst + 1}, lambda={values[worst]:.6e}, "
+            f"residual {residuals[worst]:.2e})"
+        )
+    seconds = time.perf_counter() - started
+    log.info("LB spectrum: n=%d m=%d target=%.3e ncv=%d iterations=%d lambda_1=%.6e "
+             "lambda_m=%.6e in %.2f s", mats.n_vertices, m, sigma, ncv, iterations, values[0],
+             values[-1], seconds)
+    return LBSpectrum(
+        eigenvalues=values, eigenvectors=vectors, stiffness=K, mass=M,
+        residuals=residuals, zero_eigenvalue=zero_eigenvalue, target=sigma, seconds=seconds,
+    )
+
+
+def _reason_name(reason: int) -> str:
+    from slepc4py import SLEPc
+
+    names = {v: k for k, v in vars(SLEPc.EPS.ConvergedReason).items() if k.isupper()}
+    return names.get(int(reason), f"reason {int(reason)}")
+
+
+def _check_single_zero(values: np.ndarray, scale: float) -> None:
+    """Exactly one of the ascending ``values`` must be (numerically) zero."""
+    zero = np.abs(values) <= ZERO_RTOL * scale
+    n_zero = int(zero.sum())
+    if n_zero != 1 or not zero[0]:
+        shown = ", ".join(f"{v:.3e}" for v in values[: min(values.size, 4)])
+        hint = (f"; {n_zero} zero eigenvalues mean {n_zero} disconnected bodies"
+                if n_zero > 1 else "")
+        raise SolverError(
+            f"expected exactly one zero LB eigenvalue (|lambda| <= {ZERO_RTOL * scale:.2e}), "
+            f"found {n_zero}; smallest: {shown}{hint}"
+        )
+    if values.size > 1 and values[1] <= 0.0:
+        raise SolverError(f"negative LB eigenvalue {values[1]:.3e}: the matrices are invalid")
+
+
+def _m_orthonormalise(vectors: np.ndarray, M: sp.spmatrix) -> np.ndarray:
+    """Löwdin: ``Φ G^(-1/2)`` with ``G = ΦᵀMΦ``; Φ (n, m) -> M-orthonormal (n, m)."""
+    gram = vectors.T @ (M @ vectors)
+    gram = 0.5 * (gram + gram.T)
+    w, q = np.linalg.eigh(gram)
+    if w.min() <= 1e-8 * w.max():
+        raise SolverError(
+            f"LB eigenvectors are linearly dependent (Gram eigenvalues {w.min():.2e} .. "
+            f"{w.max():.2e})"
+        )
+    return vectors @ (q @ np.diag(w ** -0.5) @ q.T)
+
+
+def _fix_signs(vectors: np.ndarray) -> np.ndarray:
+    """Make each column positive at its first vertex with ``|φ| ≥ (1−SIGN_RTOL) max|φ|``."""
+    mag = np.abs(vectors)
+    first = np.argmax(mag >= (1.0 - SIGN_RTOL) * mag.max(axis=0), axis=0)
+    signs = np.sign(vectors[first, np.arange(vectors.shape[1])])
+    signs[signs == 0] = 1.0
+    return vectors * signs
+
+
+def _relative_residuals(K, M, values: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """(m,) ``‖Kφ − λMφ‖ / (|λ|‖Mφ‖ + ‖Kφ‖)`` per column."""
+    KV, MV = K @ vectors, M @ vectors
+    num = np.linalg.norm(KV - MV * values, axis=0)
+    den = np.abs(values) * np.linalg.norm(MV, axis=0) + np.linalg.norm(KV, axis=0)
+    return num / den
