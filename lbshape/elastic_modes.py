@@ -179,8 +179,8 @@ def elastic_matrices(
     import ufl
     from petsc4py import PETSc
 
-    n = comm.bcast(mesh.n_vertices if comm.rank == 0 else None, root=0)
-    fixed = comm.bcast(_check_fixed(fixed_vertices, n) if comm.rank == 0 else None, root=0)
+    n, fixed = _from_root(comm, lambda: (mesh.n_vertices,
+                                         _check_fixed(fixed_vertices, mesh.n_vertices)))
 
     msh = to_dolfinx(mesh, comm)
     V = dolfinx.fem.VectorFunctionSpace(msh, ("Lagrange", 1))
@@ -224,6 +224,20 @@ def elastic_matrices(
         stiffness_petsc=K_free, mass_petsc=M_free, local_rows=local_rows,
         n_vertices=n, comm=comm,
     )
+
+
+def _from_root(comm: MPI.Comm, compute):
+    """``compute()`` on rank 0, broadcast; an LbshapeError there is raised on every rank."""
+    value = error = None
+    if comm.rank == 0:
+        try:
+            value = compute()
+        except LbshapeError as exc:
+            error = exc
+    value, error = comm.bcast((value, error), root=0)
+    if error is not None:
+        raise error
+    return value
 
 
 def _check_fixed(fixed_vertices, n: int) -> np.ndarray:
@@ -346,11 +360,9 @@ def linear_modes(
         raise LbshapeError(f"tol must be in (0, 1), got {tol!r}")
     if target is not None and not (math.isfinite(target) and target < 0.0):
         raise LbshapeError(f"target must be a finite negative number, got {target!r}")
-    sigma = comm.bcast(
-        (default_target(mesh, material) if target is None else float(target))
-        if comm.rank == 0 else None, root=0)
-    n = comm.bcast(mesh.n_vertices if comm.rank == 0 else None, root=0)
-    fixed = comm.bcast(_check_fixed(fixed_vertices, n) if comm.rank == 0 else None, root=0)
+    sigma, n, fixed = _from_root(comm, lambda: (
+        default_target(mesh, material) if target is None else float(target),
+        mesh.n_vertices, _check_fixed(fixed_vertices, mesh.n_vertices)))
     expected_rigid = 0 if fixed.size else FREE_BODY_RIGID_MODES
     n_free = 3 * (n - fixed.size)
     if isinstance(count, bool) or not isinstance(count, int | np.integer) or count < 1:
@@ -363,7 +375,7 @@ def linear_modes(
     nev = int(count) + expected_rigid
 
     with elastic_matrices(mesh, material, fixed_vertices=fixed, comm=comm) as mats:
-        values, local = _solve_eigenproblem(mats, nev, sigma, tol)
+        values, local, tol = _solve_eigenproblem(mats, nev, sigma, tol)
         n_rigid, scale = _count_rigid(values)
         _check_rigid_count(n_rigid, expected_rigid, values, scale)
         K, M = mats.stiffness, mats.mass
@@ -407,8 +419,9 @@ def linear_modes(
 
 
 def _solve_eigenproblem(mats: ElasticMatrices, nev: int, sigma: float,
-                        tol: float) -> tuple[np.ndarray, np.ndarray]:
-    """``nev`` pairs nearest σ: ascending values (≥ nev,) and local vectors (l, ≥ nev)."""
+                        tol: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """The ``nev`` pairs nearest σ: ascending values (nev,), local vectors (l, nev) and
+    the tolerance used (``tol`` unless overridden by the options)."""
     from slepc4py import SLEPc
 
     eps = SLEPc.EPS().create(mats.comm)
@@ -430,6 +443,7 @@ def _solve_eigenproblem(mats: ElasticMatrices, nev: int, sigma: float,
         pc.setType("cholesky")
         pc.setFactorSolverType("mumps")
         eps.setFromOptions()
+        tol = eps.getTolerances()[0]  # as overridden by -elastic_eps_tol, if given
         eps.solve()
         n_converged = eps.getConverged()
         if n_converged < nev:
@@ -451,7 +465,7 @@ def _solve_eigenproblem(mats: ElasticMatrices, nev: int, sigma: float,
         eps.destroy()
     # SLEPc may converge more pairs than asked; the nev nearest σ are the smallest
     order = np.argsort(values)[:nev]
-    return values[order], local[:, order]
+    return values[order], local[:, order], tol
 
 
 def _count_rigid(values: np.ndarray) -> tuple[int, float]:

@@ -28,8 +28,9 @@ MUMPS, options prefix ``md_``) serves every right-hand side.
   finally rigid motion is removed, ``x ← x − R Rᵀ M x``, so that every Ψ_ij is
   M-orthogonal to the rigid modes.
 
-Every solution is checked: ``‖K x + h‖ ≤ RESIDUAL_RTOL ‖h‖`` on the solved DOFs,
-else :class:`~lbshape.errors.SolverError`.
+Every solution is checked: ``‖K x + h‖ ≤ RESIDUAL_RTOL ‖h‖`` over the free DOFs (all
+DOFs of a free body, so the equations of the pinned DOFs are checked too), else
+:class:`~lbshape.errors.SolverError`. Serial: the modes must hold their vectors.
 """
 
 from __future__ import annotations

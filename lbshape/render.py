@@ -139,10 +139,15 @@ def render_shapes(
         data = {scalar_name: values} if values is not None else None
         surface = to_grid(mesh, data).extract_surface(algorithm="dataset_surface")
         if values is not None:
+            # no scalar-bar actor: its label formatting aborts in some VTK builds;
+            # the colour range is printed on the last panel instead
             plotter.add_mesh(
                 surface, scalars=scalar_name, cmap="viridis", clim=clim, show_edges=True,
-                edge_color="#333333", line_width=0.3, show_scalar_bar=panel == k - 1,
+                edge_color="#333333", line_width=0.3, show_scalar_bar=False,
             )
+            if panel == k - 1:
+                plotter.add_text(f"colour: {scalar_name} {clim[0]:.3g} (dark) to "
+                                 f"{clim[1]:.3g} (yellow)", position="lower_right", font_size=8)
         else:
             plotter.add_mesh(surface, color="#c8d2e0", show_edges=True, edge_color="#333333",
                              line_width=0.3)
