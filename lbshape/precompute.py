@@ -10,7 +10,10 @@ Stages (only those the scene needs; paper pre-computation steps 1–6):
 6. ``lb``: the object's LB spectrum (m pairs)                — scenes with examples;
 7. ``examples``: example meshes, poses, frame and basis alignment, displacement
    coefficients                                              — scenes with examples;
-8. ``projections``: direct projections T                      — scenes with examples.
+8. ``projections``: direct projections T                      — scenes with examples;
+9. ``lb-cubature``: a cubature for the LB displacement subspace (the ``lb``
+   interpolation route), trained on poses as large as the examples
+                                                              — scenes with examples.
 
 Everything is cached under a key derived from :meth:`Scene.precompute_key_fields`,
 the gmsh scripts or mesh files behind the meshes, and the package versions, so
@@ -49,6 +52,13 @@ log = logging.getLogger(__name__)
 CUBATURE_TRAINING_POSES = 120
 #: seed of every random choice of the precompute (training poses, candidates)
 PRECOMPUTE_SEED = 20170401
+#: bumped whenever the artifact's content or meaning changes (part of the cache key)
+PIPELINE_VERSION = 2
+#: arrays every artifact holds, and those of scenes with examples
+_REQUIRED = ("points", "tets", "fixed", "U", "omega2", "cub_elements", "cub_weights")
+_REQUIRED_EXAMPLES = ("eigenvalues", "eigenvectors", "example_coefficients", "projection",
+                      "alignment_residuals", "lb_cub_elements", "lb_cub_weights",
+                      "lb_cub_errors")
 
 
 @dataclass(frozen=True)
@@ -70,6 +80,8 @@ class Precomputed:
         example_coefficients: (k, m, 3) example LB displacement coefficients or None.
         projection: (r, 3m) ``P = (√ρ U)ᵀ M₃ L`` or None.
         alignment_residuals: (k,) basis alignment residuals or None.
+        lb_cubature_elements, lb_cubature_weights: cubature of the LB displacement
+            subspace (basis :meth:`lb_basis`), or None; ``lb_cubature_errors``.
         example_names: (k,) labels.
         stage_seconds: wall time per stage (s) of the run that built the artifact.
         from_cache: True when loaded from the cache.
@@ -90,6 +102,9 @@ class Precomputed:
     example_coefficients: np.ndarray | None = None
     projection: np.ndarray | None = None
     alignment_residuals: np.ndarray | None = None
+    lb_cubature_elements: np.ndarray | None = None
+    lb_cubature_weights: np.ndarray | None = None
+    lb_cubature_errors: dict = field(default_factory=dict)
     example_names: tuple[str, ...] = ()
     stage_seconds: dict = field(default_factory=dict)
     from_cache: bool = False
@@ -155,7 +170,7 @@ def scene_cache_key(scene: Scene) -> str:
     return cache_key(
         "precompute", scene.precompute_key_fields(), sources,
         {"lbshape": __version__, "dolfinx": dolfinx.__version__, "numpy": np.__version__},
-        CUBATURE_TRAINING_POSES, PRECOMPUTE_SEED,
+        CUBATURE_TRAINING_POSES, PRECOMPUTE_SEED, PIPELINE_VERSION,
     )
 
 
@@ -187,7 +202,7 @@ def stage_names(scene: Scene) -> list[str]:
     """The stages this scene needs, in order."""
     names = ["mesh", "modes", "derivatives", "basis", "cubature"]
     if scene.has_examples:
-        names += ["lb", "examples", "projections"]
+        names += ["lb", "examples", "projections", "lb-cubature"]
     return names
 
 
@@ -195,7 +210,8 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False) -> 
     """Build or reuse the scene's precompute (see the module docstring)."""
     key = scene_cache_key(scene)
     if not force:
-        cached = load_artifact(scene.name, key, required=("U", "points", "tets"))
+        required = _REQUIRED + (_REQUIRED_EXAMPLES if scene.has_examples else ())
+        cached = load_artifact(scene.name, key, required=required)
         if cached is not None:
             return _from_arrays(scene, key, *cached)
     stages = _Stages(stage_names(scene), show=progress)
@@ -286,11 +302,33 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Sta
             math.sqrt(scene.material.density) * U, coefficients, alignments,
             [_example_label(p) for p in scene.examples.poses],
         )
+    with stages.stage("lb-cubature"):
+        lb_cubature = _train_lb_cubature(scene, mesh, spectrum, space.example_coefficients)
     return {
+        "lb_cub_elements": lb_cubature.elements, "lb_cub_weights": lb_cubature.weights,
+        "lb_cub_errors": np.array([lb_cubature.train_error, lb_cubature.holdout_error]),
         "eigenvalues": space.eigenvalues, "eigenvectors": spectrum.eigenvectors,
         "example_coefficients": space.example_coefficients, "projection": space.projection,
         "alignment_residuals": space.alignment_residuals,
     }
+
+
+def _train_lb_cubature(scene: Scene, mesh: TetMesh, spectrum, example_coefficients):
+    """Cubature for the basis ``L = Φ ⊗ I₃``, training poses as large as the examples."""
+    from lbshape.cubature import inverse_frequency_scales, train_cubature
+    from lbshape.shape_space import block_eigenfunctions
+
+    L = block_eigenfunctions(spectrum.eigenvectors).toarray()
+    size = float(np.ptp(mesh.points, axis=0).max())
+    k = example_coefficients.shape[0]
+    largest = max(float(np.abs(L @ c).max()) for c in example_coefficients.reshape(k, -1))
+    return train_cubature(
+        mesh, scene.material, L, rng=np.random.default_rng(PRECOMPUTE_SEED + 1),
+        scales=inverse_frequency_scales(np.repeat(spectrum.eigenvalues, 3)),
+        max_elements=scene.reduced.s, tol=scene.reduced.cubature_tolerance,
+        n_train=CUBATURE_TRAINING_POSES, n_holdout=CUBATURE_TRAINING_POSES // 2,
+        magnitude=max(1.2 * largest / size, 0.05),
+    )
 
 
 def _example_label(pose) -> str:
@@ -325,6 +363,12 @@ def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
         example_coefficients=arrays.get("example_coefficients") if has_examples else None,
         projection=arrays.get("projection") if has_examples else None,
         alignment_residuals=arrays.get("alignment_residuals") if has_examples else None,
+        lb_cubature_elements=(np.asarray(arrays["lb_cub_elements"], dtype=np.int64)
+                              if has_examples else None),
+        lb_cubature_weights=arrays.get("lb_cub_weights") if has_examples else None,
+        lb_cubature_errors=({"train": float(arrays["lb_cub_errors"][0]),
+                             "holdout": float(arrays["lb_cub_errors"][1])}
+                            if has_examples else {}),
         example_names=tuple(meta.get("example_names", ())),
         stage_seconds=dict(meta.get("stage_seconds", {})),
         from_cache=from_cache,

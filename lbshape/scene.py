@@ -34,6 +34,8 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
     s = 60                     # int >= 1: maximum cubature elements (60)
     linear_modes = 0           # int in [0, r]: linear modes in the basis, 0 = automatic (0)
     cubature_tolerance = 0.01  # (0, 1): relative cubature training error (0.01)
+    interpolation = "lb"       # "lb" | "modal": target energy route of the reduced
+                               # method (see lbshape.interpolation) ("lb")
 
     [examples]                 # optional; no LB work without it
     stiffness = 200.0          # k_ex, 1/s^2, >= 0 (required): force k_ex (q* - q)
@@ -110,6 +112,9 @@ from lbshape.errors import LbshapeError
 from lbshape.expressions import parse_region, region_vertices
 from lbshape.loads import PROFILES, TimeProfile
 from lbshape.materials import MODELS, Material
+
+#: target routes selectable for the reduced method (see lbshape.interpolation)
+INTERPOLATION_ROUTES: tuple[str, ...] = ("lb", "modal")
 
 log = logging.getLogger(__name__)
 
@@ -211,6 +216,9 @@ class Reduced:
         s: maximum number of cubature elements.
         linear_modes: linear modes in the basis (0: automatic).
         cubature_tolerance: relative training error at which cubature stops.
+        interpolation: target route of the ``reduced`` method: ``"lb"`` (cubature on
+            the LB displacement subspace) or ``"modal"`` (through the nonlinear modal
+            basis and the direct projection). Run time only.
     """
 
     m: int = 10
@@ -218,6 +226,7 @@ class Reduced:
     s: int = 60
     linear_modes: int = 0
     cubature_tolerance: float = 0.01
+    interpolation: str = "lb"
 
 
 @dataclass(frozen=True)
@@ -384,6 +393,7 @@ class Scene:
             "dt": self.simulation.dt,
             "steps": self.simulation.steps,
             "integrator": self.simulation.integrator,
+            "interpolation": self.reduced.interpolation,
             "damping": {"alpha": self.damping.alpha, "beta": self.damping.beta},
             "loads": [load.key() for load in self.loads],
             "k_ex": None if self.examples is None else self.examples.stiffness,
@@ -487,7 +497,8 @@ def scene_from_dict(
     damping = Damping(alpha=damp.number("alpha", 0.0, low=0.0, unit="1/s"),
                       beta=damp.number("beta", 0.0, low=0.0, unit="s"))
 
-    red = top.subtable("reduced", ("m", "r", "s", "linear_modes", "cubature_tolerance"))
+    red = top.subtable("reduced", ("m", "r", "s", "linear_modes", "cubature_tolerance",
+                                   "interpolation"))
     r = red.integer("r", Reduced.r, low=1)
     reduced = Reduced(
         m=red.integer("m", Reduced.m, low=1),
@@ -496,6 +507,7 @@ def scene_from_dict(
         linear_modes=red.integer("linear_modes", 0, low=0, high=r),
         cubature_tolerance=red.number("cubature_tolerance", Reduced.cubature_tolerance,
                                       low=0.0, high=1.0, open_low=True, open_high=True),
+        interpolation=red.choice("interpolation", Reduced.interpolation, INTERPOLATION_ROUTES),
     )
 
     examples = None

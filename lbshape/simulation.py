@@ -1,7 +1,9 @@
 """Run a scene with one of the three methods and write its outputs.
 
-* ``reduced`` — the paper's method: reduced dynamics, target found in the reduced
-  space through the direct projection (modal route, cubature energies);
+* ``reduced`` — the paper's method: reduced dynamics, target found with cubature
+  energies in a reduced space (the scene's ``reduced.interpolation`` route:
+  ``lb``, a cubature on the LB displacement subspace, by default, or ``modal``,
+  through the nonlinear modal basis and the direct projection);
 * ``euclidean`` — the Zhu et al. 2015 baseline: the same reduced dynamics, but the
   target is found in LB space with the energy summed over all elements;
 * ``full`` — full-space FEM with full-space interpolation: the accuracy reference.
@@ -90,7 +92,8 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
     if pre.has_examples and k_ex > 0:
         from lbshape.interpolation_routes import example_driver
 
-        driver = example_driver(pre, route="modal" if method == "reduced" else "euclidean")
+        route = scene.reduced.interpolation if method == "reduced" else "euclidean"
+        driver = example_driver(pre, route=route)
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
