@@ -221,8 +221,9 @@ def _check_pairs(pairs, k: int) -> np.ndarray:
 def _unpinned_dofs(rigid: np.ndarray) -> np.ndarray:
     """All DOFs but the 6 that best determine a rigid motion (rows of R by pivoted QR)."""
     _, r, pivots = scipy.linalg.qr(rigid.T, mode="economic", pivoting=True)
-    pinned = pivots[: rigid.shape[1]]
-    conditioning = abs(r[-1, -1] / r[0, 0])
+    k = rigid.shape[1]
+    pinned = pivots[:k]
+    conditioning = abs(r[k - 1, k - 1] / r[0, 0])  # diagonal of the (k, 3n) factor
     if conditioning < 1e-8:  # pragma: no cover - needs a degenerate (collinear) body
         raise SolverError(f"cannot pin the rigid motions of this body (|r66/r11| = "
                           f"{conditioning:.1e})")

@@ -208,3 +208,19 @@ def test_default_linear_modes_rule():
     for r in (5, 30, 42):
         k = default_linear_modes(r)
         assert k + k * (k + 1) // 2 >= 2 * r > (k - 1) + (k - 1) * k // 2
+
+
+def test_rigid_pinning_accepts_a_free_car_body():
+    """Regression: the pinning check read a wrong entry of the QR factor and refused
+    bodies such as the car; it must pin exactly 6 well-conditioned DOFs."""
+    from lbshape.element_kernels import mass_matrix
+    from lbshape.elastic_modes import rigid_body_modes
+    from lbshape.modal_derivatives import _unpinned_dofs
+    from lbshape.shapes import build_shape
+
+    car = build_shape("car")
+    rigid = rigid_body_modes(car.points, mass_matrix(car, 1000.0))
+    kept = _unpinned_dofs(rigid)
+    assert kept.size == 3 * car.n_vertices - 6
+    pinned = np.setdiff1d(np.arange(3 * car.n_vertices), kept)
+    assert np.linalg.matrix_rank(rigid[pinned]) == 6
