@@ -45,14 +45,9 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``lbshape`` console script; returns the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.INFO if args.verbose else logging.WARNING,
-        format="%(levelname)s: %(message)s",
-        force=True,
-    )
-    # the JIT compiler's build log is noise for users
-    for noisy in ("ffcx", "UFL", "FFCx", "root"):
-        logging.getLogger(noisy).setLevel(logging.WARNING)
+    # the root logger stays at WARNING: the form compiler's build log goes there
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s", force=True)
+    logging.getLogger("lbshape").setLevel(logging.INFO if args.verbose else logging.WARNING)
     try:
         result = args.func(args)
     except LbshapeError as exc:

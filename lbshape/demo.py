@@ -55,11 +55,10 @@ def spectra_figure(out: Path, *, m: int = 6) -> dict:
 
 def simulation_figures(out: Path) -> dict:
     """Precompute and simulate the demo scene (reduced and full); pictures and numbers."""
-    import numpy as np
-
+    from lbshape.bench import trajectory_error
     from lbshape.element_kernels import mass_matrix
+    from lbshape.figures import examples_figures, simulation_figure
     from lbshape.precompute import precompute
-    from lbshape.render import render_shapes
     from lbshape.scene import load_scene
     from lbshape.simulation import simulate
 
@@ -70,28 +69,11 @@ def simulation_figures(out: Path) -> dict:
     runs = {method: simulate(scene, pre, method=method, out=out / "runs" / method)
             for method in ("reduced", "full")}
     mass = mass_matrix(pre.mesh, scene.material.density)
-
-    def m_norms(u):
-        flat = u.reshape(u.shape[0], -1)
-        return np.sqrt(np.einsum("ti,ti->t", flat, (mass @ flat.T).T))
-
-    reduced, full = runs["reduced"].displacements, runs["full"].displacements
-    count = min(len(reduced), len(full))
-    error = float(m_norms(reduced[:count] - full[:count]).max() / m_norms(full[:count]).max())
-
-    picks = np.linspace(0, count - 1, 4).astype(int)
-    meshes, labels, values = [], [], []
-    for method in ("reduced", "full"):
-        for i in picks[1:]:
-            u = runs[method].displacements[i]
-            meshes.append(pre.mesh.with_points(pre.mesh.points + u))
-            labels.append(f"{method} t={runs[method].times[i]:.2f}s")
-            values.append(np.linalg.norm(u, axis=1))
-    render_shapes(meshes, labels, out / "demo_frames.png", scalars=values)
-    examples = [pre.mesh.with_points(pre.example_rest_points(k))
-                for k in range(len(pre.example_names))]
-    render_shapes([pre.mesh, *examples], ["object (rest)", *pre.example_names],
-                  out / "demo_examples.png")
+    error = trajectory_error(runs["reduced"].displacements, runs["full"].displacements, mass,
+                             times=runs["reduced"].times, times_full=runs["full"].times)
+    for method, run in runs.items():
+        simulation_figure(pre, run, out / f"demo_{method}.png")
+    examples_figures(scene, pre, out)
     return {
         "scene": scene.name,
         "precompute_seconds": precompute_seconds,

@@ -106,12 +106,7 @@ def simulation_figure(pre, output, path: str | Path, *, frames: int = 4,
 
 def posed_example(pose):
     """The raw example mesh of an :class:`~lbshape.scene.ExamplePose`, posed."""
-    from lbshape.poses import apply_pose
-
-    rest = pose.source.build()
-    if pose.pose is None:
-        return rest
-    return apply_pose(rest, pose.pose, **dict(pose.parameters))
+    return pose.posed(pose.source.build())
 
 
 def example_caption(index: int, pose) -> str:

@@ -162,14 +162,24 @@ class TargetSolver:
 
     def gradient_and_hessian(self, z: np.ndarray, weights: np.ndarray):
         """(∇F (p,), ∇²F (p,p)) at z."""
+        return self._evaluate(z, weights)[1:]
+
+    def _evaluate(self, z: np.ndarray, weights: np.ndarray):
+        """(F, ∇F, ∇²F) at z; models with ``energy_force_and_tangent`` share one pass."""
         p = self.dimension
-        g, H = np.zeros(p), np.zeros((p, p))
+        f, g, H = 0.0, np.zeros(p), np.zeros((p, p))
         for w, model, offset in zip(weights, self.models, self.offsets, strict=True):
             if w > 0.0:
-                gk, Hk = model.force_and_tangent(z - offset)
+                y = z - offset
+                if hasattr(model, "energy_force_and_tangent"):
+                    fk, gk, Hk = model.energy_force_and_tangent(y)
+                else:
+                    gk, Hk = model.force_and_tangent(y)
+                    fk = model.energy(y)
+                f += w * fk
                 g += w * gk
                 H += w * Hk
-        return g, H
+        return f, g, H
 
     def solve(self, weights: np.ndarray, *, start: np.ndarray | None = None) -> TargetResult:
         """The target for the given example weights (k,), warm-started by default.
@@ -188,23 +198,22 @@ class TargetSolver:
             z = weights @ self.offsets
         step_tolerance = self.tolerance * max(float(np.linalg.norm(self.offsets, axis=1).max()),
                                               1e-300)
-        g, H = self.gradient_and_hessian(z, weights)
-        f = self.energy(z, weights)
+        f, g, H = self._evaluate(z, weights)
         iterations = 0
         while iterations < self.max_iterations and np.linalg.norm(g) > 0.0:
             iterations += 1
             step = _newton_direction(H, g)
-            t, f_new = 1.0, self.energy(z + step, weights)
-            while not f_new <= f + 1e-4 * t * (g @ step) and t > 1e-6:
+            slope = g @ step
+            t = 1.0
+            f_new, g_new, H_new = self._evaluate(z + step, weights)
+            while not f_new <= f + 1e-4 * t * slope and t > 1e-6:
                 t *= 0.5
-                f_new = self.energy(z + t * step, weights)
+                f_new, g_new, H_new = self._evaluate(z + t * step, weights)
             if not np.isfinite(f_new):
                 raise SolverError(f"target interpolation diverged (energy {f_new})")
-            z = z + t * step
-            f = f_new
+            z, f, g, H = z + t * step, f_new, g_new, H_new
             if t * np.linalg.norm(step) <= step_tolerance:
                 break
-            g, H = self.gradient_and_hessian(z, weights)
         self._last = z.copy()
         return TargetResult(z, iterations, float(np.linalg.norm(g)), f)
 

@@ -100,6 +100,10 @@ class StVKPolynomialEnergy:
 
     def force_and_tangent(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(∇E (p,), ∇²E (p,p)) at y (one pass over the quartic tensor)."""
+        return self.energy_force_and_tangent(y)[1:]
+
+    def energy_force_and_tangent(self, y: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        """(E, ∇E (p,), ∇²E (p,p)) at y, sharing one pass over the quartic tensor."""
         y = np.asarray(y, dtype=float)
         p = self.p
         Dy = (self._D_cubic @ y).reshape(p, p, p)  # Σ_l D_ijkl y_l
@@ -108,6 +112,8 @@ class StVKPolynomialEnergy:
         Dy_y = (y @ Dy.reshape(p, p * p)).reshape(p, p)  # Σ_il y_i D_ijkl y_l [j, k]
         Cy = (self._C_pair @ y).reshape(p, p)  # Σ_k C_ijk y_k
         M1 = (y @ self._C_first).reshape(p, p)  # Σ_i y_i C_ijk
-        gradient = self.K @ y + Cy @ y + 2.0 * M1 @ y + 4.0 * Dyy @ y
+        Ky, cubic, quartic = self.K @ y, Cy @ y, Dyy @ y
+        energy = float(y @ (0.5 * Ky + cubic + quartic))
+        gradient = Ky + cubic + 2.0 * M1 @ y + 4.0 * quartic
         hessian = self.K + 2.0 * (Cy + Cy.T + M1) + 4.0 * Dyy + 8.0 * Dy_y
-        return gradient, 0.5 * (hessian + hessian.T)
+        return energy, gradient, 0.5 * (hessian + hessian.T)

@@ -267,7 +267,6 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
 
 def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Stages) -> dict:
     from lbshape.frames import body_frame
-    from lbshape.poses import apply_pose
     from lbshape.shape_space import embed_example, make_shape_space
     from lbshape.spectrum import lb_spectrum
 
@@ -285,8 +284,7 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Sta
                     f"{label}: m={m} is too large for an example mesh with "
                     f"{rest.n_vertices} vertices"
                 )
-            posed = (apply_pose(rest, pose.pose, **dict(pose.parameters))
-                     if pose.pose is not None else rest)
+            posed = pose.posed(rest)
             landmarks = np.asarray(pose.landmarks, dtype=np.int64) if pose.landmarks else None
             try:
                 embedded = embed_example(mesh, spectrum, rest, [posed.points],

@@ -34,8 +34,9 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
     s = 60                     # int >= 1: maximum cubature elements (60)
     linear_modes = 0           # int in [0, r]: linear modes in the basis, 0 = automatic (0)
     cubature_tolerance = 0.01  # (0, 1): relative cubature training error (0.01)
-    interpolation = "lb"       # "lb" | "modal": target energy route of the reduced
-                               # method (see lbshape.interpolation) ("lb")
+    interpolation = "auto"     # "auto" | "lb-exact" | "lb" | "modal": target route of
+                               # the reduced method (lbshape.interpolation_routes);
+                               # auto = lb-exact for StVK, else lb ("auto")
 
     [examples]                 # optional; no LB work without it
     stiffness = 200.0          # k_ex, 1/s^2, >= 0 (required): force k_ex (q* - q)
@@ -114,7 +115,7 @@ from lbshape.loads import PROFILES, TimeProfile
 from lbshape.materials import MODELS, Material
 
 #: target routes selectable for the reduced method (see lbshape.interpolation)
-INTERPOLATION_ROUTES: tuple[str, ...] = ("lb", "modal")
+INTERPOLATION_ROUTES: tuple[str, ...] = ("auto", "lb-exact", "lb", "modal")
 
 log = logging.getLogger(__name__)
 
@@ -216,9 +217,11 @@ class Reduced:
         s: maximum number of cubature elements.
         linear_modes: linear modes in the basis (0: automatic).
         cubature_tolerance: relative training error at which cubature stops.
-        interpolation: target route of the ``reduced`` method: ``"lb"`` (cubature on
-            the LB displacement subspace) or ``"modal"`` (through the nonlinear modal
-            basis and the direct projection). Run time only.
+        interpolation: target route of the ``reduced`` method: ``"lb-exact"``
+            (exact polynomial StVK energy in LB space), ``"lb"`` (cubature on the LB
+            displacement subspace), ``"modal"`` (the paper's: nonlinear modal basis
+            and direct projection), or ``"auto"`` (``lb-exact`` for StVK, else
+            ``lb``). Run time only.
     """
 
     m: int = 10
@@ -226,7 +229,13 @@ class Reduced:
     s: int = 60
     linear_modes: int = 0
     cubature_tolerance: float = 0.01
-    interpolation: str = "lb"
+    interpolation: str = "auto"
+
+    def route(self, material_model: str) -> str:
+        """The interpolation route to use with a material model (resolves ``auto``)."""
+        if self.interpolation == "auto":
+            return "lb-exact" if material_model == "stvk" else "lb"
+        return self.interpolation
 
 
 @dataclass(frozen=True)
@@ -244,6 +253,14 @@ class ExamplePose:
     pose: str | None = None
     parameters: Mapping[str, PoseValue] = field(default_factory=lambda: MappingProxyType({}))
     landmarks: tuple[tuple[int, int], ...] = ()
+
+    def posed(self, rest):
+        """The example's rest mesh (a :class:`~lbshape.mesh.TetMesh`) with its pose applied."""
+        if self.pose is None:
+            return rest
+        from lbshape.poses import apply_pose
+
+        return apply_pose(rest, self.pose, **dict(self.parameters))
 
     def key(self) -> dict:
         return {

@@ -1,9 +1,9 @@
 """Run a scene with one of the three methods and write its outputs.
 
-* ``reduced`` — the paper's method: reduced dynamics, target found with cubature
-  energies in a reduced space (the scene's ``reduced.interpolation`` route:
-  ``lb``, a cubature on the LB displacement subspace, by default, or ``modal``,
-  through the nonlinear modal basis and the direct projection);
+* ``reduced`` — the paper's method: reduced dynamics, target found in a reduced
+  space with no n-sized work (the scene's ``reduced.interpolation`` route, see
+  :mod:`lbshape.interpolation_routes`: by default the exact polynomial StVK energy
+  in LB space, else a cubature on the LB subspace or the paper's modal route);
 * ``euclidean`` — the Zhu et al. 2015 baseline: the same reduced dynamics, but the
   target is found in LB space with the energy summed over all elements;
 * ``full`` — full-space FEM with full-space interpolation: the accuracy reference.
@@ -92,7 +92,8 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
     if pre.has_examples and k_ex > 0:
         from lbshape.interpolation_routes import example_driver
 
-        route = scene.reduced.interpolation if method == "reduced" else "euclidean"
+        route = (scene.reduced.route(scene.material.model) if method == "reduced"
+                 else "euclidean")
         driver = example_driver(pre, route=route)
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,

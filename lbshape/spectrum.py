@@ -3,7 +3,7 @@
 The volumetric LB operator with natural (Neumann) boundary conditions is
 discretised with P1 elements: stiffness ``K = ∫ ∇φ·∇ψ`` and *consistent* mass
 ``M = ∫ φψ``. The generalized problem ``K φ = λ M φ`` is solved with SLEPc (GHEP,
-shift-and-invert at a small negative target, Cholesky factorisation with MUMPS).
+Krylov-Schur, shift-and-invert at a small negative target, sparse Cholesky).
 
 Scale convention: eigenpairs are those of the mesh **as given** — nothing is
 rescaled here. Eigenvalues are in 1/m² and scale as ``λ(sΩ) = λ(Ω)/s²``;
@@ -21,6 +21,13 @@ Choices:
 * **Zero mode.** ``m + 1`` pairs are computed; exactly one eigenvalue must satisfy
   ``|λ| ≤ ZERO_RTOL (π/D)²`` (the constant mode). Several mean several disconnected
   bodies, and an error is raised. The constant mode is dropped.
+* **Completeness.** Single-vector Krylov methods may miss further copies of an
+  *exactly* repeated eigenvalue (meshes with exact symmetries, e.g. a structured
+  cube: 10 of 180 small cases did before this check). With ``verify=True`` (default)
+  the number of eigenvalues below a threshold τ just above the (m+1)-th is counted
+  from the inertia of ``K − τM = LDLᵀ`` (MUMPS); missed pairs are computed by a
+  second solve deflated against the found ones. Cost: one LDLᵀ factorisation
+  (about 4 s at 100k vertices); ``verify=False`` skips it.
 * **Checks.** ``getConverged() ≥ m + 1`` and, for every returned pair, the relative
   residual ``‖Kφ − λMφ‖ / (|λ| ‖Mφ‖ + ‖Kφ‖) ≤ RESIDUAL_FACTOR · tol``; otherwise
   :class:`~lbshape.errors.SolverError` with the observed numbers.
@@ -31,8 +38,15 @@ Choices:
   where ``|φ| ≥ (1 − SIGN_RTOL) max|φ|``: the vertex of largest magnitude, with
   round-off ties between symmetric vertices broken by vertex index.
 
+* **Factorisation.** Serial: CHOLMOD (SuiteSparse) when PETSc has it, else MUMPS;
+  parallel: MUMPS. At 100k vertices (2 x 1 x 1 box, m = 30) the ~108 solves of
+  Krylov-Schur dominate: CHOLMOD factor 3.9 s + 60 ms/solve, MUMPS (no METIS in this
+  PETSc build) 3.8 s + 100 ms/solve, PETSc's own Cholesky 10x slower. Eigenvector
+  purification is off (M is positive definite; it would cost one solve per vector).
+  See ``scripts/bench_eigen.py``.
+
 PETSc options with the prefix ``lb_`` (e.g. ``-lb_eps_ncv 80``,
-``-lb_st_pc_factor_mat_solver_type petsc``) override these defaults.
+``-lb_st_pc_factor_mat_solver_type mumps``) override these defaults.
 """
 
 from __future__ import annotations
@@ -60,6 +74,10 @@ TARGET_FRACTION = 0.01
 ZERO_RTOL = 1e-6
 #: accepted relative residual is ``RESIDUAL_FACTOR * tol``
 RESIDUAL_FACTOR = 100.0
+#: rounds of the inertia check and deflated re-solve before giving up
+MAX_COMPLETION_ROUNDS = 4
+#: computed eigenvalues closer than this (relative) are one cluster for the inertia check
+CLUSTER_RTOL = 1e-6
 #: relative margin for the sign rule (see the module docstring)
 SIGN_RTOL = 1e-6
 
@@ -220,6 +238,7 @@ def lb_spectrum(
     comm: MPI.Comm = MPI.COMM_SELF,
     tol: float = 1e-10,
     target: float | None = None,
+    verify: bool = True,
 ) -> LBSpectrum:
     """The m smallest non-zero LB eigenpairs of ``mesh`` as given (no rescaling).
 
@@ -229,20 +248,23 @@ def lb_spectrum(
         comm: the communicator (``MPI.COMM_WORLD`` to run distributed).
         tol: SLEPc relative tolerance; residuals must be ≤ ``RESIDUAL_FACTOR * tol``.
         target: shift-and-invert target σ < 0 in 1/m²; default ``-0.01 (π/D)²``.
+        verify: check with an inertia count that no eigenvalue was missed (see the
+            module docstring) and compute missed ones.
 
     Returns:
         :class:`LBSpectrum`; in parallel the n-sized fields are on rank 0 only.
 
     Raises:
         LbshapeError: bad ``m``, ``tol`` or ``target``.
-        SolverError: too few converged pairs, large residuals, or not exactly one
-            zero eigenvalue (a mesh of several disconnected bodies).
+        SolverError: too few converged pairs, large residuals, eigenvalues still
+            missing after the completion rounds, or not exactly one zero eigenvalue
+            (a mesh of several disconnected bodies).
     """
     started = time.perf_counter()
     n = comm.bcast(mesh.n_vertices if comm.rank == 0 else None, root=0)
     _check_request(m, n, tol, target)
     with lb_matrices(mesh, comm=comm) as mats:
-        result = lb_spectrum_from_matrices(mats, m, tol=tol, target=target)
+        result = lb_spectrum_from_matrices(mats, m, tol=tol, target=target, verify=verify)
     seconds = time.perf_counter() - started
     return dataclasses.replace(result, seconds=seconds)
 
@@ -261,21 +283,86 @@ def _check_request(m, n: int, tol: float, target: float | None) -> None:
 
 
 def lb_spectrum_from_matrices(
-    mats: LBMatrices, m: int, *, tol: float = 1e-10, target: float | None = None
+    mats: LBMatrices,
+    m: int,
+    *,
+    tol: float = 1e-10,
+    target: float | None = None,
+    verify: bool = True,
 ) -> LBSpectrum:
     """Solve ``Kφ = λMφ`` for assembled matrices (see :func:`lb_spectrum`).
 
     ``seconds`` of the result is the time of this solve alone (no assembly).
     """
-    from slepc4py import SLEPc
-
     started = time.perf_counter()
     comm = mats.comm
     _check_request(m, mats.n_vertices, tol, target)
     sigma = -TARGET_FRACTION * mats.eigenvalue_scale if target is None else float(target)
     nev = int(m) + 1
 
+    run = _krylov_schur(mats, nev, sigma, tol)
+    if verify:
+        run = _complete_by_inertia(mats, run, nev, sigma)
+    values, local = run.values[:nev], run.local[:, :nev]
+    _check_single_zero(values, mats.eigenvalue_scale)
+    zero_eigenvalue = float(values[0])
+    values, local = values[1:], local[:, 1:]
+
+    K, M = mats.to_scipy()
+    vectors = mats.gather_columns(local)
+    residuals = None
+    if comm.rank == 0:
+        vectors = _fix_signs(_m_orthonormalise(vectors, M))
+        residuals = _relative_residuals(K, M, values, vectors)
+    residuals = comm.bcast(residuals, root=0)
+    bad = residuals > RESIDUAL_FACTOR * run.tol
+    if bad.any():
+        worst = int(np.argmax(residuals))
+        raise SolverError(
+            f"LB eigenpairs with large residuals: {int(bad.sum())} of {m} exceed "
+            f"{RESIDUAL_FACTOR * run.tol:.1e} (worst: pair {worst + 1}, "
+            f"lambda={values[worst]:.6e}, residual {residuals[worst]:.2e})"
+        )
+    seconds = time.perf_counter() - started
+    log.info("LB spectrum: n=%d m=%d target=%.3e %s lambda_1=%.6e lambda_m=%.6e in %.2f s",
+             mats.n_vertices, m, sigma, run.info, values[0], values[-1], seconds)
+    return LBSpectrum(
+        eigenvalues=values, eigenvectors=vectors, stiffness=K, mass=M,
+        residuals=residuals, zero_eigenvalue=zero_eigenvalue, target=sigma, seconds=seconds,
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class _Run:
+    """Converged pairs of one or more Krylov-Schur solves, ascending.
+
+    values: (k,); local: (n_owned, k) owned dof rows; tol: the effective tolerance.
+    """
+
+    values: np.ndarray
+    local: np.ndarray
+    tol: float
+    info: str
+
+    def merged(self, other: _Run) -> _Run:
+        values = np.concatenate([self.values, other.values])
+        order = np.argsort(values, kind="stable")
+        local = np.hstack([self.local, other.local])[:, order]
+        return _Run(values[order], local, self.tol, f"{self.info}; {other.info}")
+
+
+def _krylov_schur(mats: LBMatrices, nev: int, sigma: float, tol: float,
+                  deflation: np.ndarray | None = None) -> _Run:
+    """The ``nev`` pairs nearest ``sigma`` (shift-and-invert), M-orthogonal to ``deflation``.
+
+    Args:
+        deflation: (n_owned, d) owned rows of known eigenvectors, or ``None``.
+    """
+    from slepc4py import SLEPc
+
+    comm = mats.comm
     eps = SLEPc.EPS().create(comm)
+    basis = []
     try:
         eps.setOptionsPrefix(OPTIONS_PREFIX)
         eps.setOperators(mats.stiffness, mats.mass)
@@ -294,60 +381,124 @@ def lb_spectrum_from_matrices(
         ksp.setType("preonly")
         pc = ksp.getPC()
         pc.setType("cholesky")
-        pc.setFactorSolverType("mumps")
+        pc.setFactorSolverType(factor_package(comm))
         eps.setFromOptions()
+        if deflation is not None:
+            for column in deflation.T:
+                vec = mats.stiffness.createVecRight()
+                vec.setArray(column)
+                basis.append(vec)
+            eps.setDeflationSpace(basis)
+        tol = eps.getTolerances()[0]  # as overridden by -lb_eps_tol, if given
         eps.solve()
         n_converged = eps.getConverged()
-        if n_converged < nev:
-            reason = _reason_name(eps.getConvergedReason())
+        if n_converged < eps.getDimensions()[0]:
             raise SolverError(
-                f"LB eigensolver converged {n_converged} of {nev} requested pairs "
-                f"({reason}, {eps.getIterationNumber()} iterations, "
-                f"tol={tol:g}, target={sigma:.3e})"
+                f"LB eigensolver converged {n_converged} of {eps.getDimensions()[0]} requested "
+                f"pairs ({_reason_name(eps.getConvergedReason())}, "
+                f"{eps.getIterationNumber()} iterations, tol={tol:g}, target={sigma:.3e})"
             )
-        iterations = eps.getIterationNumber()
-        ncv = eps.getDimensions()[1]
+        info = (f"factor={pc.getFactorSolverType()} nev={eps.getDimensions()[0]} "
+                f"ncv={eps.getDimensions()[1]} iterations={eps.getIterationNumber()}")
         values = np.array([eps.getEigenvalue(i).real for i in range(n_converged)])
-        order = np.argsort(values)[:nev]
-        values = values[order]
         vr = mats.stiffness.createVecRight()
         try:
-            local = np.empty((vr.getLocalSize(), nev))
-            for column, i in enumerate(order):
-                eps.getEigenvector(int(i), vr)
-                local[:, column] = vr.getArray(readonly=True)
+            local = np.empty((vr.getLocalSize(), n_converged))
+            for i in range(n_converged):
+                eps.getEigenvector(i, vr)
+                local[:, i] = vr.getArray(readonly=True)
         finally:
             vr.destroy()
     finally:
         eps.destroy()
+        for vec in basis:
+            vec.destroy()
+    order = np.argsort(values, kind="stable")
+    return _Run(values[order], local[:, order], tol, info)
 
-    _check_single_zero(values, mats.eigenvalue_scale)
-    zero_eigenvalue = float(values[0])
-    values, local = values[1:], local[:, 1:]
 
-    K, M = mats.to_scipy()
-    vectors = mats.gather_columns(local)
-    residuals = None
-    if comm.rank == 0:
-        vectors = _fix_signs(_m_orthonormalise(vectors, M))
-        residuals = _relative_residuals(K, M, values, vectors)
-    residuals = comm.bcast(residuals, root=0)
-    bad = residuals > RESIDUAL_FACTOR * tol
-    if bad.any():
-        worst = int(np.argmax(residuals))
-        raise SolverError(
-            f"LB eigenpairs with large residuals: {int(bad.sum())} of {m} exceed "
-            f"{RESIDUAL_FACTOR * tol:.1e} (worst: pair {worst + 1}, lambda={values[worst]:.6e}, "
-            f"residual {residuals[worst]:.2e})"
-        )
-    seconds = time.perf_counter() - started
-    log.info("LB spectrum: n=%d m=%d target=%.3e ncv=%d iterations=%d lambda_1=%.6e "
-             "lambda_m=%.6e in %.2f s", mats.n_vertices, m, sigma, ncv, iterations, values[0],
-             values[-1], seconds)
-    return LBSpectrum(
-        eigenvalues=values, eigenvectors=vectors, stiffness=K, mass=M,
-        residuals=residuals, zero_eigenvalue=zero_eigenvalue, target=sigma, seconds=seconds,
+def _complete_by_inertia(mats: LBMatrices, run: _Run, nev: int, sigma: float) -> _Run:
+    """Make sure no eigenvalue below the ``nev``-th computed one was missed.
+
+    Single-vector Krylov methods find further copies of an *exactly* repeated
+    eigenvalue (symmetric meshes) only through round-off, and may stop before. The
+    number of eigenvalues below a threshold τ is the number of negative pivots of
+    ``K − τM = LDLᵀ`` (Sylvester's law of inertia); missing pairs are then computed
+    M-orthogonally to the known ones (deflation), where they are simple.
+    """
+    for _ in range(MAX_COMPLETION_ROUNDS):
+        tau = _inertia_threshold(run.values, nev)
+        below = count_eigenvalues_below(mats, tau)
+        found = int(np.sum(run.values < tau))
+        if below == found:
+            return run
+        if below < found:
+            raise SolverError(
+                f"LB eigensolver is inconsistent: {found} computed eigenvalues below "
+                f"{tau:.6e} but the inertia of K - tau M counts {below}"
+            )
+        log.info("LB eigensolver missed %d eigenvalue(s) below %.6e (exactly repeated "
+                 "eigenvalues of a symmetric mesh); computing them by deflation",
+                 below - found, tau)
+        run = run.merged(_krylov_schur(mats, below - found, sigma, run.tol, deflation=run.local))
+    raise SolverError(
+        f"LB eigensolver could not find all eigenvalues below {tau:.6e}: inertia counts "
+        f"{below}, found {found} after {MAX_COMPLETION_ROUNDS} rounds"
     )
+
+
+def _inertia_threshold(values: np.ndarray, nev: int) -> float:
+    """τ above the ``nev``-th of the ascending ``values`` and below the next distinct one."""
+    last = values[nev - 1]
+    gap = CLUSTER_RTOL * abs(last)
+    above = values[values > last + gap]
+    if above.size:
+        return 0.5 * (last + above[0])
+    return last + max(1e-3 * abs(last), gap)
+
+
+def count_eigenvalues_below(mats: LBMatrices, tau: float) -> int:
+    """Number of eigenvalues λ < τ of ``Kφ = λMφ`` (inertia of ``K − τM``, MUMPS LDLᵀ).
+
+    Raises:
+        SolverError: the factorisation failed (τ is, to round-off, an eigenvalue).
+    """
+    from petsc4py import PETSc
+
+    A = mats.stiffness.duplicate(copy=True)
+    ksp = PETSc.KSP().create(mats.comm)
+    try:
+        A.axpy(-tau, mats.mass, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        ksp.setOptionsPrefix(OPTIONS_PREFIX + "inertia_")
+        ksp.setOperators(A)
+        ksp.setType("preonly")
+        pc = ksp.getPC()
+        pc.setType("cholesky")
+        pc.setFactorSolverType("mumps")
+        pc.setFactorSetUpSolverType()
+        F = pc.getFactorMatrix()
+        F.setMumpsIcntl(13, 1)  # exact inertia: no ScaLAPACK on the root front
+        F.setMumpsIcntl(24, 1)  # detect null pivots instead of failing on them
+        ksp.setFromOptions()
+        try:
+            ksp.setUp()
+        except PETSc.Error as exc:
+            raise SolverError(f"inertia count at tau={tau:.6e} failed ({exc})") from None
+        if F.getMumpsInfog(28) != 0:
+            raise SolverError(f"tau={tau:.6e} is an LB eigenvalue to round-off (null pivots)")
+        return int(F.getMumpsInfog(12))
+    finally:
+        ksp.destroy()
+        A.destroy()
+
+
+def factor_package(comm: MPI.Comm) -> str:
+    """The sparse Cholesky package used by default: ``"cholmod"`` (serial) or ``"mumps"``."""
+    from petsc4py import PETSc
+
+    if comm.size == 1 and PETSc.Sys.hasExternalPackage("suitesparse"):
+        return "cholmod"
+    return "mumps"
 
 
 def _reason_name(reason: int) -> str:

@@ -41,4 +41,9 @@ def test_demo_entry_point_writes_pictures_and_summary(tmp_path):
     for name in ("demo-bar", "demo-cylinder", "teddy"):
         values = spectra[name]["eigenvalues"]
         assert values == sorted(values) and values[0] > 0
-    assert _png_pixels(tmp_path / "teddy_eigenfunctions.png").shape[0] > 100
+    for picture in ("teddy_eigenfunctions.png", "demo_reduced.png", "demo_full.png",
+                    "examples_on_object.png"):
+        assert _png_pixels(tmp_path / picture).shape[0] > 100, picture
+    simulation = summary["simulation"]
+    assert simulation["reduced"]["stable"] and simulation["full"]["stable"]
+    assert 0.0 <= simulation["error_vs_full"] < 1.0, simulation["error_vs_full"]
