@@ -213,8 +213,8 @@ def test_default_linear_modes_rule():
 def test_rigid_pinning_accepts_a_free_car_body():
     """Regression: the pinning check read a wrong entry of the QR factor and refused
     bodies such as the car; it must pin exactly 6 well-conditioned DOFs."""
-    from lbshape.element_kernels import mass_matrix
     from lbshape.elastic_modes import rigid_body_modes
+    from lbshape.element_kernels import mass_matrix
     from lbshape.modal_derivatives import _unpinned_dofs
     from lbshape.shapes import build_shape
 

@@ -152,7 +152,8 @@ def test_hard_cases_are_stable_or_fail_clearly(demo, change):
     if "twist" in change:
         poses = tuple(dataclasses.replace(p, parameters={**p.parameters, "angle": change["twist"]})
                       for p in scene.examples.poses)
-        scene = dataclasses.replace(scene, examples=dataclasses.replace(scene.examples, poses=poses))
+        examples = dataclasses.replace(scene.examples, poses=poses)
+        scene = dataclasses.replace(scene, examples=examples)
     if "stiffness" in change:
         scene = dataclasses.replace(
             scene, examples=dataclasses.replace(scene.examples, stiffness=change["stiffness"]))
