@@ -231,6 +231,29 @@ def load_mesh(path: str | Path, *, require_connected: bool = True) -> TetMesh:
     return check_mesh(mesh, require_connected=require_connected, source=str(path))
 
 
+#: gmsh options every lbshape model starts from (see :func:`gmsh_model`), so meshing
+#: neither leaks options into nor inherits them from other gmsh work
+GMSH_OPTION_BASELINE = {
+    "Mesh.MeshSizeMin": 0.0,
+    "Mesh.MeshSizeMax": 1e22,
+    "Mesh.MeshSizeFactor": 1.0,
+    "Mesh.MeshSizeFromPoints": 1.0,
+    "Mesh.MeshSizeFromCurvature": 0.0,
+    "Mesh.MeshSizeExtendFromBoundary": 1.0,
+    "Mesh.MinimumCirclePoints": 7.0,
+    "Mesh.MinimumCurvePoints": 3.0,
+    "Mesh.Algorithm": 6.0,
+    "Mesh.Algorithm3D": 1.0,
+    "Mesh.Optimize": 1.0,
+    "Mesh.OptimizeNetgen": 0.0,
+    "Mesh.ElementOrder": 1.0,
+    "Mesh.RandomSeed": 1.0,
+    "Mesh.MshFileVersion": 4.1,
+    "Mesh.Binary": 0.0,
+    "Mesh.SaveAll": 0.0,
+}
+
+
 _gmsh_depth = 0
 
 
@@ -255,3 +278,22 @@ def gmsh_session() -> Iterator:
         _gmsh_depth -= 1
         if _gmsh_depth == 0:
             gmsh.finalize()
+
+
+@contextlib.contextmanager
+def gmsh_model(name: str) -> Iterator:
+    """Yield ``gmsh`` with a fresh, empty model ``name`` and the options of
+    :data:`GMSH_OPTION_BASELINE`; the caller's options are restored and the model
+    cleared on exit (deterministic meshing whatever ran before)."""
+    with gmsh_session() as gmsh:
+        saved = {key: gmsh.option.getNumber(key) for key in GMSH_OPTION_BASELINE}
+        gmsh.clear()
+        try:
+            for key, value in GMSH_OPTION_BASELINE.items():
+                gmsh.option.setNumber(key, value)
+            gmsh.model.add(name)
+            yield gmsh
+        finally:
+            gmsh.clear()
+            for key, value in saved.items():
+                gmsh.option.setNumber(key, value)

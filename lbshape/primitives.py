@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lbshape.mesh import TetMesh, check_mesh, gmsh_session, mesh_from_gmsh_model, signed_volumes
+from lbshape.mesh import TetMesh, check_mesh, gmsh_model, mesh_from_gmsh_model, signed_volumes
 
 # The 6 tetrahedra of the unit cube sharing the diagonal (0,0,0)-(1,1,1), in terms of
 # the local corner index i + 2j + 4k.
@@ -61,18 +61,14 @@ def box(
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> TetMesh:
     """Unstructured gmsh tet mesh of a box with target edge length ``h`` (metres)."""
-    with gmsh_session() as gmsh:
-        gmsh.clear()
-        gmsh.model.add("box")
+    with gmsh_model("box") as gmsh:
         gmsh.model.occ.addBox(*origin, *size)
         return _mesh_current_model(gmsh, h, "box")
 
 
 def cylinder(radius: float = 0.1, length: float = 1.0, h: float = 0.05) -> TetMesh:
     """Unstructured tet mesh of a cylinder along z, base centred at the origin."""
-    with gmsh_session() as gmsh:
-        gmsh.clear()
-        gmsh.model.add("cylinder")
+    with gmsh_model("cylinder") as gmsh:
         gmsh.model.occ.addCylinder(0, 0, 0, 0, 0, length, radius)
         return _mesh_current_model(gmsh, h, "cylinder")
 
@@ -83,8 +79,4 @@ def _mesh_current_model(gmsh, h: float, name: str) -> TetMesh:
     gmsh.option.setNumber("Mesh.MeshSizeMax", h)
     gmsh.option.setNumber("Mesh.RandomSeed", 1)
     gmsh.model.mesh.generate(3)
-    try:
-        mesh = mesh_from_gmsh_model(gmsh.model, source=name)
-    finally:
-        gmsh.clear()
-    return check_mesh(mesh, source=name)
+    return check_mesh(mesh_from_gmsh_model(gmsh.model, source=name), source=name)

@@ -27,7 +27,7 @@ from pathlib import Path
 from types import ModuleType
 
 from lbshape.errors import LbshapeError
-from lbshape.mesh import TetMesh, check_mesh, gmsh_session, mesh_from_gmsh_model
+from lbshape.mesh import TetMesh, check_mesh, gmsh_model, mesh_from_gmsh_model
 
 log = logging.getLogger(__name__)
 
@@ -38,27 +38,6 @@ TARGET_RTOL = 0.2
 #: refuse sizes whose estimated tetrahedron count exceeds this (protects memory)
 MAX_ESTIMATED_TETS = 2_000_000
 
-# gmsh options a script may set; build_shape starts each build from these values
-# and restores the caller's values afterwards, so builds neither leak nor inherit.
-_OPTION_BASELINE = {
-    "Mesh.MeshSizeMin": 0.0,
-    "Mesh.MeshSizeMax": 1e22,
-    "Mesh.MeshSizeFactor": 1.0,
-    "Mesh.MeshSizeFromPoints": 1.0,
-    "Mesh.MeshSizeFromCurvature": 0.0,
-    "Mesh.MeshSizeExtendFromBoundary": 1.0,
-    "Mesh.MinimumCirclePoints": 7.0,
-    "Mesh.MinimumCurvePoints": 3.0,
-    "Mesh.Algorithm": 6.0,
-    "Mesh.Algorithm3D": 1.0,
-    "Mesh.Optimize": 1.0,
-    "Mesh.OptimizeNetgen": 0.0,
-    "Mesh.ElementOrder": 1.0,
-    "Mesh.RandomSeed": 1.0,
-    "Mesh.MshFileVersion": 4.1,
-    "Mesh.Binary": 0.0,
-    "Mesh.SaveAll": 0.0,
-}
 
 
 @dataclass(frozen=True)
@@ -251,27 +230,17 @@ def _load_script(spec: ShapeSpec) -> ModuleType:
 def _geometry(name: str, size: float | None) -> Iterator[tuple[ModuleType, float, str]]:
     """Yield ``(gmsh, h, source)`` with the shape's geometry built in a fresh model.
 
-    The gmsh options a script may touch start from :data:`_OPTION_BASELINE` and
+    The gmsh options a script may touch start from :data:`lbshape.mesh.GMSH_OPTION_BASELINE` and
     are restored to the caller's values afterwards; the model is cleared on exit.
     """
     spec = get_shape(name)
     h = _check_size(name, size, spec)
     script = _load_script(spec)
     source = f"shape '{name}' (h = {h:g} m)"
-    with gmsh_session() as gmsh:
-        saved = {key: gmsh.option.getNumber(key) for key in _OPTION_BASELINE}
-        gmsh.clear()
-        try:
-            for key, value in _OPTION_BASELINE.items():
-                gmsh.option.setNumber(key, value)
-            gmsh.model.add(name)
-            script.build(gmsh.model, h)
-            gmsh.model.occ.synchronize()
-            yield gmsh, h, source
-        finally:
-            gmsh.clear()
-            for key, value in saved.items():
-                gmsh.option.setNumber(key, value)
+    with gmsh_model(name) as gmsh:
+        script.build(gmsh.model, h)
+        gmsh.model.occ.synchronize()
+        yield gmsh, h, source
 
 
 @contextmanager
