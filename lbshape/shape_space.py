@@ -33,6 +33,7 @@ eigenvalues, constant mode excluded):
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -193,8 +194,7 @@ def embed_example(
     frame = body_frame(object_mesh) if object_frame is None else object_frame
     aligned = align_to_object(example_rest.points, example_rest.tets, frame,
                               reference_points=object_mesh.points)
-    offered = min(m + EXAMPLE_EXTRA_MODES, example_rest.n_vertices - 2)
-    spectrum = lb_spectrum(example_rest.with_points(aligned.points), max(offered, m))
+    spectrum = offered_spectrum(example_rest.with_points(aligned.points), m)
     alignment = align_bases(object_spectrum, object_mesh, spectrum, aligned.points,
                             landmarks=landmarks, max_residual=max_residual)
     coefficients = np.array([
@@ -204,6 +204,22 @@ def embed_example(
         for p in poses
     ]).reshape(len(poses), m, 3)
     return EmbeddedExample(aligned, alignment, coefficients)
+
+
+def offered_spectrum(example: TetMesh, m: int, *, cluster_rtol: float = 1e-3) -> LBSpectrum:
+    """The example eigenpairs offered to the basis alignment: m plus up to
+    :data:`~lbshape.alignment.EXAMPLE_EXTRA_MODES` more, never cutting through a
+    cluster of (near-)equal eigenvalues — a cut would offer an arbitrary half of a
+    degenerate eigenspace, chosen by the eigensolver's random start."""
+    wanted = min(m + EXAMPLE_EXTRA_MODES, example.n_vertices - 3)
+    spectrum = lb_spectrum(example, max(wanted, m) + 1)
+    values = spectrum.eigenvalues
+    count = max(wanted, m)
+    while count > m and values[count] - values[count - 1] <= cluster_rtol * values[count]:
+        count -= 1
+    return dataclasses.replace(spectrum, eigenvalues=values[:count],
+                               eigenvectors=spectrum.eigenvectors[:, :count],
+                               residuals=spectrum.residuals[:count])
 
 
 def direct_projection(basis: np.ndarray, eigenvectors: np.ndarray,
