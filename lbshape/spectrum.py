@@ -67,6 +67,9 @@ from lbshape.mesh import TetMesh
 log = logging.getLogger(__name__)
 
 #: PETSc/SLEPc options prefix of the LB eigensolver
+#: seed of the eigensolver's start vector (deterministic eigenvectors)
+START_SEED = 1234
+
 OPTIONS_PREFIX = "lb_"
 #: the target is ``-TARGET_FRACTION (π/D)²``
 TARGET_FRACTION = 0.01
@@ -383,12 +386,22 @@ def _krylov_schur(mats: LBMatrices, nev: int, sigma: float, tol: float,
         pc.setType("cholesky")
         pc.setFactorSolverType(factor_package(comm))
         eps.setFromOptions()
+        # a seeded start vector: eigenvectors inside degenerate eigenspaces then do not
+        # depend on how many solves ran before in the process (SLEPc's default random
+        # start draws from a global generator)
+        start = mats.stiffness.createVecRight()
+        low, high = start.getOwnershipRange()
+        start.setArray(np.random.default_rng(START_SEED).random(start.getSize())[low:high])
+        basis.append(start)
+        eps.setInitialSpace([start])
         if deflation is not None:
+            deflation_space = []
             for column in deflation.T:
                 vec = mats.stiffness.createVecRight()
                 vec.setArray(column)
                 basis.append(vec)
-            eps.setDeflationSpace(basis)
+                deflation_space.append(vec)
+            eps.setDeflationSpace(deflation_space)
         tol = eps.getTolerances()[0]  # as overridden by -lb_eps_tol, if given
         eps.solve()
         n_converged = eps.getConverged()
