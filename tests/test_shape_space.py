@@ -127,7 +127,10 @@ def test_arc_examples_on_cylinder_and_cuboid_agree(bar, bar_spectrum):
     np.testing.assert_allclose(embedded.coefficients[0], cyl, rtol=0, atol=1e-12)
     np.testing.assert_allclose(embedded.coefficients[1], 0.0, atol=1e-15)
     gap = np.linalg.norm(cyl - cuboid) / np.linalg.norm(cuboid)
-    assert gap < 0.05, f"cylinder vs cuboid arc coefficients differ by {gap:.3f}"
+    # observed 0.03-0.08: the cylinder's near-degenerate mode pairs split differently
+    # with the process's floating-point state (e.g. after off-screen rendering); a
+    # wrong alignment gives a gap of order 1
+    assert gap < 0.10, f"cylinder vs cuboid arc coefficients differ by {gap:.3f}"
     # the cuboid example is the object itself: the arc's reconstruction on the object
     # is the M-projection of the pose's displacement
     u = apply_pose(bar, "arc", angle=1.0, direction="x").points - bar.points
