@@ -28,27 +28,14 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from mpi4py import MPI
 
+    from lbshape.commands._collective import run_collectively
     from lbshape.commands._output import print_json
-    from lbshape.errors import LbshapeError
     from lbshape.mesh import load_mesh
     from lbshape.spectrum import lb_spectrum
 
     comm = MPI.COMM_WORLD
-    try:
-        error, mesh = None, None
-        if comm.rank == 0:
-            try:
-                mesh = load_mesh(args.mesh)
-            except LbshapeError as exc:
-                error = exc
-        error = comm.bcast(error, root=0)
-        if error is not None:
-            raise error
-        spectrum = lb_spectrum(mesh, args.m, comm=comm)
-    except LbshapeError as exc:
-        if comm.rank == 0:
-            raise
-        raise SystemExit(exc.exit_code) from None  # rank 0 alone reports the error
+    mesh, spectrum = run_collectively(
+        comm, lambda: load_mesh(args.mesh), lambda mesh: lb_spectrum(mesh, args.m, comm=comm))
     if comm.rank != 0:
         return 0
     payload = {

@@ -41,29 +41,21 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from mpi4py import MPI
 
+    from lbshape.commands._collective import run_collectively
     from lbshape.commands._output import print_json
     from lbshape.elastic_modes import linear_modes
-    from lbshape.errors import LbshapeError
 
     comm = MPI.COMM_WORLD
-    try:
-        error = mesh = material = fixed = None
-        if comm.rank == 0:
-            try:
-                mesh, material, fixed = _inputs(args)
-            except LbshapeError as exc:
-                error = exc
-        error = comm.bcast(error, root=0)
-        if error is not None:
-            raise error
+
+    def solve(inputs):
+        mesh, material, fixed = inputs if inputs is not None else (None, None, None)
         material = comm.bcast(material, root=0)
-        modes = linear_modes(mesh, material, args.r, fixed_vertices=fixed, comm=comm)
-    except LbshapeError as exc:
-        if comm.rank == 0:
-            raise
-        raise SystemExit(exc.exit_code) from None  # rank 0 alone reports the error
+        return linear_modes(mesh, material, args.r, fixed_vertices=fixed, comm=comm)
+
+    inputs, modes = run_collectively(comm, lambda: _inputs(args), solve)
     if comm.rank != 0:
         return 0
+    mesh, _, fixed = inputs
     payload = {
         "n_vertices": mesh.n_vertices,
         "n_tets": mesh.n_tets,
