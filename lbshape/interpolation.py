@@ -25,6 +25,7 @@ warm-started from the previous target.
 from __future__ import annotations
 
 import itertools
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -33,6 +34,8 @@ import numpy as np
 import scipy.linalg
 
 from lbshape.errors import LbshapeError, SolverError
+
+log = logging.getLogger(__name__)
 
 
 class EnergyModel(Protocol):
@@ -114,12 +117,15 @@ class TargetResult:
         iterations: Newton iterations used.
         gradient_norm: ‖∇F‖ at the last Hessian evaluation (J per unit of z).
         energy: final F(z) in J.
+        converged: False when ``max_iterations`` ended the solve before the step
+            tolerance was reached (the first such solve of a solver logs a warning).
     """
 
     z: np.ndarray
     iterations: int
     gradient_norm: float
     energy: float
+    converged: bool = True
 
 
 class TargetSolver:
@@ -150,6 +156,7 @@ class TargetSolver:
         self.tolerance = float(tolerance)
         self.max_iterations = int(max_iterations)
         self._last: np.ndarray | None = None
+        self._warned = False
 
     @property
     def dimension(self) -> int:
@@ -199,7 +206,7 @@ class TargetSolver:
         step_tolerance = self.tolerance * max(float(np.linalg.norm(self.offsets, axis=1).max()),
                                               1e-300)
         f, g, H = self._evaluate(z, weights)
-        iterations = 0
+        iterations, converged = 0, not np.linalg.norm(g) > 0.0
         while iterations < self.max_iterations and np.linalg.norm(g) > 0.0:
             iterations += 1
             step = _newton_direction(H, g)
@@ -212,10 +219,16 @@ class TargetSolver:
             if not np.isfinite(f_new):
                 raise SolverError(f"target interpolation diverged (energy {f_new})")
             z, f, g, H = z + t * step, f_new, g_new, H_new
-            if t * np.linalg.norm(step) <= step_tolerance:
+            if t * np.linalg.norm(step) <= step_tolerance or not np.linalg.norm(g) > 0.0:
+                converged = True
                 break
         self._last = z.copy()
-        return TargetResult(z, iterations, float(np.linalg.norm(g)), f)
+        if not converged and not self._warned:
+            self._warned = True
+            log.warning("target interpolation stopped at max_iterations=%d before its step "
+                        "tolerance (|grad| = %.3e); later occurrences are not logged",
+                        self.max_iterations, float(np.linalg.norm(g)))
+        return TargetResult(z, iterations, float(np.linalg.norm(g)), f, converged)
 
     def reset(self) -> None:
         """Forget the warm start."""

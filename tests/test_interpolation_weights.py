@@ -53,3 +53,23 @@ def test_dimension_mismatch_is_a_clear_error():
         simplex_weights(np.zeros((2, 6)), np.zeros(5))
     with pytest.raises(LbshapeError, match="k >= 1"):
         simplex_weights(np.zeros((0, 6)), np.zeros(6))
+
+
+def test_target_solver_reports_non_convergence(caplog):
+    """A solve cut short by max_iterations says so instead of returning silently."""
+    from lbshape.interpolation import TargetSolver
+
+    class Quartic:  # E(y) = Σ y⁴: Newton converges only linearly towards 0
+        def energy(self, y):
+            return float(np.sum(y**4))
+
+        def force_and_tangent(self, y):
+            return 4 * y**3, np.diag(12 * y**2)
+
+    solver = TargetSolver([Quartic()], np.zeros((1, 3)), tolerance=1e-12, max_iterations=3)
+    result = solver.solve(np.ones(1), start=np.ones(3))
+    assert not result.converged and result.iterations == 3
+    assert "max_iterations" in caplog.text
+    converged = TargetSolver([Quartic()], np.ones((1, 3)), max_iterations=200).solve(
+        np.ones(1), start=np.ones(3) * 1.5)
+    assert converged.converged
