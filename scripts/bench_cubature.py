@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import os
 
+from lbshape.atomic_io import write_bytes_atomic
+
 if __name__ == "__main__":  # single-threaded BLAS for the timings, set before numpy loads
     for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(_var, "1")
@@ -30,7 +32,6 @@ import io
 import itertools
 import logging
 import platform
-import tempfile
 import timeit
 from pathlib import Path
 
@@ -192,18 +193,6 @@ def time_force_and_tangent(
 
 
 # -- outputs --------------------------------------------------------------------------------
-def _write_atomic(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=path.suffix, dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
 def write_error_outputs(result: dict, out_dir: Path) -> tuple[Path, Path]:
     """Write ``cubature_error_vs_s.csv`` and ``.png``; returns their paths."""
     import matplotlib
@@ -223,7 +212,7 @@ def write_error_outputs(result: dict, out_dir: Path) -> tuple[Path, Path]:
     for s, train, hold in result["rows"]:
         writer.writerow([s, f"{train:.6e}", f"{hold:.6e}"])
     csv_path = Path(out_dir) / "cubature_error_vs_s.csv"
-    _write_atomic(csv_path, text.getvalue().encode())
+    write_bytes_atomic(csv_path, text.getvalue().encode())
 
     s, train, hold = np.array(result["rows"]).T
     fig, ax = plt.subplots(figsize=(5.5, 3.8), dpi=120)
@@ -240,7 +229,7 @@ def write_error_outputs(result: dict, out_dir: Path) -> tuple[Path, Path]:
     fig.savefig(buffer, format="png")
     plt.close(fig)
     png_path = Path(out_dir) / "cubature_error_vs_s.png"
-    _write_atomic(png_path, buffer.getvalue())
+    write_bytes_atomic(png_path, buffer.getvalue())
     return csv_path, png_path
 
 
@@ -277,7 +266,7 @@ def write_timing_markdown(rows: list[dict], out_dir: Path, *, number: int, repea
             f"min {best:.1f} µs — **{'met' if best <= TARGET_US else 'NOT met'}**.",
         ]
     path = Path(out_dir) / "reduced_force_timing.md"
-    _write_atomic(path, ("\n".join(lines) + "\n").encode())
+    write_bytes_atomic(path, ("\n".join(lines) + "\n").encode())
     return path
 
 

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import os
 
+from lbshape.atomic_io import write_bytes_atomic
+
 if __name__ == "__main__":  # before numpy/PETSc load their threading libraries
     for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(_var, "1")
@@ -31,7 +33,6 @@ import logging
 import platform
 import statistics
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, fields
@@ -151,9 +152,10 @@ def run_benchmark(ks: Sequence[int] = DEFAULT_K, ms: Sequence[int] = DEFAULT_M, 
             "the run (the machine is shared; other load slows the memory-bound solves).")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    _write_atomic(out_dir / "eigen_benchmark.csv", _csv_text(rows).encode())
-    _write_atomic(out_dir / "eigen_benchmark.md", markdown_table(rows, tol=tol, note=note).encode())
-    _write_atomic(out_dir / "eigen_benchmark.png", _plot_png(rows))
+    write_bytes_atomic(out_dir / "eigen_benchmark.csv", _csv_text(rows).encode())
+    table = markdown_table(rows, tol=tol, note=note)
+    write_bytes_atomic(out_dir / "eigen_benchmark.md", table.encode())
+    write_bytes_atomic(out_dir / "eigen_benchmark.png", _plot_png(rows))
     return rows
 
 
@@ -244,17 +246,6 @@ def _plot_png(rows: Sequence[Row]) -> bytes:
     fig.savefig(buffer, format="png")
     plt.close(fig)
     return buffer.getvalue()
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def main() -> int:
