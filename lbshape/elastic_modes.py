@@ -46,9 +46,15 @@ from mpi4py import MPI
 
 from lbshape.dolfinx_bridge import dof_to_input_order, p1_dof_vertices, to_dolfinx
 from lbshape.errors import LbshapeError, SolverError
+from lbshape.gep import (
+    b_orthonormalise,
+    fix_signs,
+    reason_name,
+    relative_residuals,
+    shift_invert_eps,
+)
 from lbshape.materials import Material, strain_energy_ufl
 from lbshape.mesh import TetMesh
-from lbshape.spectrum import _fix_signs, _m_orthonormalise, _reason_name, _relative_residuals
 
 log = logging.getLogger(__name__)
 
@@ -386,10 +392,10 @@ def linear_modes(
     residuals = rigid_residual = None
     rigid = elastic = None
     if comm.rank == 0:
-        vectors = _m_orthonormalise(vectors[:, :nev], M)
-        rigid, elastic = vectors[:, :n_rigid], _fix_signs(vectors[:, n_rigid:])
+        vectors = b_orthonormalise(vectors[:, :nev], M, what="elastic mode vectors")
+        rigid, elastic = vectors[:, :n_rigid], fix_signs(vectors[:, n_rigid:])
         Kf, Mf = K[free_dofs], M[free_dofs]
-        residuals = _relative_residuals(Kf, Mf, omega2, elastic)
+        residuals = relative_residuals(Kf, Mf, omega2, elastic)
         if n_rigid:
             rigid_residual = float(np.max(np.linalg.norm(Kf @ rigid, axis=0)
                                           / np.linalg.norm(Mf @ rigid, axis=0)))
@@ -422,26 +428,11 @@ def _solve_eigenproblem(mats: ElasticMatrices, nev: int, sigma: float,
                         tol: float) -> tuple[np.ndarray, np.ndarray, float]:
     """The ``nev`` pairs nearest σ: ascending values (nev,), local vectors (l, nev) and
     the tolerance used (``tol`` unless overridden by the options)."""
-    from slepc4py import SLEPc
 
-    eps = SLEPc.EPS().create(mats.comm)
+    eps = shift_invert_eps(mats.stiffness_petsc, mats.mass_petsc, comm=mats.comm,
+                           prefix=OPTIONS_PREFIX, nev=nev, sigma=sigma, tol=tol,
+                           factor="mumps")
     try:
-        eps.setOptionsPrefix(OPTIONS_PREFIX)
-        eps.setOperators(mats.stiffness_petsc, mats.mass_petsc)
-        eps.setProblemType(SLEPc.EPS.ProblemType.GHEP)
-        eps.setType(SLEPc.EPS.Type.KRYLOVSCHUR)
-        eps.setDimensions(nev=nev)
-        eps.setTarget(sigma)
-        eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
-        eps.setTolerances(tol=tol, max_it=1000)
-        st = eps.getST()
-        st.setType(SLEPc.ST.Type.SINVERT)
-        st.setShift(sigma)
-        ksp = st.getKSP()
-        ksp.setType("preonly")
-        pc = ksp.getPC()
-        pc.setType("cholesky")
-        pc.setFactorSolverType("mumps")
         eps.setFromOptions()
         tol = eps.getTolerances()[0]  # as overridden by -elastic_eps_tol, if given
         eps.solve()
@@ -449,7 +440,7 @@ def _solve_eigenproblem(mats: ElasticMatrices, nev: int, sigma: float,
         if n_converged < nev:
             raise SolverError(
                 f"elastic eigensolver converged {n_converged} of {nev} requested pairs "
-                f"({_reason_name(eps.getConvergedReason())}, {eps.getIterationNumber()} "
+                f"({reason_name(eps.getConvergedReason())}, {eps.getIterationNumber()} "
                 f"iterations, tol={tol:g}, target={sigma:.3e})"
             )
         values = np.empty(n_converged)

@@ -62,6 +62,13 @@ from mpi4py import MPI
 
 from lbshape.dolfinx_bridge import p1_dof_vertices, petsc_to_scipy, to_dolfinx
 from lbshape.errors import LbshapeError, SolverError
+from lbshape.gep import (
+    b_orthonormalise,
+    fix_signs,
+    reason_name,
+    relative_residuals,
+    shift_invert_eps,
+)
 from lbshape.mesh import TetMesh
 
 log = logging.getLogger(__name__)
@@ -82,7 +89,6 @@ MAX_COMPLETION_ROUNDS = 4
 #: computed eigenvalues closer than this (relative) are one cluster for the inertia check
 CLUSTER_RTOL = 1e-6
 #: relative margin for the sign rule (see the module docstring)
-SIGN_RTOL = 1e-6
 
 
 @dataclasses.dataclass(frozen=True)
@@ -315,8 +321,8 @@ def lb_spectrum_from_matrices(
     vectors = mats.gather_columns(local)
     residuals = None
     if comm.rank == 0:
-        vectors = _fix_signs(_m_orthonormalise(vectors, M))
-        residuals = _relative_residuals(K, M, values, vectors)
+        vectors = fix_signs(b_orthonormalise(vectors, M, what="LB eigenvectors"))
+        residuals = relative_residuals(K, M, values, vectors)
     residuals = comm.bcast(residuals, root=0)
     bad = residuals > RESIDUAL_FACTOR * run.tol
     if bad.any():
@@ -361,30 +367,14 @@ def _krylov_schur(mats: LBMatrices, nev: int, sigma: float, tol: float,
     Args:
         deflation: (n_owned, d) owned rows of known eigenvectors, or ``None``.
     """
-    from slepc4py import SLEPc
 
     comm = mats.comm
-    eps = SLEPc.EPS().create(comm)
+    eps = shift_invert_eps(mats.stiffness, mats.mass, comm=comm, prefix=OPTIONS_PREFIX,
+                           nev=nev, sigma=sigma, tol=tol, factor=factor_package(comm))
     basis = []
     try:
-        eps.setOptionsPrefix(OPTIONS_PREFIX)
-        eps.setOperators(mats.stiffness, mats.mass)
-        eps.setProblemType(SLEPc.EPS.ProblemType.GHEP)
-        eps.setType(SLEPc.EPS.Type.KRYLOVSCHUR)
-        eps.setDimensions(nev=nev)
-        eps.setTarget(sigma)
-        eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
-        eps.setTolerances(tol=tol, max_it=1000)
         # M is positive definite: purification (one extra solve per vector) is not needed
         eps.setPurify(False)
-        st = eps.getST()
-        st.setType(SLEPc.ST.Type.SINVERT)
-        st.setShift(sigma)
-        ksp = st.getKSP()
-        ksp.setType("preonly")
-        pc = ksp.getPC()
-        pc.setType("cholesky")
-        pc.setFactorSolverType(factor_package(comm))
         eps.setFromOptions()
         # a seeded start vector: eigenvectors inside degenerate eigenspaces then do not
         # depend on how many solves ran before in the process (SLEPc's default random
@@ -408,9 +398,10 @@ def _krylov_schur(mats: LBMatrices, nev: int, sigma: float, tol: float,
         if n_converged < eps.getDimensions()[0]:
             raise SolverError(
                 f"LB eigensolver converged {n_converged} of {eps.getDimensions()[0]} requested "
-                f"pairs ({_reason_name(eps.getConvergedReason())}, "
+                f"pairs ({reason_name(eps.getConvergedReason())}, "
                 f"{eps.getIterationNumber()} iterations, tol={tol:g}, target={sigma:.3e})"
             )
+        pc = eps.getST().getKSP().getPC()
         info = (f"factor={pc.getFactorSolverType()} nev={eps.getDimensions()[0]} "
                 f"ncv={eps.getDimensions()[1]} iterations={eps.getIterationNumber()}")
         values = np.array([eps.getEigenvalue(i).real for i in range(n_converged)])
@@ -514,13 +505,6 @@ def factor_package(comm: MPI.Comm) -> str:
     return "mumps"
 
 
-def _reason_name(reason: int) -> str:
-    from slepc4py import SLEPc
-
-    names = {v: k for k, v in vars(SLEPc.EPS.ConvergedReason).items() if k.isupper()}
-    return names.get(int(reason), f"reason {int(reason)}")
-
-
 def _check_single_zero(values: np.ndarray, scale: float) -> None:
     """Exactly one of the ascending ``values`` must be (numerically) zero."""
     zero = np.abs(values) <= ZERO_RTOL * scale
@@ -535,33 +519,3 @@ def _check_single_zero(values: np.ndarray, scale: float) -> None:
         )
     if values.size > 1 and values[1] <= 0.0:
         raise SolverError(f"negative LB eigenvalue {values[1]:.3e}: the matrices are invalid")
-
-
-def _m_orthonormalise(vectors: np.ndarray, M: sp.spmatrix) -> np.ndarray:
-    """Löwdin: ``Φ G^(-1/2)`` with ``G = ΦᵀMΦ``; Φ (n, m) -> M-orthonormal (n, m)."""
-    gram = vectors.T @ (M @ vectors)
-    gram = 0.5 * (gram + gram.T)
-    w, q = np.linalg.eigh(gram)
-    if w.min() <= 1e-8 * w.max():
-        raise SolverError(
-            f"LB eigenvectors are linearly dependent (Gram eigenvalues {w.min():.2e} .. "
-            f"{w.max():.2e})"
-        )
-    return vectors @ (q @ np.diag(w ** -0.5) @ q.T)
-
-
-def _fix_signs(vectors: np.ndarray) -> np.ndarray:
-    """Make each column positive at its first vertex with ``|φ| ≥ (1−SIGN_RTOL) max|φ|``."""
-    mag = np.abs(vectors)
-    first = np.argmax(mag >= (1.0 - SIGN_RTOL) * mag.max(axis=0), axis=0)
-    signs = np.sign(vectors[first, np.arange(vectors.shape[1])])
-    signs[signs == 0] = 1.0
-    return vectors * signs
-
-
-def _relative_residuals(K, M, values: np.ndarray, vectors: np.ndarray) -> np.ndarray:
-    """(m,) ``‖Kφ − λMφ‖ / (|λ|‖Mφ‖ + ‖Kφ‖)`` per column."""
-    KV, MV = K @ vectors, M @ vectors
-    num = np.linalg.norm(KV - MV * values, axis=0)
-    den = np.abs(values) * np.linalg.norm(MV, axis=0) + np.linalg.norm(KV, axis=0)
-    return num / den
