@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import importlib.util
 import json
 from pathlib import Path
 
@@ -17,7 +16,6 @@ from lbshape.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.mesh import TetMesh
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "bench_table2.py"
 STEPS = 15  # > the 10 warm-up steps
 
 
@@ -153,10 +151,8 @@ def test_bench_command_rejects_too_few_steps_without_output(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_bench_script_writes_table_and_sweep(tmp_path):
-    spec = importlib.util.spec_from_file_location("bench_table2", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+def test_bench_script_writes_table_and_sweep(tmp_path, load_script):
+    module = load_script("bench_table2")
     paths = module.main([
         "demo", "--steps", str(STEPS), "--repeats", "1", "--sweep-scene", "demo",
         "--sweep-r", "12", "--sweep-s", "10,20", "--sweep-m", "", "--sweep-steps", str(STEPS),

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import csv
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,17 +26,9 @@ R = 9
 HOLDOUT_FACTOR = 3.0
 
 
-def load_bench_script():
-    path = Path(__file__).resolve().parents[1] / "scripts" / "bench_cubature.py"
-    spec = importlib.util.spec_from_file_location("bench_cubature", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.fixture(scope="module")
-def bench():
-    return load_bench_script()
+def bench(load_script):
+    return load_script("bench_cubature")
 
 
 def material(model: str) -> Material:

@@ -406,15 +406,11 @@ def test_bad_parameters_and_shapes_raise_clear_errors():
         energy_density(material("stvk"), np.eye(3))
 
 
-def test_benchmark_script_smoke(tmp_path):
-    import importlib.util
+def test_benchmark_script_smoke(tmp_path, load_script):
     import json
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "scripts" / "bench_element_kernels.py"
-    spec = importlib.util.spec_from_file_location("bench_element_kernels", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script("bench_element_kernels")
     out = module.main(
         ["--elements", "7", "--number", "2", "--repeats", "2", "-o", str(tmp_path / "bench.json")]
     )

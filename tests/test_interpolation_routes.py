@@ -116,18 +116,11 @@ def test_an_unrelated_example_fails_alignment():
         precompute(_scene([{"shape": "cube"}]))
 
 
-def test_benchmark_script_smoke(tmp_path, monkeypatch):
+def test_benchmark_script_smoke(tmp_path, load_script):
     """scripts/bench_interpolation.py on the demo scene, a few calls: files and sanity."""
     import csv
-    import importlib.util
-    import sys
-    from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "scripts" / "bench_interpolation.py"
-    spec = importlib.util.spec_from_file_location("bench_interpolation", path)
-    bench = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, spec.name, bench)  # dataclasses look their module up
-    spec.loader.exec_module(bench)
+    bench = load_script("bench_interpolation")
     written = bench.main(["demo", "--m", "4", "--calls", "6", "--steps", "30", "--repeats", "1",
                           "--out-dir", str(tmp_path)])
     assert sorted(p.name for p in written) == [

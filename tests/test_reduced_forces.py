@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -18,15 +15,6 @@ MODELS = ("stvk", "neohookean")
 R = 9
 
 
-def load_bench_script():
-    """The benchmark script as a module (for its smooth polynomial basis)."""
-    path = Path(__file__).resolve().parents[1] / "scripts" / "bench_cubature.py"
-    spec = importlib.util.spec_from_file_location("bench_cubature", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def material(model: str) -> Material:
     return Material(model, young=2.0e5, poisson=0.35, density=1100.0)
 
@@ -36,10 +24,10 @@ def rel(a, b) -> float:
 
 
 @pytest.fixture(scope="module")
-def bar():
+def bar(load_script):
     """A coarse 0.2 × 0.2 × 1 m bar (81 vertices, 192 tets) and a smooth basis (3n, 9)."""
     mesh = structured_box((0.2, 0.2, 1.0), (2, 2, 8))
-    U = load_bench_script().polynomial_basis(mesh, R, density=1100.0)
+    U = load_script("bench_cubature").polynomial_basis(mesh, R, density=1100.0)
     return mesh, U
 
 

@@ -402,15 +402,9 @@ def test_python_api_on_two_ranks_matches_serial(tmp_path):
 # ---------------------------------------------------------------- benchmark script
 
 
-def test_bench_eigen_smoke(tmp_path, monkeypatch):
+def test_bench_eigen_smoke(tmp_path, load_script):
     """The benchmark runs on a tiny box, agrees with scipy and writes its three files."""
-    import importlib.util
-
-    path = REPO / "scripts" / "bench_eigen.py"
-    spec = importlib.util.spec_from_file_location("bench_eigen", path)
-    bench = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, "bench_eigen", bench)  # dataclasses look the module up
-    spec.loader.exec_module(bench)
+    bench = load_script("bench_eigen")
     rows = bench.run_benchmark((3,), (4,), out_dir=tmp_path, repeats=lambda n: (1, 1))
     assert len(rows) == 1 and rows[0].n_vertices == 7 * 4 * 4
     assert rows[0].max_rel_eig_diff < 1e-8, rows[0]
