@@ -8,7 +8,7 @@ Writes (atomically):
   force error of a greedy + NNLS cubature against its number of elements s, on the
   cuboid bar (StVK), for the basis named in the files;
 * ``reduced_force_timing.md``: median time per ``force_and_tangent`` call of
-  :class:`~lbshape.reduced_forces.ReducedForceModel` for the paper's (r, s), with
+  :class:`~lbshape.elastic.reduced_forces.ReducedForceModel` for the paper's (r, s), with
   the thread settings.
 
 The error curve comes from one greedy run up to ``s_max`` with tolerance 0: the
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import os
 
-from lbshape.atomic_io import write_bytes_atomic
+from lbshape.io.atomic import write_bytes_atomic
 
 if __name__ == "__main__":  # single-threaded BLAS for the timings, set before numpy loads
     for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -37,11 +37,11 @@ from pathlib import Path
 
 import numpy as np
 
-from lbshape.cubature import inverse_frequency_scales, train_cubature, training_poses
-from lbshape.element_kernels import FullSpaceElasticity, mass_matrix
-from lbshape.materials import Material
-from lbshape.mesh import TetMesh
-from lbshape.reduced_forces import ReducedForceModel
+from lbshape.elastic.cubature import inverse_frequency_scales, train_cubature, training_poses
+from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
+from lbshape.elastic.materials import Material
+from lbshape.elastic.reduced_forces import ReducedForceModel
+from lbshape.geometry.mesh import TetMesh
 
 log = logging.getLogger(__name__)
 
@@ -55,9 +55,9 @@ TARGET_US = 150.0  # goal for r = 30, s = 60
 def bar_mesh() -> tuple[TetMesh, str]:
     """The cuboid bar (0.2 × 0.2 × 1 m, about 330 vertices) and how it was made."""
     try:
-        from lbshape.shapes import build_shape
+        from lbshape.geometry.shapes import build_shape
     except ImportError:
-        from lbshape.primitives import box
+        from lbshape.geometry.primitives import box
 
         return box((0.2, 0.2, 1.0), 0.07, origin=(-0.1, -0.1, 0.0)), "primitives.box h=0.07"
     return build_shape("bar-cuboid"), "shapes.build_shape('bar-cuboid')"

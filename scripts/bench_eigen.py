@@ -3,7 +3,7 @@
 For structured 2 x 1 x 1 boxes of about 1k, 10k, 50k and 100k vertices and m = 10,
 30, it times on the *same assembled matrices* (assembly timed separately):
 
-* SLEPc: :func:`lbshape.spectrum.lb_spectrum_from_matrices` (Krylov-Schur,
+* SLEPc: :func:`lbshape.spectral.spectrum.lb_spectrum_from_matrices` (Krylov-Schur,
   shift-and-invert, CHOLMOD Cholesky in serial; includes the inertia completeness
   check, the gather to input order, the M-orthonormalisation and the residual
   check), and the same without the inertia check (``verify=False``);
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import os
 
-from lbshape.atomic_io import write_bytes_atomic
+from lbshape.io.atomic import write_bytes_atomic
 
 if __name__ == "__main__":  # before numpy/PETSc load their threading libraries
     for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -92,8 +92,8 @@ def scipy_eigenvalues(K, M, m: int, sigma: float, tol: float) -> np.ndarray:
 def bench_one(k: int, ms: Sequence[int], *, repeats: Callable[[int], tuple[int, int]],
               tol: float = TOL) -> list[Row]:
     """Time SLEPc and scipy on the (2k, k, k) box for every m in ``ms``."""
-    from lbshape.primitives import structured_box
-    from lbshape.spectrum import TARGET_FRACTION, lb_matrices, lb_spectrum_from_matrices
+    from lbshape.geometry.primitives import structured_box
+    from lbshape.spectral.spectrum import TARGET_FRACTION, lb_matrices, lb_spectrum_from_matrices
 
     mesh = structured_box((2.0, 1.0, 1.0), (2 * k, k, k))
     n = mesh.n_vertices

@@ -7,7 +7,7 @@ For each scene (default: bar-cuboid, bar-cylinder) and each m (the scene's
 ``reduced.m`` overridden; the precompute is cached per m), a realistic sequence of
 states is taken from a reduced simulation of the scene (its loads, examples and
 route; ``calls`` states evenly spaced over ``steps`` steps). Along that sequence
-every route (:data:`lbshape.interpolation_routes.ROUTES`) does the runtime work of
+every route (:data:`lbshape.pipeline.routes.ROUTES`) does the runtime work of
 one step per state — weights (paper eq. 5), the warm-started target (eqs. 4, 6)
 and its reduced coordinates ``q*`` — and is timed per call (wall clock, median over
 all calls of all repeats; routes interleaved per repeat, each repeat from a cold
@@ -42,12 +42,12 @@ from pathlib import Path
 
 import numpy as np
 
-from lbshape.atomic_io import write_text_atomic
 from lbshape.errors import LbshapeError
-from lbshape.interpolation import simplex_weights
-from lbshape.interpolation_routes import ROUTES, target_solver
-from lbshape.precompute import Precomputed, precompute
-from lbshape.scene import Scene, load_scene
+from lbshape.io.atomic import write_text_atomic
+from lbshape.pipeline.precompute import Precomputed, precompute
+from lbshape.pipeline.routes import ROUTES, target_solver
+from lbshape.scene.schema import Scene, load_scene
+from lbshape.shapespace.interpolation import simplex_weights
 
 log = logging.getLogger(__name__)
 
@@ -90,7 +90,7 @@ def state_sequence(scene: Scene, pre: Precomputed, *, calls: int,
     The simulation is the scene's own (loads, examples, the ``reduced`` method);
     the first :data:`WARMUP_STEPS` states are left out.
     """
-    from lbshape.simulation import reduced_simulation
+    from lbshape.pipeline.simulate import reduced_simulation
 
     steps = scene.simulation.steps if steps is None else int(steps)
     record = reduced_simulation(scene, pre).run(steps)
@@ -187,7 +187,7 @@ def example_projection_error(pre: Precomputed, mass) -> float:
 def bench_scene(scene: Scene, *, m_values=DEFAULT_M, calls: int = DEFAULT_CALLS,
                 steps: int | None = None, repeats: int = 3) -> list[dict]:
     """Rows (see :data:`COLUMNS`) for every m and route of one scene."""
-    from lbshape.element_kernels import mass_matrix
+    from lbshape.elastic.element_kernels import mass_matrix
 
     rows = []
     for m in m_values:
@@ -270,7 +270,7 @@ def benchmark_markdown(rows: list[dict], *, paper_m: dict[str, int], repeats: in
         "",
         "Per call (one simulation step's interpolation): weights (paper eq. 5), the "
         "warm-started target (eqs. 4, 6) and its reduced coordinates q*. Routes: "
-        + "; ".join(f"`{route}` ({ROUTE_NOTES.get(route, 'see lbshape.interpolation_routes')})"
+        + "; ".join(f"`{route}` ({ROUTE_NOTES.get(route, 'see lbshape.pipeline.routes')})"
                     for route in dict.fromkeys(r["route"] for r in rows))
         + ". Error: ‖u − u_E‖_M / ‖u_E‖_M of the full-space targets (u = U q* "
         "or L c*) against the `euclidean` one, over the state sequence; reduced error: "
@@ -414,7 +414,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> list[Path]:
     """Run the benchmark; return the paths written."""
-    from lbshape.bench import machine_description
+    from lbshape.report.bench import machine_description
 
     args = parse_args(argv)
     if args.calls < 1 or args.repeats < 1:

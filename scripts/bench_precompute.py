@@ -29,8 +29,8 @@ STAGES = ("mesh", "modes", "derivatives", "basis", "cubature")
 def run(repeats: int = 1) -> list[dict]:
     """Precompute each case from scratch ``repeats`` times; rows of stage seconds."""
     os.environ["LBSHAPE_CACHE"] = tempfile.mkdtemp(prefix="lbshape-bench-")
-    from lbshape.precompute import precompute
-    from lbshape.scene import scene_from_dict
+    from lbshape.pipeline.precompute import precompute
+    from lbshape.scene.schema import scene_from_dict
 
     rows = []
     for label, shape, fixed, r, s in CASES:
@@ -51,7 +51,7 @@ def run(repeats: int = 1) -> list[dict]:
 
 
 def write(rows: list[dict]) -> None:
-    from lbshape.atomic_io import write_text_atomic
+    from lbshape.io.atomic import write_text_atomic
 
     header = ["case", "n_vertices", "n_tets", "r", "s", "free", *STAGES, "total",
               "cubature_holdout"]

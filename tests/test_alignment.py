@@ -10,19 +10,19 @@ import pytest
 from scipy.linalg import subspace_angles
 from scipy.spatial.transform import Rotation
 
-from lbshape.alignment import (
+from lbshape.errors import LbshapeError
+from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.poses import apply_pose
+from lbshape.geometry.primitives import box, cylinder, structured_box
+from lbshape.shapespace.alignment import (
     align_bases,
     compose,
     interpolation_matrix,
     pose_basis_map,
     scaled_spectrum,
 )
-from lbshape.errors import LbshapeError
-from lbshape.frames import align_to_object, body_frame
-from lbshape.mesh import TetMesh
-from lbshape.poses import apply_pose
-from lbshape.primitives import box, cylinder, structured_box
-from lbshape.spectrum import lb_spectrum
+from lbshape.shapespace.frames import align_to_object, body_frame
+from lbshape.spectral.spectrum import lb_spectrum
 
 
 def _asymmetric(mesh: TetMesh) -> TetMesh:

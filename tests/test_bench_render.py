@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lbshape.bench import ROW_KEYS, trajectory_error
 from lbshape.cli import main
-from lbshape.element_kernels import mass_matrix
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
-from lbshape.mesh import TetMesh
+from lbshape.geometry.mesh import TetMesh
+from lbshape.report.bench import ROW_KEYS, trajectory_error
 
 STEPS = 15  # > the 10 warm-up steps
 
@@ -50,7 +50,7 @@ def _one_tet(density=1000.0):
 
 
 def test_trajectory_error_is_zero_for_identical_trajectories():
-    from lbshape.primitives import structured_box
+    from lbshape.geometry.primitives import structured_box
 
     mesh = structured_box((1.0, 0.5, 0.5), (4, 2, 2))
     u = np.random.default_rng(7).normal(size=(6, mesh.n_vertices, 3))
@@ -97,10 +97,10 @@ def test_trajectory_error_rejects_mismatched_input():
 
 # ------------------------------------------------------------------------ bench
 def test_bench_command_rows_match_the_contract_and_independent_errors(tmp_path, capsys):
-    from lbshape.precompute import precompute
-    from lbshape.scene import load_scene
-    from lbshape.shapes import build_shape
-    from lbshape.simulation import simulate
+    from lbshape.geometry.shapes import build_shape
+    from lbshape.pipeline.precompute import precompute
+    from lbshape.pipeline.simulate import simulate
+    from lbshape.scene.schema import load_scene
 
     code = main(["bench", "demo", "--json", "--steps", str(STEPS), "--repeats", "1",
                  "--out-dir", str(tmp_path)])
@@ -189,8 +189,8 @@ def test_render_command_writes_non_blank_pngs(tmp_path):
 
 
 def test_figure3_panels_for_a_same_and_other_topology_pair(tmp_path):
-    from lbshape.figures import figure3
-    from lbshape.scene import MeshSource, load_scene
+    from lbshape.report.figures import figure3
+    from lbshape.scene.schema import MeshSource, load_scene
 
     other = load_scene("demo")  # cylinder examples
     poses = tuple(dataclasses.replace(p, source=MeshSource(shape="demo-bar"))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lbshape.cache import artifact_path, cache_key, load_artifact, save_artifact
+from lbshape.io.cache import artifact_path, cache_key, load_artifact, save_artifact
 
 
 def test_key_depends_on_every_part():

@@ -7,18 +7,18 @@ import csv
 import numpy as np
 import pytest
 
-from lbshape.cubature import (
+from lbshape.elastic.cubature import (
     Cubature,
     force_contribution_matrix,
     inverse_frequency_scales,
     train_cubature,
     training_poses,
 )
-from lbshape.element_kernels import FullSpaceElasticity
+from lbshape.elastic.element_kernels import FullSpaceElasticity
+from lbshape.elastic.materials import Material
+from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
-from lbshape.materials import Material
-from lbshape.primitives import box
-from lbshape.reduced_forces import ReducedForceModel
+from lbshape.geometry.primitives import box
 
 MODELS = ("stvk", "neohookean")
 R = 9

@@ -9,7 +9,7 @@ import pytest
 import scipy.sparse as sp
 from scipy.integrate import solve_ivp
 
-from lbshape.dynamics import (
+from lbshape.dynamics.integrators import (
     INTEGRATORS,
     BackwardEulerStepper,
     NewmarkStepper,

@@ -15,11 +15,11 @@ import pytest
 import scipy.linalg
 
 from lbshape.cli import main as cli_main
-from lbshape.elastic_modes import elastic_matrices, linear_modes, rigid_body_modes
+from lbshape.elastic.materials import Material
+from lbshape.elastic.modes import elastic_matrices, linear_modes, rigid_body_modes
 from lbshape.errors import LbshapeError, SolverError
-from lbshape.materials import Material
-from lbshape.mesh import TetMesh, gmsh_session
-from lbshape.primitives import structured_box
+from lbshape.geometry.mesh import TetMesh, gmsh_session
+from lbshape.geometry.primitives import structured_box
 
 REPO = Path(__file__).resolve().parents[1]
 PYTHON = str(REPO / ".venv" / "bin" / "python") if (REPO / ".venv").is_dir() else sys.executable
@@ -245,7 +245,7 @@ def _run_cli(capsys, *argv) -> tuple[int, str, str]:
 
 
 def test_cli_json_contract(bar_msh, capsys):
-    from lbshape.mesh import load_mesh
+    from lbshape.geometry.mesh import load_mesh
 
     code, out, _ = _run_cli(capsys, "modes", str(bar_msh), "--r", "4", "--fixed", "z < 1e-6",
                             "--young", "2e5", "--poisson", "0.3", "--density", "1100", "--json")
@@ -283,9 +283,9 @@ _PARALLEL_SCRIPT = """
 import sys
 import numpy as np
 from mpi4py import MPI
-from lbshape.elastic_modes import linear_modes
-from lbshape.materials import Material
-from lbshape.primitives import structured_box
+from lbshape.elastic.modes import linear_modes
+from lbshape.elastic.materials import Material
+from lbshape.geometry.primitives import structured_box
 comm = MPI.COMM_WORLD
 mesh = structured_box((0.1, 0.1, 1.0), (2, 2, 20)) if comm.rank == 0 else None
 fixed = np.flatnonzero(mesh.points[:, 2] < 1e-12) if comm.rank == 0 else None

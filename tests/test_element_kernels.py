@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from lbshape.element_kernels import (
+from lbshape.elastic.element_kernels import (
     ElementKernel,
     FullSpaceElasticity,
     internal_force,
@@ -15,15 +15,15 @@ from lbshape.element_kernels import (
     strain_energy,
     tangent_stiffness,
 )
-from lbshape.energy_densities import (
+from lbshape.elastic.energy_densities import (
     energy_density,
     first_piola,
     first_piola_derivative,
     rest_energy_density,
 )
+from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
-from lbshape.materials import Material
-from lbshape.primitives import structured_box
+from lbshape.geometry.primitives import structured_box
 
 MODELS = ("stvk", "neohookean")
 YOUNG, POISSON, RHO = 2.0e5, 0.35, 1100.0
@@ -76,14 +76,14 @@ def test_numpy_kernels_match_ufl_assembly_to_round_off(small_mesh, model):
     import dolfinx.fem.petsc
     import ufl
 
-    from lbshape.dolfinx_bridge import (
+    from lbshape.elastic.materials import strain_energy_ufl
+    from lbshape.fem.dolfinx_bridge import (
         input_order_to_dofs,
         p1_dof_vertices,
         petsc_to_scipy,
         petsc_vec_to_input_order,
         to_dolfinx,
     )
-    from lbshape.materials import strain_energy_ufl
 
     mat = material(model)
     dmesh = to_dolfinx(small_mesh)
@@ -138,7 +138,7 @@ def test_mass_matrix_matches_dolfinx_and_lumping(small_mesh):
     import dolfinx.fem.petsc
     import ufl
 
-    from lbshape.dolfinx_bridge import p1_dof_vertices, petsc_to_scipy, to_dolfinx
+    from lbshape.fem.dolfinx_bridge import p1_dof_vertices, petsc_to_scipy, to_dolfinx
 
     dmesh = to_dolfinx(small_mesh)
     V = dolfinx.fem.VectorFunctionSpace(dmesh, ("Lagrange", 1))

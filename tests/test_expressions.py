@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from lbshape.errors import LbshapeError
-from lbshape.expressions import evaluate_region, region_vertices
+from lbshape.geometry.regions import evaluate_region, region_vertices
 
 POINTS = np.array([[0.0, 0.0, 0.0], [0.5, -0.2, 1.0], [1.0, 0.3, 0.2]])
 

@@ -13,25 +13,25 @@ import pytest
 import scipy.linalg as sla
 import scipy.sparse.linalg as spla
 
-import lbshape.full_space as full_space
-from lbshape.element_kernels import FullSpaceElasticity, mass_matrix
-from lbshape.errors import LbshapeError, SolverError
-from lbshape.euclidean_energy import EuclideanExampleEnergy
-from lbshape.example_driver import ExampleDriver
-from lbshape.full_space import (
+import lbshape.dynamics.full as full_space
+from lbshape.dynamics.full import (
     FullSpaceDiverged,
     FullSpaceExamples,
     FullSpaceLoad,
     FullSpaceSimulator,
     run_full_space,
 )
-from lbshape.interpolation import TargetSolver
-from lbshape.loads import TimeProfile, gravity_pattern
-from lbshape.materials import MODELS, Material
-from lbshape.primitives import structured_box
-from lbshape.reduced_forces import ReducedForceModel
-from lbshape.reduced_simulation import ReducedLoad, ReducedSimulation
-from lbshape.spectrum import lb_spectrum
+from lbshape.dynamics.loads import TimeProfile, gravity_pattern
+from lbshape.dynamics.reduced import ReducedLoad, ReducedSimulation
+from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
+from lbshape.elastic.materials import MODELS, Material
+from lbshape.elastic.reduced_forces import ReducedForceModel
+from lbshape.errors import LbshapeError, SolverError
+from lbshape.geometry.primitives import structured_box
+from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
+from lbshape.shapespace.example_driver import ExampleDriver
+from lbshape.shapespace.interpolation import TargetSolver
+from lbshape.spectral.spectrum import lb_spectrum
 
 M_LB = 4  # LB eigenfunctions of the test shape spaces
 

@@ -1,6 +1,6 @@
 """Setting up the interpolation routes: bad input gives one clear LbshapeError each.
 
-Runs the real pipeline (:func:`lbshape.precompute.precompute`) on small scenes: the
+Runs the real pipeline (:func:`lbshape.pipeline.precompute.precompute`) on small scenes: the
 coarse demo bar (90 vertices) as the object, with a private cache.
 """
 
@@ -11,13 +11,13 @@ import dataclasses
 import numpy as np
 import pytest
 
+from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
-from lbshape.example_driver import ExampleDriver
-from lbshape.interpolation import TargetSolver
-from lbshape.interpolation_routes import ROUTES, example_driver, target_solver
-from lbshape.precompute import precompute
-from lbshape.reduced_forces import ReducedForceModel
-from lbshape.scene import scene_from_dict
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.routes import ROUTES, example_driver, target_solver
+from lbshape.scene.schema import scene_from_dict
+from lbshape.shapespace.example_driver import ExampleDriver
+from lbshape.shapespace.interpolation import TargetSolver
 
 TWIST = {"shape": "demo-bar", "pose": "twist",
          "parameters": {"angle": 0.6, "axis": "z", "anchor": "max"}}

@@ -17,18 +17,18 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from lbshape.cubature import inverse_frequency_scales, train_cubature
-from lbshape.elastic_modes import linear_modes
-from lbshape.element_kernels import mass_matrix
-from lbshape.interpolation_routes import ROUTES, example_driver, target_solver
-from lbshape.materials import Material
-from lbshape.modal_derivatives import modal_derivatives
-from lbshape.nonlinear_basis import default_linear_modes, nonlinear_basis
-from lbshape.poses import twist
-from lbshape.precompute import Precomputed
-from lbshape.primitives import structured_box
-from lbshape.shape_space import direct_projection, lb_coefficients
-from lbshape.spectrum import lb_spectrum
+from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
+from lbshape.elastic.cubature import inverse_frequency_scales, train_cubature
+from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.elastic.materials import Material
+from lbshape.elastic.modal_derivatives import modal_derivatives
+from lbshape.elastic.modes import linear_modes
+from lbshape.geometry.poses import twist
+from lbshape.geometry.primitives import structured_box
+from lbshape.pipeline.precompute import Precomputed
+from lbshape.pipeline.routes import ROUTES, example_driver, target_solver
+from lbshape.shapespace.projections import direct_projection, lb_coefficients
+from lbshape.spectral.spectrum import lb_spectrum
 
 MATERIAL = Material("stvk", young=1e6, poisson=0.3, density=1000.0)
 #: LB modes: z-modes 1-5, the two cross-section modes and their products with z-mode

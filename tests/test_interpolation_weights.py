@@ -7,7 +7,7 @@ import pytest
 from scipy.optimize import minimize
 
 from lbshape.errors import LbshapeError
-from lbshape.interpolation import simplex_weights
+from lbshape.shapespace.interpolation import simplex_weights
 
 
 def test_recovers_a_known_convex_combination():
@@ -57,7 +57,7 @@ def test_dimension_mismatch_is_a_clear_error():
 
 def test_target_solver_reports_non_convergence(caplog):
     """A solve cut short by max_iterations says so instead of returning silently."""
-    from lbshape.interpolation import TargetSolver
+    from lbshape.shapespace.interpolation import TargetSolver
 
     class Quartic:  # E(y) = Σ y⁴: Newton converges only linearly towards 0
         def energy(self, y):

@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from lbshape.errors import LbshapeError
-from lbshape.loads import (
+from lbshape.dynamics.loads import (
     TimeProfile,
     gravity_pattern,
     region_force_pattern,
     region_torque_pattern,
 )
-from lbshape.primitives import structured_box
+from lbshape.errors import LbshapeError
+from lbshape.geometry.primitives import structured_box
 
 
 def _mass(mesh, density=1000.0):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from lbshape.errors import LbshapeError
-from lbshape.mesh import TetMesh, boundary_faces, check_mesh, gmsh_session, load_mesh
-from lbshape.primitives import structured_box
+from lbshape.geometry.mesh import TetMesh, boundary_faces, check_mesh, gmsh_session, load_mesh
+from lbshape.geometry.primitives import structured_box
 
 
 def _write_msh(path, points, tets, *, element_type=4):

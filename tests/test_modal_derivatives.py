@@ -7,18 +7,18 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from lbshape.dolfinx_bridge import (
+from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
+from lbshape.elastic.materials import Material, strain_energy_ufl
+from lbshape.elastic.modal_derivatives import ForceHessian, all_pairs, modal_derivatives
+from lbshape.elastic.modes import linear_modes
+from lbshape.errors import LbshapeError
+from lbshape.fem.dolfinx_bridge import (
     input_order_to_dofs,
     p1_dof_vertices,
     petsc_vec_to_input_order,
     to_dolfinx,
 )
-from lbshape.elastic_modes import linear_modes
-from lbshape.errors import LbshapeError
-from lbshape.materials import Material, strain_energy_ufl
-from lbshape.modal_derivatives import ForceHessian, all_pairs, modal_derivatives
-from lbshape.nonlinear_basis import default_linear_modes, nonlinear_basis
-from lbshape.primitives import structured_box
+from lbshape.geometry.primitives import structured_box
 
 MATERIAL = Material(young=2.0e5, poisson=0.3, density=1100.0)
 K_MODES = 5
@@ -213,10 +213,10 @@ def test_default_linear_modes_rule():
 def test_rigid_pinning_accepts_a_free_car_body():
     """Regression: the pinning check read a wrong entry of the QR factor and refused
     bodies such as the car; it must pin exactly 6 well-conditioned DOFs."""
-    from lbshape.elastic_modes import rigid_body_modes
-    from lbshape.element_kernels import mass_matrix
-    from lbshape.modal_derivatives import _unpinned_dofs
-    from lbshape.shapes import build_shape
+    from lbshape.elastic.element_kernels import mass_matrix
+    from lbshape.elastic.modal_derivatives import _unpinned_dofs
+    from lbshape.elastic.modes import rigid_body_modes
+    from lbshape.geometry.shapes import build_shape
 
     car = build_shape("car")
     rigid = rigid_body_modes(car.points, mass_matrix(car, 1000.0))

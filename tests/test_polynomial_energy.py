@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lbshape.element_kernels import FullSpaceElasticity
+from lbshape.elastic.element_kernels import FullSpaceElasticity
+from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
-from lbshape.materials import Material
-from lbshape.polynomial_energy import StVKPolynomialEnergy
-from lbshape.primitives import structured_box
+from lbshape.geometry.primitives import structured_box
+from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
 
 MATERIAL = Material("stvk", young=1e5, poisson=0.3, density=1000.0)
 

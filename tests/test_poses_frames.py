@@ -7,10 +7,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lbshape.errors import LbshapeError
-from lbshape.frames import _third_moments, align_to_object, body_frame
-from lbshape.mesh import TetMesh
-from lbshape.poses import POSES, apply_pose, arc, pose_parameters, s_bend, twist
-from lbshape.primitives import box, structured_box
+from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.poses import POSES, apply_pose, arc, pose_parameters, s_bend, twist
+from lbshape.geometry.primitives import box, structured_box
+from lbshape.shapespace.frames import _third_moments, align_to_object, body_frame
 
 BAR_DIV = (4, 4, 16)
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lbshape.element_kernels import ElementKernel, FullSpaceElasticity
+from lbshape.elastic.element_kernels import ElementKernel, FullSpaceElasticity
+from lbshape.elastic.materials import Material
+from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
-from lbshape.materials import Material
-from lbshape.primitives import structured_box
-from lbshape.reduced_forces import ReducedForceModel
+from lbshape.geometry.primitives import structured_box
 
 MODELS = ("stvk", "neohookean")
 R = 9

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from lbshape.primitives import structured_box
+from lbshape.geometry.primitives import structured_box
 
 
 def _png_pixels(path):
@@ -17,7 +17,7 @@ def _png_pixels(path):
 
 
 def test_render_eigenfunction_panels(tmp_path):
-    from lbshape.render import render_eigenfunctions
+    from lbshape.report.render import render_eigenfunctions
 
     mesh = structured_box((1.0, 0.5, 0.5), (6, 3, 3))
     x = mesh.points[:, 0]

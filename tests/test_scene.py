@@ -7,10 +7,10 @@ import importlib.util
 import numpy as np
 import pytest
 
-from lbshape.cache import cache_key
 from lbshape.errors import LbshapeError
-from lbshape.primitives import structured_box
-from lbshape.scene import builtin_scene_names, load_scene
+from lbshape.geometry.primitives import structured_box
+from lbshape.io.cache import cache_key
+from lbshape.scene.schema import builtin_scene_names, load_scene
 
 BASE = """\
 name = "test-bar"
@@ -221,8 +221,8 @@ def test_unknown_scene_names_and_paths(tmp_path):
 
 
 def test_unknown_shape_names_are_rejected(write_scene):
-    if importlib.util.find_spec("lbshape.shapes") is None:
-        pytest.skip("lbshape.shapes is not available yet")
+    if importlib.util.find_spec("lbshape.geometry.shapes") is None:
+        pytest.skip("lbshape.geometry.shapes is not available yet")
     message = load_error(write_scene(('mesh = "bar.msh"', 'shape = "banana"')))
     assert "'object.shape'" in message and "banana" in message, message
 
@@ -283,8 +283,8 @@ def test_precompute_key_depends_on_exactly_the_precompute_fields(write_scene, tm
 
 
 def test_pose_parameters_match_the_pose_functions():
-    poses = pytest.importorskip("lbshape.poses")
-    from lbshape.scene import POSE_PARAMETERS, POSES
+    poses = pytest.importorskip("lbshape.geometry.poses")
+    from lbshape.scene.schema import POSE_PARAMETERS, POSES
 
     assert set(POSES) == set(poses.POSES)
     for name in POSES:
@@ -295,9 +295,9 @@ def test_pose_parameters_match_the_pose_functions():
 
 def test_demo_scene_on_its_real_meshes():
     """Regions select the top/bottom groups; the example poses keep the top in place."""
-    if importlib.util.find_spec("lbshape.shapes") is None:
-        pytest.skip("lbshape.shapes is not available yet")
-    poses = pytest.importorskip("lbshape.poses")
+    if importlib.util.find_spec("lbshape.geometry.shapes") is None:
+        pytest.skip("lbshape.geometry.shapes is not available yet")
+    poses = pytest.importorskip("lbshape.geometry.poses")
     scene = load_scene("demo")
     mesh = scene.object.build()
     np.testing.assert_array_equal(np.sort(scene.fixed.vertices(mesh)),

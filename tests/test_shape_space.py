@@ -7,13 +7,13 @@ import pytest
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
-from lbshape.alignment import align_bases, pose_basis_map
 from lbshape.errors import LbshapeError
-from lbshape.frames import align_to_object, body_frame
-from lbshape.mesh import TetMesh
-from lbshape.poses import apply_pose
-from lbshape.primitives import cylinder, structured_box
-from lbshape.shape_space import (
+from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.poses import apply_pose
+from lbshape.geometry.primitives import cylinder, structured_box
+from lbshape.shapespace.alignment import align_bases, pose_basis_map
+from lbshape.shapespace.frames import align_to_object, body_frame
+from lbshape.shapespace.projections import (
     ShapeSpace,
     block_eigenfunctions,
     descriptors,
@@ -26,7 +26,7 @@ from lbshape.shape_space import (
     offered_spectrum,
     reconstruct,
 )
-from lbshape.spectrum import lb_spectrum
+from lbshape.spectral.spectrum import lb_spectrum
 
 M_MODES = 8
 

@@ -10,8 +10,8 @@ import pytest
 
 from lbshape.cli import main
 from lbshape.errors import LbshapeError
-from lbshape.mesh import check_mesh, count_components, gmsh_session, load_mesh
-from lbshape.shapes import (
+from lbshape.geometry.mesh import check_mesh, count_components, gmsh_session, load_mesh
+from lbshape.geometry.shapes import (
     SHAPES,
     TARGET_RTOL,
     build_shape,

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from lbshape.cli import main
-from lbshape.element_kernels import mass_matrix
-from lbshape.precompute import precompute
-from lbshape.scene import load_scene
-from lbshape.simulation import simulate
+from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulate import simulate
+from lbshape.scene.schema import load_scene
 
 
 @pytest.fixture(autouse=True)
@@ -47,13 +47,13 @@ def test_precompute_is_cached_and_runtime_changes_reuse_it(demo, caplog):
     assert precompute(faster).key == pre.key
     # a precompute field changes it
     other = dataclasses.replace(scene, reduced=dataclasses.replace(scene.reduced, s=10))
-    from lbshape.precompute import scene_cache_key
+    from lbshape.pipeline.precompute import scene_cache_key
 
     assert scene_cache_key(other) != pre.key
 
 
 def test_mesh_file_change_invalidates_the_cache(tmp_path):
-    from lbshape.shapes import write_shape
+    from lbshape.geometry.shapes import write_shape
 
     mesh_path = tmp_path / "bar.msh"
     write_shape("demo-bar", mesh_path)
@@ -74,7 +74,7 @@ def test_mesh_file_change_invalidates_the_cache(tmp_path):
 def test_examples_pull_the_object_to_the_example_shape(demo):
     """No loads, one example, k_ex far above the basis' stiffest mode: the object
     settles at the static balance f_int(q) = k_ex (q_1 − q), close to the example."""
-    from lbshape.reduced_forces import ReducedForceModel
+    from lbshape.elastic.reduced_forces import ReducedForceModel
 
     scene, pre = demo
     elastic = ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U,
@@ -103,7 +103,7 @@ def test_examples_pull_the_object_to_the_example_shape(demo):
 
 
 def test_zero_example_stiffness_has_no_effect(demo):
-    from lbshape.simulation import reduced_simulation
+    from lbshape.pipeline.simulate import reduced_simulation
 
     scene, pre = demo
     off = dataclasses.replace(scene, examples=dataclasses.replace(scene.examples, stiffness=0.0))

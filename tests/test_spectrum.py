@@ -18,9 +18,9 @@ import scipy.linalg
 
 from lbshape.cli import main as cli_main
 from lbshape.errors import LbshapeError, SolverError
-from lbshape.mesh import TetMesh, gmsh_session
-from lbshape.primitives import box, structured_box
-from lbshape.spectrum import (
+from lbshape.geometry.mesh import TetMesh, gmsh_session
+from lbshape.geometry.primitives import box, structured_box
+from lbshape.spectral.spectrum import (
     count_eigenvalues_below,
     lb_matrices,
     lb_matrices_csr,
@@ -264,9 +264,9 @@ def test_factor_packages_agree(caplog):
     from mpi4py import MPI
     from petsc4py import PETSc
 
-    from lbshape.spectrum import factor_package
+    from lbshape.spectral.spectrum import factor_package
 
-    caplog.set_level(logging.INFO, logger="lbshape.spectrum")
+    caplog.set_level(logging.INFO, logger="lbshape.spectral.spectrum")
     mesh = box((1.0, 0.8, 0.6), h=0.2)
     default = lb_spectrum(mesh, 8)
     assert f"factor={factor_package(MPI.COMM_SELF)}" in caplog.text
@@ -369,8 +369,8 @@ _PARALLEL_SCRIPT = """
 import sys
 import numpy as np
 from mpi4py import MPI
-from lbshape.primitives import structured_box
-from lbshape.spectrum import lb_spectrum
+from lbshape.geometry.primitives import structured_box
+from lbshape.spectral.spectrum import lb_spectrum
 comm = MPI.COMM_WORLD
 mesh = structured_box((2.0, 1.0, 1.0), (8, 4, 4)) if comm.rank == 0 else None
 s = lb_spectrum(mesh, 6, comm=comm)

@@ -7,8 +7,8 @@ import xml.etree.ElementTree as ET
 import meshio
 import numpy as np
 
-from lbshape.primitives import structured_box
-from lbshape.trajectory import TrajectoryWriter
+from lbshape.geometry.primitives import structured_box
+from lbshape.io.trajectory import TrajectoryWriter
 
 
 def test_frames_and_collection_round_trip(tmp_path):

@@ -1,0 +1,27 @@
+"""``lbshape demo``: the default job end to end on the built-in demo scene."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser("demo", help="run the default job on the demo scene")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (results/demo)")
+    parser.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import json
+
+    from lbshape.report.demo import run_demo
+
+    path = run_demo(args.out)
+    summary = json.loads(path.read_text())["simulation"]
+    reduced, full = summary["reduced"], summary["full"]
+    print(f"demo: {reduced['n_vertices']} vertices, m={reduced['m']} r={reduced['r']} "
+          f"s={reduced['s']}; reduced {reduced['t_total_ms']:.3f} ms/step "
+          f"(interpolation {reduced['t_interp_ms']:.3f} ms), full {full['t_total_ms']:.2f} "
+          f"ms/step; error vs full {summary['error_vs_full']:.2%}")
+    print(f"demo: pictures and summary in {path.parent}")
+    return 0

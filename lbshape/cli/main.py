@@ -1,0 +1,63 @@
+"""The ``lbshape`` command line: parses arguments and calls library functions.
+
+Each sub-command lives in :mod:`lbshape.cli` as a module with
+``register(subparsers)`` (adds its parser and sets ``func``). Errors from bad input
+are :class:`~lbshape.errors.LbshapeError`: printed as one ``error: …`` line with a
+non-zero exit code, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from lbshape.errors import LbshapeError
+
+#: sub-command modules, in the order ``lbshape --help`` lists them
+COMMANDS = ("mesh", "eigen", "modes", "precompute", "simulate", "render", "bench", "demo")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="lbshape",
+        description="Real-time example-based elastic materials in Laplace-Beltrami shape space.",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"lbshape.cli.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"lbshape.cli.{name}":
+                raise
+            continue  # command not implemented yet
+        module.register(sub)
+    return parser
+
+
+class _ArgumentParserError(LbshapeError):
+    pass
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``lbshape`` console script; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    # the root logger stays at WARNING: the form compiler's build log goes there
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s", force=True)
+    logging.getLogger("lbshape").setLevel(logging.INFO if args.verbose else logging.WARNING)
+    try:
+        result = args.func(args)
+    except LbshapeError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+    return int(result or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

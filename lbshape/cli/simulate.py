@@ -1,0 +1,46 @@
+"""``lbshape simulate SCENE [--method reduced|euclidean|full] [--steps N] [--out DIR] [--json]``."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from lbshape.cli._output import print_json
+
+
+def register(subparsers) -> None:
+    from lbshape.pipeline.simulate import METHODS
+
+    parser = subparsers.add_parser("simulate", help="simulate a scene")
+    parser.add_argument("scene", help="built-in scene name or path to a TOML file")
+    parser.add_argument("--method", choices=METHODS, default="reduced")
+    parser.add_argument("--steps", type=int, default=None, help="override the scene's steps")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="output folder (default: results/runs/SCENE-METHOD)")
+    parser.add_argument("--json", action="store_true", help="print stats as JSON")
+    parser.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from lbshape.errors import LbshapeError
+    from lbshape.pipeline.precompute import precompute
+    from lbshape.pipeline.simulate import simulate
+    from lbshape.scene.schema import load_scene
+
+    if args.steps is not None and args.steps < 1:
+        raise LbshapeError(f"--steps must be >= 1, got {args.steps}")
+    scene = load_scene(args.scene)
+    pre = precompute(scene, progress=not args.json)
+    out = args.out or Path("results") / "runs" / f"{scene.name}-{args.method}"
+    result = simulate(scene, pre, method=args.method, steps=args.steps, out=out)
+    if args.json:
+        print_json(result.stats)
+    else:
+        s = result.stats
+        print(f"simulate {s['scene']} [{s['method']}]: {s['steps']} steps of {s['dt']} s, "
+              f"t_interp {s['t_interp_ms']:.3f} ms, t_total {s['t_total_ms']:.3f} ms per step, "
+              f"max displacement {s['max_displacement']:.4g} m -> {out}")
+    if result.message:
+        print(f"error: simulation stopped: {result.message}", file=sys.stderr)
+        return 3
+    return 0

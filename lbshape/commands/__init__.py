@@ -1,1 +1,0 @@
-"""Sub-commands of the ``lbshape`` CLI; each module defines ``register(subparsers)``."""

@@ -1,0 +1,532 @@
+"""Full-space FEM reference simulation with full-space example interpolation (``full``).
+
+The accuracy reference of every speed claim: no reduced basis, no cubature. On the
+free dofs x (fixed vertices eliminated; u is zero on them), with the consistent
+mass M (3n × 3n, kg) and the elastic internal force ``f_int = +∂E/∂u`` of all
+elements (:class:`~lbshape.elastic.element_kernels.FullSpaceElasticity`):
+
+``M ü + D u̇ + f_int(u) = f_ext(t) + f_ex``,  ``D = α M + β K₀``,
+``f_ext(t) = Σ_i profile_i(t) pattern_i``,
+
+K₀ the elastic tangent at rest, integrated by :mod:`lbshape.dynamics.integrators` (sparse
+Newton systems, the same stepper as the reduced runtime).
+
+**Example force.** Once per step, from the displacement u (n, 3) at the start of
+the step (explicit in the target, implicit in u — as the reduced method does):
+
+1. LB displacement coefficients ``c = Φᵀ M₁ u`` (m, 3), Φ (n, m) the object's
+   eigenvectors, M₁ the scalar (volume) P1 mass; descriptor ``d = λ ⊙ c``
+   flattened row-major to (3m,) (``d[3 i + comp]``);
+2. weights ``w = simplex_weights(example descriptors (k, 3m), d)``;
+3. target coefficients ``c* = argmin_c Σ_k w_k E_k(c − c_k)``, with ``E_k`` the
+   energy of example k's rest shape ``X_k = X + Φ c_k`` deformed by ``L (c − c_k)``
+   over all elements (:class:`~lbshape.shapespace.euclidean_energy.EuclideanExampleEnergy`),
+   ``L = Φ ⊗ I₃`` (3n, 3m), solved by :class:`~lbshape.shapespace.interpolation.TargetSolver`
+   (warm-started from the previous step);
+4. target displacement ``u* = L c*`` and force ``f_ex = k_ex M (u* − u)``, k_ex in
+   1/s². In a mass-orthonormal reduced basis U (``Uᵀ M U = I``) this projects to
+   the reduced method's ``k_ex (q* − q)`` with ``q* = Uᵀ M L c*``.
+
+In the stepper the example force is split into a spring ``k_ex M_ff x`` (part of the
+position-dependent force, tangent ``k_ex M_ff``, potential ``½ k_ex xᵀ M_ff x``) and
+the pull ``k_ex (M u*)_free``, constant during the step, applied as an external load.
+The two nearly cancel close to the target, so keeping the pull among the loads
+lets the Newton convergence test measure the residual against the size of the
+example force rather than against their (vanishing) difference. With ``k_ex = 0``
+or no examples none of this machinery is built or called.
+
+**Failure.** A non-finite state, a Newton failure, an energy blow-up or a failed
+target solve raises :class:`FullSpaceDiverged` (a
+:class:`~lbshape.errors.SolverError`) naming the step and time; its ``partial``
+attribute holds the :class:`FullSpaceResult` of what was computed, for the caller
+to save.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from lbshape.dynamics.integrators import make_stepper
+from lbshape.dynamics.loads import TimeProfile
+from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
+from lbshape.elastic.materials import Material
+from lbshape.errors import LbshapeError, SolverError
+from lbshape.geometry.mesh import TetMesh
+from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
+from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class FullSpaceLoad:
+    """An external load ``profile(t) · pattern``.
+
+    Attributes:
+        pattern: (3n,) nodal forces in N, node-major, input vertex order.
+        profile: its time profile.
+    """
+
+    pattern: np.ndarray
+    profile: TimeProfile
+
+
+@dataclass(frozen=True)
+class FullSpaceExamples:
+    """The shape-space arrays of the full-space example force.
+
+    Attributes:
+        eigenvalues: (m,) the object's LB eigenvalues λ in 1/m², > 0.
+        eigenvectors: (n, m) the object's LB eigenvectors Φ (M₁-orthonormal).
+        coefficients: (k, m, 3) the examples' LB displacement coefficients c_k.
+        stiffness: k_ex in 1/s², ≥ 0 (0 disables the example force).
+    """
+
+    eigenvalues: np.ndarray
+    eigenvectors: np.ndarray
+    coefficients: np.ndarray
+    stiffness: float
+
+
+@dataclass(frozen=True)
+class FullSpaceResult:
+    """What a run computed (also when it stopped early).
+
+    Attributes:
+        times: (f,) sample times in s (the initial state, then every ``stride`` steps).
+        displacements: (f, n, 3) sampled displacements in m.
+        t_interp_ms: (s,) per-step wall time of weights + target in ms.
+        t_total_ms: (s,) per-step wall time of the whole step in ms.
+        newton_iterations: (s,) Newton iterations per step.
+        stable: False if the run stopped on a solver failure.
+        message: the failure message ('' if stable).
+        max_displacement: largest vertex displacement norm over every step (m).
+    """
+
+    times: np.ndarray
+    displacements: np.ndarray
+    t_interp_ms: np.ndarray
+    t_total_ms: np.ndarray
+    newton_iterations: np.ndarray
+    stable: bool
+    message: str
+    max_displacement: float
+
+    @property
+    def steps(self) -> int:
+        """Number of completed steps."""
+        return int(self.t_total_ms.size)
+
+    def mean_ms(self, *, warmup: int = 0) -> tuple[float, float]:
+        """Per-step means ``(t_interp, t_total)`` in ms after ``warmup`` steps.
+
+        With fewer than ``warmup + 1`` steps, the mean over all steps (0 without any).
+        """
+        def mean(values: np.ndarray) -> float:
+            data = values[warmup:] if values.size > warmup else values
+            return float(data.mean()) if data.size else 0.0
+
+        return mean(self.t_interp_ms), mean(self.t_total_ms)
+
+
+class FullSpaceDiverged(SolverError):
+    """The full-space simulation failed; ``partial`` holds what was computed."""
+
+    def __init__(self, message: str, partial: FullSpaceResult):
+        super().__init__(message)
+        self.partial = partial
+
+
+class FullSpaceSimulator:
+    """Implicit full-space FEM dynamics with the full-space example force.
+
+    Args:
+        mesh: the object's rest mesh (n vertices, t tets).
+        material: its hyperelastic material (density ρ sets the mass).
+        dt: time step in s, > 0.
+        fixed_vertices: (f,) indices of vertices held at zero displacement.
+        integrator: ``"newmark"`` or ``"backward-euler"``.
+        alpha: Rayleigh mass coefficient α in 1/s.
+        beta: Rayleigh stiffness coefficient β in s (K₀: elastic tangent at rest).
+        loads: external loads (patterns (3n,) N with time profiles).
+        examples: shape-space arrays and k_ex; ``None`` (or k_ex = 0, or no
+            example) means no example force.
+        initial_displacement: (n, 3) m, zero on fixed vertices (default 0).
+        initial_velocity: (n, 3) m/s, zero on fixed vertices (default 0).
+        target_tolerance: relative gradient tolerance of the target solve.
+        newton_rtol: relative Newton tolerance of the time step.
+        max_newton_iterations: Newton iterations per step before failing.
+
+    Attributes:
+        free_dofs: (nf,) node-major indices of the free dofs (x = u[free_dofs]).
+        elastic: the :class:`~lbshape.elastic.element_kernels.FullSpaceElasticity` of the mesh.
+        mass: (3n, 3n) consistent mass in kg (CSR).
+        stepper: the :mod:`lbshape.dynamics.integrators` stepper on the free dofs.
+        weights: (k,) example weights of the last step (``None`` before / without).
+        target_coefficients: (3m,) target LB coefficients c* of the last step.
+
+    Raises:
+        LbshapeError: inconsistent shapes, indices out of range, every vertex fixed,
+            negative α, β or k_ex, or an initial state that moves a fixed vertex.
+    """
+
+    def __init__(
+        self,
+        mesh: TetMesh,
+        material: Material,
+        *,
+        dt: float,
+        fixed_vertices: Sequence[int] | np.ndarray = (),
+        integrator: str = "newmark",
+        alpha: float = 0.0,
+        beta: float = 0.0,
+        loads: Sequence[FullSpaceLoad] = (),
+        examples: FullSpaceExamples | None = None,
+        initial_displacement: np.ndarray | None = None,
+        initial_velocity: np.ndarray | None = None,
+        target_tolerance: float = 1e-6,
+        newton_rtol: float = 1e-8,
+        max_newton_iterations: int = 20,
+    ):
+        n = mesh.n_vertices
+        self.mesh = mesh
+        self.material = material
+        self.n_vertices = n
+        fixed = _vertex_indices(fixed_vertices, n)
+        free_mask = np.ones(3 * n, dtype=bool)
+        free_mask[(3 * fixed[:, None] + np.arange(3)).ravel()] = False
+        if not free_mask.any():
+            raise LbshapeError("every vertex is fixed: nothing to simulate")
+        self.fixed_vertices = fixed
+        self.free_dofs = np.flatnonzero(free_mask)
+        self._free_mask = free_mask
+
+        self.elastic = FullSpaceElasticity(mesh, material)
+        self.mass = mass_matrix(mesh, material.density)
+        self._mass_ff = _submatrix(self.mass, self.free_dofs)
+        K0 = self.elastic.tangent(np.zeros(3 * n))
+        self._restrict = _CsrRestriction(K0, self.free_dofs)
+        K0_ff = self._restrict(K0)
+
+        self._load_patterns, self._load_profiles = self._check_loads(loads)
+        self._setup_examples(examples, tolerance=target_tolerance)
+
+        x0 = self._initial(initial_displacement, "initial_displacement")
+        v0 = self._initial(initial_velocity, "initial_velocity")
+        self.stepper = make_stepper(
+            integrator,
+            self._mass_ff,
+            self._force_and_tangent,
+            dt=dt,
+            x0=x0,
+            v0=v0,
+            external=self._external if (self._load_profiles or self._k_ex) else None,
+            alpha=alpha,
+            beta=beta,
+            damping_stiffness=K0_ff,
+            potential=self._potential,
+            rtol=newton_rtol,
+            max_iterations=max_newton_iterations,
+        )
+
+    # ----------------------------------------------------------------- set-up
+    def _check_loads(self, loads: Sequence[FullSpaceLoad]):
+        patterns, profiles = [], []
+        for index, load in enumerate(loads):
+            pattern = np.asarray(load.pattern, dtype=float).reshape(-1)
+            if pattern.shape != (3 * self.n_vertices,):
+                raise LbshapeError(
+                    f"load {index}: pattern must have shape ({3 * self.n_vertices},), "
+                    f"got {np.shape(load.pattern)}"
+                )
+            if not np.isfinite(pattern).all():
+                raise LbshapeError(f"load {index}: pattern contains NaN or infinite forces")
+            if not isinstance(load.profile, TimeProfile):
+                raise LbshapeError(f"load {index}: profile must be a TimeProfile")
+            patterns.append(pattern[self.free_dofs])
+            profiles.append(load.profile)
+        stacked = np.array(patterns) if patterns else np.zeros((0, self.free_dofs.size))
+        return stacked, profiles
+
+    def _setup_examples(self, examples: FullSpaceExamples | None, *, tolerance: float) -> None:
+        self._k_ex = 0.0
+        self._b = np.zeros(self.free_dofs.size)
+        self.target_coefficients: np.ndarray | None = None
+        self.weights: np.ndarray | None = None
+        if examples is None:
+            return
+        try:
+            k_ex = float(examples.stiffness)
+        except (TypeError, ValueError):
+            k_ex = float("nan")
+        if isinstance(examples.stiffness, bool) or not np.isfinite(k_ex) or k_ex < 0:
+            raise LbshapeError(
+                f"example stiffness k_ex must be a finite number >= 0 (1/s^2), "
+                f"got {examples.stiffness!r}"
+            )
+        lam = np.asarray(examples.eigenvalues, dtype=float)
+        phi = np.asarray(examples.eigenvectors, dtype=float)
+        coefficients = np.asarray(examples.coefficients, dtype=float)
+        n, m = self.n_vertices, lam.size
+        if lam.ndim != 1 or m == 0 or not np.isfinite(lam).all() or (lam <= 0).any():
+            raise LbshapeError("eigenvalues must be a non-empty (m,) array of finite values > 0")
+        if phi.shape != (n, m) or not np.isfinite(phi).all():
+            raise LbshapeError(f"eigenvectors must be a finite ({n}, {m}) array, got {phi.shape}")
+        if coefficients.ndim != 3 or coefficients.shape[1:] != (m, 3):
+            raise LbshapeError(
+                f"example coefficients must have shape (k, {m}, 3), got {coefficients.shape}"
+            )
+        if not np.isfinite(coefficients).all():
+            raise LbshapeError("example coefficients contain NaN or infinite values")
+        k = coefficients.shape[0]
+        if k_ex == 0.0 or k == 0:
+            return
+        self._k_ex = float(k_ex)
+        weights = np.repeat(lam, 3)
+        volume_mass = self.mass[0::3, 0::3] / self.material.density  # M₁ (n, n), m³
+        # descriptor of the free displacement x: d = D_f x, D = diag(λ ⊗ 1₃)(Φᵀ M₁ ⊗ I₃)
+        D = np.kron(lam[:, None] * np.asarray((volume_mass @ phi).T), np.eye(3))
+        self._descriptor = np.ascontiguousarray(D[:, self.free_dofs])  # (3m, nf)
+        L = np.kron(phi, np.eye(3))  # (3n, 3m) node-major, column 3i + comp
+        ML = np.asarray(self.mass @ L)
+        self._mass_target = np.ascontiguousarray(ML[self.free_dofs])  # (nf, 3m): (M L)_free
+        flat = coefficients.reshape(k, 3 * m)
+        self._example_descriptors = flat * weights
+        rests = [self.mesh.points + phi @ c for c in coefficients]
+        models = [EuclideanExampleEnergy(x, self.mesh.tets, self.material, L) for x in rests]
+        self._target_solver = TargetSolver(models, flat, tolerance=tolerance)
+        self._kM_ff = self._k_ex * self._mass_ff
+
+    def _initial(self, value: np.ndarray | None, name: str) -> np.ndarray | None:
+        if value is None:
+            return None
+        u = np.asarray(value, dtype=float)
+        if u.shape != (self.n_vertices, 3) or not np.isfinite(u).all():
+            raise LbshapeError(f"{name} must be a finite ({self.n_vertices}, 3) array")
+        if np.any(u.reshape(-1)[~self._free_mask] != 0.0):
+            raise LbshapeError(f"{name} must be zero on the fixed vertices")
+        return u.reshape(-1)[self.free_dofs]
+
+    # ---------------------------------------------------------------- state
+    @property
+    def uses_examples(self) -> bool:
+        """True when the example force is active (k_ex > 0 and at least one example)."""
+        return self._k_ex > 0.0
+
+    @property
+    def time(self) -> float:
+        """Current time in s."""
+        return self.stepper.time
+
+    def full_displacement(self, x: np.ndarray | None = None) -> np.ndarray:
+        """(n, 3) displacement in m of free dofs x (default: the current state)."""
+        u = np.zeros(3 * self.n_vertices)
+        u[self.free_dofs] = self.stepper.x if x is None else x
+        return u.reshape(-1, 3)
+
+    # ---------------------------------------------------------------- forces
+    def _force_and_tangent(self, x: np.ndarray):
+        f, K = self.elastic.force_and_tangent(self.full_displacement(x).reshape(-1))
+        f, K = f[self.free_dofs], self._restrict(K)
+        if self._k_ex:
+            f = f + self._k_ex * (self._mass_ff @ x)
+            K = K + self._kM_ff
+        return f, K
+
+    def _potential(self, x: np.ndarray) -> float:
+        energy = self.elastic.energy(self.full_displacement(x).reshape(-1))
+        if self._k_ex:
+            energy += 0.5 * self._k_ex * float(x @ (self._mass_ff @ x))
+        return energy
+
+    def _external(self, t: float) -> np.ndarray:
+        scales = np.array([profile(t) for profile in self._load_profiles])
+        load = scales @ self._load_patterns
+        return load + self._b if self._k_ex else load
+
+    def _update_target(self) -> None:
+        """Weights and target from the current state; sets the example force."""
+        x = self.stepper.x
+        weights = simplex_weights(self._example_descriptors, self._descriptor @ x)
+        c_star = self._target_solver.solve(weights).z
+        self.weights = weights
+        self.target_coefficients = c_star
+        self._b = self._k_ex * (self._mass_target @ c_star)
+
+    # ------------------------------------------------------------------- run
+    def run(
+        self,
+        steps: int,
+        *,
+        stride: int = 1,
+        on_step: Callable[[int, float, np.ndarray], None] | None = None,
+    ) -> FullSpaceResult:
+        """Advance ``steps`` steps from the current state.
+
+        Args:
+            steps: number of steps, ≥ 1.
+            stride: keep every ``stride``-th state (and the initial one), ≥ 1.
+            on_step: called after each step with (local step index, time in s,
+                displacement (n, 3) in m).
+
+        Returns:
+            The :class:`FullSpaceResult` (``stable`` True).
+
+        Raises:
+            FullSpaceDiverged: a step failed; its message names the step and time,
+                its ``partial`` holds the result up to the last good step.
+        """
+        steps, stride = int(steps), int(stride)
+        if steps < 1 or stride < 1:
+            raise LbshapeError(f"steps and stride must be >= 1, got {steps} and {stride}")
+        u = self.full_displacement()
+        times, frames = [self.time], [u.copy()]
+        max_disp = _max_norm(u)
+        t_interp, t_total, iterations = [], [], []
+        for index in range(1, steps + 1):
+            started = time.perf_counter()
+            try:
+                if self._k_ex:
+                    try:
+                        self._update_target()
+                    except SolverError as exc:
+                        step = self.stepper.steps_taken + 1
+                        raise SolverError(
+                            f"target interpolation failed at step {step} "
+                            f"(t = {self.time + self.stepper.dt:.6g} s): {exc}"
+                        ) from None
+                interpolated = time.perf_counter()
+                info = self.stepper.step()
+            except SolverError as exc:
+                log.error("full-space simulation stopped: %s", exc)
+                partial = _result(times, frames, t_interp, t_total, iterations,
+                                  stable=False, message=str(exc), max_displacement=max_disp)
+                raise FullSpaceDiverged(str(exc), partial) from exc
+            finished = time.perf_counter()
+            t_interp.append(1e3 * (interpolated - started))
+            t_total.append(1e3 * (finished - started))
+            iterations.append(info.iterations)
+            u = self.full_displacement()
+            max_disp = max(max_disp, _max_norm(u))
+            if index % stride == 0:
+                times.append(self.time)
+                frames.append(u.copy())
+            if on_step is not None:
+                on_step(index, self.time, u)
+        return _result(times, frames, t_interp, t_total, iterations,
+                       stable=True, message="", max_displacement=max_disp)
+
+
+# --------------------------------------------------------------------- scenes
+def run_full_space(scene, pre, *, steps: int, stride: int, warmup: int):
+    """Run the ``full`` method of a scene (see :func:`lbshape.pipeline.simulate.simulate`).
+
+    Args:
+        scene: the :class:`~lbshape.scene.schema.Scene`.
+        pre: its :class:`~lbshape.pipeline.precompute.Precomputed` (mesh, material, fixed
+            vertices, LB spectrum and example coefficients).
+        steps: number of steps.
+        stride: keep every ``stride``-th state.
+        warmup: steps left out of the timing means.
+
+    Returns:
+        ``(times (f,), displacements (f, n, 3), t_interp_ms, t_total_ms, stable,
+        message)``; a solver failure returns what was computed with ``stable`` False.
+    """
+    from lbshape.pipeline.simulate import load_patterns
+
+    if scene.planes:
+        log.warning("scene %s: contact planes are not modelled by the full-space method",
+                    scene.name)
+    if scene.regions:
+        log.warning("scene %s: local example regions are treated as global examples by the "
+                    "full-space method", scene.name)
+    loads = [FullSpaceLoad(pattern, profile) for pattern, profile in
+             load_patterns(scene, pre, mass_matrix(pre.mesh, pre.material.density))]
+    examples = None
+    k_ex = scene.examples.stiffness if scene.examples is not None else 0.0
+    if pre.has_examples and k_ex > 0:
+        examples = FullSpaceExamples(pre.eigenvalues, pre.eigenvectors,
+                                     pre.example_coefficients, k_ex)
+    simulator = FullSpaceSimulator(
+        pre.mesh, pre.material, dt=scene.simulation.dt, fixed_vertices=pre.fixed_vertices,
+        integrator=scene.simulation.integrator, alpha=scene.damping.alpha,
+        beta=scene.damping.beta, loads=loads, examples=examples,
+    )
+    try:
+        result = simulator.run(steps, stride=stride)
+    except FullSpaceDiverged as exc:
+        result = exc.partial
+    t_interp, t_total = result.mean_ms(warmup=warmup)
+    return (result.times, result.displacements, t_interp, t_total, result.stable,
+            result.message)
+
+
+# -------------------------------------------------------------------- helpers
+class _CsrRestriction:
+    """Restrict CSR matrices with a fixed pattern (that of ``template``) to ``dofs``.
+
+    The rows and columns of ``dofs`` are selected by gathering the data array, so a
+    call costs one fancy index of the non-zeros and no sparse re-indexing.
+    """
+
+    def __init__(self, template: sp.csr_matrix, dofs: np.ndarray):
+        self._indices = template.indices
+        self._indptr = template.indptr
+        nnz = template.indices.size
+        marker = sp.csr_matrix(
+            (np.arange(1, nnz + 1, dtype=float), template.indices, template.indptr),
+            shape=template.shape,
+        )
+        sub = marker[dofs][:, dofs].tocsr()
+        sub.sort_indices()
+        self._gather = sub.data.astype(np.int64) - 1
+        self._sub_indices, self._sub_indptr = sub.indices, sub.indptr
+        self._shape = (dofs.size, dofs.size)
+
+    def __call__(self, matrix: sp.csr_matrix) -> sp.csr_matrix:
+        if not (np.array_equal(matrix.indptr, self._indptr)
+                and np.array_equal(matrix.indices, self._indices)):
+            raise LbshapeError("tangent does not have the expected sparsity pattern")
+        return sp.csr_matrix(
+            (matrix.data[self._gather], self._sub_indices.copy(), self._sub_indptr.copy()),
+            shape=self._shape,
+        )
+
+
+def _submatrix(matrix: sp.spmatrix, dofs: np.ndarray) -> sp.csr_matrix:
+    return sp.csr_matrix(matrix.tocsr()[dofs][:, dofs])
+
+
+def _vertex_indices(values, n: int) -> np.ndarray:
+    idx = np.asarray(values)
+    if idx.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
+        raise LbshapeError(f"fixed vertices must be a 1-D array of integers, got {idx.dtype}")
+    if idx.min() < 0 or idx.max() >= n:
+        raise LbshapeError(f"fixed vertex index out of range [0, {n})")
+    return np.unique(idx.astype(np.int64))
+
+
+def _max_norm(u: np.ndarray) -> float:
+    return float(np.sqrt(np.max(np.einsum("ij,ij->i", u, u))))
+
+
+def _result(times, frames, t_interp, t_total, iterations, *, stable, message, max_displacement):
+    return FullSpaceResult(
+        times=np.asarray(times, dtype=float),
+        displacements=np.asarray(frames, dtype=float),
+        t_interp_ms=np.asarray(t_interp, dtype=float),
+        t_total_ms=np.asarray(t_total, dtype=float),
+        newton_iterations=np.asarray(iterations, dtype=np.int64),
+        stable=bool(stable),
+        message=message,
+        max_displacement=float(max_displacement),
+    )

@@ -1,0 +1,396 @@
+"""Optimized cubature for reduced elastic forces (An, Kim & James 2008).
+
+The reduced internal force of a basis U (3n, r) is a sum over all E elements,
+``f(q) = Σ_e U_eᵀ f_e(U_e q)``. A cubature replaces it by a weighted sum over a few
+elements, ``Σ_{e∈S} w_e U_eᵀ f_e(U_e q)`` with ``w_e ≥ 0``, fitted to the exact force
+on random training poses:
+
+1. **Training poses** (:func:`training_poses`): reduced coordinates
+   ``q_i = σ_i z_i``, ``z ~ N(0, 1)``, with per-coordinate scales σ — inverse
+   frequency ``σ_i ∝ 1/ω_i`` for modal coordinates (:func:`inverse_frequency_scales`)
+   — and one global factor so that the largest vertex displacement over all poses
+   is ``magnitude × object size`` (object size: the largest edge of the rest
+   bounding box).
+2. **Exact reduced forces** (:func:`force_contribution_matrix`): ``A (P·r, E)``
+   with column e the stacked reduced forces of element e over the P poses; the exact
+   reduced forces are ``b = A @ 1``. Each pose block of A and b is divided by that
+   pose's exact force norm (per-pose normalisation), so that every pose counts
+   equally whatever its amplitude.
+3. **Greedy selection + NNLS** (:func:`train_cubature`): at each step draw a random
+   batch of candidate elements, add the one whose column is best aligned with the
+   current residual (largest ``A_eᵀ res / ‖A_e‖``), solve the non-negative least
+   squares problem on the selected columns, drop elements whose weight became
+   zero, and stop when the relative training error ``‖A w − b‖ / ‖b‖`` reaches
+   ``tol`` or s elements are selected. Each NNLS solve is optimal on its set, so the
+   error never increases.
+
+The training works for **any basis matrix** U (3n, k): the nonlinear elastic basis,
+or the displacement subspace of Laplace-Beltrami eigenfunctions used by the shape
+interpolation. Only the scales of the training poses depend on what the columns
+mean; the magnitude is always measured on the full-space displacement.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import nnls
+
+from lbshape.elastic.materials import Material
+from lbshape.elastic.reduced_forces import ReducedForceModel
+from lbshape.errors import LbshapeError, SolverError
+from lbshape.geometry.mesh import TetMesh
+
+log = logging.getLogger(__name__)
+
+#: default bound (bytes) on the temporary arrays of one chunk of training poses
+DEFAULT_MAX_BYTES = 512 * 2**20
+
+
+@dataclass(frozen=True)
+class Cubature:
+    """A trained cubature rule.
+
+    Attributes:
+        elements: (s,) int64 indices of the selected tetrahedra (into ``mesh.tets``).
+        weights: (s,) float64 non-negative weights (dimensionless).
+        train_error: relative force error ``‖A w − b‖ / ‖b‖`` on the training poses
+            (after per-pose normalisation: the RMS over poses of the relative error).
+        holdout_error: the same on the held-out poses (not used for fitting).
+        errors_by_size: (k, 3) history, one row per greedy step:
+            ``[number of elements, train error, holdout error]``.
+        tol: the requested training tolerance.
+        reached_tol: whether ``train_error <= tol`` (else the size limit stopped it).
+        n_train: number of training poses.
+        n_holdout: number of held-out poses.
+    """
+
+    elements: np.ndarray
+    weights: np.ndarray
+    train_error: float
+    holdout_error: float
+    errors_by_size: np.ndarray
+    tol: float
+    reached_tol: bool
+    n_train: int
+    n_holdout: int
+
+    @property
+    def size(self) -> int:
+        """s, the number of cubature elements."""
+        return int(self.elements.size)
+
+
+def inverse_frequency_scales(omega2: np.ndarray) -> np.ndarray:
+    """Per-coordinate pose scales ``σ_i = ω_1 / ω_i`` (r,) from squared frequencies.
+
+    Args:
+        omega2: (r,) eigenvalues ``ω_i²`` (rad²/s²), all > 0.
+
+    Returns:
+        (r,) scales in (0, 1], the lowest frequency having scale 1.
+    """
+    omega2 = np.asarray(omega2, dtype=np.float64)
+    if omega2.ndim != 1 or omega2.size == 0:
+        raise LbshapeError(f"omega2 must be a non-empty 1-D array, got shape {omega2.shape}")
+    if not np.isfinite(omega2).all() or (omega2 <= 0).any():
+        raise LbshapeError("omega2 must be finite and > 0 (remove rigid modes first)")
+    omega = np.sqrt(omega2)
+    return omega.min() / omega
+
+
+def training_poses(
+    U: np.ndarray,
+    scales: np.ndarray,
+    *,
+    count: int,
+    magnitude: float,
+    object_size: float,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Random reduced coordinates for cubature training (An et al. 2008).
+
+    ``q_p = c · σ ⊙ z_p`` with ``z_p ~ N(0, I)``; the single factor c makes the largest
+    vertex displacement ``max_p max_v ‖(U q_p)_v‖`` equal ``magnitude · object_size``,
+    so the poses span amplitudes from small up to that size.
+
+    Args:
+        U: (3n, r) basis, node-major rows.
+        scales: (r,) non-negative per-coordinate scales σ (e.g.
+            :func:`inverse_frequency_scales`), not all zero.
+        count: number of poses P >= 1.
+        magnitude: largest displacement as a fraction of the object size, > 0.
+        object_size: a length of the object in metres, > 0.
+        rng: the random generator.
+
+    Returns:
+        (P, r) reduced coordinates.
+    """
+    U = _check_basis(U)
+    r = U.shape[1]
+    scales = np.asarray(scales, dtype=np.float64)
+    if scales.shape != (r,):
+        raise LbshapeError(f"scales must have shape ({r},), one per column, got {scales.shape}")
+    if not np.isfinite(scales).all() or (scales < 0).any() or not (scales > 0).any():
+        raise LbshapeError("scales must be finite, >= 0 and not all zero")
+    _check_int("count", count, minimum=1)
+    _check_positive("magnitude", magnitude)
+    _check_positive("object_size", object_size)
+    if not isinstance(rng, np.random.Generator):
+        raise LbshapeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+    Q = rng.standard_normal((count, r)) * scales
+    largest = np.linalg.norm((Q @ U.T).reshape(count, -1, 3), axis=2).max()
+    if not largest > 0:
+        raise LbshapeError("the basis columns with non-zero scale are all zero")
+    return Q * (magnitude * object_size / largest)
+
+
+def force_contribution_matrix(
+    model: ReducedForceModel, poses: np.ndarray, *, max_bytes: int = DEFAULT_MAX_BYTES
+) -> np.ndarray:
+    """Per-element reduced forces of many poses, ``A (P·r, s)``.
+
+    ``A[p·r + i, e]`` is component i of element e's reduced force ``U_eᵀ f_e(U_e q_p)``
+    (the weights of ``model`` are not applied); with ``model`` over all elements of a
+    mesh, ``A @ 1`` stacks the exact reduced forces ``Uᵀ f(U q_p)``. Evaluated
+    vectorised over elements and over chunks of poses.
+
+    Args:
+        model: the elements and basis (usually all elements, unit weights).
+        poses: (P, r) reduced coordinates.
+        max_bytes: bound on the temporary arrays of one chunk (bytes).
+
+    Returns:
+        (P·r, s) float64 array in Fortran order (columns contiguous).
+    """
+    poses = np.asarray(poses, dtype=np.float64)
+    r, s = model.n_coordinates, model.n_elements
+    if poses.ndim != 2 or poses.shape[1] != r:
+        raise LbshapeError(f"poses must have shape (P, {r}), got {poses.shape}")
+    n_poses = poses.shape[0]
+    per_pose = 8 * s * (2 * r + 9 * 12)  # output + transposed copy + stress temporaries
+    chunk = int(max(1, min(n_poses, max_bytes // per_pose)))
+    A = np.empty((n_poses * r, s), order="F")
+    for start in range(0, n_poses, chunk):
+        stop = min(n_poses, start + chunk)
+        A[start * r : stop * r] = model.element_forces(poses[start:stop].T).reshape(-1, s)
+    return A
+
+
+def train_cubature(
+    mesh: TetMesh,
+    material: Material,
+    U: np.ndarray,
+    *,
+    rng: np.random.Generator,
+    scales: np.ndarray | None = None,
+    max_elements: int = 60,
+    tol: float = 0.01,
+    n_train: int = 100,
+    n_holdout: int = 50,
+    candidates_per_iter: int = 100,
+    magnitude: float = 0.1,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    progress: bool = False,
+) -> Cubature:
+    """Select cubature elements and weights for the reduced force of a basis U.
+
+    Args:
+        mesh: the object's mesh; its points are the rest shape.
+        material: the hyperelastic material.
+        U: (3n, k) any basis, node-major rows, mapping coordinates to metres.
+        rng: the random generator (poses and candidate batches); same seed, same
+            result.
+        scales: (k,) per-coordinate pose scales (default: all 1); see
+            :func:`training_poses`.
+        max_elements: s, the largest number of elements (1 <= s <= number of tets).
+        tol: relative training error at which to stop (>= 0; 0: use all s elements).
+        n_train: number of training poses (>= 1).
+        n_holdout: number of held-out poses for the reported error (>= 1).
+        candidates_per_iter: elements drawn per greedy step (>= 1).
+        magnitude: largest training displacement as a fraction of the object size
+            (largest edge of the bounding box), > 0.
+        max_bytes: memory bound for evaluating the exact forces in chunks.
+        progress: show a progress bar.
+
+    Returns:
+        The :class:`Cubature`.
+
+    Raises:
+        LbshapeError: bad parameters, or a basis producing no elastic force.
+        SolverError: the NNLS solver failed.
+    """
+    if not isinstance(mesh, TetMesh):
+        raise LbshapeError(f"mesh must be a TetMesh, got {type(mesh).__name__}")
+    U = _check_basis(U, n_vertices=mesh.n_vertices)
+    n_tets = mesh.n_tets
+    _check_int("max_elements", max_elements, minimum=1)
+    if max_elements > n_tets:
+        raise LbshapeError(
+            f"max_elements (s = {max_elements}) exceeds the number of tetrahedra ({n_tets})"
+        )
+    if isinstance(tol, bool) or not isinstance(tol, int | float) or not 0 <= tol < np.inf:
+        raise LbshapeError(f"tol must be a finite number >= 0, got {tol!r}")
+    _check_int("n_train", n_train, minimum=1)
+    _check_int("n_holdout", n_holdout, minimum=1)
+    _check_int("candidates_per_iter", candidates_per_iter, minimum=1)
+    if scales is None:
+        scales = np.ones(U.shape[1])
+    size = float(np.ptp(mesh.points, axis=0).max())
+
+    poses = training_poses(
+        U, scales, count=n_train + n_holdout, magnitude=magnitude, object_size=size, rng=rng
+    )
+    model = ReducedForceModel(
+        mesh.points, mesh.tets, material, U, np.arange(n_tets), np.ones(n_tets)
+    )
+    _check_deforms(model, poses, magnitude=magnitude, size=size)
+    r = U.shape[1]
+    A, b = _normalised_system(
+        force_contribution_matrix(model, poses[:n_train], max_bytes=max_bytes), r
+    )
+    A_hold, b_hold = _normalised_system(
+        force_contribution_matrix(model, poses[n_train:], max_bytes=max_bytes), r
+    )
+    elements, weights, history = _greedy_nnls(
+        A, b, A_hold, b_hold, s=max_elements, tol=float(tol),
+        candidates=candidates_per_iter, rng=rng, progress=progress,
+    )
+    train_error, holdout_error = (float(v) for v in history[-1, 1:])
+    reached = train_error <= tol
+    log.info(
+        "cubature: %d of %d elements, training error %.3g (tol %.3g%s), held-out error %.3g",
+        elements.size, n_tets, train_error, tol, "" if reached else ", not reached",
+        holdout_error,
+    )
+    for array in (elements, weights, history):
+        array.setflags(write=False)
+    return Cubature(
+        elements=elements,
+        weights=weights,
+        train_error=train_error,
+        holdout_error=holdout_error,
+        errors_by_size=history,
+        tol=float(tol),
+        reached_tol=bool(reached),
+        n_train=int(n_train),
+        n_holdout=int(n_holdout),
+    )
+
+
+# -- internals ---------------------------------------------------------------------------
+def _normalised_system(A: np.ndarray, r: int) -> tuple[np.ndarray, np.ndarray]:
+    """Divide every pose block (r rows) of A (P·r, E) by its exact force norm.
+
+    Returns the scaled A (Fortran order) and the scaled exact forces ``b = A @ 1``.
+    """
+    b = A.sum(axis=1)
+    norms = np.linalg.norm(b.reshape(-1, r), axis=1)
+    if not norms.max() > 0 or (norms <= 1e-12 * norms.max()).any():
+        raise LbshapeError(
+            "a training pose has no elastic force: the basis moves the mesh rigidly "
+            "(or not at all) for some poses"
+        )
+    factor = np.repeat(1.0 / norms, r)
+    A = np.asfortranarray(A)
+    A *= factor[:, None]  # in place: A is the largest array of the training
+    return A, b * factor
+
+
+def _check_deforms(model: ReducedForceModel, poses: np.ndarray, *, magnitude, size) -> None:
+    """Reject bases whose poses move the mesh rigidly (no elastic force to fit)."""
+    peak_strain = magnitude  # the largest displacement is magnitude × size
+    for start in range(0, poses.shape[0], 64):
+        strain = model.max_strain(poses[start : start + 64].T)
+        if (strain <= 1e-9 * peak_strain).any():
+            raise LbshapeError(
+                "a training pose has no elastic force: the basis only translates the "
+                "mesh rigidly (or not at all) for some poses"
+            )
+
+
+def _greedy_nnls(A, b, A_hold, b_hold, *, s, tol, candidates, rng, progress):
+    """Greedy candidate selection + NNLS; returns (elements, weights, history)."""
+    n_el = A.shape[1]
+    norms = np.linalg.norm(A, axis=0)
+    inv_norms = np.divide(1.0, norms, out=np.zeros_like(norms), where=norms > 0)
+    b_norm, b_hold_norm = np.linalg.norm(b), np.linalg.norm(b_hold)
+    selected = np.zeros(0, dtype=np.int64)
+    weights = np.zeros(0)
+    residual = b.copy()
+    error = 1.0
+    history = []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=s, desc="cubature", unit="elt")
+    try:
+        for _ in range(10 * s):  # every step lowers the error; the cap is a safeguard
+            if selected.size >= s or error <= tol:
+                break
+            pool = np.setdiff1d(np.arange(n_el), selected, assume_unique=True)
+            if pool.size == 0:
+                break
+            batch = rng.choice(pool, size=min(candidates, pool.size), replace=False)
+            best = _best_aligned(A, residual, inv_norms, batch)
+            if best is None:  # nothing in the batch helps: look at every element
+                best = _best_aligned(A, residual, inv_norms, pool)
+                if best is None:
+                    log.info("cubature: no remaining element reduces the error %.3g", error)
+                    break
+            trial = np.append(selected, best)
+            try:
+                w, _ = nnls(A[:, trial], b)
+            except RuntimeError as exc:
+                raise SolverError(
+                    f"cubature NNLS failed with {trial.size} elements: {exc}"
+                ) from None
+            keep = w > 0
+            selected, weights = trial[keep], w[keep]
+            residual = b - A[:, selected] @ weights
+            error = float(np.linalg.norm(residual) / b_norm)
+            holdout = float(np.linalg.norm(A_hold[:, selected] @ weights - b_hold) / b_hold_norm)
+            history.append((selected.size, error, holdout))
+            if bar is not None:
+                bar.n = selected.size
+                bar.set_postfix(train=f"{error:.2e}", holdout=f"{holdout:.2e}")
+    finally:
+        if bar is not None:
+            bar.close()
+    if not history:
+        raise LbshapeError("cubature: no element reduces the training error")
+    return selected.astype(np.int64), weights.astype(np.float64), np.asarray(history, dtype=float)
+
+
+def _best_aligned(A, residual, inv_norms, candidates) -> int | None:
+    """The candidate whose column has the largest positive ``A_eᵀ res / ‖A_e‖``."""
+    scores = (residual @ A[:, candidates]) * inv_norms[candidates]
+    i = int(np.argmax(scores))
+    return int(candidates[i]) if scores[i] > 0 else None
+
+
+def _check_basis(U: np.ndarray, *, n_vertices: int | None = None) -> np.ndarray:
+    U = np.asarray(U, dtype=np.float64)
+    rows = "3n" if n_vertices is None else str(3 * n_vertices)
+    if U.ndim != 2 or U.shape[1] < 1 or U.shape[0] % 3 or U.shape[0] == 0:
+        raise LbshapeError(f"basis U must have shape ({rows}, k) with k >= 1, got {U.shape}")
+    if n_vertices is not None and U.shape[0] != 3 * n_vertices:
+        raise LbshapeError(f"basis U must have shape ({rows}, k) for this mesh, got {U.shape}")
+    if not np.isfinite(U).all():
+        raise LbshapeError("basis U contains NaN or infinite entries")
+    return U
+
+
+def _check_int(name: str, value, *, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
+        raise LbshapeError(f"{name} must be an integer >= {minimum}, got {value!r}")
+
+
+def _check_positive(name: str, value) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | float | np.floating):
+        raise LbshapeError(f"{name} must be a number, got {value!r}")
+    if not 0 < value < np.inf:
+        raise LbshapeError(f"{name} must be finite and > 0, got {value}")

@@ -1,0 +1,496 @@
+"""Linear elastic vibration modes of a tetrahedral mesh (DOLFINx + SLEPc).
+
+The tangent stiffness at rest ``K = ∂²E/∂u²|₀`` is the second UFL derivative of
+:func:`lbshape.elastic.materials.strain_energy_ufl` (vector P1) and the mass is consistent,
+``M = ∫ρ u·v``. Both materials linearise to the same isotropic linear elasticity, so
+K does not depend on the material model. ``K ψ = ω² M ψ`` is solved with SLEPc
+(GHEP, shift-and-invert, Cholesky with MUMPS).
+
+Choices:
+
+* **Fixed vertices.** The eigenproblem is posed on the free DOFs only (PETSc
+  submatrices of K and M); eigenvectors are extended by exact zeros at the fixed
+  DOFs. There are no spurious eigenvalues to keep away and nothing to purify.
+* **Target.** ``σ = -TARGET_FRACTION · (E/ρ) t²/D⁴`` with t the smallest extent and D
+  the diagonal of the bounding box: ``(E/ρ) t²/L⁴`` is the order of the lowest
+  bending ω² of beams and plates, so σ lies below the spectrum at about a tenth of
+  ω₁². ``K - σM`` is symmetric positive definite for every σ < 0 (K ⪰ 0, M ≻ 0):
+  a free body's singular K is never factored.
+* **Rigid modes.** Pairs with ``|ω²| ≤ RIGID_RTOL · ω²_e`` are rigid, ω²_e being the
+  smallest computed ω² above ``RIGID_RTOL · max ω²`` (the first elastic one). A free
+  body must have exactly 6 (3 translations, 3 rotations), else
+  :class:`~lbshape.errors.SolverError` (several bodies, a broken K); a clamped body
+  must have none, else :class:`~lbshape.errors.LbshapeError` (the fixed vertices do
+  not stop rigid motion, e.g. one vertex or a line of vertices).
+* **Checks.** ``getConverged()`` against the request; relative residuals
+  ``‖Kψ − ω²Mψ‖ / (|ω²|‖Mψ‖ + ‖Kψ‖)`` on the free DOFs ≤ ``RESIDUAL_FACTOR · tol``;
+  rigid modes ``‖Kr‖ ≤ RIGID_RTOL · ω²_e ‖Mr‖``; no ω² below ``-RIGID_RTOL · ω²_e``.
+* **Normalisation.** Rigid and elastic vectors together are made exactly
+  M-orthonormal by the symmetric (Löwdin) orthonormalisation, and each elastic
+  mode's sign follows the rule of :mod:`lbshape.spectral.spectrum`.
+
+PETSc options with the prefix ``elastic_`` (e.g. ``-elastic_eps_ncv 60``) override
+these defaults.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+
+import numpy as np
+import scipy.sparse as sp
+from mpi4py import MPI
+
+from lbshape.elastic.materials import Material, strain_energy_ufl
+from lbshape.errors import LbshapeError, SolverError
+from lbshape.fem.dolfinx_bridge import dof_to_input_order, p1_dof_vertices, to_dolfinx
+from lbshape.fem.eigenproblem import (
+    b_orthonormalise,
+    fix_signs,
+    reason_name,
+    relative_residuals,
+    shift_invert_eps,
+)
+from lbshape.geometry.mesh import TetMesh
+
+log = logging.getLogger(__name__)
+
+#: PETSc/SLEPc options prefix of the elastic eigensolver
+OPTIONS_PREFIX = "elastic_"
+#: the target is ``-TARGET_FRACTION (E/ρ) t²/D⁴``
+TARGET_FRACTION = 0.1
+#: ``|ω²| ≤ RIGID_RTOL ω²_e`` counts as a rigid mode
+RIGID_RTOL = 1e-6
+#: accepted relative residual is ``RESIDUAL_FACTOR * tol``
+RESIDUAL_FACTOR = 100.0
+#: rigid modes of a free body in 3D
+FREE_BODY_RIGID_MODES = 6
+
+
+@dataclasses.dataclass(frozen=True)
+class ElasticMatrices:
+    """Stiffness and mass of linear elasticity at rest; owner of the PETSc copies.
+
+    Use as a context manager, or call :meth:`destroy`.
+
+    Attributes:
+        stiffness: (3n, 3n) scipy CSR ``K`` in N/m, node-major in input vertex order,
+            without constraints (``None`` off rank 0).
+        mass: (3n, 3n) scipy CSR consistent mass ``M`` in kg (``None`` off rank 0).
+        fixed_vertices: (f,) sorted input indices of the fixed vertices (all ranks).
+        free_dofs: (3n − 3f,) sorted node-major input indices of the free DOFs.
+        stiffness_petsc: ``PETSc.Mat`` K restricted to the free DOFs (DOLFINx dof
+            order, distributed over ``comm``), or ``None`` if not requested.
+        mass_petsc: ``PETSc.Mat`` M restricted to the free DOFs, or ``None``.
+        local_rows: (local rows,) node-major input index of each local row of the
+            PETSc matrices.
+        n_vertices: global number of vertices n.
+        comm: the communicator.
+    """
+
+    stiffness: sp.csr_matrix | None
+    mass: sp.csr_matrix | None
+    fixed_vertices: np.ndarray
+    free_dofs: np.ndarray
+    stiffness_petsc: object | None
+    mass_petsc: object | None
+    local_rows: np.ndarray
+    n_vertices: int
+    comm: MPI.Comm
+
+    def destroy(self) -> None:
+        """Destroy the PETSc matrices (idempotent)."""
+        for mat in (self.stiffness_petsc, self.mass_petsc):
+            if mat is not None:
+                mat.destroy()
+
+    def __enter__(self) -> ElasticMatrices:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.destroy()
+
+
+@dataclasses.dataclass(frozen=True)
+class LinearModes:
+    """The lowest non-rigid vibration modes ``K ψ = ω² M ψ``.
+
+    In parallel the n-sized fields are on rank 0 only (``None`` elsewhere).
+
+    Attributes:
+        omega2: (k,) ascending squared angular frequencies ω² in rad²/s², all > 0.
+        frequencies_hz: (k,) ``√ω² / 2π`` in Hz.
+        vectors: (3n, k) node-major, input vertex order, M-orthonormal, exact zeros
+            at the DOFs of fixed vertices.
+        n_rigid: number of rigid modes (6 for a free body, 0 for a clamped one).
+        rigid: (3n, n_rigid) M-orthonormal rigid modes, M-orthogonal to ``vectors``.
+        fixed_vertices: (f,) sorted input indices of the fixed vertices (all ranks).
+        residuals: (k,) relative residuals on the free DOFs (all ranks).
+        rigid_omega2: (n_rigid,) the computed ω² of the rigid modes (≈ 0), rad²/s².
+        target: the shift-and-invert target σ in rad²/s².
+        stiffness: (3n, 3n) scipy CSR K without constraints, N/m.
+        mass: (3n, 3n) scipy CSR consistent mass M, kg.
+        seconds: wall-clock time of assembly and solve.
+    """
+
+    omega2: np.ndarray
+    frequencies_hz: np.ndarray
+    vectors: np.ndarray | None
+    n_rigid: int
+    rigid: np.ndarray | None
+    fixed_vertices: np.ndarray
+    residuals: np.ndarray
+    rigid_omega2: np.ndarray
+    target: float
+    stiffness: sp.csr_matrix | None
+    mass: sp.csr_matrix | None
+    seconds: float
+
+    @property
+    def count(self) -> int:
+        """Number k of elastic modes."""
+        return int(self.omega2.size)
+
+
+def elastic_matrices(
+    mesh: TetMesh,
+    material: Material,
+    *,
+    fixed_vertices: np.ndarray | None = None,
+    comm: MPI.Comm = MPI.COMM_SELF,
+    petsc: bool = True,
+) -> ElasticMatrices:
+    """Assemble K at rest and the consistent mass M with DOLFINx (vector P1).
+
+    Args:
+        mesh: a checked tetrahedral mesh with n vertices (rank 0's copy is used).
+        material: any :class:`~lbshape.elastic.materials.Material`; K is its linearisation.
+        fixed_vertices: (f,) input indices of vertices whose three DOFs are fixed;
+            ``None`` or empty for a free body (rank 0's copy is used).
+        comm: the communicator; serial by default.
+        petsc: also keep the PETSc free-DOF matrices (for SLEPc); ``False`` destroys
+            them after conversion.
+
+    Returns:
+        :class:`ElasticMatrices`; the caller destroys it.
+
+    Raises:
+        LbshapeError: fixed vertex indices out of range, or every vertex fixed.
+    """
+    import dolfinx.fem
+    import dolfinx.fem.petsc
+    import ufl
+    from petsc4py import PETSc
+
+    n, fixed = _from_root(comm, lambda: (mesh.n_vertices,
+                                         _check_fixed(fixed_vertices, mesh.n_vertices)))
+
+    msh = to_dolfinx(mesh, comm)
+    V = dolfinx.fem.VectorFunctionSpace(msh, ("Lagrange", 1))
+    u = dolfinx.fem.Function(V)  # zero: the rest state
+    v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
+    energy = strain_energy_ufl(material, u)
+    k_form = ufl.derivative(ufl.derivative(energy, u, v), u, du)
+    m_form = material.density * ufl.inner(du, v) * ufl.dx
+    K = dolfinx.fem.petsc.assemble_matrix(dolfinx.fem.form(k_form))
+    K.assemble()
+    M = dolfinx.fem.petsc.assemble_matrix(dolfinx.fem.form(m_form))
+    M.assemble()
+
+    n_owned = V.dofmap.index_map.size_local
+    owned_rows = dof_to_input_order(p1_dof_vertices(V)[:n_owned], 3)
+    K_csr, M_csr = _gather_csr(K, owned_rows, comm, 3 * n), _gather_csr(M, owned_rows, comm, 3 * n)
+
+    free_mask = np.ones(3 * n, dtype=bool)
+    free_mask[(3 * fixed[:, None] + np.arange(3)).ravel()] = False
+    free_dofs = np.flatnonzero(free_mask)
+    local_free = free_mask[owned_rows]
+    local_rows = owned_rows[local_free]
+    K_free = M_free = None
+    if petsc:
+        if fixed.size:
+            start = K.getOwnershipRange()[0]
+            index_set = PETSc.IS().createGeneral(
+                (start + np.flatnonzero(local_free)).astype(PETSc.IntType), comm=comm)
+            try:
+                K_free = K.createSubMatrix(index_set, index_set)
+                M_free = M.createSubMatrix(index_set, index_set)
+            finally:
+                index_set.destroy()
+        else:
+            K_free, M_free = K, M
+    if K_free is not K:
+        K.destroy()
+        M.destroy()
+    return ElasticMatrices(
+        stiffness=K_csr, mass=M_csr, fixed_vertices=fixed, free_dofs=free_dofs,
+        stiffness_petsc=K_free, mass_petsc=M_free, local_rows=local_rows,
+        n_vertices=n, comm=comm,
+    )
+
+
+def _from_root(comm: MPI.Comm, compute):
+    """``compute()`` on rank 0, broadcast; an LbshapeError there is raised on every rank."""
+    value = error = None
+    if comm.rank == 0:
+        try:
+            value = compute()
+        except LbshapeError as exc:
+            error = exc
+    value, error = comm.bcast((value, error), root=0)
+    if error is not None:
+        raise error
+    return value
+
+
+def _check_fixed(fixed_vertices, n: int) -> np.ndarray:
+    """Validated, sorted, unique fixed vertex indices (f,) int64."""
+    if fixed_vertices is None:
+        return np.empty(0, dtype=np.int64)
+    fixed = np.asarray(fixed_vertices)
+    if fixed.size == 0:
+        return np.empty(0, dtype=np.int64)
+    if fixed.ndim != 1 or not np.issubdtype(fixed.dtype, np.integer):
+        raise LbshapeError(f"fixed_vertices must be a 1-D integer array, got {fixed.dtype} "
+                           f"of shape {fixed.shape}")
+    if fixed.min() < 0 or fixed.max() >= n:
+        raise LbshapeError(f"fixed vertex index out of range [0, {n}): "
+                           f"{int(fixed.min())}..{int(fixed.max())}")
+    fixed = np.unique(fixed.astype(np.int64))
+    if fixed.size == n:
+        raise LbshapeError("every vertex is fixed: nothing can move")
+    return fixed
+
+
+def _gather_csr(A, local_rows: np.ndarray, comm: MPI.Comm, size: int) -> sp.csr_matrix | None:
+    """Distributed PETSc AIJ -> (size, size) scipy CSR in input order on rank 0.
+
+    ``local_rows[i]`` is the input index of the i-th locally owned row.
+    """
+    indptr, indices, data = A.getValuesCSR()
+    start = A.getOwnershipRange()[0]
+    parts = comm.gather((start, indptr, indices, data, local_rows), root=0)
+    if comm.rank != 0:
+        return None
+    parts.sort(key=lambda part: part[0])
+    global_to_input = np.concatenate([part[4] for part in parts])
+    rows = np.concatenate([np.repeat(part[4], np.diff(part[1])) for part in parts])
+    cols = np.concatenate([global_to_input[part[2]] for part in parts])
+    vals = np.concatenate([part[3] for part in parts])
+    return sp.csr_matrix((vals, (rows, cols)), shape=(size, size))
+
+
+def _gather_columns(local: np.ndarray, local_rows: np.ndarray, comm: MPI.Comm,
+                    size: int) -> np.ndarray | None:
+    """Local rows (l, k) from every rank -> (size, k) in input order on rank 0, zero elsewhere."""
+    parts = comm.gather((local_rows, local), root=0)
+    if comm.rank != 0:
+        return None
+    out = np.zeros((size, local.shape[1]), dtype=np.float64)
+    for rows, values in parts:
+        out[rows] = values
+    return out
+
+
+def default_target(mesh: TetMesh, material: Material) -> float:
+    """``-TARGET_FRACTION (E/ρ) t²/D⁴`` in rad²/s² (see the module docstring)."""
+    extent = np.ptp(np.asarray(mesh.points), axis=0)
+    diagonal, thinnest = float(np.linalg.norm(extent)), float(extent.min())
+    if not thinnest > 0.0:
+        raise LbshapeError("mesh is flat (zero extent along an axis); cannot compute modes")
+    return -TARGET_FRACTION * material.young / material.density * thinnest**2 / diagonal**4
+
+
+def rigid_body_modes(points: np.ndarray, mass: sp.spmatrix) -> np.ndarray:
+    """M-orthonormal basis (3n, 6) of the infinitesimal rigid motions of ``points``.
+
+    Translations ``e_c`` and rotations ``e_c × (x − x̄)`` (x̄ the vertex centroid),
+    node-major, made M-orthonormal with a Cholesky factor of their Gram matrix.
+
+    Args:
+        points: (n, 3) vertex positions in metres.
+        mass: (3n, 3n) symmetric positive definite mass matrix.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    n = points.shape[0]
+    r = points - points.mean(axis=0)
+    fields = np.zeros((n, 3, 6))
+    for c in range(3):
+        fields[:, c, c] = 1.0
+        axis = np.zeros(3)
+        axis[c] = 1.0
+        fields[:, :, 3 + c] = np.cross(axis, r)
+    R = fields.reshape(3 * n, 6)
+    gram = R.T @ (mass @ R)
+    L = np.linalg.cholesky(0.5 * (gram + gram.T))
+    return np.linalg.solve(L, R.T).T
+
+
+def linear_modes(
+    mesh: TetMesh,
+    material: Material,
+    count: int,
+    *,
+    fixed_vertices: np.ndarray | None = None,
+    comm: MPI.Comm = MPI.COMM_SELF,
+    tol: float = 1e-10,
+    target: float | None = None,
+) -> LinearModes:
+    """The ``count`` lowest non-rigid modes of ``mesh`` (see the module docstring).
+
+    Args:
+        mesh: a checked, connected tetrahedral mesh with n vertices.
+        material: material parameters (E, ν, ρ); the model does not matter at rest.
+        count: number k ≥ 1 of elastic (non-rigid) modes.
+        fixed_vertices: (f,) input indices of clamped vertices; ``None`` or empty for
+            a free body (whose 6 rigid modes are found and returned separately).
+        comm: the communicator (``MPI.COMM_WORLD`` to run distributed).
+        tol: SLEPc relative tolerance; residuals must be ≤ ``RESIDUAL_FACTOR * tol``.
+        target: shift-and-invert target σ < 0 in rad²/s²; default
+            :func:`default_target`.
+
+    Returns:
+        :class:`LinearModes`; in parallel the n-sized fields are on rank 0 only.
+
+    Raises:
+        LbshapeError: bad ``count`` (too large for the mesh), ``tol``, ``target`` or
+            fixed vertices, or fixed vertices that leave rigid motions free.
+        SolverError: too few converged pairs, large residuals, negative ω², or not
+            exactly 6 rigid modes for a free body.
+    """
+    started = time.perf_counter()
+    if not (0.0 < tol < 1.0):
+        raise LbshapeError(f"tol must be in (0, 1), got {tol!r}")
+    if target is not None and not (math.isfinite(target) and target < 0.0):
+        raise LbshapeError(f"target must be a finite negative number, got {target!r}")
+    sigma, n, fixed = _from_root(comm, lambda: (
+        default_target(mesh, material) if target is None else float(target),
+        mesh.n_vertices, _check_fixed(fixed_vertices, mesh.n_vertices)))
+    expected_rigid = 0 if fixed.size else FREE_BODY_RIGID_MODES
+    n_free = 3 * (n - fixed.size)
+    if isinstance(count, bool) or not isinstance(count, int | np.integer) or count < 1:
+        raise LbshapeError(f"the number of modes must be an integer >= 1, got {count!r}")
+    if count + expected_rigid >= n_free:
+        raise LbshapeError(
+            f"{count} modes are too many for a mesh with {n_free} free DOFs: need "
+            f"count + {expected_rigid} rigid < {n_free}"
+        )
+    nev = int(count) + expected_rigid
+
+    with elastic_matrices(mesh, material, fixed_vertices=fixed, comm=comm) as mats:
+        values, local, tol = _solve_eigenproblem(mats, nev, sigma, tol)
+        n_rigid, scale = _count_rigid(values)
+        _check_rigid_count(n_rigid, expected_rigid, values, scale)
+        K, M = mats.stiffness, mats.mass
+        vectors = _gather_columns(local, mats.local_rows, comm, 3 * n)
+        free_dofs = mats.free_dofs
+
+    omega2 = values[n_rigid:nev]
+    residuals = rigid_residual = None
+    rigid = elastic = None
+    if comm.rank == 0:
+        vectors = b_orthonormalise(vectors[:, :nev], M, what="elastic mode vectors")
+        rigid, elastic = vectors[:, :n_rigid], fix_signs(vectors[:, n_rigid:])
+        Kf, Mf = K[free_dofs], M[free_dofs]
+        residuals = relative_residuals(Kf, Mf, omega2, elastic)
+        if n_rigid:
+            rigid_residual = float(np.max(np.linalg.norm(Kf @ rigid, axis=0)
+                                          / np.linalg.norm(Mf @ rigid, axis=0)))
+    residuals, rigid_residual = comm.bcast((residuals, rigid_residual), root=0)
+    bad = residuals > RESIDUAL_FACTOR * tol
+    if bad.any():
+        worst = int(np.argmax(residuals))
+        raise SolverError(
+            f"elastic eigenpairs with large residuals: {int(bad.sum())} of {count} exceed "
+            f"{RESIDUAL_FACTOR * tol:.1e} (worst: mode {worst + 1}, omega^2={omega2[worst]:.6e}, "
+            f"residual {residuals[worst]:.2e})"
+        )
+    if rigid_residual is not None and rigid_residual > RIGID_RTOL * scale:
+        raise SolverError(
+            f"rigid modes are not in the null space of K: max |Kr|/|Mr| = {rigid_residual:.3e} "
+            f"> {RIGID_RTOL:g} x first elastic omega^2 {scale:.3e}"
+        )
+    seconds = time.perf_counter() - started
+    log.info("elastic modes: n=%d fixed=%d k=%d rigid=%d target=%.3e f_1=%.6g Hz in %.2f s",
+             n, fixed.size, count, n_rigid, sigma, math.sqrt(omega2[0]) / (2 * math.pi),
+             seconds)
+    return LinearModes(
+        omega2=omega2, frequencies_hz=np.sqrt(omega2) / (2.0 * math.pi), vectors=elastic,
+        n_rigid=n_rigid, rigid=rigid, fixed_vertices=fixed, residuals=residuals,
+        rigid_omega2=values[:n_rigid], target=sigma, stiffness=K, mass=M, seconds=seconds,
+    )
+
+
+def _solve_eigenproblem(mats: ElasticMatrices, nev: int, sigma: float,
+                        tol: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """The ``nev`` pairs nearest σ: ascending values (nev,), local vectors (l, nev) and
+    the tolerance used (``tol`` unless overridden by the options)."""
+
+    eps = shift_invert_eps(mats.stiffness_petsc, mats.mass_petsc, comm=mats.comm,
+                           prefix=OPTIONS_PREFIX, nev=nev, sigma=sigma, tol=tol,
+                           factor="mumps")
+    try:
+        eps.setFromOptions()
+        tol = eps.getTolerances()[0]  # as overridden by -elastic_eps_tol, if given
+        eps.solve()
+        n_converged = eps.getConverged()
+        if n_converged < nev:
+            raise SolverError(
+                f"elastic eigensolver converged {n_converged} of {nev} requested pairs "
+                f"({reason_name(eps.getConvergedReason())}, {eps.getIterationNumber()} "
+                f"iterations, tol={tol:g}, target={sigma:.3e})"
+            )
+        values = np.empty(n_converged)
+        vr = mats.stiffness_petsc.createVecRight()
+        try:
+            local = np.empty((vr.getLocalSize(), n_converged))
+            for i in range(n_converged):
+                values[i] = eps.getEigenpair(i, vr).real
+                local[:, i] = vr.getArray(readonly=True)
+        finally:
+            vr.destroy()
+    finally:
+        eps.destroy()
+    # SLEPc may converge more pairs than asked; the nev nearest σ are the smallest
+    order = np.argsort(values)[:nev]
+    return values[order], local[:, order], tol
+
+
+def _count_rigid(values: np.ndarray) -> tuple[int, float]:
+    """(number of rigid values at the start of ascending ``values``, first elastic ω²)."""
+    big = values > RIGID_RTOL * np.max(np.abs(values))
+    if not big.any():
+        raise SolverError(f"no elastic eigenvalue found among {values.size} computed "
+                          f"(largest |omega^2| {np.max(np.abs(values)):.3e})")
+    scale = float(values[big][0])
+    negative = values < -RIGID_RTOL * scale
+    if negative.any():
+        raise SolverError(
+            f"negative omega^2 {values[negative][0]:.3e} (first elastic {scale:.3e}): "
+            "the stiffness matrix is not positive semi-definite"
+        )
+    rigid = np.abs(values) <= RIGID_RTOL * scale
+    n_rigid = int(rigid.sum())
+    if not rigid[:n_rigid].all():  # pragma: no cover - values are sorted
+        raise SolverError("rigid eigenvalues are not the smallest")
+    return n_rigid, scale
+
+
+def _check_rigid_count(n_rigid: int, expected: int, values: np.ndarray, scale: float) -> None:
+    if n_rigid == expected:
+        return
+    shown = ", ".join(f"{v:.3e}" for v in values[: max(n_rigid, expected) + 1])
+    if expected == 0:
+        raise LbshapeError(
+            f"the fixed vertices do not prevent rigid motion: {n_rigid} zero-frequency modes "
+            f"(|omega^2| <= {RIGID_RTOL:g} x {scale:.3e}); fix at least 3 non-collinear "
+            f"vertices (smallest omega^2: {shown})"
+        )
+    raise SolverError(
+        f"a free body must have exactly {expected} rigid modes, found {n_rigid} with "
+        f"|omega^2| <= {RIGID_RTOL:g} x {scale:.3e} (smallest omega^2: {shown})"
+        + ("; several disconnected bodies?" if n_rigid > expected else "")
+    )

@@ -1,0 +1,7 @@
+"""The finite-element bridge: DOLFINx meshes, generalized eigenproblems (SLEPc), MPI helpers."""
+
+__all__ = [
+    "dolfinx_bridge",
+    "eigenproblem",
+    "mpi",
+]

@@ -1,0 +1,85 @@
+"""Shared pieces of the symmetric generalized eigenproblems ``A x = λ B x`` (SLEPc).
+
+Used by the LB spectrum (:mod:`lbshape.spectral.spectrum`) and the linear elastic modes
+(:mod:`lbshape.elastic.modes`): one shift-and-invert configuration, and the
+post-processing every eigenpair set gets (B-orthonormalisation, a deterministic
+sign, relative residuals).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from lbshape.errors import SolverError
+
+#: a column's sign is fixed at its first entry with |x| ≥ (1 − SIGN_RTOL) max|x|
+SIGN_RTOL = 1e-6
+
+
+def shift_invert_eps(A, B, *, comm, prefix: str, nev: int, sigma: float, tol: float,
+                     factor: str):
+    """A Krylov-Schur GHEP solver for the ``nev`` pairs nearest ``sigma``.
+
+    Shift-and-invert with a direct Cholesky factorisation (``factor``: a PETSc
+    solver package such as ``"mumps"``), options prefix ``prefix`` applied last so
+    command-line options override. The caller owns the returned ``SLEPc.EPS`` and
+    must ``destroy()`` it.
+    """
+    from slepc4py import SLEPc
+
+    eps = SLEPc.EPS().create(comm)
+    eps.setOptionsPrefix(prefix)
+    eps.setOperators(A, B)
+    eps.setProblemType(SLEPc.EPS.ProblemType.GHEP)
+    eps.setType(SLEPc.EPS.Type.KRYLOVSCHUR)
+    eps.setDimensions(nev=nev)
+    eps.setTarget(sigma)
+    eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
+    eps.setTolerances(tol=tol, max_it=1000)
+    st = eps.getST()
+    st.setType(SLEPc.ST.Type.SINVERT)
+    st.setShift(sigma)
+    ksp = st.getKSP()
+    ksp.setType("preonly")
+    pc = ksp.getPC()
+    pc.setType("cholesky")
+    pc.setFactorSolverType(factor)
+    return eps
+
+
+def reason_name(reason: int) -> str:
+    """The name of a SLEPc ``EPS.ConvergedReason`` value."""
+    from slepc4py import SLEPc
+
+    names = {v: k for k, v in vars(SLEPc.EPS.ConvergedReason).items() if k.isupper()}
+    return names.get(int(reason), f"reason {int(reason)}")
+
+
+def b_orthonormalise(vectors: np.ndarray, B: sp.spmatrix, *, what: str) -> np.ndarray:
+    """Löwdin: ``X G^(-1/2)`` with ``G = XᵀBX``; X (n, k) -> B-orthonormal (n, k)."""
+    gram = vectors.T @ (B @ vectors)
+    gram = 0.5 * (gram + gram.T)
+    w, q = np.linalg.eigh(gram)
+    if w.min() <= 1e-8 * w.max():
+        raise SolverError(
+            f"{what} are linearly dependent (Gram eigenvalues {w.min():.2e} .. {w.max():.2e})"
+        )
+    return vectors @ (q @ np.diag(w ** -0.5) @ q.T)
+
+
+def fix_signs(vectors: np.ndarray) -> np.ndarray:
+    """Make each column positive at its first entry with ``|x| ≥ (1−SIGN_RTOL) max|x|``."""
+    mag = np.abs(vectors)
+    first = np.argmax(mag >= (1.0 - SIGN_RTOL) * mag.max(axis=0), axis=0)
+    signs = np.sign(vectors[first, np.arange(vectors.shape[1])])
+    signs[signs == 0] = 1.0
+    return vectors * signs
+
+
+def relative_residuals(A, B, values: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """(k,) ``‖Ax − λBx‖ / (|λ|‖Bx‖ + ‖Ax‖)`` per column."""
+    AV, BV = A @ vectors, B @ vectors
+    num = np.linalg.norm(AV - BV * values, axis=0)
+    den = np.abs(values) * np.linalg.norm(BV, axis=0) + np.linalg.norm(AV, axis=0)
+    return num / den

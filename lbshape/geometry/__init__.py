@@ -1,0 +1,9 @@
+"""Geometry: tetrahedral meshes and checks, primitives, built-in shapes, regions, poses."""
+
+__all__ = [
+    "mesh",
+    "poses",
+    "primitives",
+    "regions",
+    "shapes",
+]

@@ -1,0 +1,373 @@
+"""The precompute pipeline of a scene, with a validated cache.
+
+Stages (only those the scene needs; paper pre-computation steps 1–6):
+
+1. ``mesh``: the object's rest mesh and its fixed vertices;
+2. ``modes``: linear elastic modes (fixed vertices from the scene);
+3. ``derivatives``: modal derivatives (Barbič & James);
+4. ``basis``: mass-PCA nonlinear basis U (3n, r), ``UᵀMU = I``;
+5. ``cubature``: optimized cubature for the reduced elastic force;
+6. ``lb``: the object's LB spectrum (m pairs)                — scenes with examples;
+7. ``examples``: example meshes, poses, frame and basis alignment, displacement
+   coefficients                                              — scenes with examples;
+8. ``projections``: direct projections T                      — scenes with examples;
+9. ``lb-cubature``: a cubature for the LB displacement subspace (the ``lb``
+   interpolation route), trained on poses as large as the examples
+                                                              — scenes with examples.
+
+Everything is cached under a key derived from :meth:`Scene.precompute_key_fields`,
+the gmsh scripts or mesh files behind the meshes, and the package versions, so
+changing dt, steps, loads, damping or k_ex never redoes the precompute, while
+changing any mesh byte, material value, m, r, s or example does.
+
+**Basis scaling.** U is orthonormal in the elastic mass ``M = ρ M₃``; the shape
+space (:mod:`lbshape.shapespace.projections`) works with the volume mass M₃. Its projection
+is computed for ``√ρ U`` (M₃-orthonormal), so with ``P`` that projection:
+reduced coordinates of an LB displacement are ``q = √ρ P c`` and the LB
+coefficients of ``U q`` are ``c = Pᵀ q / √ρ``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from lbshape import __version__
+from lbshape.elastic.materials import Material
+from lbshape.errors import LbshapeError
+from lbshape.geometry.mesh import TetMesh
+from lbshape.io.cache import cache_key, file_digest, load_artifact, save_artifact
+from lbshape.scene.schema import MeshSource, Scene
+
+log = logging.getLogger(__name__)
+
+#: training poses for the elastic cubature (held-out poses: half as many)
+CUBATURE_TRAINING_POSES = 120
+#: seed of every random choice of the precompute (training poses, candidates)
+PRECOMPUTE_SEED = 20170401
+#: bumped whenever the artifact's content or meaning changes (part of the cache key)
+PIPELINE_VERSION = 2
+#: arrays every artifact holds, and those of scenes with examples
+_REQUIRED = ("points", "tets", "fixed", "U", "omega2", "cub_elements", "cub_weights")
+_REQUIRED_EXAMPLES = ("eigenvalues", "eigenvectors", "example_coefficients", "projection",
+                      "alignment_residuals", "lb_cub_elements", "lb_cub_weights",
+                      "lb_cub_errors")
+
+
+@dataclass(frozen=True)
+class Precomputed:
+    """Everything the runtime of a scene needs (n-sized arrays only for output).
+
+    Attributes:
+        scene: scene name.
+        key: cache key.
+        mesh: object rest mesh.
+        material: the scene's material.
+        fixed_vertices: (f,) fixed vertex indices (empty for a free object).
+        U: (3n, r) nonlinear basis, ``Uᵀ M U = I`` (M the elastic mass).
+        omega2: (k,) squared angular frequencies of the linear modes used (rad²/s²).
+        cubature_elements: (s,) element indices; ``cubature_weights`` (s,).
+        cubature_errors: training and held-out relative force errors.
+        eigenvalues: (m,) object's LB eigenvalues (1/m²) or None without examples.
+        eigenvectors: (n, m) object's LB eigenvectors (M₃-orthonormal) or None.
+        example_coefficients: (k, m, 3) example LB displacement coefficients or None.
+        projection: (r, 3m) ``P = (√ρ U)ᵀ M₃ L`` or None.
+        alignment_residuals: (k,) basis alignment residuals or None.
+        lb_cubature_elements, lb_cubature_weights: cubature of the LB displacement
+            subspace (basis :meth:`lb_basis`), or None; ``lb_cubature_errors``.
+        example_names: (k,) labels.
+        stage_seconds: wall time per stage (s) of the run that built the artifact.
+        from_cache: True when loaded from the cache.
+    """
+
+    scene: str
+    key: str
+    mesh: TetMesh
+    material: Material
+    fixed_vertices: np.ndarray
+    U: np.ndarray
+    omega2: np.ndarray
+    cubature_elements: np.ndarray
+    cubature_weights: np.ndarray
+    cubature_errors: dict
+    eigenvalues: np.ndarray | None = None
+    eigenvectors: np.ndarray | None = None
+    example_coefficients: np.ndarray | None = None
+    projection: np.ndarray | None = None
+    alignment_residuals: np.ndarray | None = None
+    lb_cubature_elements: np.ndarray | None = None
+    lb_cubature_weights: np.ndarray | None = None
+    lb_cubature_errors: dict = field(default_factory=dict)
+    example_names: tuple[str, ...] = ()
+    stage_seconds: dict = field(default_factory=dict)
+    from_cache: bool = False
+
+    @property
+    def r(self) -> int:
+        return int(self.U.shape[1])
+
+    @property
+    def has_examples(self) -> bool:
+        return self.example_coefficients is not None
+
+    # --- shape-space maps in the elastic reduced coordinates (see module docstring)
+    @property
+    def lb_to_reduced(self) -> np.ndarray:
+        """(r, 3m) maps LB displacement coefficients c to reduced coordinates q."""
+        return math.sqrt(self.material.density) * self.projection
+
+    @property
+    def descriptor_matrix(self) -> np.ndarray:
+        """(3m, r) ``D``: λ-weighted LB coefficients of ``U q`` are ``D q``."""
+        weights = np.repeat(self.eigenvalues, 3)
+        return weights[:, None] * self.projection.T / math.sqrt(self.material.density)
+
+    @property
+    def example_descriptors(self) -> np.ndarray:
+        """(k, 3m) λ-weighted example displacement coefficients."""
+        k = self.example_coefficients.shape[0]
+        return self.example_coefficients.reshape(k, -1) * np.repeat(self.eigenvalues, 3)
+
+    def example_rest_points(self, index: int) -> np.ndarray:
+        """(n, 3) example ``index`` reconstructed on the object's mesh (its rest shape)."""
+        return self.mesh.points + self.eigenvectors @ self.example_coefficients[index]
+
+    def lb_basis(self) -> np.ndarray:
+        """(3n, 3m) dense ``L = Φ ⊗ I₃`` (node-major rows, column 3i+k)."""
+        n, m = self.eigenvectors.shape
+        L = np.zeros((n, 3, m, 3))
+        for k in range(3):
+            L[:, k, :, k] = self.eigenvectors
+        return L.reshape(3 * n, 3 * m)
+
+
+def _source_digest(source: MeshSource) -> dict:
+    """The mesh source's key plus the digest of the gmsh script behind a shape."""
+    key = dict(source.key())
+    if source.shape is not None:
+        from lbshape.geometry.shapes import MESHES_DIR, get_shape
+
+        spec = get_shape(source.shape)
+        key["script_sha256"] = file_digest(MESHES_DIR / spec.script)
+        key["size_used"] = source.size if source.size is not None else spec.default_size
+    return key
+
+
+def scene_cache_key(scene: Scene) -> str:
+    """The cache key of a scene's precompute (see the module docstring)."""
+    import dolfinx
+
+    sources = [_source_digest(scene.object)]
+    if scene.examples is not None:
+        sources += [_source_digest(p.source) for p in scene.examples.poses]
+    return cache_key(
+        "precompute", scene.precompute_key_fields(), sources,
+        {"lbshape": __version__, "dolfinx": dolfinx.__version__, "numpy": np.__version__},
+        CUBATURE_TRAINING_POSES, PRECOMPUTE_SEED, PIPELINE_VERSION,
+    )
+
+
+class _Stages:
+    """A progress bar per stage (stderr) and the time spent in each."""
+
+    def __init__(self, names: list[str], *, show: bool):
+        self.names = names
+        self.show = show
+        self.seconds: dict[str, float] = {}
+
+    @contextlib.contextmanager
+    def stage(self, name: str):
+        from tqdm import tqdm
+
+        index = self.names.index(name) + 1
+        bar = tqdm(total=1, desc=f"[{index}/{len(self.names)}] {name:<12}", disable=not self.show,
+                   file=sys.stderr, leave=True, bar_format="{desc} {bar:20} {elapsed}")
+        started = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = time.perf_counter() - started
+            bar.update(1)
+            bar.close()
+
+
+def stage_names(scene: Scene) -> list[str]:
+    """The stages this scene needs, in order."""
+    names = ["mesh", "modes", "derivatives", "basis", "cubature"]
+    if scene.has_examples:
+        names += ["lb", "examples", "projections", "lb-cubature"]
+    return names
+
+
+def precompute(scene: Scene, *, force: bool = False, progress: bool = False) -> Precomputed:
+    """Build or reuse the scene's precompute (see the module docstring)."""
+    key = scene_cache_key(scene)
+    if not force:
+        required = _REQUIRED + (_REQUIRED_EXAMPLES if scene.has_examples else ())
+        cached = load_artifact(scene.name, key, required=required)
+        if cached is not None:
+            return _from_arrays(scene, key, *cached)
+    stages = _Stages(stage_names(scene), show=progress)
+    arrays, meta = _compute(scene, stages)
+    meta["stage_seconds"] = stages.seconds
+    save_artifact(scene.name, key, arrays, meta)
+    return _from_arrays(scene, key, arrays, meta, from_cache=False)
+
+
+def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
+    from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
+    from lbshape.elastic.cubature import inverse_frequency_scales, train_cubature
+    from lbshape.elastic.modal_derivatives import modal_derivatives
+    from lbshape.elastic.modes import linear_modes
+
+    material, reduced = scene.material, scene.reduced
+    with stages.stage("mesh"):
+        mesh = scene.object.build()
+        fixed = (np.empty(0, dtype=np.int64) if scene.fixed is None
+                 else scene.fixed.vertices(mesh, what="fixed region"))
+        _check_sizes(scene, mesh, fixed)
+    count = reduced.linear_modes or default_linear_modes(reduced.r)
+    with stages.stage("modes"):
+        modes = linear_modes(mesh, material, count, fixed_vertices=fixed if fixed.size else None)
+    with stages.stage("derivatives"):
+        derivatives = modal_derivatives(mesh, material, modes)
+    with stages.stage("basis"):
+        from lbshape.elastic.element_kernels import mass_matrix
+
+        mass = mass_matrix(mesh, material.density)
+        basis = nonlinear_basis(modes, derivatives, mass, reduced.r)
+        U = basis.U
+    with stages.stage("cubature"):
+        cubature = train_cubature(
+            mesh, material, U, rng=np.random.default_rng(PRECOMPUTE_SEED),
+            scales=inverse_frequency_scales(np.asarray(basis.omega2)),
+            max_elements=reduced.s, tol=reduced.cubature_tolerance,
+            n_train=CUBATURE_TRAINING_POSES, n_holdout=CUBATURE_TRAINING_POSES // 2,
+        )
+    arrays = {
+        "points": mesh.points, "tets": mesh.tets, "fixed": fixed, "U": U,
+        "omega2": np.asarray(modes.omega2), "cub_elements": cubature.elements,
+        "cub_weights": cubature.weights,
+    }
+    meta = {"scene": scene.name, "cubature_errors": {
+        "train": cubature.train_error, "holdout": cubature.holdout_error,
+        "tolerance": cubature.tol, "reached_tolerance": bool(cubature.reached_tol)}}
+    if scene.has_examples:
+        arrays.update(_shape_space_arrays(scene, mesh, U, stages))
+        meta["example_names"] = [_example_label(p) for p in scene.examples.poses]
+    return arrays, meta
+
+
+def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Stages) -> dict:
+    from lbshape.shapespace.frames import body_frame
+    from lbshape.shapespace.projections import embed_example, make_shape_space
+    from lbshape.spectral.spectrum import lb_spectrum
+
+    m = scene.reduced.m
+    with stages.stage("lb"):
+        spectrum = lb_spectrum(mesh, m)
+    with stages.stage("examples"):
+        frame = body_frame(mesh)
+        coefficients, alignments = [], []
+        for index, pose in enumerate(scene.examples.poses):
+            label = f"example {index + 1} ({_example_label(pose)})"
+            rest = pose.source.build()
+            if rest.n_vertices <= m + 1:
+                raise LbshapeError(
+                    f"{label}: m={m} is too large for an example mesh with "
+                    f"{rest.n_vertices} vertices"
+                )
+            posed = pose.posed(rest)
+            landmarks = np.asarray(pose.landmarks, dtype=np.int64) if pose.landmarks else None
+            try:
+                embedded = embed_example(mesh, spectrum, rest, [posed.points],
+                                         object_frame=frame, landmarks=landmarks)
+            except LbshapeError as exc:
+                raise LbshapeError(f"{label}: {exc}") from None
+            coefficients.append(embedded.coefficients[0])
+            alignments.append(embedded.alignment)
+            log.info("%s: alignment residual %.3g", label, embedded.alignment.residual)
+    with stages.stage("projections"):
+        space = make_shape_space(
+            spectrum.eigenvalues, spectrum.eigenvectors, spectrum.mass, mesh.points,
+            math.sqrt(scene.material.density) * U, coefficients, alignments,
+            [_example_label(p) for p in scene.examples.poses],
+        )
+    with stages.stage("lb-cubature"):
+        lb_cubature = _train_lb_cubature(scene, mesh, spectrum, space.example_coefficients)
+    return {
+        "lb_cub_elements": lb_cubature.elements, "lb_cub_weights": lb_cubature.weights,
+        "lb_cub_errors": np.array([lb_cubature.train_error, lb_cubature.holdout_error]),
+        "eigenvalues": space.eigenvalues, "eigenvectors": spectrum.eigenvectors,
+        "example_coefficients": space.example_coefficients, "projection": space.projection,
+        "alignment_residuals": space.alignment_residuals,
+    }
+
+
+def _train_lb_cubature(scene: Scene, mesh: TetMesh, spectrum, example_coefficients):
+    """Cubature for the basis ``L = Φ ⊗ I₃``, training poses as large as the examples."""
+    from lbshape.elastic.cubature import inverse_frequency_scales, train_cubature
+    from lbshape.shapespace.projections import block_eigenfunctions
+
+    L = block_eigenfunctions(spectrum.eigenvectors).toarray()
+    size = float(np.ptp(mesh.points, axis=0).max())
+    k = example_coefficients.shape[0]
+    largest = max(float(np.abs(L @ c).max()) for c in example_coefficients.reshape(k, -1))
+    return train_cubature(
+        mesh, scene.material, L, rng=np.random.default_rng(PRECOMPUTE_SEED + 1),
+        scales=inverse_frequency_scales(np.repeat(spectrum.eigenvalues, 3)),
+        max_elements=scene.reduced.s, tol=scene.reduced.cubature_tolerance,
+        n_train=CUBATURE_TRAINING_POSES, n_holdout=CUBATURE_TRAINING_POSES // 2,
+        magnitude=max(1.2 * largest / size, 0.05),
+    )
+
+
+def _example_label(pose) -> str:
+    source = pose.source.shape or Path(pose.source.mesh_file).name
+    return f"{source}:{pose.pose}" if pose.pose else str(source)
+
+
+def _check_sizes(scene: Scene, mesh: TetMesh, fixed: np.ndarray) -> None:
+    free_dofs = 3 * (mesh.n_vertices - fixed.size) - (0 if fixed.size else 6)
+    r, s, m = scene.reduced.r, scene.reduced.s, scene.reduced.m
+    if r > free_dofs:
+        raise LbshapeError(f"reduced.r={r} is larger than the mesh's {free_dofs} free DOFs")
+    if s > mesh.n_tets:
+        raise LbshapeError(f"reduced.s={s} is larger than the mesh's {mesh.n_tets} tetrahedra")
+    if scene.has_examples and m + 1 >= mesh.n_vertices:
+        raise LbshapeError(f"reduced.m={m} is too large for a mesh with {mesh.n_vertices} vertices")
+
+
+def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
+                 from_cache: bool = True) -> Precomputed:
+    mesh = TetMesh(np.asarray(arrays["points"]), np.asarray(arrays["tets"]))
+    has_examples = "example_coefficients" in arrays
+    return Precomputed(
+        scene=scene.name, key=key, mesh=mesh, material=scene.material,
+        fixed_vertices=np.asarray(arrays["fixed"], dtype=np.int64),
+        U=np.asarray(arrays["U"]), omega2=np.asarray(arrays["omega2"]),
+        cubature_elements=np.asarray(arrays["cub_elements"], dtype=np.int64),
+        cubature_weights=np.asarray(arrays["cub_weights"]),
+        cubature_errors=meta.get("cubature_errors", {}),
+        eigenvalues=arrays.get("eigenvalues") if has_examples else None,
+        eigenvectors=arrays.get("eigenvectors") if has_examples else None,
+        example_coefficients=arrays.get("example_coefficients") if has_examples else None,
+        projection=arrays.get("projection") if has_examples else None,
+        alignment_residuals=arrays.get("alignment_residuals") if has_examples else None,
+        lb_cubature_elements=(np.asarray(arrays["lb_cub_elements"], dtype=np.int64)
+                              if has_examples else None),
+        lb_cubature_weights=arrays.get("lb_cub_weights") if has_examples else None,
+        lb_cubature_errors=({"train": float(arrays["lb_cub_errors"][0]),
+                             "holdout": float(arrays["lb_cub_errors"][1])}
+                            if has_examples else {}),
+        example_names=tuple(meta.get("example_names", ())),
+        stage_seconds=dict(meta.get("stage_seconds", {})),
+        from_cache=from_cache,
+    )

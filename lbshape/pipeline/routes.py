@@ -1,0 +1,234 @@
+"""The interpolation routes: which basis and which elements the target energies use.
+
+See :mod:`lbshape.shapespace.interpolation` for the target problem ``min_z Σ_k w_k E_k(z − z_k)``.
+The routes (:data:`ROUTES`) differ in the coordinates z, the basis B that
+maps them to displacements (metres) and the elements the energies sum over:
+
+* ``modal`` (the paper's): z = reduced coordinates q (r,), ``B = U`` (3n, r), the
+  elastic cubature of the precompute; the examples enter through the direct
+  projection ``q_k = T c_k`` (``T`` = :attr:`Precomputed.lb_to_reduced`).
+* ``lb``: z = LB displacement coefficients c (3m,), ``B = L = Φ ⊗ I₃`` (3n, 3m),
+  the cubature trained on the LB displacement subspace by the precompute's
+  ``lb-cubature`` stage (:attr:`Precomputed.lb_cubature_elements`; the scene's s,
+  seeded, poses as large as the examples); the target maps to reduced
+  coordinates through ``T``.
+* ``lb-exact`` (StVK only): z = c, ``B = L``, the energy summed over all elements
+  but evaluated exactly as a precomputed quartic polynomial in z
+  (:class:`lbshape.shapespace.polynomial_energy.StVKPolynomialEnergy`): the ``euclidean``
+  target at a run-time cost of O((3m)⁴), independent of the mesh.
+* ``euclidean`` (Zhu et al. 2015 baseline): z = c, ``B = L``, **all** elements
+  with unit weights (:class:`lbshape.shapespace.euclidean_energy.EuclideanExampleEnergy`).
+
+In every route example k's energy is that of its rest shape ``X_k = X + Φ c_k``
+(the example reconstructed on the object's mesh, :meth:`Precomputed.example_rest_points`),
+so ``E_k(0) = 0`` and a single example is its own target.
+
+Set-up is per run from a :class:`~lbshape.pipeline.precompute.Precomputed` and cheap (the
+cubatures come from the precompute and its cache); nothing is cached here. The
+returned objects are m/r/s-sized at run time (``euclidean`` by design is not;
+``lb-exact`` costs O((3m)⁴) per evaluation and its set-up is n-sized).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lbshape.errors import LbshapeError
+from lbshape.pipeline.precompute import Precomputed
+from lbshape.shapespace.interpolation import TargetSolver
+
+log = logging.getLogger(__name__)
+
+ROUTES = ("modal", "lb", "lb-exact", "euclidean")
+
+
+@dataclass(frozen=True)
+class InterpolationRoute:
+    """A target solver set up for one route, and what the runtime driver needs.
+
+    Attributes:
+        route: one of :data:`ROUTES`.
+        solver: the warm-started :class:`~lbshape.shapespace.interpolation.TargetSolver` over
+            the k example energies in coordinates z (p,).
+        to_reduced: (r, p) ``R`` with ``q = R z``, or ``None`` when z already are
+            reduced coordinates (``modal``, p = r).
+        basis: (3n, p) node-major B: the displacement of coordinates z is ``B z``
+            in metres (``U`` or ``L``). For output and error measurements only.
+        elements: (s,) element indices the energies sum over (all for ``euclidean``
+            and ``lb-exact``).
+        weights: (s,) their non-negative weights (dimensionless).
+        cubature_errors: the cubature's relative force errors (``train``,
+            ``holdout``) as recorded by the precompute; empty without a cubature.
+        seconds: wall time of the set-up (s).
+    """
+
+    route: str
+    solver: TargetSolver
+    to_reduced: np.ndarray | None
+    basis: np.ndarray
+    elements: np.ndarray
+    weights: np.ndarray
+    cubature_errors: dict = field(default_factory=dict)
+    seconds: float = 0.0
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """(k, p) the examples' own coordinates z_k."""
+        return self.solver.offsets
+
+    @property
+    def dimension(self) -> int:
+        """p, the number of target coordinates."""
+        return self.solver.dimension
+
+    def reduced(self, z: np.ndarray) -> np.ndarray:
+        """Reduced coordinates (r,) of target coordinates z (p,)."""
+        z = self._coordinates(z)
+        return z.copy() if self.to_reduced is None else self.to_reduced @ z
+
+    def displacement(self, z: np.ndarray) -> np.ndarray:
+        """Full-space displacement ``B z`` (n, 3) in metres of target coordinates z (p,)."""
+        return (self.basis @ self._coordinates(z)).reshape(-1, 3)
+
+    def _coordinates(self, z) -> np.ndarray:
+        z = np.asarray(z, dtype=float)
+        if z.shape != (self.dimension,):
+            raise LbshapeError(
+                f"{self.route} target coordinates must have shape ({self.dimension},), "
+                f"got {z.shape}"
+            )
+        return z
+
+
+def target_solver(
+    pre: Precomputed,
+    route: str,
+    *,
+    tolerance: float = 1e-6,
+    max_iterations: int = 20,
+) -> InterpolationRoute:
+    """Set up the target solver of ``route`` from a precompute with examples.
+
+    Args:
+        pre: the scene's precompute (must have examples; the ``lb`` route also
+            needs its LB-subspace cubature).
+        route: ``"modal"``, ``"lb"`` or ``"euclidean"`` (see the module docstring).
+        tolerance: Newton tolerance of the :class:`TargetSolver`.
+        max_iterations: Newton iterations per target solve.
+
+    Returns:
+        The :class:`InterpolationRoute`.
+
+    Raises:
+        LbshapeError: unknown route, a precompute without examples (or without the
+            LB cubature for ``lb``), or inconsistent array shapes.
+    """
+    if route not in ROUTES:
+        raise LbshapeError(f"unknown interpolation route {route!r} (routes: {', '.join(ROUTES)})")
+    check_precomputed(pre)
+    started = time.perf_counter()
+    k = pre.example_coefficients.shape[0]
+    coefficients = pre.example_coefficients.reshape(k, -1)
+    rests = [pre.example_rest_points(i) for i in range(k)]
+    tets, material = pre.mesh.tets, pre.material
+    if route in ("euclidean", "lb-exact"):
+        from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
+        from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
+
+        energy = EuclideanExampleEnergy if route == "euclidean" else StVKPolynomialEnergy
+        basis = pre.lb_basis()
+        elements = np.arange(pre.mesh.n_tets, dtype=np.int64)
+        weights = np.ones(pre.mesh.n_tets)
+        models = [energy(x, tets, material, basis) for x in rests]
+        offsets, to_reduced, errors = coefficients, pre.lb_to_reduced, {}
+    else:
+        from lbshape.elastic.reduced_forces import ReducedForceModel
+
+        if route == "modal":
+            basis, elements, weights = pre.U, pre.cubature_elements, pre.cubature_weights
+            offsets, to_reduced = coefficients @ pre.lb_to_reduced.T, None
+            errors = dict(pre.cubature_errors)
+        else:
+            elements, weights = _lb_cubature(pre)
+            basis = pre.lb_basis()
+            offsets, to_reduced = coefficients, pre.lb_to_reduced
+            errors = dict(getattr(pre, "lb_cubature_errors", {}) or {})
+        models = [ReducedForceModel(x, tets, material, basis, elements, weights) for x in rests]
+    solver = TargetSolver(models, offsets, tolerance=tolerance, max_iterations=max_iterations)
+    seconds = time.perf_counter() - started
+    log.info("interpolation route %s: p=%d coordinates, %d elements, set up in %.3f s",
+             route, offsets.shape[1], np.size(elements), seconds)
+    return InterpolationRoute(
+        route=route, solver=solver, to_reduced=to_reduced, basis=basis,
+        elements=np.asarray(elements, dtype=np.int64), weights=np.asarray(weights, dtype=float),
+        cubature_errors=errors, seconds=seconds,
+    )
+
+
+def example_driver(pre: Precomputed, *, route: str, **options):
+    """The runtime :class:`~lbshape.shapespace.example_driver.ExampleDriver` of ``route``.
+
+    Args:
+        pre: the scene's precompute (must have examples).
+        route: one of :data:`ROUTES`.
+        **options: keyword options of :func:`target_solver`.
+    """
+    from lbshape.shapespace.example_driver import ExampleDriver
+
+    setup = target_solver(pre, route, **options)
+    return ExampleDriver(pre.descriptor_matrix, pre.example_descriptors, setup.solver,
+                         to_reduced=setup.to_reduced)
+
+
+def check_precomputed(pre: Precomputed) -> None:
+    """Raise a one-line :class:`LbshapeError` if ``pre`` cannot feed the routes.
+
+    Checks that the precompute has examples and that the object's spectrum Φ
+    (n, m), its eigenvalues (m,), the example coefficients (k, m, 3), the basis U
+    (3n, r) and the direct projection (r, 3m) agree in n, m and r.
+    """
+    if not pre.has_examples or pre.eigenvectors is None or pre.projection is None \
+            or pre.eigenvalues is None:
+        raise LbshapeError(
+            f"scene {pre.scene!r} has no examples: there is no interpolation target to set up"
+        )
+    n = pre.mesh.n_vertices
+    phi = np.asarray(pre.eigenvectors)
+    if phi.ndim != 2 or phi.shape[0] != n:
+        raise LbshapeError(f"LB eigenvectors must have shape (n={n}, m), got {phi.shape}")
+    m = phi.shape[1]
+    if np.shape(pre.eigenvalues) != (m,):
+        raise LbshapeError(f"expected {m} LB eigenvalues, got shape {np.shape(pre.eigenvalues)}")
+    c = np.asarray(pre.example_coefficients)
+    if c.ndim != 3 or c.shape[0] < 1 or c.shape[2] != 3:
+        raise LbshapeError(f"example coefficients must have shape (k, m, 3), got {c.shape}")
+    if c.shape[1] != m:
+        raise LbshapeError(
+            f"examples have {c.shape[1]} LB coefficients per component but the object's "
+            f"shape space has m={m}"
+        )
+    if not np.isfinite(c).all():
+        raise LbshapeError("example coefficients contain NaN or infinite values")
+    r = pre.r
+    if pre.U.shape[0] != 3 * n:
+        raise LbshapeError(f"basis U must have shape (3n={3 * n}, r), got {pre.U.shape}")
+    if np.shape(pre.projection) != (r, 3 * m):
+        raise LbshapeError(
+            f"direct projection must have shape (r={r}, 3m={3 * m}), got {np.shape(pre.projection)}"
+        )
+
+
+def _lb_cubature(pre: Precomputed) -> tuple[np.ndarray, np.ndarray]:
+    """The precompute's LB-subspace cubature (elements (s,), weights (s,))."""
+    elements = getattr(pre, "lb_cubature_elements", None)
+    weights = getattr(pre, "lb_cubature_weights", None)
+    if elements is None or weights is None:
+        raise LbshapeError(
+            f"the precompute of scene {pre.scene!r} has no LB-subspace cubature; "
+            "re-run 'lbshape precompute --force' for the 'lb' interpolation route"
+        )
+    return np.asarray(elements, dtype=np.int64), np.asarray(weights, dtype=float)

@@ -1,0 +1,8 @@
+"""What a reader looks at: benchmarks, tables, figures, off-screen renders and the demo job."""
+
+__all__ = [
+    "bench",
+    "demo",
+    "figures",
+    "render",
+]

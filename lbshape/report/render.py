@@ -1,0 +1,157 @@
+"""Off-screen pictures with pyvista (the only module of lbshape that imports it).
+
+All functions write a PNG atomically and return its path. Rendering is headless:
+VTK falls back from X to an off-screen context (a harmless X warning may appear).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from lbshape.geometry.mesh import TetMesh
+
+_VTK_TETRA = 10
+
+
+def _pyvista():
+    import pyvista as pv
+
+    pv.OFF_SCREEN = True
+    return pv
+
+
+def to_grid(mesh: TetMesh, point_data: dict[str, np.ndarray] | None = None):
+    """A ``pyvista.UnstructuredGrid`` of the tetrahedra with optional point data (n,) or (n,3)."""
+    pv = _pyvista()
+    cells = np.hstack([np.full((mesh.n_tets, 1), 4), mesh.tets]).ravel()
+    types = np.full(mesh.n_tets, _VTK_TETRA, dtype=np.uint8)
+    grid = pv.UnstructuredGrid(cells, types, mesh.points)
+    for name, values in (point_data or {}).items():
+        grid.point_data[name] = np.asarray(values)
+    return grid
+
+
+def _save(plotter, path: Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(suffix=".png", dir=path.parent)
+    os.close(fd)
+    try:
+        plotter.screenshot(tmp)
+        os.replace(tmp, path)
+    finally:
+        plotter.close()
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def render_eigenfunctions(
+    mesh: TetMesh,
+    eigenvectors: np.ndarray,
+    eigenvalues: np.ndarray,
+    path: str | Path,
+    *,
+    indices: Sequence[int] = (0, 1, 2, 3),
+    clip_normal: tuple[float, float, float] = (0.0, 1.0, 0.0),
+    window_size: tuple[int, int] = (1600, 500),
+    title: str = "",
+) -> Path:
+    """Eigenfunctions on the *interior* of a solid (a clip through its centre), one panel each.
+
+    Like the paper's Figure 2: the volumetric eigenfunction is shown on the cut
+    face and on the remaining boundary, with a diverging colour map.
+
+    Args:
+        mesh: the solid.
+        eigenvectors: (n, m) eigenfunctions in input vertex order.
+        eigenvalues: (m,) in 1/m².
+        path: output PNG.
+        indices: which eigenfunctions (0 = first non-constant one).
+        clip_normal: normal of the clipping plane through the centroid.
+    """
+    pv = _pyvista()
+    grid = to_grid(mesh)
+    centre = mesh.points.mean(axis=0)
+    plotter = pv.Plotter(
+        off_screen=True, shape=(1, len(indices)), window_size=window_size, border=False
+    )
+    for panel, i in enumerate(indices):
+        plotter.subplot(0, panel)
+        field = eigenvectors[:, i]
+        limit = float(np.max(np.abs(field))) or 1.0
+        grid.point_data["phi"] = field
+        clipped = grid.clip(normal=clip_normal, origin=centre, invert=True)
+        plotter.add_mesh(
+            clipped,
+            scalars="phi",
+            cmap="coolwarm",
+            clim=(-limit, limit),
+            show_scalar_bar=False,
+            smooth_shading=False,
+        )
+        plotter.add_mesh(grid.extract_feature_edges(), color="black", line_width=1, opacity=0.15)
+        plotter.add_text(f"phi_{i + 1}  lambda={eigenvalues[i]:.3g}", font_size=10)
+        n = np.asarray(clip_normal, dtype=float)
+        plotter.view_vector(tuple(1.4 * n + np.array([0.5, 0.3, 0.45])))
+        plotter.camera.zoom(1.2)
+    if title:
+        plotter.subplot(0, 0)
+        plotter.add_text(title, position="lower_left", font_size=9)
+    return _save(plotter, Path(path))
+
+
+def render_shapes(
+    meshes: Sequence[TetMesh],
+    labels: Sequence[str],
+    path: str | Path,
+    *,
+    scalars: Sequence[np.ndarray | None] | None = None,
+    scalar_name: str = "|u| (m)",
+    window_size: tuple[int, int] | None = None,
+    view_vector: tuple[float, float, float] = (1.0, -1.0, 0.5),
+    clim: tuple[float, float] | None = None,
+) -> Path:
+    """Several solids side by side (one panel each), sharing one camera direction.
+
+    Args:
+        meshes: the shapes to draw (e.g. rest, examples, simulated frames).
+        labels: one caption per panel.
+        path: output PNG.
+        scalars: optional per-vertex (n,) values per panel (e.g. displacement norm).
+        clim: colour range shared by all panels (default: the max over panels).
+    """
+    pv = _pyvista()
+    k = len(meshes)
+    window_size = window_size or (380 * k, 520)
+    plotter = pv.Plotter(off_screen=True, shape=(1, k), window_size=window_size, border=False)
+    scalars = list(scalars) if scalars is not None else [None] * k
+    finite = [np.max(s) for s in scalars if s is not None and len(s)]
+    if clim is None and finite:
+        clim = (0.0, float(max(finite)) or 1.0)
+    for panel, (mesh, label, values) in enumerate(zip(meshes, labels, scalars, strict=True)):
+        plotter.subplot(0, panel)
+        data = {scalar_name: values} if values is not None else None
+        surface = to_grid(mesh, data).extract_surface(algorithm="dataset_surface")
+        if values is not None:
+            # no scalar-bar actor: its label formatting aborts in some VTK builds;
+            # the colour range is printed on the last panel instead
+            plotter.add_mesh(
+                surface, scalars=scalar_name, cmap="viridis", clim=clim, show_edges=True,
+                edge_color="#333333", line_width=0.3, show_scalar_bar=False,
+            )
+            if panel == k - 1:
+                plotter.add_text(f"colour: {scalar_name} {clim[0]:.3g} (dark) to "
+                                 f"{clim[1]:.3g} (yellow)", position="lower_right", font_size=8)
+        else:
+            plotter.add_mesh(surface, color="#c8d2e0", show_edges=True, edge_color="#333333",
+                             line_width=0.3)
+        plotter.add_text(label, font_size=10)
+        plotter.view_vector(view_vector)
+    plotter.link_views()
+    return _save(plotter, Path(path))

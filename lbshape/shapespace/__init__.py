@@ -1,0 +1,11 @@
+"""The LB shape space: frames, basis alignment, projections, interpolation, example energies."""
+
+__all__ = [
+    "alignment",
+    "euclidean_energy",
+    "example_driver",
+    "frames",
+    "interpolation",
+    "polynomial_energy",
+    "projections",
+]

@@ -1,0 +1,250 @@
+"""Example interpolation: weights (paper eq. 5) and the nonlinear target (eqs. 4 and 6).
+
+Weights solve ``min_w ½‖Σ_k w_k e_k − c‖²`` over the simplex ``Σw = 1, w ≥ 0``
+exactly (active-set enumeration; k is a handful of examples).
+
+The target minimises ``F(z) = Σ_k w_k E_k(z − z_k)``, where ``E_k(y)`` is the elastic
+energy of deforming example shape k (its rest shape reconstructed on the object's
+mesh) by the displacement ``B y`` for a basis ``B``, evaluated with cubature, and
+``z_k`` is example k's own coordinate (so ``E_k(0) = 0``). The three routes differ
+only in the basis and the elements:
+
+* ``modal`` (the paper's): ``B = U`` (the nonlinear modal basis), z = reduced
+  coordinates q, the elastic cubature; examples enter through ``q_k = T c_k``.
+* ``lb``: ``B = L`` (LB displacement basis), z = LB coefficients, a cubature
+  trained on the LB displacement subspace.
+* ``euclidean`` (Zhu et al. 2015 baseline): ``B = L`` with *all* elements of the
+  object's mesh and unit weights.
+
+Each ``E_k`` is any object with ``force_and_tangent(y) -> (g (p,), H (p,p))`` and
+``energy(y) -> float`` (e.g. :class:`lbshape.elastic.reduced_forces.ReducedForceModel`).
+The minimiser is a damped Newton method with a backtracking line search,
+warm-started from the previous target.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import scipy.linalg
+
+from lbshape.errors import LbshapeError, SolverError
+
+log = logging.getLogger(__name__)
+
+
+class EnergyModel(Protocol):
+    def energy(self, y: np.ndarray) -> float: ...
+
+    def force_and_tangent(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def simplex_weights(examples: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """Exact solution of ``min ½‖Eᵀw − c‖²`` s.t. ``Σw = 1, w ≥ 0`` (paper eq. 5).
+
+    Enumerates supports (2^k − 1 of them, k ≤ 12) and solves the equality-
+    constrained least squares on each via its KKT system; the best feasible one is
+    the global optimum of this convex problem. Ties (e.g. identical examples) are
+    split evenly among the tied examples.
+
+    Args:
+        examples: (k, d) example descriptors (flattened).
+        current: (d,) the current descriptor.
+
+    Returns:
+        (k,) weights on the simplex.
+    """
+    E = np.asarray(examples, dtype=float)
+    c = np.asarray(current, dtype=float).ravel()
+    if E.ndim != 2 or E.shape[0] == 0:
+        raise LbshapeError(f"examples must be a (k, d) array with k >= 1, got shape {E.shape}")
+    if E.shape[1] != c.size:
+        raise LbshapeError(
+            f"example descriptors have dimension {E.shape[1]} but the current one has {c.size}"
+        )
+    k = E.shape[0]
+    if k > 12:
+        raise LbshapeError(f"at most 12 examples per region are supported, got {k}")
+    if k == 1:
+        return np.ones(1)
+    G = E @ E.T
+    b = E @ c
+    scale = max(float(np.trace(G)) / k, 1e-300)
+    best_w, best_value = None, np.inf
+    for size in range(1, k + 1):
+        for support in itertools.combinations(range(k), size):
+            idx = np.array(support)
+            w_s = _equality_constrained(G[np.ix_(idx, idx)], b[idx], scale)
+            if w_s is None or (w_s < -1e-12).any():
+                continue
+            w = np.zeros(k)
+            w[idx] = np.clip(w_s, 0.0, None)
+            w /= w.sum()
+            value = 0.5 * w @ G @ w - b @ w
+            if value < best_value - 1e-14 * scale:
+                best_w, best_value = w, value
+    if best_w is None:  # cannot happen for a convex problem; keep a loud failure
+        raise SolverError("simplex least squares found no feasible support")
+    return best_w
+
+
+def _equality_constrained(G: np.ndarray, b: np.ndarray, scale: float) -> np.ndarray | None:
+    """min ½wᵀGw − bᵀw s.t. Σw = 1 (G PSD; minimum-norm solution when singular)."""
+    s = G.shape[0]
+    kkt = np.zeros((s + 1, s + 1))
+    kkt[:s, :s] = G / scale
+    kkt[:s, s] = 1.0
+    kkt[s, :s] = 1.0
+    rhs = np.concatenate([b / scale, [1.0]])
+    solution, *_ = np.linalg.lstsq(kkt, rhs, rcond=1e-12)
+    w = solution[:s]
+    if not np.isfinite(w).all() or abs(w.sum() - 1.0) > 1e-8:
+        return None
+    return w
+
+
+@dataclass(frozen=True)
+class TargetResult:
+    """A solved target.
+
+    Attributes:
+        z: (p,) target coordinates (reduced coordinates or LB coefficients).
+        iterations: Newton iterations used.
+        gradient_norm: ‖∇F‖ at the last Hessian evaluation (J per unit of z).
+        energy: final F(z) in J.
+        converged: False when ``max_iterations`` ended the solve before the step
+            tolerance was reached (the first such solve of a solver logs a warning).
+    """
+
+    z: np.ndarray
+    iterations: int
+    gradient_norm: float
+    energy: float
+    converged: bool = True
+
+
+class TargetSolver:
+    """Minimise ``F(z) = Σ_k w_k E_k(z − z_k)`` by damped Newton (paper eq. 4).
+
+    Args:
+        models: one energy model per example (see the module docstring).
+        offsets: (k, p) the examples' own coordinates z_k.
+        tolerance: stop when the Newton step is below ``tolerance · max_k ‖z_k‖``.
+        max_iterations: Newton iterations per call.
+    """
+
+    def __init__(
+        self,
+        models: Sequence[EnergyModel],
+        offsets: np.ndarray,
+        *,
+        tolerance: float = 1e-6,
+        max_iterations: int = 20,
+    ):
+        offsets = np.atleast_2d(np.asarray(offsets, dtype=float))
+        if len(models) != offsets.shape[0]:
+            raise LbshapeError(
+                f"{len(models)} example energy models but {offsets.shape[0]} example offsets"
+            )
+        self.models = list(models)
+        self.offsets = offsets
+        self.tolerance = float(tolerance)
+        self.max_iterations = int(max_iterations)
+        self._last: np.ndarray | None = None
+        self._warned = False
+
+    @property
+    def dimension(self) -> int:
+        return int(self.offsets.shape[1])
+
+    def energy(self, z: np.ndarray, weights: np.ndarray) -> float:
+        """F(z) in J."""
+        terms = zip(weights, self.models, self.offsets, strict=True)
+        return float(sum(w * m.energy(z - o) for w, m, o in terms if w > 0.0))
+
+    def gradient_and_hessian(self, z: np.ndarray, weights: np.ndarray):
+        """(∇F (p,), ∇²F (p,p)) at z."""
+        return self._evaluate(z, weights)[1:]
+
+    def _evaluate(self, z: np.ndarray, weights: np.ndarray):
+        """(F, ∇F, ∇²F) at z; models with ``energy_force_and_tangent`` share one pass."""
+        p = self.dimension
+        f, g, H = 0.0, np.zeros(p), np.zeros((p, p))
+        for w, model, offset in zip(weights, self.models, self.offsets, strict=True):
+            if w > 0.0:
+                y = z - offset
+                if hasattr(model, "energy_force_and_tangent"):
+                    fk, gk, Hk = model.energy_force_and_tangent(y)
+                else:
+                    gk, Hk = model.force_and_tangent(y)
+                    fk = model.energy(y)
+                f += w * fk
+                g += w * gk
+                H += w * Hk
+        return f, g, H
+
+    def solve(self, weights: np.ndarray, *, start: np.ndarray | None = None) -> TargetResult:
+        """The target for the given example weights (k,), warm-started by default.
+
+        Stops when the Newton step is below ``tolerance`` times the size of the
+        example coordinates (``max_k ‖z_k‖``), or the gradient vanishes.
+        """
+        weights = np.asarray(weights, dtype=float)
+        if weights.shape != (len(self.models),):
+            raise LbshapeError(f"expected {len(self.models)} weights, got shape {weights.shape}")
+        if start is not None:
+            z = np.array(start, dtype=float)
+        elif self._last is not None:
+            z = self._last.copy()
+        else:
+            z = weights @ self.offsets
+        step_tolerance = self.tolerance * max(float(np.linalg.norm(self.offsets, axis=1).max()),
+                                              1e-300)
+        f, g, H = self._evaluate(z, weights)
+        iterations, converged = 0, not np.linalg.norm(g) > 0.0
+        while iterations < self.max_iterations and np.linalg.norm(g) > 0.0:
+            iterations += 1
+            step = _newton_direction(H, g)
+            slope = g @ step
+            t = 1.0
+            f_new, g_new, H_new = self._evaluate(z + step, weights)
+            while not f_new <= f + 1e-4 * t * slope and t > 1e-6:
+                t *= 0.5
+                f_new, g_new, H_new = self._evaluate(z + t * step, weights)
+            if not np.isfinite(f_new):
+                raise SolverError(f"target interpolation diverged (energy {f_new})")
+            z, f, g, H = z + t * step, f_new, g_new, H_new
+            if t * np.linalg.norm(step) <= step_tolerance or not np.linalg.norm(g) > 0.0:
+                converged = True
+                break
+        self._last = z.copy()
+        if not converged and not self._warned:
+            self._warned = True
+            log.warning("target interpolation stopped at max_iterations=%d before its step "
+                        "tolerance (|grad| = %.3e); later occurrences are not logged",
+                        self.max_iterations, float(np.linalg.norm(g)))
+        return TargetResult(z, iterations, float(np.linalg.norm(g)), f, converged)
+
+    def reset(self) -> None:
+        """Forget the warm start."""
+        self._last = None
+
+
+def _newton_direction(H: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """−(H + μI)⁻¹g with the smallest Levenberg shift μ ∈ {0, 1e-8, 1e-7, …, 1e3}·scale
+    that makes the (symmetrised) Hessian positive definite (scale = largest |H_ii|)."""
+    H = 0.5 * (H + H.T)
+    scale = max(float(np.max(np.abs(np.diag(H)))), 1e-300)
+    identity = np.eye(H.shape[0])
+    for shift in (0.0, *(scale * 10.0**e for e in range(-8, 4))):
+        try:
+            factor = scipy.linalg.cho_factor(H + shift * identity, check_finite=False)
+        except np.linalg.LinAlgError:
+            continue
+        return -scipy.linalg.cho_solve(factor, g, check_finite=False)
+    raise SolverError("target Hessian could not be made positive definite (non-finite values?)")
