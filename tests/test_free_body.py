@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
+from lbshape.dynamics.contact import ContactPlane, PlaneContact
 from lbshape.dynamics.fictitious import frame_tensors
 from lbshape.dynamics.free_body import FreeBodySimulation, FreeLoad
 from lbshape.dynamics.loads import TimeProfile, gravity_pattern
+from lbshape.dynamics.reduced import ReducedLoad, ReducedSimulation
 from lbshape.dynamics.rigid_frame import cayley, orthonormality_error, rotate
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
@@ -215,3 +217,115 @@ def test_rotation_failure_names_the_step(stiff):
 def _rotate_about(axis: np.ndarray, angle: float) -> np.ndarray:
     K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
+
+
+# ------------------------------------------------------------------ contact
+def _gravity(body: Body) -> FreeLoad:
+    return FreeLoad.from_pattern(gravity_pattern(body.mass, np.array([0.0, 0.0, -9.81])),
+                                 body.U, body.mesh.points - body.frame.center, TimeProfile())
+
+
+def _contact(body: Body, point, normal, stiffness: float) -> PlaneContact:
+    return PlaneContact.for_mesh([ContactPlane(point, normal, stiffness)], body.mesh.points,
+                                 body.mesh.tets, body.U, center=body.frame.center)
+
+
+def test_contact_forces_are_the_penalty_energy_gradient(soft):
+    contact = _contact(soft, (0.0, 0.0, 0.05), (0.0, 0.3, 1.0), 1e4)
+    rng = np.random.default_rng(6)
+    q = 0.05 * rng.standard_normal(8)
+    center = soft.frame.center + np.array([0.0, 0.0, 0.01])
+    R = cayley(np.array([0.1, -0.2, 0.3]))
+    res = contact.evaluate(center, R, q)
+    assert res.active > 0
+    h = 1e-7
+    for j in range(3):
+        dq = np.zeros(8)
+        dq[j] = h
+        up = contact.evaluate(center, R, q + dq)
+        down = contact.evaluate(center, R, q - dq)
+        assert (down.energy - up.energy) / (2 * h) == pytest.approx(res.generalized[j], rel=1e-5)
+        np.testing.assert_allclose((down.generalized - up.generalized) / (2 * h),
+                                   res.stiffness_q[:, j], rtol=1e-4, atol=1e-6)
+    for j in range(3):
+        shift = np.zeros(3)
+        shift[j] = h
+        up = contact.evaluate(center + shift, R, q)
+        down = contact.evaluate(center - shift, R, q)
+        assert (down.energy - up.energy) / (2 * h) == pytest.approx(res.force[j], rel=1e-5,
+                                                                     abs=1e-6)
+        turn = cayley(shift)
+        up = contact.evaluate(center, turn @ R, q)
+        down = contact.evaluate(center, turn.T @ R, q)
+        assert (down.energy - up.energy) / (2 * h) == pytest.approx(res.torque[j], rel=1e-5,
+                                                                     abs=1e-6)
+
+
+def test_bounding_sphere_skips_the_vertex_loop(soft):
+    contact = _contact(soft, (0.0, 0.0, -5.0), (0.0, 0.0, 1.0), 1e4)
+    sim = soft.simulation(dt=1e-3, contact=contact, angular_velocity=(0.0, 2.0, 0.0))
+    sim.run(20)
+    assert contact.evaluated == 0 and contact.skipped >= 20
+
+
+def test_dropped_body_comes_to_rest_on_the_floor(soft):
+    """Penetration at rest ≤ weight / stiffness; the bounce dies out, jitter does not grow."""
+    k = 1e5
+    contact = _contact(soft, (0.0, 0.0, -0.02), (0.0, 0.0, 1.0), k)
+    sim = soft.simulation(dt=2e-3, loads=[_gravity(soft)], contact=contact, beta=0.001,
+                          angular_velocity=(0.3, 0.2, 0.0))
+    record = sim.run(1000)
+    assert record.stable, record.message
+    weight = soft.frame.mass * 9.81
+    depth = np.asarray(record.contact_depth)
+    assert 0 < depth[-1] <= weight / k, depth[-1]
+    z = np.asarray(record.centers)[:, 2]
+    assert np.ptp(z[-250:]) <= 0.5 * np.ptp(z[-500:-250]) + 1e-9
+    assert np.linalg.norm(record.momenta[-1]) / soft.frame.mass <= 1e-3
+
+
+def test_resting_five_seconds_at_large_step(soft):
+    contact = _contact(soft, (0.0, 0.0, -0.3), (0.0, 0.0, 1.0), 1e5)
+    sim = soft.simulation(dt=1.0 / 60.0, loads=[_gravity(soft)], contact=contact, beta=0.001)
+    record = sim.run(300)
+    assert record.stable, record.message
+    assert record.contact_depth[-1] <= soft.frame.mass * 9.81 / 1e5
+    assert abs(record.momenta[-1][2]) / soft.frame.mass <= 1e-3
+
+
+def test_fast_impact_into_a_wall(soft):
+    """10 m/s into a wall at dt = 1 ms: stable, rebounds, never passes through."""
+    contact = _contact(soft, (0.25, 0.0, 0.0), (-1.0, 0.0, 0.0), 1e6)
+    sim = soft.simulation(dt=1e-3, contact=contact, velocity=(10.0, 0.0, 0.0), beta=0.001)
+    record = sim.run(100)
+    assert record.stable, record.message
+    assert record.momenta[-1][0] < 0.0  # bounced back
+    assert max(record.contact_depth) <= contact.radius0
+    p = np.asarray(record.momenta)
+    assert np.abs(p[:, 1:]).max() == 0.0  # the wall pushes along its normal only
+    assert abs(p[-1, 0]) <= abs(p[0, 0])  # penalty contact does not add energy
+
+
+def test_contact_on_a_fixed_object(soft):
+    """A hanging bar sags onto a plane just under it: the plane stops it."""
+    top = np.flatnonzero(soft.mesh.points[:, 2] > 0.599)
+    mesh, mass = soft.mesh, soft.mass
+    K = FullSpaceElasticity(mesh, soft.material).tangent(np.zeros(3 * mesh.n_vertices))
+    free = np.setdiff1d(np.arange(3 * mesh.n_vertices), (3 * top[:, None] + np.arange(3)).ravel())
+    w, V = sla.eigh(K.toarray()[np.ix_(free, free)], mass.toarray()[np.ix_(free, free)])
+    U = np.zeros((3 * mesh.n_vertices, 6))
+    U[free] = V[:, :6]
+    elastic = ReducedForceModel(mesh.points, mesh.tets, soft.material, U,
+                                np.arange(mesh.n_tets), np.ones(mesh.n_tets))
+    g = ReducedLoad(U.T @ gravity_pattern(mass, np.array([0.0, 0.0, -9.81])), TimeProfile())
+    gap = 1e-4
+    planes = [ContactPlane((0.0, 0.0, -gap), (0.0, 0.0, 1.0), 1e6)]
+    contact = PlaneContact.for_mesh(planes, mesh.points, mesh.tets, U)
+    sags = []
+    for c in (None, contact):
+        sim = ReducedSimulation(elastic, r=6, dt=1e-3, loads=[g], alpha=20.0, contact=c)
+        record = sim.run(300)
+        assert record.stable, record.message
+        sags.append(-float((U @ record.states[-1]).reshape(-1, 3)[:, 2].min()))
+    assert sags[0] > 5 * gap  # without the plane the bottom sags well below it
+    assert sags[1] <= gap + soft.frame.mass * 9.81 / 1e6

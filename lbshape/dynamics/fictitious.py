@@ -77,6 +77,15 @@ class FrameTensors:
     S: np.ndarray
     translation: np.ndarray
 
+    def __post_init__(self):
+        # flattened views: the run-time contractions become small matrix products
+        r = self.G.shape[0]
+        object.__setattr__(self, "_G9", np.ascontiguousarray(self.G.reshape(r, 9)))
+        object.__setattr__(self, "_C9", np.ascontiguousarray(self.C.reshape(r * r, 9)))
+        object.__setattr__(self, "_S3", np.ascontiguousarray(self.S.reshape(r * r, 3)))
+        object.__setattr__(self, "_G_trace", np.einsum("jaa->j", self.G))
+        object.__setattr__(self, "_C_trace", np.einsum("jkaa->jk", self.C))
+
     @property
     def r(self) -> int:
         return int(self.G.shape[0])
@@ -89,8 +98,9 @@ class FrameTensors:
     # ------------------------------------------------------------- run time
     def second_moment(self, q: np.ndarray) -> np.ndarray:
         """(3, 3) ``Y(q)`` (kg·m²)."""
-        lin = np.einsum("j,jab->ab", q, self.G)
-        return self.Y0 + lin + lin.T + np.einsum("j,k,jkab->ab", q, q, self.C)
+        lin = (q @ self._G9).reshape(3, 3)
+        quad = (np.outer(q, q).reshape(-1) @ self._C9).reshape(3, 3)
+        return self.Y0 + lin + lin.T + quad
 
     def inertia(self, q: np.ndarray) -> np.ndarray:
         """(3, 3) body-frame inertia tensor ``I(q)`` about the centre of mass (kg·m²)."""
@@ -99,23 +109,26 @@ class FrameTensors:
 
     def relative_momentum(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """(3,) body-frame angular momentum of the deformation ``h(q, q̇)`` (kg·m²/s)."""
-        return self.H @ qd + np.einsum("j,k,jkc->c", q, qd, self.S)
+        return self.H @ qd + np.outer(q, qd).reshape(-1) @ self._S3
 
     def euler(self, q: np.ndarray, omega_dot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Euler force (r,) and its tangent ∂/∂q (r, r) for ω̇ (3,) rad/s² (body frame)."""
-        tangent = -np.einsum("jkc,c->jk", self.S, omega_dot)  # ω̇ · S_kj
+        r = self.G.shape[0]
+        tangent = -(self._S3 @ omega_dot).reshape(r, r)  # ω̇ · S_kj
         return self.H.T @ omega_dot + tangent @ q, tangent
 
     def coriolis(self, omega: np.ndarray) -> np.ndarray:
         """(r, r) skew matrix Γ(ω) of the Coriolis force ``Γ q̇`` (ω body frame, rad/s)."""
-        return -2.0 * np.einsum("jkc,c->jk", self.S, omega)
+        r = self.G.shape[0]
+        return -2.0 * (self._S3 @ omega).reshape(r, r)
 
     def centrifugal(self, q: np.ndarray, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Centrifugal force (r,) and its tangent ∂/∂q (r, r) for ω (3,) rad/s (body frame)."""
+        r = self.G.shape[0]
         w2 = float(omega @ omega)
-        tangent = (np.einsum("a,jkab,b->jk", omega, self.C, omega)
-                   - w2 * np.einsum("jkaa->jk", self.C))
-        base = np.einsum("a,jab,b->j", omega, self.G, omega) - w2 * np.einsum("jaa->j", self.G)
+        ww = np.outer(omega, omega).reshape(-1)
+        tangent = (self._C9 @ ww).reshape(r, r) - w2 * self._C_trace
+        base = self._G9 @ ww - w2 * self._G_trace
         return base + tangent @ q, tangent
 
 

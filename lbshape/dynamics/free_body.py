@@ -222,8 +222,7 @@ class FreeBodySimulation:
                                 inertia @ omega_world + h)
         self.time = 0.0
         self.steps_taken = 0
-        self._omega_mid = None
-        self._scale0 = 0.0
+        self._depth, self._contact_energy, self._force_scale = 0.0, 0.0, 0.0
         omega = self.omega()
         f, _ = self._deformation_force(self.q, omega, np.zeros(3), None)
         rhs = self._load_q(self.rigid.rotation, self.time) - (
@@ -239,8 +238,9 @@ class FreeBodySimulation:
         h = self.frame.relative_momentum(self.q, self.qd)
         return np.linalg.solve(inertia, self.rigid.rotation.T @ self.rigid.angular_momentum - h)
 
-    def energy(self) -> float:
-        """Total energy (J): rigid and relative kinetic, elastic, example spring, contact."""
+    def energy(self, contact_energy: float | None = None) -> float:
+        """Total energy (J): rigid and relative kinetic, elastic, example spring, contact
+        (``contact_energy`` in J if already known)."""
         omega = self.omega()
         inertia = self.frame.inertia(self.q)
         h = self.frame.relative_momentum(self.q, self.qd)
@@ -249,8 +249,10 @@ class FreeBodySimulation:
                    + float(omega @ h) + 0.5 * float(self.qd @ self.qd))
         potential = float(self.elastic.energy(self.q)) + 0.5 * self.k_ex * float(self.q @ self.q)
         if self.contact is not None:
-            potential += self.contact.evaluate(self.rigid.center, self.rigid.rotation, self.q,
-                                               rigid=False).energy
+            if contact_energy is None:
+                contact_energy = self.contact.evaluate(self.rigid.center, self.rigid.rotation,
+                                                       self.q, rigid=False).energy
+            potential += contact_energy
         return kinetic + potential
 
     # ---------------------------------------------------------------- forces
@@ -264,6 +266,7 @@ class FreeBodySimulation:
         """Position-dependent deformation force (r,) and tangent (r, r); ``pose`` = (c, R)."""
         f, K = self.elastic.force_and_tangent(q)
         f, K = np.array(f, dtype=float), np.array(K, dtype=float)
+        self._force_scale = _norm(f)
         if self.k_ex:
             f += self.k_ex * q
             K += self.k_ex * np.eye(self.r)
@@ -276,7 +279,8 @@ class FreeBodySimulation:
             res = self.contact.evaluate(pose[0], pose[1], q, rigid=False)
             f -= res.generalized
             K += res.stiffness_q
-            depth = res.depth
+            depth, self._contact_energy = res.depth, res.energy
+            self._force_scale = max(self._force_scale, _norm(res.generalized))
         self._depth = depth
         return f, K
 
@@ -350,19 +354,24 @@ class FreeBodySimulation:
         base = ca / dt**2 * np.eye(self.r) + cv / dt * damping
         contact_seconds = 0.0
         scale = max(_norm(b), _norm(qa))
-        for iteration in range(self.max_iterations + 1):
-            q1 = q + dq
+
+        def evaluate(dq):
+            nonlocal contact_seconds
             before = time.perf_counter()
-            f, K = self._deformation_force(q1, omega1, omega_dot, (c1, R1))
-            contact_seconds += time.perf_counter() - before if self.contact is not None else 0.0
+            f, K = self._deformation_force(q + dq, omega1, omega_dot, (c1, R1))
+            if self.contact is not None:
+                contact_seconds += time.perf_counter() - before
             v1, a1 = self._kinematics(dq, dt)
             residual = a1 + damping @ v1 + f - b
             norm = _norm(residual)
             if not math.isfinite(norm):
                 raise SolverError(f"non-finite deformation residual at step {index} "
                                   f"(t = {t1:.6g} s)")
-            if iteration == 0:
-                scale = max(scale, norm, _norm(f))
+            return f, K, v1, a1, residual, norm
+
+        f, K, v1, a1, residual, norm = evaluate(dq)
+        scale = max(scale, norm, _norm(f), self._force_scale)
+        for iteration in range(self.max_iterations + 1):
             noise = 64 * np.finfo(float).eps * (ca / dt**2 * _norm(dq) + _norm(f) + _norm(b)
                                                  + ca / dt * _norm(qd) + _norm(qa))
             if norm <= self.rtol * scale or norm <= noise:
@@ -372,10 +381,20 @@ class FreeBodySimulation:
                     f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
                     f"residual {norm / scale:.3e} after {iteration} iterations")
             try:
-                dq = dq - sla.solve(base + K, residual, check_finite=False)
+                delta = sla.solve(base + K, residual, check_finite=False)
             except sla.LinAlgError as exc:
                 raise SolverError(f"singular Newton matrix at step {index} "
                                   f"(t = {t1:.6g} s): {exc}") from None
+            # backtracking: contact makes the residual only piecewise smooth
+            fraction = 1.0
+            while True:
+                trial = evaluate(dq - fraction * delta)
+                if trial[-1] < norm or fraction <= 1.0 / 64:
+                    break
+                fraction *= 0.5
+            dq = dq - fraction * delta
+            f, K, v1, a1, residual, norm = trial
+        q1 = q + dq
         depth = self._depth
         if self.contact is not None and depth > self.contact.radius0:
             raise SolverError(f"contact failed at step {index} (t = {t1:.6g} s): a vertex is "
@@ -387,7 +406,7 @@ class FreeBodySimulation:
         old = (self.rigid, self.q, self.qd, self.qa)
         self.rigid = RigidState(c1, p1, R1, L1)
         self.q, self.qd, self.qa = q1, v1, a1
-        energy = self.energy()
+        energy = self.energy(self._contact_energy if self.contact is not None else None)
         work = self.work + abs(float(dp @ (v0 + p1 / m))) * 0.5 + abs(
             float(dL @ (R1 @ omega_mid))) + abs(float(b @ (q1 - q)))
         state = np.concatenate([c1, p1, R1.ravel(), L1, q1, v1])
@@ -399,7 +418,6 @@ class FreeBodySimulation:
                 f"energy blew up ({energy:.3e} J > {ENERGY_FACTOR:g} x budget {budget:.3e} J)")
             raise SolverError(f"{what} at step {index} (t = {t1:.6g} s)")
         self.work = work
-        self._omega_mid = omega_mid
         self.time, self.steps_taken = t1, index
         contact_ms = 1e3 * (t_contact1 - t_contact0 + contact_seconds)
         return {

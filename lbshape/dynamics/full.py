@@ -35,6 +35,16 @@ lets the Newton convergence test measure the residual against the size of the
 example force rather than against their (vanishing) difference. With ``k_ex = 0``
 or no examples none of this machinery is built or called.
 
+**Free bodies and contact.** Without fixed vertices the same equations are
+integrated in the inertial frame directly (u is the world displacement ``x − X``;
+the StVK and Neo-Hookean forces are invariant under rigid rotation, so there is no
+frame split and no fictitious force). Contact planes act on the surface vertices
+with the penalty force ``k d n`` of :mod:`lbshape.dynamics.contact` (``d`` the
+penetration), part of the position-dependent force with its tangent
+``k n nᵀ`` per penetrating vertex. Rayleigh damping acts on all of u here, so for a
+free body ``α M`` also damps the rigid motion (the reduced method damps only the
+deformation): free scenes should use ``α = 0``.
+
 **Failure.** A non-finite state, a Newton failure, an energy blow-up or a failed
 target solve raises :class:`FullSpaceDiverged` (a
 :class:`~lbshape.errors.SolverError`) naming the step and time; its ``partial``
@@ -52,6 +62,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from lbshape.dynamics.contact import ContactPlane, surface_vertices
 from lbshape.dynamics.integrators import make_stepper
 from lbshape.dynamics.loads import TimeProfile
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
@@ -92,6 +103,47 @@ class FullSpaceExamples:
     eigenvectors: np.ndarray
     coefficients: np.ndarray
     stiffness: float
+
+
+class FullSpaceContact:
+    """Penalty contact of the surface vertices with planes, on full displacements.
+
+    Args:
+        planes: the :class:`~lbshape.dynamics.contact.ContactPlane` list.
+        points: (n, 3) rest positions (m); ``tets`` (t, 4) give the surface.
+    """
+
+    def __init__(self, planes: Sequence[ContactPlane], points: np.ndarray, tets: np.ndarray):
+        self.vertices = surface_vertices(tets)
+        self.rest = np.asarray(points, dtype=float)[self.vertices]
+        self.n = points.shape[0]
+        self.planes = list(planes)
+
+    def evaluate(self, u: np.ndarray):
+        """``(f (3n,) = +∂E/∂u, K (3n, 3n) CSR or None, energy J)`` for u (3n,) m."""
+        x = self.rest + u.reshape(-1, 3)[self.vertices]
+        force = np.zeros((self.n, 3))
+        rows, cols, vals = [], [], []
+        energy = 0.0
+        for plane in self.planes:
+            n = np.asarray(plane.normal, dtype=float)
+            gap = (x - np.asarray(plane.point)) @ n
+            hit = np.flatnonzero(gap < 0.0)
+            if hit.size == 0:
+                continue
+            d = -gap[hit]
+            energy += 0.5 * plane.stiffness * float(d @ d)
+            np.add.at(force, self.vertices[hit], -plane.stiffness * d[:, None] * n[None, :])
+            block = plane.stiffness * np.outer(n, n)
+            dofs = 3 * self.vertices[hit][:, None] + np.arange(3)[None, :]  # (h, 3)
+            rows.append(np.repeat(dofs, 3, axis=1).ravel())
+            cols.append(np.tile(dofs, (1, 3)).ravel())
+            vals.append(np.tile(block.ravel(), hit.size))
+        if not rows:
+            return force.ravel(), None, 0.0
+        K = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(3 * self.n, 3 * self.n))
+        return force.ravel(), K, energy
 
 
 @dataclass(frozen=True)
@@ -162,6 +214,7 @@ class FullSpaceSimulator:
         target_tolerance: relative gradient tolerance of the target solve.
         newton_rtol: relative Newton tolerance of the time step.
         max_newton_iterations: Newton iterations per step before failing.
+        contact: penalty contact with planes, or ``None``.
 
     Attributes:
         free_dofs: (nf,) node-major indices of the free dofs (x = u[free_dofs]).
@@ -193,8 +246,10 @@ class FullSpaceSimulator:
         target_tolerance: float = 1e-6,
         newton_rtol: float = 1e-8,
         max_newton_iterations: int = 20,
+        contact: FullSpaceContact | None = None,
     ):
         n = mesh.n_vertices
+        self.contact = contact
         self.mesh = mesh
         self.material = material
         self.n_vertices = n
@@ -334,6 +389,11 @@ class FullSpaceSimulator:
     def _force_and_tangent(self, x: np.ndarray):
         f, K = self.elastic.force_and_tangent(self.full_displacement(x).reshape(-1))
         f, K = f[self.free_dofs], self._restrict(K)
+        if self.contact is not None:
+            fc, Kc, _ = self.contact.evaluate(self.full_displacement(x).reshape(-1))
+            if Kc is not None:
+                f = f + fc[self.free_dofs]
+                K = (K + Kc[self.free_dofs][:, self.free_dofs]).tocsr()
         if self._k_ex:
             f = f + self._k_ex * (self._mass_ff @ x)
             K = K + self._kM_ff
@@ -341,6 +401,8 @@ class FullSpaceSimulator:
 
     def _potential(self, x: np.ndarray) -> float:
         energy = self.elastic.energy(self.full_displacement(x).reshape(-1))
+        if self.contact is not None:
+            energy += self.contact.evaluate(self.full_displacement(x).reshape(-1))[2]
         if self._k_ex:
             energy += 0.5 * self._k_ex * float(x @ (self._mass_ff @ x))
         return energy
@@ -441,9 +503,6 @@ def run_full_space(scene, pre, *, steps: int, stride: int, warmup: int):
     """
     from lbshape.pipeline.simulate import load_patterns
 
-    if scene.planes:
-        log.warning("scene %s: contact planes are not modelled by the full-space method",
-                    scene.name)
     if scene.regions:
         log.warning("scene %s: local example regions are treated as global examples by the "
                     "full-space method", scene.name)
@@ -454,10 +513,22 @@ def run_full_space(scene, pre, *, steps: int, stride: int, warmup: int):
     if pre.has_examples and k_ex > 0:
         examples = FullSpaceExamples(pre.eigenvalues, pre.eigenvectors,
                                      pre.example_coefficients, k_ex)
+    contact = None
+    if scene.planes:
+        contact = FullSpaceContact([ContactPlane(p.point, p.normal, p.stiffness)
+                                    for p in scene.planes], pre.mesh.points, pre.mesh.tets)
+    velocity = None
+    if scene.is_free:
+        if scene.damping.alpha > 0:
+            log.warning("scene %s: alpha = %g damps the rigid motion of the free body in the "
+                        "full-space method", scene.name, scene.damping.alpha)
+        velocity = rigid_velocity(pre.mesh, pre.material.density, scene.initial.velocity,
+                                  scene.initial.angular_velocity)
     simulator = FullSpaceSimulator(
         pre.mesh, pre.material, dt=scene.simulation.dt, fixed_vertices=pre.fixed_vertices,
         integrator=scene.simulation.integrator, alpha=scene.damping.alpha,
-        beta=scene.damping.beta, loads=loads, examples=examples,
+        beta=scene.damping.beta, loads=loads, examples=examples, contact=contact,
+        initial_velocity=velocity,
     )
     try:
         result = simulator.run(steps, stride=stride)
@@ -466,6 +537,15 @@ def run_full_space(scene, pre, *, steps: int, stride: int, warmup: int):
     t_interp, t_total = result.mean_ms(warmup=warmup)
     return (result.times, result.displacements, t_interp, t_total, result.stable,
             result.message)
+
+
+def rigid_velocity(mesh: TetMesh, density: float, velocity, angular_velocity) -> np.ndarray:
+    """(n, 3) vertex velocities ``v + ω × (X − X_cm)`` (m/s) of a rigid motion (world)."""
+    mass = mass_matrix(mesh, density)
+    weights = np.asarray(mass[0::3, 0::3].sum(axis=1)).ravel()
+    center = weights @ mesh.points / weights.sum()
+    arm = mesh.points - center
+    return np.asarray(velocity, dtype=float) + np.cross(np.asarray(angular_velocity), arm)
 
 
 # -------------------------------------------------------------------- helpers

@@ -24,12 +24,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lbshape.dynamics.contact import PlaneContact
 from lbshape.dynamics.integrators import make_stepper
 from lbshape.dynamics.loads import TimeProfile
 from lbshape.errors import SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
 
 log = logging.getLogger(__name__)
+
+#: the frame of a fixed object: world = object frame
+_ORIGIN, _IDENTITY3 = np.zeros(3), np.eye(3)
 
 
 @dataclass(frozen=True)
@@ -80,6 +84,8 @@ class ReducedSimulation:
         loads: reduced loads.
         driver: the example driver, or ``None`` (no example machinery at all).
         k_ex: example stiffness (1/s²); 0 disables the example force.
+        contact: penalty contact with planes (:class:`~lbshape.dynamics.contact.PlaneContact`
+            built on the rest positions, ``x = X + U q``), implicit in q; or ``None``.
     """
 
     def __init__(
@@ -94,8 +100,10 @@ class ReducedSimulation:
         loads: Sequence[ReducedLoad] = (),
         driver: ExampleDriver | None = None,
         k_ex: float = 0.0,
+        contact: PlaneContact | None = None,
     ):
         self.elastic = elastic
+        self.contact = contact
         self.r = int(r)
         self.loads = list(loads)
         self.driver = driver if (driver is not None and k_ex > 0.0) else None
@@ -120,12 +128,19 @@ class ReducedSimulation:
         if self.k_ex:
             f = f + self.k_ex * q
             K = K + self.k_ex * self._identity
+        if self.contact is not None:
+            res = self.contact.evaluate(_ORIGIN, _IDENTITY3, q, rigid=False)
+            if res.active:
+                f = f - res.generalized
+                K = K + res.stiffness_q
         return f, K
 
     def _potential(self, q: np.ndarray) -> float:
         energy = float(self.elastic.energy(q))
         if self.k_ex:
             energy += 0.5 * self.k_ex * float(q @ q)
+        if self.contact is not None:
+            energy += self.contact.evaluate(_ORIGIN, _IDENTITY3, q, rigid=False).energy
         return energy
 
     def _external(self, t: float) -> np.ndarray:

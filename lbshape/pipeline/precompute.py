@@ -13,7 +13,9 @@ Stages (only those the scene needs; paper pre-computation steps 1–6):
 8. ``projections``: direct projections T                      — scenes with examples;
 9. ``lb-cubature``: a cubature for the LB displacement subspace (the ``lb``
    interpolation route), trained on poses as large as the examples
-                                                              — scenes with examples.
+                                                              — scenes with examples;
+10. ``frame``: the rigid frame's reduced inertia and fictitious-force tensors
+    (:mod:`lbshape.dynamics.fictitious`)                      — free bodies.
 
 Everything is cached under a key derived from :meth:`Scene.precompute_key_fields`,
 the gmsh scripts or mesh files behind the meshes, and the package versions, so
@@ -40,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from lbshape import __version__
+from lbshape.dynamics.fictitious import FrameTensors, frame_tensors
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
@@ -54,8 +57,11 @@ CUBATURE_TRAINING_POSES = 120
 PRECOMPUTE_SEED = 20170401
 #: bumped whenever the artifact's content or meaning changes (part of the cache key)
 PIPELINE_VERSION = 2
+#: FrameTensors fields stored as ``frame_<field>`` arrays (free bodies)
+_FRAME_FIELDS = ("mass", "center", "Y0", "G", "C", "H", "S", "translation")
 #: arrays every artifact holds, and those of scenes with examples
 _REQUIRED = ("points", "tets", "fixed", "U", "omega2", "cub_elements", "cub_weights")
+_REQUIRED_FRAME = tuple(f"frame_{name}" for name in _FRAME_FIELDS)
 _REQUIRED_EXAMPLES = ("eigenvalues", "eigenvectors", "example_coefficients", "projection",
                       "alignment_residuals", "lb_cub_elements", "lb_cub_weights",
                       "lb_cub_errors")
@@ -83,6 +89,7 @@ class Precomputed:
         lb_cubature_elements, lb_cubature_weights: cubature of the LB displacement
             subspace (basis :meth:`lb_basis`), or None; ``lb_cubature_errors``.
         example_names: (k,) labels.
+        frame: reduced rigid-frame tensors of a free body, or None (fixed object).
         stage_seconds: wall time per stage (s) of the run that built the artifact.
         from_cache: True when loaded from the cache.
     """
@@ -106,6 +113,7 @@ class Precomputed:
     lb_cubature_weights: np.ndarray | None = None
     lb_cubature_errors: dict = field(default_factory=dict)
     example_names: tuple[str, ...] = ()
+    frame: FrameTensors | None = None
     stage_seconds: dict = field(default_factory=dict)
     from_cache: bool = False
 
@@ -203,6 +211,8 @@ def stage_names(scene: Scene) -> list[str]:
     names = ["mesh", "modes", "derivatives", "basis", "cubature"]
     if scene.has_examples:
         names += ["lb", "examples", "projections", "lb-cubature"]
+    if scene.is_free:
+        names.append("frame")
     return names
 
 
@@ -210,7 +220,8 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False) -> 
     """Build or reuse the scene's precompute (see the module docstring)."""
     key = scene_cache_key(scene)
     if not force:
-        required = _REQUIRED + (_REQUIRED_EXAMPLES if scene.has_examples else ())
+        required = (_REQUIRED + (_REQUIRED_EXAMPLES if scene.has_examples else ())
+                    + (_REQUIRED_FRAME if scene.is_free else ()))
         cached = load_artifact(scene.name, key, required=required)
         if cached is not None:
             return _from_arrays(scene, key, *cached)
@@ -262,6 +273,11 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
     if scene.has_examples:
         arrays.update(_shape_space_arrays(scene, mesh, U, stages))
         meta["example_names"] = [_example_label(p) for p in scene.examples.poses]
+    if scene.is_free:
+        with stages.stage("frame"):
+            frame = frame_tensors(mesh.points, mesh.tets, mass, U)
+        arrays.update({f"frame_{name}": np.asarray(getattr(frame, name))
+                       for name in _FRAME_FIELDS})
     return arrays, meta
 
 
@@ -368,6 +384,10 @@ def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
                              "holdout": float(arrays["lb_cub_errors"][1])}
                             if has_examples else {}),
         example_names=tuple(meta.get("example_names", ())),
+        frame=(FrameTensors(**{name: (float(arrays[f"frame_{name}"]) if name == "mass"
+                                      else np.asarray(arrays[f"frame_{name}"]))
+                               for name in _FRAME_FIELDS})
+               if "frame_G" in arrays else None),
         stage_seconds=dict(meta.get("stage_seconds", {})),
         from_cache=from_cache,
     )

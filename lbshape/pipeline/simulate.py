@@ -17,11 +17,14 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from lbshape.dynamics.contact import ContactPlane, PlaneContact
+from lbshape.dynamics.free_body import FreeBodySimulation, FreeLoad
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import Precomputed
 from lbshape.scene.schema import Scene
@@ -44,12 +47,15 @@ class SimulationOutput:
         times: (k,) sample times (s).
         displacements: (k, n, 3) sampled full-space displacements (m).
         message: solver failure message ('' if stable).
+        breakdown: per-step mean cost (ms) of a free-body reduced step by part:
+            ``interp``, ``rigid``, ``contact``, ``solve`` (empty otherwise).
     """
 
     stats: dict
     times: np.ndarray
     displacements: np.ndarray
     message: str = ""
+    breakdown: dict = field(default_factory=dict)
 
 
 def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[tuple[np.ndarray, object]]:
@@ -95,10 +101,38 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
         route = (scene.reduced.route(scene.material.model) if method == "reduced"
                  else "euclidean")
         driver = example_driver(pre, route=route)
+    if scene.is_free:
+        return _free_body_simulation(scene, pre, elastic, driver, k_ex)
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
-        k_ex=k_ex,
+        k_ex=k_ex, contact=_contact(scene, pre, None),
+    )
+
+
+def _contact(scene: Scene, pre: Precomputed, center):
+    """The scene's plane contact on the object's surface, or None without planes."""
+    if not scene.planes:
+        return None
+    planes = [ContactPlane(p.point, p.normal, p.stiffness) for p in scene.planes]
+    return PlaneContact.for_mesh(planes, pre.mesh.points, pre.mesh.tets, pre.U, center=center)
+
+
+def _free_body_simulation(scene: Scene, pre: Precomputed, elastic, driver, k_ex: float):
+    """The :class:`~lbshape.dynamics.free_body.FreeBodySimulation` of a free scene."""
+    if pre.frame is None:
+        raise LbshapeError(f"scene {scene.name}: the precompute has no rigid frame tensors")
+    body = pre.mesh.points - pre.frame.center
+    loads = []
+    if scene.loads:
+        mass = mass_matrix(pre.mesh, pre.material.density)
+        loads = [FreeLoad.from_pattern(p, pre.U, body, profile)
+                 for p, profile in load_patterns(scene, pre, mass)]
+    return FreeBodySimulation(
+        elastic, pre.frame, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
+        alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
+        k_ex=k_ex, contact=_contact(scene, pre, pre.frame.center),
+        velocity=scene.initial.velocity, angular_velocity=scene.initial.angular_velocity,
     )
 
 
@@ -111,6 +145,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
     if steps < 1:
         raise LbshapeError(f"steps must be >= 1, got {steps}")
     stride = max(1, math.ceil(steps / MAX_FRAMES))
+    breakdown: dict = {}
     if method == "full":
         times, frames, t_interp, t_total, stable, message = _run_full(scene, pre, steps, stride)
         steps_done = int(round((times[-1] - times[0]) / scene.simulation.dt)) if len(times) else 0
@@ -121,7 +156,13 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         q = np.asarray(record.states)
         picked = np.arange(0, len(q), stride)
         times = np.asarray(record.times)[picked]
-        frames = (q[picked] @ pre.U.T).reshape(len(picked), -1, 3)
+        if scene.is_free:
+            frames = record.world_displacements(pre.U, pre.mesh.points, pre.frame.center,
+                                                picked)
+            breakdown = {part: record.mean_ms(getattr(record, f"t_{part}_ms"), WARMUP_STEPS)
+                         for part in ("interp", "rigid", "contact", "solve")}
+        else:
+            frames = (q[picked] @ pre.U.T).reshape(len(picked), -1, 3)
         t_interp = record.mean_ms(record.t_interp_ms, WARMUP_STEPS)
         t_total = record.mean_ms(record.t_total_ms, WARMUP_STEPS)
         stable, message = record.stable, record.message
@@ -136,7 +177,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "t_interp_ms": t_interp, "t_total_ms": t_total,
         "stable": bool(stable), "max_displacement": max_disp,
     }
-    output = SimulationOutput(stats, times, frames, message)
+    output = SimulationOutput(stats, times, frames, message, breakdown)
     if out is not None:
         write_outputs(Path(out), pre, output)
     return output

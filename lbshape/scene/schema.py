@@ -68,6 +68,10 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
     normal = [0, 0, 1]         # non-zero; stored normalised; points into the free side
     stiffness = 1e4            # N/m per surface vertex, > 0
 
+    [initial]                  # optional, free bodies only (an error with [fixed])
+    velocity = [0, 0, 0]       # m/s, world: centre-of-mass velocity ([0, 0, 0])
+    angular_velocity = [0, 0, 0]   # rad/s, world ([0, 0, 0])
+
     [[regions]]                # local examples, zero or more; need [examples]
     name = "left"              # unique non-empty str
     region = "x < -0.2"        # expression, OR
@@ -314,6 +318,14 @@ class Plane:
 
 
 @dataclass(frozen=True)
+class Initial:
+    """Initial rigid motion of a free body (world frame): m/s and rad/s."""
+
+    velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    angular_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
 class LocalRegion:
     """A region of the object with its own examples (indices into the example list)."""
 
@@ -348,6 +360,7 @@ class Scene:
         planes: contact planes.
         regions: local-example regions.
         simulation: dt, steps, integrator.
+        initial: initial rigid motion of a free body (``Initial()`` = at rest).
         source: the TOML file the scene was read from, if any.
     """
 
@@ -363,6 +376,7 @@ class Scene:
     regions: tuple[LocalRegion, ...] = ()
     simulation: Simulation = field(default_factory=Simulation)
     description: str = ""
+    initial: Initial = field(default_factory=Initial)
     source: Path | None = None
 
     @property
@@ -416,6 +430,8 @@ class Scene:
             "k_ex": None if self.examples is None else self.examples.stiffness,
             "planes": [{"point": list(p.point), "normal": list(p.normal),
                         "stiffness": p.stiffness} for p in self.planes],
+            "initial": {"velocity": list(self.initial.velocity),
+                        "angular_velocity": list(self.initial.angular_velocity)},
         }
 
 
@@ -488,7 +504,7 @@ def scene_from_dict(
     ctx = _Context(label or f"scene {name}", Path(base_dir))
     top = ctx.table(data, "", (
         "name", "description", "object", "material", "damping", "reduced", "examples",
-        "fixed", "loads", "planes", "regions", "simulation",
+        "fixed", "loads", "planes", "regions", "simulation", "initial",
     ))
     scene_name = top.string("name", name)
     if not scene_name.strip():
@@ -539,6 +555,14 @@ def scene_from_dict(
     if "fixed" in top.data:
         fixed = _selection(top.subtable("fixed", ("region", "group")), ctx, required=True)
 
+    initial = Initial()
+    if "initial" in top.data:
+        if fixed is not None:
+            raise ctx.error("'[initial]' applies to free bodies only; this object has '[fixed]'")
+        init = top.subtable("initial", ("velocity", "angular_velocity"))
+        initial = Initial(init.vector3("velocity", [0.0, 0.0, 0.0]),
+                          init.vector3("angular_velocity", [0.0, 0.0, 0.0]))
+
     loads = tuple(_load(t, ctx) for t in top.array_of_tables(
         "loads", ("type", "vector", "region", "group", "profile", "start", "duration")))
     planes = tuple(_plane(t, ctx) for t in top.array_of_tables(
@@ -559,7 +583,7 @@ def scene_from_dict(
     return Scene(
         name=scene_name, description=description, object=obj, material=material,
         damping=damping, reduced=reduced, examples=examples, fixed=fixed, loads=loads,
-        planes=planes, regions=regions, simulation=simulation, source=source,
+        planes=planes, regions=regions, simulation=simulation, initial=initial, source=source,
     )
 
 
