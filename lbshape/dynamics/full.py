@@ -45,6 +45,10 @@ penetration), part of the position-dependent force with its tangent
 free body ``α M`` also damps the rigid motion (the reduced method damps only the
 deformation): free scenes should use ``α = 0``.
 
+For a free body the steps above run in the best-fitting rigid frame of the current
+shape (mass-weighted centre and polar-decomposition rotation): see
+:meth:`FullSpaceSimulator._update_free_target`.
+
 **Failure.** A non-finite state, a Newton failure, an energy blow-up or a failed
 target solve raises :class:`FullSpaceDiverged` (a
 :class:`~lbshape.errors.SolverError`) naming the step and time; its ``partial``
@@ -65,6 +69,7 @@ import scipy.sparse as sp
 from lbshape.dynamics.contact import ContactPlane, surface_vertices
 from lbshape.dynamics.integrators import make_stepper
 from lbshape.dynamics.loads import TimeProfile
+from lbshape.dynamics.rigid_frame import best_rigid_frame
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError, SolverError
@@ -349,6 +354,7 @@ class FullSpaceSimulator:
         D = np.kron(lam[:, None] * np.asarray((volume_mass @ phi).T), np.eye(3))
         self._descriptor = np.ascontiguousarray(D[:, self.free_dofs])  # (3m, nf)
         L = np.kron(phi, np.eye(3))  # (3n, 3m) node-major, column 3i + comp
+        self._lb_basis = L
         ML = np.asarray(self.mass @ L)
         self._mass_target = np.ascontiguousarray(ML[self.free_dofs])  # (nf, 3m): (M L)_free
         flat = coefficients.reshape(k, 3 * m)
@@ -415,11 +421,38 @@ class FullSpaceSimulator:
     def _update_target(self) -> None:
         """Weights and target from the current state; sets the example force."""
         x = self.stepper.x
+        if self.fixed_vertices.size == 0:  # free body: interpolate in the co-moving frame
+            self._update_free_target(x)
+            return
         weights = simplex_weights(self._example_descriptors, self._descriptor @ x)
         c_star = self._target_solver.solve(weights).z
         self.weights = weights
         self.target_coefficients = c_star
         self._b = self._k_ex * (self._mass_target @ c_star)
+
+    def _update_free_target(self, u: np.ndarray) -> None:
+        """Free body: the shape is compared in the best-fitting rigid frame.
+
+        With the scalar mass M₁, the centre of mass ``c = Σ M₁ x / m`` and the rotation
+        R of the polar decomposition of ``Σ M₁ (x − c) X̄ᵀ`` (mass-weighted Kabsch fit of
+        the rest shape X̄ = X − X_cm to x), the body-frame displacement
+        ``u_b = Rᵀ (x − c) − X̄`` gives the weights and the target ``c*``; the target
+        world displacement is ``c + R (X̄ + L c*) − X``, pulled towards by k_ex M.
+        """
+        n = self.n_vertices
+        if not hasattr(self, "_scalar_mass"):
+            self._scalar_mass = sp.csr_matrix(self.mass[0::3, 0::3])
+        rest = self.mesh.points
+        x = rest + u.reshape(n, 3)
+        center, R, body = best_rigid_frame(self._scalar_mass, rest, x)
+        Xbar = (x - center) @ R - body  # rest shape about its centre of mass
+        weights = simplex_weights(self._example_descriptors, self._descriptor @ body.ravel())
+        c_star = self._target_solver.solve(weights).z
+        self.weights = weights
+        self.target_coefficients = c_star
+        target_body = Xbar + (self._lb_basis @ c_star).reshape(n, 3)
+        target = (center + target_body @ R.T - rest).ravel()
+        self._b = self._k_ex * (self.mass @ target)
 
     # ------------------------------------------------------------------- run
     def run(

@@ -121,3 +121,27 @@ def rotate(rotation: np.ndarray, body_momentum: np.ndarray, inertia: np.ndarray,
         )
     F = cayley(dt * omega)
     return rotation @ F, F.T @ body_momentum, omega
+
+
+def best_rigid_frame(scalar_mass, rest: np.ndarray,
+                     positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mass-weighted best-fitting rigid frame of a deformed shape (Kabsch fit).
+
+    Args:
+        scalar_mass: (n, n) scalar mass M₁ (kg), sparse or dense.
+        rest: (n, 3) rest positions X (m).
+        positions: (n, 3) current positions x (m, world).
+
+    Returns:
+        ``(c (3,), R (3, 3), u_body (n, 3))``: the centre of mass ``Σ M₁ x / m``, the
+        rotation of the polar decomposition of ``Σ M₁ (x − c) X̄ᵀ`` (X̄ = X − X_cm,
+        det R = +1) and the body-frame displacement ``Rᵀ (x − c) − X̄``.
+    """
+    weights = np.asarray(scalar_mass.sum(axis=1)).ravel()
+    weights = weights / weights.sum()
+    Xbar = rest - weights @ rest
+    center = weights @ positions
+    A = (positions - center).T @ np.asarray(scalar_mass @ Xbar)
+    left, _, right = np.linalg.svd(A)
+    R = left @ np.diag([1.0, 1.0, np.sign(np.linalg.det(left @ right))]) @ right
+    return center, R, (positions - center) @ R - Xbar

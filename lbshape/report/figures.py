@@ -8,6 +8,8 @@
 * :func:`figure3` — the paper's Figure 3: rest; no examples, same-topology examples
   and other-topology examples in full space; other-topology examples reduced — the
   final frame of each;
+* :func:`figure5` — the paper's Figure 5: a free body with no example and with each
+  example alone, the runs in rows, a few times in columns;
 * :func:`render_scene` — all of the above that a scene supports, into one folder.
 
 Numbers behind each composite picture go to a JSON file next to it. Nothing here
@@ -253,6 +255,94 @@ def figure3(same_topology, other_topology, path: str | Path, *,
     return result
 
 
+@dataclass(frozen=True)
+class Figure5:
+    """The paper's Figure 5: a free body's reaction with no example and each example alone.
+
+    Attributes:
+        path: the PNG (rows: runs; columns: times).
+        labels: (k+1,) run names, the first without examples.
+        influence_world: (k,) ``‖u_ex(T) − u_none(T)‖_M / ‖u_none(T)‖_M`` of the world
+            displacements at the last frame.
+        influence_body: (k,) the same on the body-frame deformation (best rigid fit
+            removed), what the examples act on.
+        messages: per run, the solver failure message ('' if it finished).
+    """
+
+    path: Path
+    labels: tuple[str, ...]
+    influence_world: tuple[float, ...]
+    influence_body: tuple[float, ...]
+    messages: tuple[str, ...]
+
+
+def _scalar_mass(pre):
+    """(n, n) scalar mass M₁ (kg) of the object."""
+    from lbshape.elastic.element_kernels import mass_matrix
+
+    return mass_matrix(pre.mesh, pre.material.density)[0::3, 0::3]
+
+
+def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 4,
+            progress: bool = False) -> Figure5:
+    """Runs a free scene with no example and with each of its examples alone, side by side.
+
+    Each variant has its own precompute (the example set is part of the cache key).
+    Panels are coloured by the body-frame deformation (best rigid fit removed).
+    Numbers go to ``<path stem>.json`` next to the PNG.
+    """
+    from lbshape.dynamics.rigid_frame import best_rigid_frame
+    from lbshape.elastic.element_kernels import mass_matrix
+    from lbshape.pipeline.precompute import precompute
+    from lbshape.pipeline.simulate import simulate
+    from lbshape.report.bench import m_norms
+    from lbshape.report.render import render_shape_grid
+    from lbshape.scene.schema import Examples
+
+    if not scene.has_examples or not scene.is_free:
+        raise LbshapeError(f"scene {scene.name}: Figure 5 needs a free body with examples")
+    variants = [("no example", dataclasses.replace(scene, examples=None))]
+    for pose in scene.examples.poses:
+        single = Examples(scene.examples.stiffness, (pose,))
+        variants.append((f"{pose.pose or 'posed'} example", dataclasses.replace(
+            scene, examples=single)))
+    rows, labels, scalars, finals, messages = [], [], [], [], []
+    pre = None
+    for name, variant in variants:
+        pre = precompute(variant, progress=progress)
+        output = simulate(variant, pre, method="reduced", steps=steps)
+        messages.append(output.message)
+        count = len(output.times)
+        picks = np.unique(np.linspace(0, count - 1, frames + 1).round().astype(int)[1:])
+        rows.append([_deformed(pre, output.displacements[i]) for i in picks])
+        labels.append([f"{name} t={output.times[i]:.2f} s" for i in picks])
+        scalars.append([np.linalg.norm(best_rigid_frame(
+            _scalar_mass(pre), pre.mesh.points,
+            pre.mesh.points + output.displacements[i])[2], axis=1) for i in picks])
+        finals.append(output.displacements[-1])
+    mass = mass_matrix(pre.mesh, pre.material.density)
+    scalar_mass = mass[0::3, 0::3]
+    rest = pre.mesh.points
+    body = [best_rigid_frame(scalar_mass, rest, rest + u)[2] for u in finals]
+    world = [float(m_norms((u - finals[0])[None], mass)[0] / m_norms(finals[0][None], mass)[0])
+             for u in finals[1:]]
+    deformation = [float(m_norms((b - body[0])[None], mass)[0] / m_norms(body[0][None], mass)[0])
+                   for b in body[1:]]
+    planes = [(np.asarray(p.point), np.asarray(p.normal)) for p in scene.planes]
+    path = render_shape_grid(rows, labels, path, scalars=scalars, planes=planes,
+                             view_vector=(0.3, -1.0, 0.35), zoom=1.7,
+                             scalar_name="deformation (m)")
+    result = Figure5(Path(path), tuple(n for n, _ in variants), tuple(world),
+                     tuple(deformation), tuple(messages))
+    write_json_atomic(Path(path).with_suffix(".json"), {
+        "scene": scene.name, "runs": list(result.labels), "steps": steps,
+        "influence_world_final": dict(zip(result.labels[1:], world, strict=True)),
+        "influence_body_frame_final": dict(zip(result.labels[1:], deformation, strict=True)),
+        "messages": list(messages),
+    })
+    return result
+
+
 def render_scene(scene, out: str | Path, *, steps: int | None = None, method: str = "reduced",
                  frames: int = 4, progress: bool = False) -> RenderedScene:
     """Every picture of one scene into ``out`` (see the module docstring).
@@ -281,6 +371,8 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
     paths.append(eigenfunctions_figure(scene, pre, out / "eigenfunctions.png"))
     if pre.has_examples:
         paths.extend(examples_figures(scene, pre, out))
+    if pre.has_examples and scene.is_free:
+        paths.append(figure5(scene, out / "figure5.png", steps=steps, progress=progress).path)
     summary = write_json_atomic(out / "summary.json", {
         "scene": scene.name, "simulation": output.stats, "message": output.message,
         "pictures": [p.name for p in paths],

@@ -155,3 +155,60 @@ def render_shapes(
         plotter.view_vector(view_vector)
     plotter.link_views()
     return _save(plotter, Path(path))
+
+
+def render_shape_grid(
+    rows: Sequence[Sequence[TetMesh]],
+    labels: Sequence[Sequence[str]],
+    path: str | Path,
+    *,
+    scalars: Sequence[Sequence[np.ndarray]] | None = None,
+    scalar_name: str = "|u| (m)",
+    view_vector: tuple[float, float, float] = (1.0, -1.0, 0.5),
+    planes: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+    zoom: float = 1.0,
+) -> Path:
+    """A grid of solids (rows × columns), one camera, shared colour range.
+
+    Args:
+        rows: ``rows[i][j]`` the mesh of panel (i, j).
+        labels: captions, same layout.
+        path: output PNG.
+        scalars: optional per-vertex values (n,), same layout.
+        planes: (point (3,), unit normal (3,)) contact planes drawn as grey squares.
+        zoom: camera zoom factor.
+    """
+    pv = _pyvista()
+    n_rows, n_cols = len(rows), max(len(r) for r in rows)
+    plotter = pv.Plotter(off_screen=True, shape=(n_rows, n_cols),
+                         window_size=(330 * n_cols, 300 * n_rows), border=False)
+    values = [v for row in (scalars or []) for v in row]
+    clim = (0.0, float(max(np.max(v) for v in values)) or 1.0) if values else None
+    everything = np.vstack([m.points for row in rows for m in row])
+    centre, size = everything.mean(axis=0), float(np.ptp(everything, axis=0).max())
+    for i, row in enumerate(rows):
+        for j, mesh in enumerate(row):
+            plotter.subplot(i, j)
+            data = {scalar_name: scalars[i][j]} if scalars is not None else None
+            surface = to_grid(mesh, data).extract_surface(algorithm="dataset_surface")
+            if scalars is not None:
+                plotter.add_mesh(surface, scalars=scalar_name, cmap="viridis", clim=clim,
+                                 show_edges=True, edge_color="#333333", line_width=0.2,
+                                 show_scalar_bar=False)
+            else:
+                plotter.add_mesh(surface, color="#c8d2e0", show_edges=True,
+                                 edge_color="#333333", line_width=0.2)
+            for point, normal in planes:
+                normal = np.asarray(normal, dtype=float)
+                # the plane's point closest to the scene's centre
+                shifted = centre - ((centre - np.asarray(point)) @ normal) * normal
+                plotter.add_mesh(pv.Plane(center=shifted, direction=normal, i_size=0.8 * size,
+                                          j_size=0.8 * size), color="#999999", opacity=0.35)
+            plotter.add_text(labels[i][j], font_size=8)
+            plotter.view_vector(view_vector)
+            plotter.camera.zoom(zoom)
+    if clim is not None:
+        plotter.add_text(f"colour: {scalar_name} {clim[0]:.3g} (dark) to {clim[1]:.3g} "
+                         "(yellow)", position="lower_right", font_size=7)
+    plotter.link_views()
+    return _save(plotter, Path(path))
