@@ -46,7 +46,7 @@ from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_text_atomic
 from lbshape.pipeline.precompute import Precomputed, precompute
 from lbshape.pipeline.routes import ROUTES, target_solver
-from lbshape.scene.schema import Scene, load_scene
+from lbshape.scene import Scene, load_scene
 from lbshape.shapespace.interpolation import simplex_weights
 
 log = logging.getLogger(__name__)

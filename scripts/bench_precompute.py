@@ -30,7 +30,7 @@ def run(repeats: int = 1) -> list[dict]:
     """Precompute each case from scratch ``repeats`` times; rows of stage seconds."""
     os.environ["LBSHAPE_CACHE"] = tempfile.mkdtemp(prefix="lbshape-bench-")
     from lbshape.pipeline.precompute import precompute
-    from lbshape.scene.schema import scene_from_dict
+    from lbshape.scene import scene_from_dict
 
     rows = []
     for label, shape, fixed, r, s in CASES:

@@ -33,7 +33,7 @@ from lbshape.report.bench import (
     write_sweep,
     write_table2,
 )
-from lbshape.scene.schema import load_scene
+from lbshape.scene import load_scene
 
 log = logging.getLogger(__name__)
 

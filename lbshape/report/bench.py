@@ -32,6 +32,7 @@ import numpy as np
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
 from lbshape.io.paths import RESULTS_DIR
+from lbshape.pipeline.meshes import build_mesh
 
 log = logging.getLogger(__name__)
 
@@ -185,7 +186,7 @@ def example_vertex_count(scene) -> int:
     """Vertex count of the scene's last example mesh (0 without examples)."""
     if scene.examples is None or not scene.examples.poses:
         return 0
-    return int(scene.examples.poses[-1].source.build().n_vertices)
+    return int(build_mesh(scene.examples.poses[-1].source).n_vertices)
 
 
 def _check_methods(methods: Sequence[str]) -> tuple[str, ...]:
