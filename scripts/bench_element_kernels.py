@@ -18,7 +18,7 @@ import numpy as np
 from lbshape.elastic.element_kernels import ElementKernel
 from lbshape.elastic.materials import MODELS, Material
 from lbshape.geometry.primitives import structured_box
-from lbshape.report.demo import write_json_atomic
+from lbshape.io.atomic import write_json_atomic
 
 DEFAULT_OUT = Path(__file__).resolve().parents[1] / "results" / "bench_element_kernels.json"
 

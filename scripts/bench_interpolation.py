@@ -36,14 +36,13 @@ import csv
 import dataclasses
 import io
 import logging
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from lbshape.errors import LbshapeError
-from lbshape.io.atomic import write_text_atomic
+from lbshape.io.atomic import write_atomic, write_text_atomic
 from lbshape.pipeline.precompute import Precomputed, precompute
 from lbshape.pipeline.routes import ROUTES, target_solver
 from lbshape.scene.schema import Scene, load_scene
@@ -371,17 +370,10 @@ def write_plot(rows: list[dict], path: Path) -> Path:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=6)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, format="png")
-        os.replace(tmp, path)
+        return write_atomic(path, lambda tmp: fig.savefig(tmp, format="png"))
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
 
 
 def write_outputs(rows: list[dict], out_dir: Path, **context) -> list[Path]:

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from lbshape.errors import LbshapeError
-from lbshape.io.atomic import write_json_atomic, write_text_atomic
+from lbshape.io.atomic import write_atomic, write_json_atomic, write_text_atomic
 from lbshape.io.paths import RESULTS_DIR
 
 log = logging.getLogger(__name__)
@@ -588,8 +588,6 @@ def sweep_csv(points: Sequence[SweepPoint], *, scene: str, steps: int, repeats: 
 def write_sweep(points: Sequence[SweepPoint], out_dir: str | Path = DEFAULT_OUT, *,
                 scene: str, steps: int, repeats: int, dt: float) -> tuple[Path, Path]:
     """Write ``speed_vs_error.csv`` and ``.png`` (matplotlib, Agg) atomically; their paths."""
-    import tempfile
-
     import matplotlib
 
     matplotlib.use("Agg")
@@ -632,15 +630,9 @@ def write_sweep(points: Sequence[SweepPoint], out_dir: str | Path = DEFAULT_OUT,
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    png_path = out_dir / "speed_vs_error.png"
-    png_path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".speed_vs_error.", suffix=".png", dir=png_path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, format="png")
-        os.replace(tmp, png_path)
+        png_path = write_atomic(out_dir / "speed_vs_error.png",
+                                lambda tmp: fig.savefig(tmp, format="png"))
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return csv_path, png_path
