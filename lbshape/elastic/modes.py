@@ -331,11 +331,11 @@ def linear_modes(
         _check_rigid_count(n_rigid, request.n_rigid, values, scale)
         vectors = gather_rows(local, mats.local_rows, comm=comm, size=3 * n)
     omega2 = values[n_rigid:request.nev]
-    rigid, elastic, residuals, rigid_residual = None, None, None, None
-    if comm.rank == 0:
-        rigid, elastic = _split_orthonormal(vectors[:, :request.nev], mats.mass, n_rigid)
-        residuals, rigid_residual = _free_dof_residuals(mats, omega2, elastic, rigid)
-    residuals, rigid_residual = comm.bcast((residuals, rigid_residual), root=0)
+    rigid, elastic = compute_on_root(
+        comm, lambda: _split_orthonormal(vectors[:, :request.nev], mats.mass, n_rigid),
+        share=False) or (None, None)
+    residuals, rigid_residual = compute_on_root(
+        comm, lambda: _free_dof_residuals(mats, omega2, elastic, rigid))
     _check_residuals(omega2, residuals, rigid_residual, limit=RESIDUAL_FACTOR * tol,
                      scale=scale)
     seconds = time.perf_counter() - started

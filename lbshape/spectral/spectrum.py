@@ -70,6 +70,7 @@ from lbshape.fem.eigenproblem import (
     relative_residuals,
     shift_invert_eps,
 )
+from lbshape.fem.mpi import compute_on_root
 from lbshape.fem.petsc_gather import gather_csr, gather_rows
 from lbshape.geometry.mesh import TetMesh
 
@@ -195,6 +196,7 @@ def lb_matrices(mesh: TetMesh, *, comm: MPI.Comm = MPI.COMM_SELF) -> LBMatrices:
     import dolfinx.fem.petsc
     import ufl
 
+    n, scale = compute_on_root(comm, lambda: (mesh.n_vertices, eigenvalue_scale(mesh)))
     msh = to_dolfinx(mesh, comm)
     V = dolfinx.fem.FunctionSpace(msh, ("Lagrange", 1))
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
@@ -203,8 +205,6 @@ def lb_matrices(mesh: TetMesh, *, comm: MPI.Comm = MPI.COMM_SELF) -> LBMatrices:
     K.assemble()
     M = dolfinx.fem.petsc.assemble_matrix(dolfinx.fem.form(ufl.inner(u, v) * ufl.dx))
     M.assemble()
-    n = comm.bcast(mesh.n_vertices if comm.rank == 0 else None, root=0)
-    scale = comm.bcast(eigenvalue_scale(mesh) if comm.rank == 0 else None, root=0)
     return LBMatrices(K, M, V, n_vertices=n, eigenvalue_scale=scale)
 
 
@@ -244,7 +244,7 @@ def lb_spectrum(
             (a mesh of several disconnected bodies).
     """
     started = time.perf_counter()
-    n = comm.bcast(mesh.n_vertices if comm.rank == 0 else None, root=0)
+    n = compute_on_root(comm, lambda: mesh.n_vertices)
     _check_request(m, n, tol, target)
     with lb_matrices(mesh, comm=comm) as mats:
         result = lb_spectrum_from_matrices(mats, m, tol=tol, target=target, verify=verify)
@@ -293,11 +293,9 @@ def lb_spectrum_from_matrices(
 
     K, M = mats.to_scipy()
     vectors = mats.gather_columns(local)
-    residuals = None
-    if comm.rank == 0:
-        vectors = fix_signs(b_orthonormalise(vectors, M, what="LB eigenvectors"))
-        residuals = relative_residuals(K, M, values, vectors)
-    residuals = comm.bcast(residuals, root=0)
+    vectors = compute_on_root(
+        comm, lambda: fix_signs(b_orthonormalise(vectors, M, what="LB eigenvectors")), share=False)
+    residuals = compute_on_root(comm, lambda: relative_residuals(K, M, values, vectors))
     check_residuals(residuals, RESIDUAL_FACTOR * run.tol, what="LB eigenpairs",
                     describe=lambda i: f"pair {i + 1}, lambda={values[i]:.6e}")
     seconds = time.perf_counter() - started
