@@ -406,7 +406,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> list[Path]:
     """Run the benchmark; return the paths written."""
-    from lbshape.report.bench import machine_description
+    from lbshape.report.machine import machine_description
 
     args = parse_args(argv)
     if args.calls < 1 or args.repeats < 1:
