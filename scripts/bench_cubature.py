@@ -41,6 +41,7 @@ from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.geometry.mesh import TetMesh
 from lbshape.io.atomic import write_bytes_atomic
 from lbshape.report.machine import load_text, machine_description, machine_text
+from lbshape.report.plots import pyplot, save_figure
 
 log = logging.getLogger(__name__)
 
@@ -194,11 +195,6 @@ def time_force_and_tangent(
 # -- outputs --------------------------------------------------------------------------------
 def write_error_outputs(result: dict, out_dir: Path) -> tuple[Path, Path]:
     """Write ``cubature_error_vs_s.csv`` and ``.png``; returns their paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     text = io.StringIO()
     text.write(
         f"# {result['mesh']}: {result['n_vertices']} vertices, {result['n_tets']} tets, "
@@ -214,7 +210,7 @@ def write_error_outputs(result: dict, out_dir: Path) -> tuple[Path, Path]:
     write_bytes_atomic(csv_path, text.getvalue().encode())
 
     s, train, hold = np.array(result["rows"]).T
-    fig, ax = plt.subplots(figsize=(5.5, 3.8), dpi=120)
+    fig, ax = pyplot().subplots(figsize=(5.5, 3.8), dpi=120)
     ax.semilogy(s, hold, label="held-out poses")
     ax.semilogy(s, train, "--", label="training poses")
     ax.axvline(60, color="0.6", lw=0.8, ls=":", label="s = 60 (bar, Table 2)")
@@ -224,12 +220,7 @@ def write_error_outputs(result: dict, out_dir: Path) -> tuple[Path, Path]:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png")
-    plt.close(fig)
-    png_path = Path(out_dir) / "cubature_error_vs_s.png"
-    write_bytes_atomic(png_path, buffer.getvalue())
-    return csv_path, png_path
+    return csv_path, save_figure(fig, Path(out_dir) / "cubature_error_vs_s.png")
 
 
 def write_timing_markdown(rows: list[dict], out_dir: Path, *, number: int, repeats: int) -> Path:

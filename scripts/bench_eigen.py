@@ -39,6 +39,7 @@ import numpy as np
 
 from lbshape.io.atomic import write_bytes_atomic
 from lbshape.report.machine import load_average, machine_text
+from lbshape.report.plots import pyplot, save_figure
 
 log = logging.getLogger("bench_eigen")
 
@@ -156,7 +157,7 @@ def run_benchmark(ks: Sequence[int] = DEFAULT_K, ms: Sequence[int] = DEFAULT_M, 
     write_bytes_atomic(out_dir / "eigen_benchmark.csv", _csv_text(rows).encode())
     table = markdown_table(rows, tol=tol, note=note)
     write_bytes_atomic(out_dir / "eigen_benchmark.md", table.encode())
-    write_bytes_atomic(out_dir / "eigen_benchmark.png", _plot_png(rows))
+    _plot_png(rows, out_dir / "eigen_benchmark.png")
     return rows
 
 
@@ -226,13 +227,9 @@ def _csv_text(rows: Sequence[Row]) -> str:
     return buffer.getvalue()
 
 
-def _plot_png(rows: Sequence[Row]) -> bytes:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=120)
+def _plot_png(rows: Sequence[Row], path: Path) -> Path:
+    """Solve time against vertices, SLEPc and scipy per m, written to the PNG ``path``."""
+    fig, ax = pyplot().subplots(figsize=(6.4, 4.4), dpi=120)
     for m, marker in zip(sorted({r.m for r in rows}), "os^v", strict=False):
         sel = [r for r in rows if r.m == m]
         n = [r.n_vertices for r in sel]
@@ -245,10 +242,7 @@ def _plot_png(rows: Sequence[Row]) -> bytes:
     ax.grid(True, which="both", lw=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png")
-    plt.close(fig)
-    return buffer.getvalue()
+    return save_figure(fig, path)
 
 
 def main() -> int:

@@ -42,9 +42,10 @@ from pathlib import Path
 import numpy as np
 
 from lbshape.errors import LbshapeError
-from lbshape.io.atomic import write_atomic, write_text_atomic
+from lbshape.io.atomic import write_text_atomic
 from lbshape.pipeline.precompute import Precomputed, precompute
 from lbshape.pipeline.routes import ROUTES, target_solver
+from lbshape.report.plots import pyplot, save_figure
 from lbshape.scene.schema import Scene, load_scene
 from lbshape.shapespace.interpolation import simplex_weights
 
@@ -326,11 +327,7 @@ def benchmark_markdown(rows: list[dict], *, paper_m: dict[str, int], repeats: in
 
 def write_plot(rows: list[dict], path: Path) -> Path:
     """Time per call and target error against m, per scene and route (PNG, atomic)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, (ax_t, ax_e) = plt.subplots(1, 2, figsize=(10.0, 4.0), dpi=120)
     styles = {"modal": "o-", "lb": "s-", "lb-exact": "D-", "euclidean": "^--"}
     colours = iter(plt.rcParams["axes.prop_cycle"].by_key()["color"] * 4)
@@ -370,10 +367,7 @@ def write_plot(rows: list[dict], path: Path) -> Path:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=6)
     fig.tight_layout()
-    try:
-        return write_atomic(path, lambda tmp: fig.savefig(tmp, format="png"))
-    finally:
-        plt.close(fig)
+    return save_figure(fig, path)
 
 
 def write_outputs(rows: list[dict], out_dir: Path, **context) -> list[Path]:
