@@ -30,7 +30,8 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from lbshape.errors import LbshapeError
     from lbshape.pipeline.simulate import WARMUP_STEPS
-    from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene, write_table2
+    from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene
+    from lbshape.report.tables import write_table2
     from lbshape.scene import load_scene
 
     if args.steps is not None and args.steps <= WARMUP_STEPS:

@@ -153,7 +153,7 @@ def _run_full(scene: Scene, pre: Precomputed, steps: int, stride: int):
 
 def write_outputs(out: Path, pre: Precomputed, output: SimulationOutput) -> None:
     """stats.json, states.npz and the ParaView trajectory, each written atomically."""
-    from lbshape.io.atomic import write_json_atomic
+    from lbshape.io.atomic import write_json_atomic, write_npz_atomic
     from lbshape.io.trajectory import TrajectoryWriter
 
     out.mkdir(parents=True, exist_ok=True)
@@ -161,7 +161,5 @@ def write_outputs(out: Path, pre: Precomputed, output: SimulationOutput) -> None
     for t, u in zip(output.times, output.displacements, strict=True):
         writer.write(float(t), u)
     writer.close()
-    tmp = out / "states.tmp.npz"
-    np.savez(tmp, times=output.times, displacements=output.displacements)
-    tmp.replace(out / "states.npz")
+    write_npz_atomic(out / "states.npz", times=output.times, displacements=output.displacements)
     write_json_atomic(out / "stats.json", output.stats)
