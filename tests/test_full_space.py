@@ -17,11 +17,10 @@ import lbshape.dynamics.full as full_space
 from lbshape.dynamics.full import (
     FullSpaceDiverged,
     FullSpaceExamples,
-    FullSpaceLoad,
     FullSpaceSimulator,
 )
-from lbshape.dynamics.loads import TimeProfile, gravity_pattern
-from lbshape.dynamics.reduced import ReducedLoad, ReducedSimulation
+from lbshape.dynamics.loads import TimedLoad, TimeProfile, gravity_pattern
+from lbshape.dynamics.reduced import ReducedSimulation
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import MODELS, Material
 from lbshape.elastic.reduced_forces import ReducedForceModel
@@ -131,7 +130,7 @@ def gravity_run(bar, acceleration: float):
     # backward Euler with ζ ≥ 1 in every mode (α = ω₁, β = 1/ω₁): settles in ~10 T₁
     sim = FullSpaceSimulator(mesh, mat, dt=0.5 * np.pi / omega1, fixed_vertices=bar.fixed,
                              integrator="backward-euler", alpha=omega1, beta=1.0 / omega1,
-                             loads=[FullSpaceLoad(g, TimeProfile())])
+                             loads=[TimedLoad(g, TimeProfile())])
     result = sim.run(60, stride=20)
     static = spla.spsolve(K, g[sim.free_dofs])
     settled = result.displacements()[-1].reshape(-1)[sim.free_dofs]
@@ -208,7 +207,7 @@ def test_strong_example_force_pulls_a_free_body_to_the_example_shape(bar):
 def test_zero_example_stiffness_builds_and_calls_no_example_machinery(bar, monkeypatch):
     mesh, mat = bar.mesh, material()
     g = gravity_pattern(mass_matrix(mesh, mat.density), np.array([0.0, 0.0, -9.81]))
-    loads = [FullSpaceLoad(g, TimeProfile("ramp", 0.0, 0.05))]
+    loads = [TimedLoad(g, TimeProfile("ramp", 0.0, 0.05))]
     plain = FullSpaceSimulator(mesh, mat, dt=0.01, fixed_vertices=bar.fixed, loads=loads)
     reference = plain.run(12, stride=3)
 
@@ -246,7 +245,7 @@ def test_full_space_is_the_reduced_method_in_a_complete_mass_orthonormal_basis()
     g = gravity_pattern(M, np.array([0.0, -3.0, -9.81]))
     profile = TimeProfile("ramp", 0.0, 0.04)
     sim = FullSpaceSimulator(mesh, mat, dt=dt, fixed_vertices=fixed, alpha=alpha, beta=beta,
-                             loads=[FullSpaceLoad(g, profile)], newton_rtol=1e-12,
+                             loads=[TimedLoad(g, profile)], newton_rtol=1e-12,
                              examples=FullSpaceExamples(lam, phi, coefficients, k_ex))
     weights = []
     full = sim.run(40, on_step=lambda i, t, u: weights.append(sim.weights.copy()))
@@ -269,7 +268,7 @@ def test_full_space_is_the_reduced_method_in_a_complete_mass_orthonormal_basis()
     elastic = ReducedForceModel(mesh.points, mesh.tets, mat, U, np.arange(mesh.n_tets),
                                 np.ones(mesh.n_tets))
     reduced = ReducedSimulation(elastic, r=free.size, dt=dt, alpha=alpha, beta=beta,
-                                loads=[ReducedLoad(U.T @ g, profile)], driver=driver, k_ex=k_ex)
+                                loads=[TimedLoad(U.T @ g, profile)], driver=driver, k_ex=k_ex)
     reduced.stepper.rtol = 1e-12
     # its energy monitor counts the target's pull as potential energy appearing at
     # step 1 from rest; the full-space one counts it as external work
@@ -290,7 +289,7 @@ def test_absurd_load_raises_solver_error_naming_the_step_and_keeps_the_partial_r
     dt = 0.01
     g = gravity_pattern(mass_matrix(mesh, mat.density), np.array([0.0, 0.0, -1e4]))
     sim = FullSpaceSimulator(mesh, mat, dt=dt, fixed_vertices=bar.fixed,
-                             loads=[FullSpaceLoad(g, TimeProfile("ramp", 0.0, 0.1))])
+                             loads=[TimedLoad(g, TimeProfile("ramp", 0.0, 0.1))])
     with pytest.raises(SolverError) as info:
         sim.run(30)
     exc = info.value
@@ -305,7 +304,7 @@ def test_absurd_load_raises_solver_error_naming_the_step_and_keeps_the_partial_r
     assert t == pytest.approx(step * dt, rel=1e-6)
     # what was kept is the run up to the last good step
     again = FullSpaceSimulator(mesh, mat, dt=dt, fixed_vertices=bar.fixed,
-                               loads=[FullSpaceLoad(g, TimeProfile("ramp", 0.0, 0.1))])
+                               loads=[TimedLoad(g, TimeProfile("ramp", 0.0, 0.1))])
     np.testing.assert_array_equal(again.run(step - 1).displacements(), partial.displacements())
 
 
@@ -352,7 +351,7 @@ def test_bad_inputs_raise_lbshape_error(bar):
         FullSpaceSimulator(mesh, mat, dt=0.01, fixed_vertices=np.arange(n))
     with pytest.raises(LbshapeError, match="pattern must have shape"):
         FullSpaceSimulator(mesh, mat, dt=0.01,
-                           loads=[FullSpaceLoad(np.zeros(n), TimeProfile())])
+                           loads=[TimedLoad(np.zeros(n), TimeProfile())])
     with pytest.raises(LbshapeError, match="dt must be > 0"):
         FullSpaceSimulator(mesh, mat, dt=0.0)
     with pytest.raises(LbshapeError, match="k_ex"):

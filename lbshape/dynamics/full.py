@@ -53,7 +53,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from lbshape.dynamics.integrators import make_stepper
-from lbshape.dynamics.loads import TimeProfile
+from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
@@ -63,19 +63,6 @@ from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class FullSpaceLoad:
-    """An external load ``profile(t) · pattern``.
-
-    Attributes:
-        pattern: (3n,) nodal forces in N, node-major, input vertex order.
-        profile: its time profile.
-    """
-
-    pattern: np.ndarray
-    profile: TimeProfile
 
 
 @dataclass(frozen=True)
@@ -146,7 +133,7 @@ class FullSpaceSimulator:
         integrator: str = "newmark",
         alpha: float = 0.0,
         beta: float = 0.0,
-        loads: Sequence[FullSpaceLoad] = (),
+        loads: Sequence[TimedLoad] = (),
         examples: FullSpaceExamples | None = None,
         initial_displacement: np.ndarray | None = None,
         initial_velocity: np.ndarray | None = None,
@@ -196,7 +183,7 @@ class FullSpaceSimulator:
         )
 
     # ----------------------------------------------------------------- set-up
-    def _check_loads(self, loads: Sequence[FullSpaceLoad]):
+    def _check_loads(self, loads: Sequence[TimedLoad]):
         patterns, profiles = [], []
         for index, load in enumerate(loads):
             pattern = np.asarray(load.pattern, dtype=float).reshape(-1)

@@ -20,25 +20,16 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
 from lbshape.dynamics.integrators import make_stepper
-from lbshape.dynamics.loads import TimeProfile
+from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.errors import SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class ReducedLoad:
-    """A load in reduced coordinates: ``profile(t) · pattern`` with pattern = Uᵀ f (r,)."""
-
-    pattern: np.ndarray
-    profile: TimeProfile
 
 
 class ReducedSimulation:
@@ -50,7 +41,7 @@ class ReducedSimulation:
         dt: time step (s).
         integrator: ``"newmark"`` or ``"backward-euler"``.
         alpha, beta: Rayleigh coefficients (1/s, s).
-        loads: reduced loads.
+        loads: reduced loads (patterns ``Uᵀ f`` (r,)).
         driver: the example driver, or ``None`` (no example machinery at all).
         k_ex: example stiffness (1/s²); 0 disables the example force.
     """
@@ -64,7 +55,7 @@ class ReducedSimulation:
         integrator: str = "newmark",
         alpha: float = 0.0,
         beta: float = 0.0,
-        loads: Sequence[ReducedLoad] = (),
+        loads: Sequence[TimedLoad] = (),
         driver: ExampleDriver | None = None,
         k_ex: float = 0.0,
     ):

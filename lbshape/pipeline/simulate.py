@@ -25,17 +25,16 @@ import numpy as np
 from lbshape.dynamics.full import (
     FullSpaceDiverged,
     FullSpaceExamples,
-    FullSpaceLoad,
     FullSpaceSimulator,
 )
 from lbshape.dynamics.loads import (
-    TimeProfile,
+    TimedLoad,
     gravity_pattern,
     region_force_pattern,
     region_torque_pattern,
 )
 from lbshape.dynamics.record import RunRecord
-from lbshape.dynamics.reduced import ReducedLoad, ReducedSimulation
+from lbshape.dynamics.reduced import ReducedSimulation
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
@@ -73,7 +72,7 @@ class SimulationOutput:
     message: str = ""
 
 
-def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[tuple[np.ndarray, TimeProfile]]:
+def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[TimedLoad]:
     """The scene's loads as full-space patterns (3n,) in N with their time profiles.
 
     Args:
@@ -95,7 +94,7 @@ def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[tuple[np.ndarray
                 mass, mesh.points, selected_vertices(load.selection, mesh, what=what), load.vector)
         else:  # the scene schema only admits the types above
             raise LbshapeError(f"unsupported load type {load.type!r}")
-        patterns.append((pattern, load.profile))
+        patterns.append(TimedLoad(pattern, load.profile))
     return patterns
 
 
@@ -118,8 +117,8 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *,
     loads = []
     if scene.loads:
         mass = mass_matrix(pre.mesh, pre.material.density)
-        loads = [ReducedLoad(pre.U.T @ p, profile) for p, profile in
-                 load_patterns(scene, pre, mass)]
+        loads = [TimedLoad(pre.U.T @ load.pattern, load.profile)
+                 for load in load_patterns(scene, pre, mass)]
     k_ex = example_stiffness(scene, pre)
     driver = None
     if k_ex > 0:
@@ -145,8 +144,7 @@ def full_simulation(scene: Scene, pre: Precomputed) -> FullSpaceSimulator:
     if scene.regions:
         log.warning("scene %s: local example regions are treated as global examples by the "
                     "full-space method", scene.name)
-    loads = [FullSpaceLoad(pattern, profile) for pattern, profile in
-             load_patterns(scene, pre, mass_matrix(pre.mesh, pre.material.density))]
+    loads = load_patterns(scene, pre, mass_matrix(pre.mesh, pre.material.density))
     k_ex = example_stiffness(scene, pre)
     examples = (FullSpaceExamples(pre.eigenvalues, pre.eigenvectors, pre.example_coefficients,
                                   k_ex) if k_ex > 0 else None)
