@@ -8,6 +8,12 @@
   target is found in LB space with the energy summed over all elements;
 * ``full`` — full-space FEM with full-space interpolation: the accuracy reference.
 
+This module is the one place where scene data becomes engine input: load patterns
+(:func:`load_patterns`), the example stiffness and driver, and the engines set up
+from a scene and its precompute (:func:`reduced_simulation`, :func:`full_simulation`).
+The engines (:mod:`lbshape.dynamics`) see arrays only and both return a
+:class:`~lbshape.dynamics.record.RunRecord`.
+
 Outputs in ``DIR``: ``stats.json`` (keys fixed by the command-line contract),
 ``trajectory.pvd`` + ``trajectory_*.vtu`` (ParaView), and ``states.npz`` (the
 sampled full-space displacements, for error measurements).
