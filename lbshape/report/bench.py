@@ -24,9 +24,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.paths import RESULTS_DIR
 from lbshape.pipeline.meshes import build_mesh
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulate import METHODS, WARMUP_STEPS, simulate
 
 log = logging.getLogger(__name__)
 
@@ -182,8 +185,6 @@ def example_vertex_count(scene) -> int:
 
 
 def _check_methods(methods: Sequence[str]) -> tuple[str, ...]:
-    from lbshape.pipeline.simulate import METHODS
-
     methods = tuple(methods)
     if not methods:
         raise LbshapeError("give at least one method")
@@ -196,8 +197,6 @@ def _check_methods(methods: Sequence[str]) -> tuple[str, ...]:
 
 
 def _check_steps_repeats(steps: int, repeats: int) -> None:
-    from lbshape.pipeline.simulate import WARMUP_STEPS
-
     if isinstance(steps, bool) or int(steps) != steps or steps <= WARMUP_STEPS:
         raise LbshapeError(
             f"steps must be an integer > {WARMUP_STEPS} (the warm-up steps left out of the "
@@ -231,10 +230,6 @@ def bench_scene(
         The :class:`SceneBenchmark`. A run that stops on a solver failure is kept
         (``stable`` False in its timing, ``error_vs_full`` None) and logged.
     """
-    from lbshape.elastic.element_kernels import mass_matrix
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import WARMUP_STEPS
-
     methods = _check_methods(methods)
     steps = scene.simulation.steps if steps is None else steps
     _check_steps_repeats(steps, repeats)
@@ -368,10 +363,6 @@ def speed_error_sweep(
         repeats: reduced runs per configuration.
         progress: precompute progress bars on stderr.
     """
-    from lbshape.elastic.element_kernels import mass_matrix
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import simulate
-
     steps = scene.simulation.steps if steps is None else steps
     _check_steps_repeats(steps, repeats)
     steps, repeats = int(steps), int(repeats)
