@@ -254,8 +254,6 @@ def _run_interleaved(scene, pre, methods: tuple[str, ...], *, steps: int, repeat
     Returns:
         ``({method: its first SimulationOutput}, (MethodTiming per method, in order))``.
     """
-    from lbshape.pipeline.simulate import simulate
-
     outputs: dict[str, object] = {}
     interp: dict[str, list[float]] = {m: [] for m in methods}
     total: dict[str, list[float]] = {m: [] for m in methods}
