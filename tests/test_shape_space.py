@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.poses import apply_pose
-from lbshape.geometry.primitives import cylinder, structured_box
+from lbshape.geometry.primitives import box, cylinder, structured_box
 from lbshape.shapespace.alignment import align_bases, pose_basis_map
 from lbshape.shapespace.frames import align_to_object, body_frame
 from lbshape.shapespace.projections import (
@@ -136,6 +136,13 @@ def test_arc_examples_on_cylinder_and_cuboid_agree(bar, bar_spectrum):
     u = apply_pose(bar, "arc", angle=1.0, direction="x").points - bar.points
     np.testing.assert_allclose(cuboid, lb_coefficients(u, bar_spectrum.eigenvectors,
                                                        bar_spectrum.mass), atol=1e-12)
+
+
+def test_embed_example_names_a_mismatched_example(bar, bar_spectrum):
+    cube = box((0.585, 0.585, 0.585), 0.1)  # the bar's volume, not its shape
+    with pytest.raises(LbshapeError, match=r"^example 2 \(cube\): example does not correspond "
+                                           r"to the object: frame alignment residual [^\n]*$"):
+        embed_example(bar, bar_spectrum, cube, [cube.points], name="example 2 (cube)")
 
 
 def test_direct_projection_matches_explicit_products(bar, bar_spectrum):
