@@ -23,11 +23,6 @@ TWIST = {"shape": "demo-bar", "pose": "twist",
          "parameters": {"angle": 0.6, "axis": "z", "anchor": "max"}}
 
 
-@pytest.fixture(autouse=True)
-def _private_cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("LBSHAPE_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-
-
 def _scene(examples, *, m: int = 6):
     data = {"name": "route-test", "object": {"shape": "demo-bar"},
             "reduced": {"m": m, "r": 12, "s": 20}, "fixed": {"region": "z > 0.999"}}
@@ -37,11 +32,9 @@ def _scene(examples, *, m: int = 6):
 
 
 @pytest.fixture(scope="module")
-def pre(tmp_path_factory):
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("LBSHAPE_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-        return precompute(_scene([TWIST, dict(TWIST, parameters={"angle": -0.3, "axis": "z",
-                                                                    "anchor": "max"})]))
+def pre():
+    return precompute(_scene([TWIST, dict(TWIST, parameters={"angle": -0.3, "axis": "z",
+                                                            "anchor": "max"})]))
 
 
 def test_a_valid_scene_sets_up_every_route(pre):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from conftest import observed_rates
 from scipy.spatial.transform import Rotation
 
 from lbshape.errors import LbshapeError
@@ -59,7 +60,7 @@ def test_first_descriptor_of_a_box_converges_at_second_order():
         l1 = descriptors(mesh.points, spec.eigenvalues, spec.eigenvectors, spec.mass)[0]
         errors.append(abs(abs(l1[0]) - 2.0) + abs(l1[1]) + abs(l1[2]))
         h.append(1.0 / k)
-    rates = np.diff(np.log(errors)) / np.diff(np.log(h))
+    rates = observed_rates(errors, h)
     assert errors[-1] < 0.01, f"descriptor errors {errors}"
     assert rates.min() > 1.7 and rates[-1] < 2.3, f"observed rates {rates}, errors {errors}"
 
