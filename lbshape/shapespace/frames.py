@@ -361,7 +361,8 @@ def _search_rotation(source: np.ndarray, target: np.ndarray, candidates: list[np
             break
         if all(_rotation_angle(starts[i] @ starts[j].T) > START_SEPARATION for j in chosen):
             chosen.append(int(i))
-    chosen.append(len(candidates))  # the identity: the example's own orientation
+    if len(candidates) not in chosen:  # the identity: the example's own orientation
+        chosen.append(len(candidates))
     src, dst = _subsample(source, ICP_SAMPLES), _subsample(target, ICP_SAMPLES)
     refined = [_icp_rotation(src, dst, starts[i], tol=CANDIDATE_ANGLE_TOL) for i in chosen]
     costs = [cost for _, cost in refined]
