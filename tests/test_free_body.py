@@ -11,8 +11,8 @@ import scipy.linalg as sla
 from lbshape.dynamics.contact import ContactPlane, PlaneContact
 from lbshape.dynamics.fictitious import frame_tensors
 from lbshape.dynamics.free_body import FreeBodySimulation, FreeLoad
-from lbshape.dynamics.loads import TimeProfile, gravity_pattern
-from lbshape.dynamics.reduced import ReducedLoad, ReducedSimulation
+from lbshape.dynamics.loads import TimedLoad, TimeProfile, gravity_pattern
+from lbshape.dynamics.reduced import ReducedSimulation
 from lbshape.dynamics.rigid_frame import cayley, orthonormality_error, rotate
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
@@ -317,7 +317,7 @@ def test_contact_on_a_fixed_object(soft):
     U[free] = V[:, :6]
     elastic = ReducedForceModel(mesh.points, mesh.tets, soft.material, U,
                                 np.arange(mesh.n_tets), np.ones(mesh.n_tets))
-    g = ReducedLoad(U.T @ gravity_pattern(mass, np.array([0.0, 0.0, -9.81])), TimeProfile())
+    g = TimedLoad(U.T @ gravity_pattern(mass, np.array([0.0, 0.0, -9.81])), TimeProfile())
     gap = 1e-4
     planes = [ContactPlane((0.0, 0.0, -gap), (0.0, 0.0, 1.0), 1e6)]
     contact = PlaneContact.for_mesh(planes, mesh.points, mesh.tets, U)

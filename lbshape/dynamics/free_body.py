@@ -41,7 +41,7 @@ import logging
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
@@ -49,6 +49,7 @@ import scipy.linalg as sla
 from lbshape.dynamics.contact import PlaneContact
 from lbshape.dynamics.fictitious import LEVI_CIVITA, FrameTensors
 from lbshape.dynamics.loads import TimeProfile
+from lbshape.dynamics.record import RunRecord
 from lbshape.dynamics.rigid_frame import RigidState, rotate
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
@@ -102,57 +103,54 @@ class FreeLoad:
         return scale * self.force, scale * (rotation @ torque_body), scale * generalized
 
 
-@dataclass
-class FreeBodyRecord:
-    """What a free-body run produced (kept when it stopped early).
+@dataclass(frozen=True)
+class FreeBodyRecord(RunRecord):
+    """What a free-body run produced: the common record plus the rigid frame.
+
+    ``states`` are the body-frame reduced coordinates q; every sampled array below
+    is taken at ``times`` (f,), every per-step array has one entry per step (k,).
 
     Attributes:
-        times: (k+1,) s.
-        states: (k+1, r) q per step.
-        centers: (k+1, 3) centre of mass (m, world).
-        rotations: (k+1, 3, 3) body-to-world rotations.
-        momenta: (k+1, 3) linear momentum (kg·m/s, world).
-        angular_momenta: (k+1, 3) angular momentum about c (kg·m²/s, world).
-        energies: (k+1,) total energy (J) without the gravity potential.
-        t_interp_ms, t_rigid_ms, t_contact_ms, t_solve_ms, t_total_ms: (k,) per-step
-            wall times: interpolation, rigid update, contact, deformation solve, all.
-        newton_iterations: (k,) per step.
+        centers: (f, 3) centre of mass (m, world).
+        rotations: (f, 3, 3) body-to-world rotations.
+        momenta: (f, 3) linear momentum (kg·m/s, world).
+        angular_momenta: (f, 3) angular momentum about c (kg·m²/s, world).
+        energies: (f,) total energy (J) without the gravity potential.
+        t_rigid_ms, t_contact_ms, t_solve_ms: (k,) per-step wall times of the rigid
+            update, the contact evaluations and the deformation solve (ms).
         contact_depth: (k,) largest penetration per step (m).
-        stable: False if the run stopped on a failure; ``message`` says why.
+        rest_points: (n, 3) rest positions X (m); ``body_points`` (n, 3) X̄ = X − X_cm.
     """
 
-    times: list[float] = field(default_factory=list)
-    states: list[np.ndarray] = field(default_factory=list)
-    centers: list[np.ndarray] = field(default_factory=list)
-    rotations: list[np.ndarray] = field(default_factory=list)
-    momenta: list[np.ndarray] = field(default_factory=list)
-    angular_momenta: list[np.ndarray] = field(default_factory=list)
-    energies: list[float] = field(default_factory=list)
-    t_interp_ms: list[float] = field(default_factory=list)
-    t_rigid_ms: list[float] = field(default_factory=list)
-    t_contact_ms: list[float] = field(default_factory=list)
-    t_solve_ms: list[float] = field(default_factory=list)
-    t_total_ms: list[float] = field(default_factory=list)
-    newton_iterations: list[int] = field(default_factory=list)
-    contact_depth: list[float] = field(default_factory=list)
-    stable: bool = True
-    message: str = ""
+    centers: np.ndarray | None = None
+    rotations: np.ndarray | None = None
+    momenta: np.ndarray | None = None
+    angular_momenta: np.ndarray | None = None
+    energies: np.ndarray | None = None
+    t_rigid_ms: np.ndarray | None = None
+    t_contact_ms: np.ndarray | None = None
+    t_solve_ms: np.ndarray | None = None
+    contact_depth: np.ndarray | None = None
+    rest_points: np.ndarray | None = None
+    body_points: np.ndarray | None = None
 
-    def mean_ms(self, values: Sequence[float], warmup: int) -> float:
-        """Per-step mean after ``warmup`` steps (ms)."""
-        data = np.asarray(values[warmup:] if len(values) > warmup else values, dtype=float)
-        return float(data.mean()) if data.size else 0.0
+    def displacements(self, basis: np.ndarray | None = None) -> np.ndarray:
+        """(f, n, 3) world displacements ``x − X = c + R (X̄ + U q) − X`` (m); basis = U."""
+        if basis is None or self.rest_points is None:
+            raise LbshapeError("free-body displacements need the basis U and the rest points")
+        n = self.rest_points.shape[0]
+        local = self.body_points[None] + (self.states @ np.asarray(basis).T).reshape(-1, n, 3)
+        world = np.einsum("fij,fnj->fni", self.rotations, local) + self.centers[:, None, :]
+        return world - self.rest_points[None]
 
-    def world_displacements(self, U: np.ndarray, points: np.ndarray, center: np.ndarray,
-                            picked: np.ndarray | None = None) -> np.ndarray:
-        """(f, n, 3) world displacements ``x − X`` (m) of the ``picked`` samples."""
-        picked = np.arange(len(self.times)) if picked is None else picked
-        Xbar = points - center
-        out = np.empty((len(picked), points.shape[0], 3))
-        for row, k in enumerate(picked):
-            local = Xbar + (U @ self.states[k]).reshape(-1, 3)
-            out[row] = self.centers[k] + local @ self.rotations[k].T - points
-        return out
+    def breakdown(self, *, warmup: int = 0) -> dict:
+        """Per-step mean cost (ms) after ``warmup`` steps: interp, rigid, contact, solve."""
+        def mean(values: np.ndarray) -> float:
+            data = values[warmup:] if values.size > warmup else values
+            return float(data.mean()) if data.size else 0.0
+
+        return {"interp": mean(self.t_interp_ms), "rigid": mean(self.t_rigid_ms),
+                "contact": mean(self.t_contact_ms), "solve": mean(self.t_solve_ms)}
 
 
 class FreeBodySimulation:
@@ -171,6 +169,8 @@ class FreeBodySimulation:
         angular_velocity: (3,) initial angular velocity (rad/s, world).
         q0, qd0: (r,) initial deformation and its rate (default 0).
         newton_rtol: relative Newton tolerance; ``max_iterations`` per step.
+        rest_points: (n, 3) rest positions X (m), for the world displacements of the
+            record (optional).
     """
 
     def __init__(
@@ -192,7 +192,9 @@ class FreeBodySimulation:
         qd0: np.ndarray | None = None,
         newton_rtol: float = 1e-8,
         max_iterations: int = 20,
+        rest_points: np.ndarray | None = None,
     ):
+        self.rest_points = None if rest_points is None else np.asarray(rest_points, dtype=float)
         if integrator not in _SCHEMES:
             raise LbshapeError(f"integrator must be one of {tuple(_SCHEMES)}, got {integrator!r}")
         if not (np.isfinite(dt) and dt > 0):
@@ -438,35 +440,53 @@ class FreeBodySimulation:
         return v1, (v1 - self.qd) / dt
 
     # ------------------------------------------------------------------- run
-    def _record_state(self, record: FreeBodyRecord, energy: float) -> None:
-        record.times.append(self.time)
-        record.states.append(self.q.copy())
-        record.centers.append(self.rigid.center.copy())
-        record.rotations.append(self.rigid.rotation.copy())
-        record.momenta.append(self.rigid.momentum.copy())
-        record.angular_momenta.append(self.rigid.angular_momentum.copy())
-        record.energies.append(energy)
+    def run(self, steps: int, *, stride: int = 1) -> FreeBodyRecord:
+        """Advance ``steps`` steps keeping every ``stride``-th state (and the initial one);
+        a failure ends the run with ``stable=False`` and the message."""
+        stride = int(stride)
+        if int(steps) < 1 or stride < 1:
+            raise LbshapeError(f"steps and stride must be >= 1, got {steps} and {stride}")
+        sampled = {key: [] for key in ("times", "states", "centers", "rotations", "momenta",
+                                       "angular_momenta", "energies")}
+        per_step = {key: [] for key in ("interp", "rigid", "contact", "solve", "total",
+                                        "iterations", "depth")}
 
-    def run(self, steps: int) -> FreeBodyRecord:
-        """Advance ``steps`` steps; a failure ends the run with ``stable=False``."""
-        record = FreeBodyRecord()
-        self._record_state(record, self.energy())
-        for _ in range(int(steps)):
+        def sample(energy: float) -> None:
+            for key, value in (("times", self.time), ("states", self.q),
+                               ("centers", self.rigid.center),
+                               ("rotations", self.rigid.rotation),
+                               ("momenta", self.rigid.momentum),
+                               ("angular_momenta", self.rigid.angular_momentum),
+                               ("energies", energy)):
+                sampled[key].append(np.array(value, dtype=float))
+
+        sample(self.energy())
+        stable, message = True, ""
+        for index in range(1, int(steps) + 1):
             try:
                 info = self.step()
             except SolverError as exc:
-                record.stable, record.message = False, str(exc)
+                stable, message = False, str(exc)
                 log.error("free-body simulation stopped: %s", exc)
                 break
-            record.t_interp_ms.append(info["interp"])
-            record.t_rigid_ms.append(info["rigid"])
-            record.t_contact_ms.append(info["contact"])
-            record.t_solve_ms.append(info["solve"])
-            record.t_total_ms.append(info["total"])
-            record.newton_iterations.append(int(info["iterations"]))
-            record.contact_depth.append(float(info["depth"]))
-            self._record_state(record, info["energy"])
-        return record
+            for key in per_step:
+                per_step[key].append(info[key])
+            if index % stride == 0:
+                sample(info["energy"])
+        arrays = {key: np.asarray(value) for key, value in sampled.items()}
+        times = {key: np.asarray(value, dtype=float) for key, value in per_step.items()}
+        return FreeBodyRecord(
+            times=arrays["times"], states=arrays["states"], t_interp_ms=times["interp"],
+            t_total_ms=times["total"],
+            newton_iterations=np.asarray(per_step["iterations"], dtype=np.int64),
+            stable=stable, message=message, centers=arrays["centers"],
+            rotations=arrays["rotations"], momenta=arrays["momenta"],
+            angular_momenta=arrays["angular_momenta"], energies=arrays["energies"],
+            t_rigid_ms=times["rigid"], t_contact_ms=times["contact"], t_solve_ms=times["solve"],
+            contact_depth=times["depth"], rest_points=self.rest_points,
+            body_points=(None if self.rest_points is None
+                         else self.rest_points - self.frame.center),
+        )
 
 
 def _norm(vector: np.ndarray) -> float:

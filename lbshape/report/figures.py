@@ -25,9 +25,18 @@ from pathlib import Path
 
 import numpy as np
 
+from lbshape.dynamics.rigid_frame import best_rigid_frame
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import RESULTS_DIR
+from lbshape.pipeline.meshes import example_mesh
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulate import simulate
+from lbshape.report.bench import m_norms
+from lbshape.report.render import render_eigenfunctions, render_shape_grid, render_shapes
+from lbshape.scene.schema import Examples
+from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
 
@@ -92,8 +101,6 @@ def simulation_figure(pre, output, path: str | Path, *, frames: int = 4,
         frames: how many frames (evenly spaced after t = 0).
         method: caption prefix (default: the run's method).
     """
-    from lbshape.report.render import render_shapes
-
     count = len(output.times)
     if count < 2:
         raise LbshapeError("the run has no frame after the initial state to draw")
@@ -105,11 +112,6 @@ def simulation_figure(pre, output, path: str | Path, *, frames: int = 4,
     labels = [f"{method} t={output.times[i]:.3f} s" for i in picks]
     values = [np.linalg.norm(output.displacements[i], axis=1) for i in picks]
     return render_shapes(meshes, labels, path, scalars=values)
-
-
-def posed_example(pose):
-    """The raw example mesh of an :class:`~lbshape.scene.schema.ExamplePose`, posed."""
-    return pose.posed(pose.source.build())
 
 
 def example_caption(index: int, pose) -> str:
@@ -130,8 +132,6 @@ def examples_figures(scene, pre, out_dir: str | Path) -> tuple[Path, Path]:
     object's mesh from its LB coefficients (``pre.example_rest_points(k)``); the
     second the example meshes as given, posed.
     """
-    from lbshape.report.render import render_shapes
-
     if not pre.has_examples or scene.examples is None:
         raise LbshapeError(f"scene {scene.name} has no examples to draw")
     out_dir = Path(out_dir)
@@ -150,7 +150,7 @@ def examples_figures(scene, pre, out_dir: str | Path) -> tuple[Path, Path]:
                          for k in range(count))],
         scalar_name="|x_k - X| (m)",
     )
-    raw = [posed_example(pose) for pose in scene.examples.poses]
+    raw = [example_mesh(pose) for pose in scene.examples.poses]
     raw_path = render_shapes(
         raw, [f"{caption} ({mesh.n_vertices} vertices)" for caption, mesh in
               zip(captions, raw, strict=True)],
@@ -165,13 +165,9 @@ def eigenfunctions_figure(scene, pre, path: str | Path, *, count: int = 4) -> Pa
     Uses the precomputed spectrum, or computes ``scene.reduced.m`` pairs for a
     scene without examples.
     """
-    from lbshape.report.render import render_eigenfunctions
-
     if pre.eigenvectors is not None:
         values, vectors = pre.eigenvalues, pre.eigenvectors
     else:
-        from lbshape.spectral.spectrum import lb_spectrum
-
         spectrum = lb_spectrum(pre.mesh, max(count, scene.reduced.m))
         values, vectors = spectrum.eigenvalues, spectrum.eigenvectors
     indices = tuple(range(min(count, values.size)))
@@ -204,11 +200,6 @@ def figure3(same_topology, other_topology, path: str | Path, *,
     Raises:
         LbshapeError: a scene without examples, or scenes with different objects.
     """
-    from lbshape.elastic.element_kernels import mass_matrix
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import simulate
-    from lbshape.report.render import render_shapes
-
     for scene in (same_topology, other_topology):
         if scene.examples is None:
             raise LbshapeError(f"Figure 3 needs scenes with examples; {scene.name} has none")
@@ -278,8 +269,6 @@ class Figure5:
 
 def _scalar_mass(pre):
     """(n, n) scalar mass M₁ (kg) of the object."""
-    from lbshape.elastic.element_kernels import mass_matrix
-
     return mass_matrix(pre.mesh, pre.material.density)[0::3, 0::3]
 
 
@@ -291,14 +280,6 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
     Panels are coloured by the body-frame deformation (best rigid fit removed).
     Numbers go to ``<path stem>.json`` next to the PNG.
     """
-    from lbshape.dynamics.rigid_frame import best_rigid_frame
-    from lbshape.elastic.element_kernels import mass_matrix
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import simulate
-    from lbshape.report.bench import m_norms
-    from lbshape.report.render import render_shape_grid
-    from lbshape.scene.schema import Examples
-
     if not scene.has_examples or not scene.is_free:
         raise LbshapeError(f"scene {scene.name}: Figure 5 needs a free body with examples")
     variants = [("no example", dataclasses.replace(scene, examples=None))]
@@ -359,9 +340,6 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
         frames: frames in ``simulation.png``.
         progress: precompute progress bars on stderr.
     """
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import simulate
-
     out = Path(out)
     pre = precompute(scene, progress=progress)
     output = simulate(scene, pre, method=method, steps=steps)
