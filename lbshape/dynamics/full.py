@@ -41,9 +41,10 @@ the StVK and Neo-Hookean forces are invariant under rigid rotation, so there is 
 frame split and no fictitious force). Contact planes act on the surface vertices
 with the penalty force ``k d n`` of :mod:`lbshape.dynamics.contact` (``d`` the
 penetration), part of the position-dependent force with its tangent
-``k n nᵀ`` per penetrating vertex. Rayleigh damping acts on all of u here, so for a
-free body ``α M`` also damps the rigid motion (the reduced method damps only the
-deformation): free scenes should use ``α = 0``.
+``k n nᵀ`` per penetrating vertex. For a free body the stiffness damping is
+co-rotated, ``β Q K₀ Qᵀ`` with Q the best rigid frame's rotation at the start of each
+step, so that it does not damp the rigid motion; ``α M`` would still damp it (the
+reduced method damps only the deformation): free scenes use ``α = 0``.
 
 For a free body the steps above run in the best-fitting rigid frame of the current
 shape (mass-weighted centre and polar-decomposition rotation): see
@@ -227,6 +228,12 @@ class FullSpaceSimulator:
 
         x0 = self._initial(initial_displacement, "initial_displacement")
         v0 = self._initial(initial_velocity, "initial_velocity")
+        # free body: the stiffness damping follows the body's rotation (see _corotate)
+        self._corotated_beta = float(beta) if (fixed.size == 0 and beta > 0) else 0.0
+        self._damping_rest = K0_ff if self._corotated_beta else None
+        self._damping_now = K0_ff if self._corotated_beta else None
+        if self._corotated_beta:
+            beta = 0.0
         self.stepper = make_stepper(
             integrator,
             self._mass_ff,
@@ -351,7 +358,26 @@ class FullSpaceSimulator:
         if self._k_ex:
             f = f + self._k_ex * (self._mass_ff @ x)
             K = K + self._kM_ff
+        stepper = getattr(self, "stepper", None)  # None while the stepper is set up
+        if self._corotated_beta and stepper is not None:
+            # β R K₀ Rᵀ v₁(x), v₁ the scheme's end-of-step velocity, linear in x
+            v1, _ = stepper._kinematics(x - stepper.x)
+            damping = self._corotated_beta * self._damping_now
+            f = f + damping @ v1
+            K = (K + (stepper._cv / stepper.dt) * damping).tocsr()
         return f, K
+
+    def _corotate(self) -> None:
+        """Free body: rotate the stiffness damping ``β K₀`` into the current best rigid
+        frame, ``β Q K₀ Qᵀ`` with Q = diag(R, …, R), so that it does not damp rigid
+        rotation (the reduced method damps the body-frame deformation only)."""
+        n = self.n_vertices
+        if not hasattr(self, "_scalar_mass"):
+            self._init_rigid_fit()
+        rest = self.mesh.points
+        _, R, _ = best_rigid_frame(self._scalar_mass, rest, rest + self.stepper.x.reshape(n, 3))
+        Q = sp.kron(sp.identity(n, format="csr"), sp.csr_matrix(R), format="csr")
+        self._damping_now = (Q @ self._damping_rest @ Q.T).tocsr()
 
     def _potential(self, x: np.ndarray) -> float:
         energy = self.elastic.energy(self.full_displacement(x).reshape(-1))
@@ -378,6 +404,11 @@ class FullSpaceSimulator:
         self.target_coefficients = c_star
         self._b = self._k_ex * (self._mass_target @ c_star)
 
+    def _init_rigid_fit(self) -> None:
+        self._scalar_mass = sp.csr_matrix(self.mass[0::3, 0::3])
+        rigid = rigid_body_modes(self.mesh.points, self.mass)  # (3n, 6), M-orthonormal
+        self._rigid_modes = (rigid, np.asarray(self.mass @ rigid))
+
     def _update_free_target(self, u: np.ndarray) -> None:
         """Free body: the shape is compared in the best-fitting rigid frame.
 
@@ -393,9 +424,7 @@ class FullSpaceSimulator:
         """
         n = self.n_vertices
         if not hasattr(self, "_scalar_mass"):
-            self._scalar_mass = sp.csr_matrix(self.mass[0::3, 0::3])
-            rigid = rigid_body_modes(self.mesh.points, self.mass)  # (3n, 6), M-orthonormal
-            self._rigid_modes = (rigid, np.asarray(self.mass @ rigid))
+            self._init_rigid_fit()
         rest = self.mesh.points
         x = rest + u.reshape(n, 3)
         center, R, body = best_rigid_frame(self._scalar_mass, rest, x)
@@ -448,6 +477,8 @@ class FullSpaceSimulator:
                 if self._k_ex:
                     self._update_target_at_step()
                 interpolated = time.perf_counter()
+                if self._corotated_beta:
+                    self._corotate()
                 info = self.stepper.step()
             except SolverError as exc:
                 log.error("full-space simulation stopped: %s", exc)

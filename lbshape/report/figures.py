@@ -8,8 +8,8 @@
 * :func:`figure3` — the paper's Figure 3: rest; no examples, same-topology examples
   and other-topology examples in full space; other-topology examples reduced — the
   final frame of each;
-* :func:`figure5` — the paper's Figure 5: a free body with no example and with each
-  example alone, the runs in rows, a few times in columns;
+* :func:`figure5` — the paper's Figures 4 and 5: a free body with no example and with
+  each example alone, the runs in rows, a few times in columns (``runs_by_example.png``);
 * :func:`render_scene` — all of the above that a scene supports, into one folder.
 
 Numbers behind each composite picture go to a JSON file next to it. Nothing here
@@ -350,7 +350,8 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
     if pre.has_examples:
         paths.extend(examples_figures(scene, pre, out))
     if pre.has_examples and scene.is_free:
-        paths.append(figure5(scene, out / "figure5.png", steps=steps, progress=progress).path)
+        paths.append(figure5(scene, out / "runs_by_example.png", steps=steps,
+                             progress=progress).path)
     summary = write_json_atomic(out / "summary.json", {
         "scene": scene.name, "simulation": output.stats, "message": output.message,
         "pictures": [p.name for p in paths],

@@ -1,0 +1,122 @@
+"""Free-body scenes: the [initial] table, the built-in free scenes, planes in every method."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.errors import LbshapeError
+from lbshape.pipeline.precompute import precompute, stage_names
+from lbshape.pipeline.simulate import METHODS, simulate
+from lbshape.report.bench import trajectory_error
+from lbshape.scene import load_scene
+from lbshape.scene.reader import scene_from_dict
+
+FREE = {
+    "name": "free-bar",
+    "object": {"shape": "demo-bar"},
+    "material": {"young": 1e6, "density": 1000.0},
+    "damping": {"beta": 0.005},
+    "reduced": {"m": 4, "r": 8, "s": 20},
+    "initial": {"velocity": [0.0, 0.0, -1.0], "angular_velocity": [0.0, 0.0, 0.3]},
+    "loads": [{"type": "gravity", "vector": [0.0, 0.0, -9.81]}],
+    "planes": [{"point": [0.0, 0.0, -0.1], "normal": [0.0, 0.0, 1.0], "stiffness": 1e5}],
+    "simulation": {"dt": 0.002, "steps": 600},
+}
+
+
+def _scene(**changes):
+    data = {**FREE, **changes}
+    return scene_from_dict({k: v for k, v in data.items() if v is not None}, name="free-bar")
+
+
+def test_initial_table_is_validated():
+    scene = _scene()
+    assert scene.is_free and scene.initial.velocity == (0.0, 0.0, -1.0)
+    assert scene.initial.angular_velocity == (0.0, 0.0, 0.3)
+    assert _scene(initial=None).initial.velocity == (0.0, 0.0, 0.0)
+    assert scene.runtime_fields()["initial"]["angular_velocity"] == [0.0, 0.0, 0.3]
+    cases = [
+        ({"fixed": {"region": "z > 0.999"}}, "'[initial]' applies to free bodies only"),
+        ({"initial": {"velocity": [1.0, 2.0]}}, "'initial.velocity' must be a list of 3"),
+        ({"initial": {"angular_velocity": [1.0, True, 0.0]}}, "'initial.angular_velocity'"),
+        ({"initial": {"spin": [0.0, 0.0, 1.0]}}, "unknown key 'initial.spin'"),
+        ({"initial": {"velocity": [float("nan"), 0.0, 0.0]}}, "must be finite"),
+    ]
+    for change, words in cases:
+        with pytest.raises(LbshapeError) as failure:
+            _scene(**change)
+        message = str(failure.value)
+        assert words in message and "\n" not in message, message
+
+
+def test_builtin_free_scenes():
+    expected = {"car": (6, 20, 23, 3), "bar-s-cuboid": (10, 30, 60, 1),
+                "bar-s-cylinder": (10, 30, 60, 1)}
+    for name, (m, r, s, examples) in expected.items():
+        scene = load_scene(name)
+        assert scene.is_free and scene.has_contact and scene.has_examples, name
+        assert (scene.reduced.m, scene.reduced.r, scene.reduced.s) == (m, r, s), name
+        assert len(scene.examples.poses) == examples, name
+        assert scene.damping.alpha == 0.0, name  # rigid motion is never damped
+        assert "frame" in stage_names(scene)
+    car = load_scene("car")
+    assert {p.pose for p in car.examples.poses} == {"arc", "s-bend", "twist"}
+    assert car.initial.velocity[0] > 0 and any(p.normal[0] < 0 for p in car.planes)
+    assert load_scene("bar-s-cylinder").examples.poses[0].source.shape == "bar-cylinder"
+
+
+@pytest.fixture(scope="module")
+def dropped():
+    """A free coarse bar thrown down onto a floor by every method (no examples)."""
+    scene = _scene()
+    pre = precompute(scene)
+    return scene, pre, {method: simulate(scene, pre, method=method) for method in METHODS}
+
+
+def test_free_precompute_has_a_rigid_free_basis(dropped):
+    _, pre, _ = dropped
+    assert pre.frame is not None
+    assert np.abs(pre.frame.translation).max() <= 1e-6 * np.sqrt(pre.frame.mass)
+    np.testing.assert_allclose(pre.frame.mass, pre.material.density * pre.mesh.volume(),
+                               rtol=1e-12)
+
+
+def test_planes_act_in_every_method(dropped):
+    """No method ignores the floor: the bar lands, never sinks through, and rests with a
+    penetration bounded by weight / stiffness; the reduced run follows the full one."""
+    scene, pre, outputs = dropped
+    floor = scene.planes[0]
+    weight = pre.material.density * pre.mesh.volume() * 9.81
+    for method, output in outputs.items():
+        assert output.stats["stable"], (method, output.message)
+        z = pre.mesh.points[:, 2] + output.displacements[:, :, 2]
+        assert z.min() >= floor.point[2] - 0.05, method  # impact: less than a quarter width
+        assert z[-1].min() >= floor.point[2] - weight / floor.stiffness, method
+        assert z[-1].min() <= floor.point[2] + 1e-3, method  # it did reach the floor
+    # free flight until the first contact (t < 0.08 s): the same rigid motion
+    mass = mass_matrix(pre.mesh, pre.material.density)
+    full, reduced = outputs["full"], outputs["reduced"]
+    flight = np.flatnonzero(full.times < 0.08)
+    error = trajectory_error(reduced.displacements[flight], full.displacements[flight], mass,
+                             times=reduced.times[flight], times_full=full.times[flight])
+    assert error <= 1e-3, error
+    # both come to rest on the floor: the same height of the centre of mass
+    heights = [float(np.mean(pre.mesh.points[:, 2] + out.displacements[-1, :, 2]))
+               for out in (reduced, full)]
+    assert abs(heights[0] - heights[1]) <= 5e-3, heights
+    breakdown = outputs["reduced"].breakdown
+    assert set(breakdown) == {"interp", "rigid", "contact", "solve"}
+    assert all(value >= 0 for value in breakdown.values())
+
+
+def test_without_planes_the_bar_falls_through(dropped):
+    scene, pre, _ = dropped
+    output = simulate(dataclasses.replace(scene, planes=()), pre, method="reduced")
+    t = output.times[-1]
+    fall = 1.0 * t + 0.5 * 9.81 * t**2
+    com = output.displacements[-1].mean(axis=0)
+    assert com[2] == pytest.approx(-fall, rel=1e-2)
