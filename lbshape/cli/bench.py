@@ -51,6 +51,10 @@ def run(args) -> int:
             print(f"bench {row['scene']} [{row['method']}]: t_interp {row['t_interp_ms']:.3f} ms, "
                   f"t_total {row['t_total_ms']:.3f} ms per step, error vs full "
                   f"{'—' if error is None else f'{error:.2%}'}")
+        for result in results:
+            if result.breakdown:
+                parts = ", ".join(f"{name} {ms:.3f} ms" for name, ms in result.breakdown.items())
+                print(f"bench {result.scene} [reduced]: step by part: {parts}")
         print(f"bench: {md} and {js}")
     failed = [f"{r.scene} {t.method}: {t.message}" for r in results for t in r.timings
               if not t.stable]

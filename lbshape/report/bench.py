@@ -162,6 +162,8 @@ class SceneBenchmark:
         rows: one dict per method with exactly the keys :data:`ROW_KEYS`
             (times: medians over repeats; ``error_vs_full`` None when undefined).
         timings: the spread of the times, one per method (same order as ``rows``).
+        breakdown: a free body's reduced step by part, mean ms per step of the first
+            ``reduced`` run (``interp``, ``rigid``, ``contact``, ``solve``); empty otherwise.
     """
 
     scene: str
@@ -171,6 +173,7 @@ class SceneBenchmark:
     warmup: int
     rows: tuple[dict, ...]
     timings: tuple[MethodTiming, ...]
+    breakdown: dict = dataclasses.field(default_factory=dict)
 
     def row(self, method: str) -> dict | None:
         """The row of ``method`` (None if it was not run)."""
@@ -244,8 +247,10 @@ def bench_scene(
              error=_error_vs_full(outputs[timing.method], outputs.get("full"), mass))
         for timing in timings
     )
+    reduced = outputs.get("reduced")
+    breakdown = dict(reduced.breakdown) if reduced is not None else {}
     return SceneBenchmark(scene.name, float(scene.simulation.dt), steps, repeats, WARMUP_STEPS,
-                          rows, timings)
+                          rows, timings, breakdown)
 
 
 def _run_interleaved(scene, pre, methods: tuple[str, ...], *, steps: int, repeats: int):

@@ -143,10 +143,26 @@ def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
               "| model | method | repeats | t_interp | t_total | stable |",
               "|---|---|---|---|---|---|"]
     lines += [row for result in results for row in _spread_rows(result)]
+    lines += _breakdown_lines(results)
     lines += ["", "## Conditions", "", *_conditions(results, machine)]
     lines += ["", "## Targets (reported, not enforced)", ""]
     lines += [line for result in results for line in _targets(result)]
     return "\n".join(lines) + "\n"
+
+
+def _breakdown_lines(results: Sequence[SceneBenchmark]) -> list[str]:
+    """The reduced free-body step by part (ms per step), for scenes that have it."""
+    rows = [r for r in results if r.breakdown]
+    if not rows:
+        return []
+    lines = ["", "## Reduced step of a free body, by part (mean ms per step after warm-up)", "",
+             "| model | interpolation | rigid update | contact | deformation solve |",
+             "|---|---|---|---|---|"]
+    for result in rows:
+        b = result.breakdown
+        lines.append(f"| {result.scene} | {b['interp']:.3f} | {b['rigid']:.3f} | "
+                     f"{b['contact']:.3f} | {b['solve']:.3f} |")
+    return lines
 
 
 def table2_payload(results: Sequence[SceneBenchmark], machine: dict) -> dict:
@@ -164,6 +180,8 @@ def table2_payload(results: Sequence[SceneBenchmark], machine: dict) -> dict:
              "repeats": result.repeats, "warmup_steps": result.warmup}
             for result in results
         ],
+        "breakdown": [{"scene": result.scene, **result.breakdown}
+                      for result in results if result.breakdown],
         "machine": machine,
     }
 
