@@ -13,9 +13,11 @@ reaches a plane):
    :mod:`lbshape.dynamics.reduced`);
 2. **rigid update**: loads (force and torque about c, world) and contact at t₀;
    the generalized rigid velocity ν = (v, ω_world) takes the linearly implicit
-   kick ``(M₆ + Δt² K₆) Δν = Δt F₆ − Δt² K₆ ν₀`` (``M₆ = diag(m I, R I(q) Rᵀ)``,
-   K₆ the contact stiffness: stable for any penalty stiffness), which changes p and
-   L by ``M₆ Δν``; then ``c₁ = c₀ + Δt (v₀ + v₁)/2`` (exact for a ballistic throw) and
+   θ-kick ``(M₆ + θ² Δt² K₆) Δν = Δt F₆ − θ Δt² K₆ ν₀`` (``M₆ = diag(m I, R I(q) Rᵀ)``,
+   K₆ the contact stiffness; θ = ½, trapezoidal and conservative, while the contact
+   frequency is resolved, up to θ = 1, backward Euler, when it is not:
+   :func:`contact_theta`; stable for any penalty stiffness), which changes p and L
+   by ``M₆ Δν``; then ``c₁ = c₀ + Δt (v₀ + v₁)/2`` (exact for a ballistic throw) and
    the torque-free Cayley–midpoint rotation
    (:func:`~lbshape.dynamics.rigid_frame.rotate`) with I(q₀) and h(q₀, q̇₀);
 3. **contact**: the planes' penalty forces on the deformation, implicit in q at
@@ -330,8 +332,9 @@ class FreeBodySimulation:
             M6[:3, :3] = m * np.eye(3)
             M6[3:, 3:] = inertia_world
             nu0 = np.concatenate([v0, R0 @ omega0])
-            rhs = dt * np.concatenate([force, torque]) - dt * dt * (K6 @ nu0)
-            impulse = M6 @ np.linalg.solve(M6 + dt * dt * K6, rhs)
+            theta = contact_theta(M6, K6, dt)
+            rhs = dt * np.concatenate([force, torque]) - theta * dt * dt * (K6 @ nu0)
+            impulse = M6 @ np.linalg.solve(M6 + theta * theta * dt * dt * K6, rhs)
             dp, dL = impulse[:3], impulse[3:]
         p1 = rigid.momentum + dp
         c1 = rigid.center + 0.5 * dt * (rigid.momentum + p1) / m
@@ -487,6 +490,18 @@ class FreeBodySimulation:
             body_points=(None if self.rest_points is None
                          else self.rest_points - self.frame.center),
         )
+
+
+def contact_theta(mass6: np.ndarray, stiffness6: np.ndarray, dt: float) -> float:
+    """θ of the rigid contact kick: ½ (trapezoidal, conservative) while the stiffest
+    contact frequency is resolved (ω_c Δt ≤ ½), 1 (backward Euler, L-stable, damps the
+    unresolved contact oscillation) from ω_c Δt ≥ 3/2, linear in between.
+
+    ω_c² is the largest eigenvalue of ``K₆ v = ω² M₆ v`` (6 × 6).
+    """
+    omega2 = float(sla.eigh(stiffness6, mass6, eigvals_only=True).max())
+    resolved = math.sqrt(max(omega2, 0.0)) * dt
+    return 0.5 + 0.5 * float(np.clip(resolved - 0.5, 0.0, 1.0))
 
 
 def _norm(vector: np.ndarray) -> float:

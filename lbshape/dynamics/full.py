@@ -71,7 +71,7 @@ from lbshape.dynamics.contact import ContactPlane, surface_vertices
 from lbshape.dynamics.integrators import make_stepper
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.record import RunRecord, RunRecorder
-from lbshape.dynamics.rigid_frame import best_rigid_frame
+from lbshape.dynamics.rigid_frame import best_rigid_frame, cayley
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.modes import rigid_body_modes
@@ -420,7 +420,9 @@ class FullSpaceSimulator:
         shape ``L c*`` loses its rigid content (M-orthogonal projection on the rest
         shape's rigid motions, as the projection on U does in the reduced method) and
         the target world displacement ``c + R (X̄ + Π L c*) − X`` is pulled towards by
-        k_ex M.
+        k_ex M, with c and R carried to the end of the step by the body's rigid velocity
+        (the pull is held fixed in the implicit step: a frame lagging by one step
+        would brake a moving body by ``k_ex m v Δt``).
         """
         n = self.n_vertices
         if not hasattr(self, "_scalar_mass"):
@@ -437,6 +439,18 @@ class FullSpaceSimulator:
         rigid, mass_rigid = self._rigid_modes
         shape = shape - rigid @ (mass_rigid.T @ shape)  # no rigid content, as U in reduced
         target_body = Xbar + shape.reshape(n, 3)
+        # the pull acts at the end of the step: carry the frame along with the body's
+        # rigid velocity (centre-of-mass velocity, ω = I⁻¹ L), else it drags the body
+        v = self.stepper.v.reshape(n, 3) if self.stepper.v.size == 3 * n else None
+        if v is not None:
+            arm = x - center
+            Mv = np.asarray(self._scalar_mass @ v)
+            mass_total = float(self._scalar_mass.sum())
+            Y = arm.T @ np.asarray(self._scalar_mass @ arm)
+            inertia = np.trace(Y) * np.eye(3) - Y
+            omega = np.linalg.solve(inertia, np.cross(arm, Mv).sum(axis=0))
+            center = center + self.stepper.dt * Mv.sum(axis=0) / mass_total
+            R = cayley(self.stepper.dt * omega) @ R
         target = (center + target_body @ R.T - rest).ravel()
         self._b = self._k_ex * (self.mass @ target)
 
