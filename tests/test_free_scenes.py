@@ -9,9 +9,12 @@ import pytest
 
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
+from lbshape.geometry.primitives import structured_box
 from lbshape.pipeline.precompute import precompute, stage_names
 from lbshape.pipeline.simulate import METHODS, simulate
 from lbshape.report.bench import trajectory_error
+from lbshape.report.figures import figure5
+from lbshape.report.render import render_shape_grid
 from lbshape.scene import load_scene
 from lbshape.scene.reader import scene_from_dict
 
@@ -120,3 +123,18 @@ def test_without_planes_the_bar_falls_through(dropped):
     fall = 1.0 * t + 0.5 * 9.81 * t**2
     com = output.displacements[-1].mean(axis=0)
     assert com[2] == pytest.approx(-fall, rel=1e-2)
+
+
+def test_shape_grid_renders_planes(tmp_path):
+    box = structured_box((0.2, 0.2, 0.4), (1, 1, 2))
+    values = [np.linalg.norm(box.points, axis=1)] * 2
+    path = render_shape_grid([[box, box], [box, box]], [["a", "b"], ["c", "d"]],
+                             tmp_path / "grid.png", scalars=[values, values],
+                             planes=[(np.zeros(3), np.array([0.0, 0.0, 1.0]))])
+    assert path.is_file() and path.stat().st_size > 1000
+
+
+def test_figure5_needs_a_free_body_with_examples(tmp_path):
+    with pytest.raises(LbshapeError, match="free body with examples"):
+        figure5(load_scene("demo"), tmp_path / "f.png")
+    assert not (tmp_path / "f.png").exists()

@@ -311,7 +311,7 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
                    for b in body[1:]]
     planes = [(np.asarray(p.point), np.asarray(p.normal)) for p in scene.planes]
     path = render_shape_grid(rows, labels, path, scalars=scalars, planes=planes,
-                             view_vector=(0.3, -1.0, 0.35), zoom=1.7,
+                             view_vector=(0.3, -1.0, 0.35), zoom=1.3,
                              scalar_name="deformation (m)")
     result = Figure5(Path(path), tuple(n for n, _ in variants), tuple(world),
                      tuple(deformation), tuple(messages))
