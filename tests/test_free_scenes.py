@@ -138,3 +138,23 @@ def test_figure5_needs_a_free_body_with_examples(tmp_path):
     with pytest.raises(LbshapeError, match="free body with examples"):
         figure5(load_scene("demo"), tmp_path / "f.png")
     assert not (tmp_path / "f.png").exists()
+
+
+def test_planes_act_on_a_fixed_object_in_every_method():
+    """A hanging bar sags under gravity onto a plane 1 mm under its lower end."""
+    scene = _scene(initial=None, fixed={"region": "z > 0.999"},
+                   material={"young": 2e4, "density": 1000.0},
+                   planes=[{"point": [0.0, 0.0, -0.001], "normal": [0.0, 0.0, 1.0],
+                            "stiffness": 1e5}],
+                   simulation={"dt": 0.002, "steps": 150}, damping={"alpha": 5.0})
+    pre = precompute(scene)
+    sags = {}
+    for method in METHODS:
+        for planes in (scene.planes, ()):
+            output = simulate(dataclasses.replace(scene, planes=planes), pre, method=method)
+            assert output.stats["stable"], (method, output.message)
+            low = float((pre.mesh.points[:, 2] + output.displacements[-1, :, 2]).min())
+            sags[method, bool(planes)] = low
+    for method in METHODS:
+        assert sags[method, False] < -0.005, (method, sags)  # free sag: well past the plane
+        assert sags[method, True] >= -0.001 - 1e-3, (method, sags)  # the plane holds it
