@@ -1,6 +1,7 @@
 """From a scene to results: its meshes, the cached precompute, target routes, running a method."""
 
 __all__ = [
+    "batch",
     "meshes",
     "precompute",
     "routes",
