@@ -1,10 +1,12 @@
 """What a reader looks at: benchmarks, tables, figures, off-screen renders and the demo job."""
 
 __all__ = [
+    "animation",
     "bench",
     "demo",
     "figures",
     "machine",
+    "movie",
     "plots",
     "render",
     "tables",

@@ -147,3 +147,78 @@ def render_shapes(
         plotter.view_vector(view_vector)
     plotter.link_views()
     return _save(plotter, Path(path))
+
+
+def render_animation(
+    mesh: TetMesh,
+    displacements: Sequence[np.ndarray],
+    labels: Sequence[str],
+    times: np.ndarray,
+    *,
+    panel_size: tuple[int, int] = (360, 420),
+    view_vector: tuple[float, float, float] = (1.0, -1.0, 0.5),
+    scalar_name: str = "|u| (m)",
+    progress: bool = False,
+) -> np.ndarray:
+    """Frames of deforming copies of one mesh side by side, for a movie.
+
+    Each panel shows the surface of ``mesh`` moved by its displacement sequence and
+    coloured by |u| on one colour range shared by all panels and frames; the camera
+    is fixed and frames the union of all frames' bounding boxes.
+
+    Args:
+        mesh: the rest mesh (n vertices).
+        displacements: one (k, n, 3) displacement sequence in m per panel, all with k frames.
+        labels: one caption per panel.
+        times: (k,) frame times in s (shown on the first panel).
+        panel_size: (width, height) of one panel in pixels.
+        progress: a progress bar over the frames on stderr.
+
+    Returns:
+        (k, height, panels · width, 3) uint8 RGB frames.
+    """
+    import sys
+
+    from tqdm import tqdm
+
+    pv = _pyvista()
+    fields = [np.asarray(u, dtype=float).reshape(len(times), mesh.n_vertices, 3)
+              for u in displacements]
+    k = len(times)
+    moved = np.concatenate([mesh.points[None] + u for u in fields], axis=0).reshape(-1, 3)
+    low, high = np.vstack([moved, mesh.points]).min(axis=0), np.vstack(
+        [moved, mesh.points]).max(axis=0)
+    bounds = (low[0], high[0], low[1], high[1], low[2], high[2])
+    top = max(float(np.linalg.norm(u, axis=2).max()) for u in fields) or 1.0
+    plotter = pv.Plotter(off_screen=True, shape=(1, len(fields)), border=False,
+                         window_size=(panel_size[0] * len(fields), panel_size[1]))
+    surfaces, ids = [], None
+    for panel, label in enumerate(labels):
+        plotter.subplot(0, panel)
+        surface = to_grid(mesh, {scalar_name: np.zeros(mesh.n_vertices)}).extract_surface(
+            algorithm="dataset_surface")
+        ids = np.asarray(surface.point_data["vtkOriginalPointIds"])
+        plotter.add_mesh(surface, scalars=scalar_name, cmap="viridis", clim=(0.0, top),
+                         show_edges=True, edge_color="#333333", line_width=0.3,
+                         show_scalar_bar=False)
+        plotter.add_text(label, font_size=10)
+        plotter.view_vector(view_vector)
+        plotter.reset_camera(bounds=bounds)
+        surfaces.append(surface)
+    plotter.subplot(0, len(fields) - 1)
+    plotter.add_text(f"colour: {scalar_name} 0 (dark) to {top:.3g} (yellow)",
+                     position="lower_right", font_size=8)
+    plotter.subplot(0, 0)
+    out = np.empty((k, panel_size[1], panel_size[0] * len(fields), 3), dtype=np.uint8)
+    try:
+        for i in tqdm(range(k), desc="frames", disable=not progress, file=sys.stderr):
+            for surface, u in zip(surfaces, fields, strict=True):
+                surface.points = mesh.points[ids] + u[i][ids]
+                surface.point_data[scalar_name] = np.linalg.norm(u[i][ids], axis=1)
+            plotter.add_text(f"t = {times[i]:.3f} s", position="lower_left", font_size=9,
+                             name="time")
+            image = np.asarray(plotter.screenshot(return_img=True))[..., :3]
+            out[i] = image[:panel_size[1], :out.shape[2]]
+    finally:
+        plotter.close()
+    return out
