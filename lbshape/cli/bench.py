@@ -35,7 +35,8 @@ def register(subparsers) -> None:
     parser.add_argument("--out-dir", type=Path, default=None,
                         help="folder of table2.md and table2.json (default: results)")
     parser.add_argument("-j", "--jobs", type=int, default=1,
-                        help="worker processes for several scenes (default 1)")
+                        help="worker processes for several scenes (default 1; concurrent "
+                             "jobs share the machine's cores, which their timings include)")
     parser.set_defaults(func=run)
 
 

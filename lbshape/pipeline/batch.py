@@ -116,7 +116,7 @@ def run_jobs(job: Callable[[str], Any], scenes: Sequence[str], *, jobs: int = 1,
             :func:`functools.partial` of one) taking a scene argument.
         scenes: scene arguments (see :func:`expand_scenes`).
         jobs: worker processes; 1 runs the jobs one after the other in this process.
-        progress: a progress bar over the finished scenes on stderr (``jobs > 1``).
+        progress: a progress bar over the finished scenes on stderr.
         desc: the progress bar's label.
 
     Raises:
@@ -124,10 +124,11 @@ def run_jobs(job: Callable[[str], Any], scenes: Sequence[str], *, jobs: int = 1,
     """
     if isinstance(jobs, bool) or int(jobs) != jobs or jobs < 1:
         raise LbshapeError(f"-j/--jobs must be an integer >= 1, got {jobs}")
-    if jobs == 1 or len(scenes) <= 1:
-        return [_call(job, scene) for scene in scenes]
     from tqdm import tqdm
 
+    if jobs == 1 or len(scenes) <= 1:
+        return [_call(job, scene) for scene in tqdm(
+            scenes, desc=desc, disable=not progress or len(scenes) <= 1, file=sys.stderr)]
     results: dict[int, JobResult] = {}
     context = multiprocessing.get_context("spawn")  # no PETSc/MPI state copied by fork
     with _worker_environment(), ProcessPoolExecutor(
