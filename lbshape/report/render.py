@@ -6,11 +6,13 @@ VTK falls back from X to an off-screen context (a harmless X warning may appear)
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.io.atomic import write_atomic
 
@@ -177,14 +179,18 @@ def render_animation(
     Returns:
         (k, height, panels · width, 3) uint8 RGB frames.
     """
-    import sys
-
     from tqdm import tqdm
 
-    pv = _pyvista()
-    fields = [np.asarray(u, dtype=float).reshape(len(times), mesh.n_vertices, 3)
-              for u in displacements]
     k = len(times)
+    fields = [np.asarray(u, dtype=float) for u in displacements]
+    if not fields or len(labels) != len(fields):
+        raise LbshapeError(f"give one label per panel: {len(fields)} panels, {len(labels)} "
+                           "labels")
+    expected = (k, mesh.n_vertices, 3)
+    if k == 0 or any(u.shape != expected for u in fields):
+        raise LbshapeError(f"each panel needs displacements of shape {expected}, got "
+                           f"{[u.shape for u in fields]}")
+    pv = _pyvista()
     moved = np.concatenate([mesh.points[None] + u for u in fields], axis=0).reshape(-1, 3)
     low, high = np.vstack([moved, mesh.points]).min(axis=0), np.vstack(
         [moved, mesh.points]).max(axis=0)
@@ -192,7 +198,7 @@ def render_animation(
     top = max(float(np.linalg.norm(u, axis=2).max()) for u in fields) or 1.0
     plotter = pv.Plotter(off_screen=True, shape=(1, len(fields)), border=False,
                          window_size=(panel_size[0] * len(fields), panel_size[1]))
-    surfaces, ids = [], None
+    surfaces = []
     for panel, label in enumerate(labels):
         plotter.subplot(0, panel)
         surface = to_grid(mesh, {scalar_name: np.zeros(mesh.n_vertices)}).extract_surface(
