@@ -103,8 +103,14 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
 
 
 def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
-             steps: int | None = None, out: Path | None = None) -> SimulationOutput:
-    """Run ``scene`` with ``method`` for ``steps`` (default: the scene's) steps."""
+             steps: int | None = None, out: Path | None = None,
+             influence: bool = False) -> SimulationOutput:
+    """Run ``scene`` with ``method`` for ``steps`` (default: the scene's) steps.
+
+    With ``influence`` and a scene whose examples act (``k_ex > 0``), the same
+    scene is also run without examples and the stats gain the example influence
+    keys (:data:`lbshape.pipeline.influence.STATS_KEYS`).
+    """
     if method not in METHODS:
         raise LbshapeError(f"method must be one of {METHODS}, got {method!r}")
     steps = scene.simulation.steps if steps is None else int(steps)
@@ -137,6 +143,12 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "stable": bool(stable), "max_displacement": max_disp,
     }
     output = SimulationOutput(stats, times, frames, message)
+    if influence and stable:
+        from lbshape.pipeline.influence import example_influence, has_example_force
+
+        if has_example_force(scene, pre):
+            stats.update(example_influence(scene, pre, output, method=method,
+                                           steps=steps)[0].stats())
     if out is not None:
         write_outputs(Path(out), pre, output)
     return output
