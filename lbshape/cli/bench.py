@@ -30,8 +30,9 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from lbshape.errors import LbshapeError
     from lbshape.pipeline.simulate import WARMUP_STEPS
-    from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene, write_table2
-    from lbshape.scene.schema import load_scene
+    from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene
+    from lbshape.report.tables import write_table2
+    from lbshape.scene import load_scene
 
     if args.steps is not None and args.steps <= WARMUP_STEPS:
         raise LbshapeError(f"--steps must be > {WARMUP_STEPS} (the warm-up steps), "

@@ -13,7 +13,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from lbshape.pipeline.precompute import precompute
-    from lbshape.scene.schema import load_scene
+    from lbshape.scene import load_scene
 
     scene = load_scene(args.scene)
     pre = precompute(scene, force=args.force, progress=True)

@@ -31,7 +31,7 @@ def run(args) -> int:
         figure3,
         render_scene,
     )
-    from lbshape.scene.schema import load_scene
+    from lbshape.scene import load_scene
 
     if args.steps is not None and args.steps < 1:
         raise LbshapeError(f"--steps must be >= 1, got {args.steps}")

@@ -25,7 +25,7 @@ def run(args) -> int:
     from lbshape.errors import LbshapeError
     from lbshape.pipeline.precompute import precompute
     from lbshape.pipeline.simulate import simulate
-    from lbshape.scene.schema import load_scene
+    from lbshape.scene import load_scene
 
     if args.steps is not None and args.steps < 1:
         raise LbshapeError(f"--steps must be >= 1, got {args.steps}")

@@ -44,6 +44,7 @@ from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.io.cache import cache_key, file_digest, load_artifact, save_artifact
+from lbshape.pipeline.meshes import build_mesh, posed_example, selected_vertices
 from lbshape.scene.schema import MeshSource, Scene
 
 log = logging.getLogger(__name__)
@@ -229,9 +230,9 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
 
     material, reduced = scene.material, scene.reduced
     with stages.stage("mesh"):
-        mesh = scene.object.build()
+        mesh = build_mesh(scene.object)
         fixed = (np.empty(0, dtype=np.int64) if scene.fixed is None
-                 else scene.fixed.vertices(mesh, what="fixed region"))
+                 else selected_vertices(scene.fixed, mesh, what="fixed region"))
         _check_sizes(scene, mesh, fixed)
     count = reduced.linear_modes or default_linear_modes(reduced.r)
     with stages.stage("modes"):
@@ -278,13 +279,13 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Sta
         coefficients, alignments = [], []
         for index, pose in enumerate(scene.examples.poses):
             label = f"example {index + 1} ({_example_label(pose)})"
-            rest = pose.source.build()
+            rest = build_mesh(pose.source)
             if rest.n_vertices <= m + 1:
                 raise LbshapeError(
                     f"{label}: m={m} is too large for an example mesh with "
                     f"{rest.n_vertices} vertices"
                 )
-            posed = pose.posed(rest)
+            posed = posed_example(pose, rest)
             landmarks = np.asarray(pose.landmarks, dtype=np.int64) if pose.landmarks else None
             try:
                 embedded = embed_example(mesh, spectrum, rest, [posed.points],

@@ -1,8 +1,9 @@
 """The interpolation routes: which basis and which elements the target energies use.
 
-See :mod:`lbshape.shapespace.interpolation` for the target problem ``min_z Σ_k w_k E_k(z − z_k)``.
-The routes (:data:`ROUTES`) differ in the coordinates z, the basis B that
-maps them to displacements (metres) and the elements the energies sum over:
+See :mod:`lbshape.shapespace.interpolation` for the target problem ``min_z Σ_k w_k E_k(z − z_k)``
+and for the registry of routes (:data:`~lbshape.shapespace.interpolation.ROUTES`). The
+routes differ in the coordinates z, the basis B that maps them to displacements
+(metres) and the elements the energies sum over:
 
 * ``modal`` (the paper's): z = reduced coordinates q (r,), ``B = U`` (3n, r), the
   elastic cubature of the precompute; the examples enter through the direct
@@ -39,11 +40,9 @@ import numpy as np
 
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import Precomputed
-from lbshape.shapespace.interpolation import TargetSolver
+from lbshape.shapespace.interpolation import ROUTES, TargetSolver
 
 log = logging.getLogger(__name__)
-
-ROUTES = ("modal", "lb", "lb-exact", "euclidean")
 
 
 @dataclass(frozen=True)

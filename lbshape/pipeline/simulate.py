@@ -23,8 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from lbshape.errors import LbshapeError
+from lbshape.pipeline.meshes import selected_vertices
 from lbshape.pipeline.precompute import Precomputed
 from lbshape.scene.schema import Scene
+from lbshape.shapespace.interpolation import resolve_route
 
 log = logging.getLogger(__name__)
 
@@ -63,11 +65,11 @@ def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[tuple[np.ndarray
         if load.type == "gravity":
             pattern = gravity_pattern(mass, load.vector)
         elif load.type == "region_force":
-            pattern = region_force_pattern(mass, load.selection.vertices(mesh, what=what),
+            pattern = region_force_pattern(mass, selected_vertices(load.selection, mesh, what=what),
                                            load.vector)
         elif load.type == "region_torque":
-            pattern = region_torque_pattern(mass, mesh.points,
-                                            load.selection.vertices(mesh, what=what), load.vector)
+            pattern = region_torque_pattern(
+                mass, mesh.points, selected_vertices(load.selection, mesh, what=what), load.vector)
         else:  # the scene schema only admits the types above
             raise LbshapeError(f"unsupported load type {load.type!r}")
         patterns.append((pattern, load.profile))
@@ -92,7 +94,8 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
     if pre.has_examples and k_ex > 0:
         from lbshape.pipeline.routes import example_driver
 
-        route = (scene.reduced.route(scene.material.model) if method == "reduced"
+        route = (resolve_route(scene.reduced.interpolation, scene.material.model)
+                 if method == "reduced"
                  else "euclidean")
         driver = example_driver(pre, route=route)
     return ReducedSimulation(
@@ -162,7 +165,7 @@ def _run_full(scene: Scene, pre: Precomputed, steps: int, stride: int):
 
 def write_outputs(out: Path, pre: Precomputed, output: SimulationOutput) -> None:
     """stats.json, states.npz and the ParaView trajectory, each written atomically."""
-    from lbshape.io.atomic import write_json_atomic
+    from lbshape.io.atomic import write_json_atomic, write_npz_atomic
     from lbshape.io.trajectory import TrajectoryWriter
 
     out.mkdir(parents=True, exist_ok=True)
@@ -170,7 +173,5 @@ def write_outputs(out: Path, pre: Precomputed, output: SimulationOutput) -> None
     for t, u in zip(output.times, output.displacements, strict=True):
         writer.write(float(t), u)
     writer.close()
-    tmp = out / "states.tmp.npz"
-    np.savez(tmp, times=output.times, displacements=output.displacements)
-    tmp.replace(out / "states.npz")
+    write_npz_atomic(out / "states.npz", times=output.times, displacements=output.displacements)
     write_json_atomic(out / "stats.json", output.stats)

@@ -61,7 +61,7 @@ def simulation_figures(out: Path) -> dict:
     from lbshape.pipeline.simulate import simulate
     from lbshape.report.bench import trajectory_error
     from lbshape.report.figures import examples_figures, simulation_figure
-    from lbshape.scene.schema import load_scene
+    from lbshape.scene import load_scene
 
     scene = load_scene("demo")
     started = time.perf_counter()

@@ -26,6 +26,7 @@ import numpy as np
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import RESULTS_DIR
+from lbshape.pipeline.meshes import example_mesh
 
 log = logging.getLogger(__name__)
 
@@ -105,11 +106,6 @@ def simulation_figure(pre, output, path: str | Path, *, frames: int = 4,
     return render_shapes(meshes, labels, path, scalars=values)
 
 
-def posed_example(pose):
-    """The raw example mesh of an :class:`~lbshape.scene.schema.ExamplePose`, posed."""
-    return pose.posed(pose.source.build())
-
-
 def example_caption(index: int, pose) -> str:
     """``example k: SOURCE POSE p=v …`` for an :class:`~lbshape.scene.schema.ExamplePose`."""
     source = pose.source.shape or Path(pose.source.mesh_file).name
@@ -148,7 +144,7 @@ def examples_figures(scene, pre, out_dir: str | Path) -> tuple[Path, Path]:
                          for k in range(count))],
         scalar_name="|x_k - X| (m)",
     )
-    raw = [posed_example(pose) for pose in scene.examples.poses]
+    raw = [example_mesh(pose) for pose in scene.examples.poses]
     raw_path = render_shapes(
         raw, [f"{caption} ({mesh.n_vertices} vertices)" for caption, mesh in
               zip(captions, raw, strict=True)],
