@@ -18,8 +18,13 @@ reference for their effect. With M the consistent elastic mass (kg) and
   manifold" and 1 "as far from it as the examples are from rest".
 
 A measure is ``None`` when it is undefined: the reference never moves (division
-by zero) while the example run does. Two identical trajectories have influence 0,
-also when neither moves.
+by zero) while the example run does. Two trajectories that agree to round-off
+(:data:`ROUNDOFF` of the object's size) have influence 0, also when neither moves.
+
+Examples equal to the rest shape are not "no examples": the example force
+``k_ex (q* − q)`` with ``q* = 0`` is a spring towards rest, so under loads their
+influence is ``k_ex / (ω² + k_ex)`` for a mode of angular frequency ω (a stiffer
+object); without loads they leave the object at rest (influence 0).
 
 The twist of a bar's end (:func:`end_twist_degrees`) is the number a reader of
 the paper's Figure 3 looks for; it is reported next to the influence by the
@@ -39,6 +44,8 @@ from lbshape.pipeline.precompute import Precomputed
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.interpolation import simplex_weights
 
+#: M-norm differences below ROUNDOFF × sqrt(mass) × bounding-box diagonal count as none
+ROUNDOFF = 1e-12
 #: the stats keys this module adds to a run's ``stats.json``
 STATS_KEYS: tuple[str, ...] = (
     "example_influence", "example_influence_max", "example_residual", "example_residual_none",
@@ -78,20 +85,21 @@ def mass_norms(u: np.ndarray, mass) -> np.ndarray:
     return np.sqrt(np.maximum(squares, 0.0))
 
 
-def _ratio(numerator: float, denominator: float) -> float | None:
-    if numerator == 0.0:
+def _ratio(numerator: float, denominator: float, atol: float) -> float | None:
+    if numerator <= atol:
         return 0.0
     return numerator / denominator if denominator > 0.0 else None
 
 
-def trajectory_influence(u_ex: np.ndarray, u_none: np.ndarray, mass) -> tuple[float | None,
-                                                                              float | None]:
+def trajectory_influence(u_ex: np.ndarray, u_none: np.ndarray, mass, *, atol: float = 0.0
+                         ) -> tuple[float | None, float | None]:
     """``(final, maximum)`` influence of two trajectories sampled at the same times.
 
     Args:
         u_ex: (k, n, 3) displacements with examples (m).
         u_none: (k, n, 3) displacements without examples (m).
         mass: (3n, 3n) consistent mass (kg).
+        atol: M-norm differences (m·kg^½) up to ``atol`` count as none (influence 0).
     """
     u_ex, u_none = np.asarray(u_ex, dtype=float), np.asarray(u_none, dtype=float)
     if u_ex.shape != u_none.shape or u_ex.shape[0] == 0:
@@ -99,8 +107,8 @@ def trajectory_influence(u_ex: np.ndarray, u_none: np.ndarray, mass) -> tuple[fl
                            f"and {u_none.shape}")
     difference = mass_norms(u_ex - u_none, mass)
     reference = mass_norms(u_none, mass)
-    return (_ratio(float(difference[-1]), float(reference[-1])),
-            _ratio(float(difference.max()), float(reference.max())))
+    return (_ratio(float(difference[-1]), float(reference[-1]), atol),
+            _ratio(float(difference.max()), float(reference.max()), atol))
 
 
 def descriptor(pre: Precomputed, u: np.ndarray) -> np.ndarray:
@@ -156,7 +164,11 @@ def compare_runs(pre: Precomputed, with_ex, without, mass=None) -> Influence:
         raise LbshapeError("the runs with and without examples are sampled differently "
                            "(a run stopped early?)")
     mass = mass_matrix(pre.mesh, pre.material.density) if mass is None else mass
-    final, maximum = trajectory_influence(with_ex.displacements, without.displacements, mass)
+    points = pre.mesh.points
+    size = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    atol = ROUNDOFF * size * math.sqrt(float(mass.sum()) / 3.0)
+    final, maximum = trajectory_influence(with_ex.displacements, without.displacements, mass,
+                                          atol=atol)
     residual = residual_none = None
     if pre.has_examples:
         residual = manifold_residual(pre, with_ex.displacements[-1])
