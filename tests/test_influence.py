@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from lbshape.dynamics.loads import TimeProfile
-from lbshape.dynamics.reduced import ReducedLoad, ReducedSimulation
+from lbshape.dynamics.loads import TimedLoad, TimeProfile
+from lbshape.dynamics.reduced import ReducedSimulation
 from lbshape.geometry.poses import twist
 from lbshape.geometry.primitives import structured_box
 from lbshape.pipeline.influence import (
@@ -16,14 +16,13 @@ from lbshape.pipeline.influence import (
     compare_runs,
     descriptor,
     end_twist_degrees,
-    example_influence,
     manifold_residual,
     trajectory_influence,
     with_stiffness,
     without_examples,
 )
 from lbshape.pipeline.precompute import precompute
-from lbshape.pipeline.simulate import simulate
+from lbshape.pipeline.simulate import example_influence, simulate
 from lbshape.scene import load_scene
 
 
@@ -79,7 +78,7 @@ class _RestTarget:
 def _settled(k_ex, *, omega2=(400.0, 900.0), steps=1500):
     force = np.array([1.0, -2.0])
     sim = ReducedSimulation(
-        _Linear(omega2), r=2, dt=2e-3, alpha=80.0, loads=[ReducedLoad(force, TimeProfile())],
+        _Linear(omega2), r=2, dt=2e-3, alpha=80.0, loads=[TimedLoad(force, TimeProfile())],
         driver=_RestTarget(2) if k_ex else None, k_ex=k_ex)
     return np.asarray(sim.run(steps).states)
 

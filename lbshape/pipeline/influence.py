@@ -1,8 +1,9 @@
 """How much a scene's examples change its motion: the example influence and the eq. 5 residual.
 
 Whenever a scene has examples (and ``k_ex > 0``), the same scene run **without**
-examples (``k_ex = 0``, same method, same steps, same precompute) is the
-reference for their effect. With M the consistent elastic mass (kg) and
+examples (``k_ex = 0``, same method, same steps, same precompute; run by
+:func:`lbshape.pipeline.simulate.example_influence`) is the reference for their
+effect. With M the consistent elastic mass (kg) and
 ``u_ex(t)``, ``u_none(t)`` (n, 3) the sampled displacements (m):
 
 * ``example_influence = ‖u_ex(T) − u_none(T)‖_M / ‖u_none(T)‖_M`` at the last
@@ -39,6 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import Precomputed
 from lbshape.scene.schema import Scene
@@ -113,8 +115,6 @@ def trajectory_influence(u_ex: np.ndarray, u_none: np.ndarray, mass, *, atol: fl
 
 def descriptor(pre: Precomputed, u: np.ndarray) -> np.ndarray:
     """(3m,) LB descriptor ``λ ⊙ (Φᵀ M₁ u)`` of a displacement u (n, 3) in m (row-major, 3i + c)."""
-    from lbshape.elastic.element_kernels import mass_matrix
-
     volume_mass = mass_matrix(pre.mesh, 1.0)[0::3, 0::3]  # M₁ (n, n), m³
     coefficients = np.asarray(pre.eigenvectors.T @ (volume_mass @ np.asarray(u).reshape(-1, 3)))
     return coefficients.reshape(-1) * np.repeat(pre.eigenvalues, 3)
@@ -157,8 +157,6 @@ def with_stiffness(scene: Scene, stiffness: float) -> Scene:
 
 def compare_runs(pre: Precomputed, with_ex, without, mass=None) -> Influence:
     """The :class:`Influence` of two finished runs (``SimulationOutput``) of one scene."""
-    from lbshape.elastic.element_kernels import mass_matrix
-
     if with_ex.displacements.shape != without.displacements.shape or not np.allclose(
             with_ex.times, without.times):
         raise LbshapeError("the runs with and without examples are sampled differently "
@@ -174,35 +172,6 @@ def compare_runs(pre: Precomputed, with_ex, without, mass=None) -> Influence:
         residual = manifold_residual(pre, with_ex.displacements[-1])
         residual_none = manifold_residual(pre, without.displacements[-1])
     return Influence(final, maximum, residual, residual_none)
-
-
-def example_influence(scene: Scene, pre: Precomputed, output, *, method: str,
-                      steps: int | None = None) -> tuple[Influence, object]:
-    """Run ``scene`` without examples and compare with ``output`` (its run with examples).
-
-    Args:
-        scene: the scene (with examples and ``k_ex > 0``).
-        pre: its precompute (shared by both runs).
-        output: the run with examples (a :class:`~lbshape.pipeline.simulate.SimulationOutput`).
-        method: the method of ``output`` (the reference uses the same).
-        steps: the steps of ``output`` (default: the scene's).
-
-    Returns:
-        ``(influence, reference output)``.
-
-    Raises:
-        LbshapeError: no example force in the scene, or a run that stopped early.
-    """
-    from lbshape.pipeline.simulate import simulate
-
-    if not has_example_force(scene, pre):
-        raise LbshapeError(f"scene {scene.name} has no example force to measure")
-    reference = simulate(without_examples(scene), pre, method=method, steps=steps,
-                         influence=False)
-    if output.message or reference.message:
-        raise LbshapeError(f"example influence of {scene.name} ({method}): a run stopped: "
-                           f"{output.message or reference.message}")
-    return compare_runs(pre, output, reference), reference
 
 
 def end_twist_degrees(points: np.ndarray, u: np.ndarray, *, axis: int = 2,

@@ -40,12 +40,21 @@ from pathlib import Path
 import numpy as np
 
 from lbshape import __version__
+from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
+from lbshape.elastic.cubature import inverse_frequency_scales, train_cubature
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.materials import Material
+from lbshape.elastic.modal_derivatives import modal_derivatives
+from lbshape.elastic.modes import linear_modes
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.shapes import MESHES_DIR, get_shape
 from lbshape.io.cache import cache_key, file_digest, load_artifact, save_artifact
 from lbshape.pipeline.meshes import build_mesh, posed_example, selected_vertices
 from lbshape.scene.schema import MeshSource, Scene
+from lbshape.shapespace.frames import body_frame
+from lbshape.shapespace.projections import block_eigenfunctions, embed_example, make_shape_space
+from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
 
@@ -153,8 +162,6 @@ def _source_digest(source: MeshSource) -> dict:
     """The mesh source's key plus the digest of the gmsh script behind a shape."""
     key = dict(source.key())
     if source.shape is not None:
-        from lbshape.geometry.shapes import MESHES_DIR, get_shape
-
         spec = get_shape(source.shape)
         key["script_sha256"] = file_digest(MESHES_DIR / spec.script)
         key["size_used"] = source.size if source.size is not None else spec.default_size
@@ -223,11 +230,6 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False) -> 
 
 
 def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
-    from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
-    from lbshape.elastic.cubature import inverse_frequency_scales, train_cubature
-    from lbshape.elastic.modal_derivatives import modal_derivatives
-    from lbshape.elastic.modes import linear_modes
-
     material, reduced = scene.material, scene.reduced
     with stages.stage("mesh"):
         mesh = build_mesh(scene.object)
@@ -240,8 +242,6 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
     with stages.stage("derivatives"):
         derivatives = modal_derivatives(mesh, material, modes)
     with stages.stage("basis"):
-        from lbshape.elastic.element_kernels import mass_matrix
-
         mass = mass_matrix(mesh, material.density)
         basis = nonlinear_basis(modes, derivatives, mass, reduced.r)
         U = basis.U
@@ -267,10 +267,6 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
 
 
 def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Stages) -> dict:
-    from lbshape.shapespace.frames import body_frame
-    from lbshape.shapespace.projections import embed_example, make_shape_space
-    from lbshape.spectral.spectrum import lb_spectrum
-
     m = scene.reduced.m
     with stages.stage("lb"):
         spectrum = lb_spectrum(mesh, m)
@@ -314,9 +310,6 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Sta
 
 def _train_lb_cubature(scene: Scene, mesh: TetMesh, spectrum, example_coefficients):
     """Cubature for the basis ``L = Φ ⊗ I₃``, training poses as large as the examples."""
-    from lbshape.elastic.cubature import inverse_frequency_scales, train_cubature
-    from lbshape.shapespace.projections import block_eigenfunctions
-
     L = block_eigenfunctions(spectrum.eigenvectors).toarray()
     size = float(np.ptp(mesh.points, axis=0).max())
     k = example_coefficients.shape[0]

@@ -24,9 +24,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.paths import RESULTS_DIR
+from lbshape.pipeline.influence import has_example_force
 from lbshape.pipeline.meshes import build_mesh
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulate import METHODS, WARMUP_STEPS, example_influence, simulate
 
 log = logging.getLogger(__name__)
 
@@ -187,8 +191,6 @@ def example_vertex_count(scene) -> int:
 
 
 def _check_methods(methods: Sequence[str]) -> tuple[str, ...]:
-    from lbshape.pipeline.simulate import METHODS
-
     methods = tuple(methods)
     if not methods:
         raise LbshapeError("give at least one method")
@@ -201,8 +203,6 @@ def _check_methods(methods: Sequence[str]) -> tuple[str, ...]:
 
 
 def _check_steps_repeats(steps: int, repeats: int) -> None:
-    from lbshape.pipeline.simulate import WARMUP_STEPS
-
     if isinstance(steps, bool) or int(steps) != steps or steps <= WARMUP_STEPS:
         raise LbshapeError(
             f"steps must be an integer > {WARMUP_STEPS} (the warm-up steps left out of the "
@@ -239,10 +239,6 @@ def bench_scene(
         The :class:`SceneBenchmark`. A run that stops on a solver failure is kept
         (``stable`` False in its timing, ``error_vs_full`` None) and logged.
     """
-    from lbshape.elastic.element_kernels import mass_matrix
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import WARMUP_STEPS
-
     methods = _check_methods(methods)
     steps = scene.simulation.steps if steps is None else steps
     _check_steps_repeats(steps, repeats)
@@ -264,8 +260,6 @@ def bench_scene(
 
 def _influence(scene, pre, outputs: dict, *, steps: int) -> tuple[tuple[str, dict], ...]:
     """Example influence of the finished ``reduced`` and ``full`` runs (stable ones only)."""
-    from lbshape.pipeline.influence import example_influence, has_example_force
-
     if not has_example_force(scene, pre):
         return ()
     effects = []
@@ -288,8 +282,6 @@ def _run_interleaved(scene, pre, methods: tuple[str, ...], *, steps: int, repeat
     Returns:
         ``({method: its first SimulationOutput}, (MethodTiming per method, in order))``.
     """
-    from lbshape.pipeline.simulate import simulate
-
     outputs: dict[str, object] = {}
     interp: dict[str, list[float]] = {m: [] for m in methods}
     total: dict[str, list[float]] = {m: [] for m in methods}
@@ -397,10 +389,6 @@ def speed_error_sweep(
         repeats: reduced runs per configuration.
         progress: precompute progress bars on stderr.
     """
-    from lbshape.elastic.element_kernels import mass_matrix
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import simulate
-
     steps = scene.simulation.steps if steps is None else steps
     _check_steps_repeats(steps, repeats)
     steps, repeats = int(steps), int(repeats)
@@ -421,22 +409,16 @@ def speed_error_sweep(
             references[m] = simulate(variant, pre, method="full", steps=steps)
             if references[m].message:
                 log.error("sweep: full reference (m=%d) stopped: %s", m, references[m].message)
-        full = references[m]
-        interp, total, output = [], [], None
-        for _ in range(repeats):
-            output = simulate(variant, pre, method="reduced", steps=steps)
-            interp.append(output.stats["t_interp_ms"])
-            total.append(output.stats["t_total_ms"])
-            if output.message:
-                log.error("sweep: m=%d r=%d s=%d stopped: %s", m, r, s, output.message)
-                break
-        error = _error_vs_full(output, full, mass_matrix(pre.mesh, pre.material.density))
+        outputs, (timing,) = _run_interleaved(variant, pre, ("reduced",), steps=steps,
+                                              repeats=repeats)
+        error = _error_vs_full(outputs["reduced"], references[m],
+                               mass_matrix(pre.mesh, pre.material.density))
         holdout = pre.cubature_errors.get("holdout")
+        total = timing.summary("t_total_ms")
         points.append(SweepPoint(
             m=m, r=pre.r, s_max=s, s=int(pre.cubature_elements.size),
-            t_interp_ms=float(np.median(interp)), t_total_ms=float(np.median(total)),
-            t_total_min_ms=float(np.min(total)), t_total_max_ms=float(np.max(total)),
-            error_vs_full=error,
+            t_interp_ms=timing.summary("t_interp_ms")["median"], t_total_ms=total["median"],
+            t_total_min_ms=total["min"], t_total_max_ms=total["max"], error_vs_full=error,
             cubature_holdout_error=None if holdout is None else float(holdout),
         ))
         log.info("sweep %s: %s", scene.name, points[-1])

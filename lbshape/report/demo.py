@@ -30,9 +30,24 @@ import logging
 import time
 from pathlib import Path
 
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
+from lbshape.geometry.shapes import build_shape
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import RESULTS_DIR
+from lbshape.pipeline.influence import compare_runs, end_twist_degrees, without_examples
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulate import simulate
+from lbshape.report.bench import trajectory_error
+from lbshape.report.figures import (
+    comparison_animation,
+    comparison_figure,
+    examples_figures,
+    simulation_figure,
+)
+from lbshape.report.render import render_eigenfunctions
+from lbshape.scene import load_scene
+from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
 
@@ -55,10 +70,6 @@ END_VIEW = (0.0, -0.25, -1.0)
 
 def spectra_figure(out: Path, *, m: int = 6) -> dict:
     """Eigenfunctions on the teddy's interior (Figure 2) and the demo meshes' spectra."""
-    from lbshape.geometry.shapes import build_shape
-    from lbshape.report.render import render_eigenfunctions
-    from lbshape.spectral.spectrum import lb_spectrum
-
     summary = {}
     for name in ("demo-bar", "demo-cylinder", "teddy"):
         started = time.perf_counter()
@@ -97,19 +108,6 @@ def headline(summary: dict) -> str:
 
 def simulation_figures(out: Path) -> dict:
     """Precompute and simulate the demo scene (see the module docstring); pictures and numbers."""
-    from lbshape.elastic.element_kernels import mass_matrix
-    from lbshape.pipeline.influence import compare_runs, end_twist_degrees, without_examples
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import simulate
-    from lbshape.report.bench import trajectory_error
-    from lbshape.report.figures import (
-        comparison_animation,
-        comparison_figure,
-        examples_figures,
-        simulation_figure,
-    )
-    from lbshape.scene import load_scene
-
     scene = load_scene("demo")
     if scene.examples is None or scene.examples.stiffness <= 0:
         raise LbshapeError("the demo scene must have examples with k_ex > 0")

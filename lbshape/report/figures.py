@@ -27,10 +27,16 @@ from pathlib import Path
 
 import numpy as np
 
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import RESULTS_DIR
+from lbshape.pipeline.influence import end_twist_degrees
 from lbshape.pipeline.meshes import example_mesh
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulate import simulate
+from lbshape.report.render import render_animation, render_eigenfunctions, render_shapes
+from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
 
@@ -95,8 +101,6 @@ def simulation_figure(pre, output, path: str | Path, *, frames: int = 4,
         frames: how many frames (evenly spaced after t = 0).
         method: caption prefix (default: the run's method).
     """
-    from lbshape.report.render import render_shapes
-
     count = len(output.times)
     if count < 2:
         raise LbshapeError("the run has no frame after the initial state to draw")
@@ -128,8 +132,6 @@ def examples_figures(scene, pre, out_dir: str | Path) -> tuple[Path, Path]:
     object's mesh from its LB coefficients (``pre.example_rest_points(k)``); the
     second the example meshes as given, posed.
     """
-    from lbshape.report.render import render_shapes
-
     if not pre.has_examples or scene.examples is None:
         raise LbshapeError(f"scene {scene.name} has no examples to draw")
     out_dir = Path(out_dir)
@@ -163,13 +165,9 @@ def eigenfunctions_figure(scene, pre, path: str | Path, *, count: int = 4) -> Pa
     Uses the precomputed spectrum, or computes ``scene.reduced.m`` pairs for a
     scene without examples.
     """
-    from lbshape.report.render import render_eigenfunctions
-
     if pre.eigenvectors is not None:
         values, vectors = pre.eigenvalues, pre.eigenvectors
     else:
-        from lbshape.spectral.spectrum import lb_spectrum
-
         spectrum = lb_spectrum(pre.mesh, max(count, scene.reduced.m))
         values, vectors = spectrum.eigenvalues, spectrum.eigenvectors
     indices = tuple(range(min(count, values.size)))
@@ -202,11 +200,6 @@ def figure3(same_topology, other_topology, path: str | Path, *,
     Raises:
         LbshapeError: a scene without examples, or scenes with different objects.
     """
-    from lbshape.elastic.element_kernels import mass_matrix
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import simulate
-    from lbshape.report.render import render_shapes
-
     for scene in (same_topology, other_topology):
         if scene.examples is None:
             raise LbshapeError(f"Figure 3 needs scenes with examples; {scene.name} has none")
@@ -255,8 +248,6 @@ def figure3(same_topology, other_topology, path: str | Path, *,
 
 def _twist_caption(pre, u: np.ndarray) -> str:
     """`twist X deg` of the bar's free end for bar-like objects, '' otherwise."""
-    from lbshape.pipeline.influence import end_twist_degrees
-
     try:
         return f"end twist {end_twist_degrees(pre.mesh.points, u):.0f} deg"
     except LbshapeError:
@@ -282,8 +273,6 @@ def comparison_figure(pre, runs: Sequence[tuple[str, object]], path: str | Path,
     Each panel shows the rest shape as a faint wireframe and is coloured by |u| on
     one shared scale; its caption gives the time (and the twist).
     """
-    from lbshape.report.render import render_shapes
-
     if not runs:
         raise LbshapeError("no runs to compare")
     finals = [np.asarray(output.displacements[frame]) for _, output in runs]
@@ -303,8 +292,6 @@ def comparison_animation(pre, runs: Sequence[tuple[str, object]], path: str | Pa
                          frames: int = 40, fps: float = 12.0, twist: bool = False) -> Path:
     """A GIF of several runs of a scene side by side (same sample times), ``frames`` frames;
     with ``twist`` each panel's caption follows the twist of a bar's end section."""
-    from lbshape.report.render import render_animation
-
     if not runs:
         raise LbshapeError("no runs to animate")
     times = np.asarray(runs[0][1].times)
@@ -337,9 +324,6 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
         frames: frames in ``simulation.png``.
         progress: precompute progress bars on stderr.
     """
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import simulate
-
     out = Path(out)
     pre = precompute(scene, progress=progress)
     output = simulate(scene, pre, method=method, steps=steps)
