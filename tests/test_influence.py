@@ -26,16 +26,9 @@ from lbshape.pipeline.simulate import example_influence, simulate
 from lbshape.scene import load_scene
 
 
-@pytest.fixture(autouse=True)
-def _private_cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("LBSHAPE_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-
-
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    import os
-
-    os.environ["LBSHAPE_CACHE"] = str(tmp_path_factory.getbasetemp() / "cache")
+def demo():
+    """The demo scene and its precompute, in the session's private cache."""
     scene = load_scene("demo")
     return scene, precompute(scene)
 
