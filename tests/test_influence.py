@@ -167,3 +167,22 @@ def test_end_twist_of_an_analytic_twist(angle):
     u = twist(mesh.points, angle=angle, axis="z", anchor="max") - mesh.points
     np.testing.assert_allclose(end_twist_degrees(mesh.points, u), np.degrees(angle), rtol=1e-9)
     np.testing.assert_allclose(end_twist_degrees(mesh.points, u, end="max"), 0.0, atol=1e-9)
+
+
+def test_bench_records_the_influence_of_reduced_and_full_in_table2(demo, tmp_path):
+    from lbshape.report.bench import bench_scene
+    from lbshape.report.tables import write_table2
+
+    scene, pre = demo
+    result = bench_scene(scene, steps=40, repeats=1, methods=("full", "reduced"), pre=pre)
+    effects = dict(result.influence)
+    assert set(effects) == {"reduced", "full"}
+    for method, stats in effects.items():
+        assert set(stats) == set(STATS_KEYS), method
+        reference = simulate(without_examples(scene), pre, method=method, steps=40)
+        run = simulate(scene, pre, method=method, steps=40)
+        np.testing.assert_allclose(stats["example_influence"],
+                                   compare_runs(pre, run, reference).final, rtol=1e-9)
+    md, js = write_table2([result], tmp_path)
+    assert "## Example influence" in md.read_text()
+    assert f"| demo | reduced | {effects['reduced']['example_influence']:.3f} |" in md.read_text()

@@ -7,7 +7,7 @@
 * :func:`eigenfunctions_figure` — the object's LB eigenfunctions on its interior;
 * :func:`figure3` — the paper's Figure 3: rest; no examples, same-topology examples
   and other-topology examples in full space; other-topology examples reduced — the
-  final frame of each;
+  final frame of each, with the end twist and the examples' influence;
 * :func:`comparison_figure` / :func:`comparison_animation` — several runs of one
   scene side by side (e.g. no examples, examples reduced, full reference): the
   final frames as a PNG, the whole runs as a GIF, with the end twist in the captions;
@@ -31,7 +31,7 @@ from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import RESULTS_DIR
-from lbshape.pipeline.influence import end_twist_degrees
+from lbshape.pipeline.influence import compare_runs, end_twist_degrees
 from lbshape.pipeline.meshes import example_mesh
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
@@ -219,28 +219,38 @@ def figure3(same_topology, other_topology, path: str | Path, *,
         (f"{other_label} examples (full)", other_topology, pre_other, "full"),
         (f"{other_label} examples (reduced)", other_topology, pre_other, "reduced"),
     ]
-    finals, labels = [], ["rest"]
+    outputs, labels = [], ["rest"]
     for label, scene, pre, method in runs:
         output = simulate(scene, pre, method=method, steps=steps)
         if output.message:
             raise LbshapeError(f"Figure 3 run '{label}' stopped: {output.message}")
-        finals.append(output.displacements[-1])
-        labels.append(f"{label} t={output.times[-1]:.2f} s")
+        outputs.append(output)
         log.info("figure 3: %s done", label)
+    finals = [output.displacements[-1] for output in outputs]
+    twists = [end_twist_degrees(a.points, u) for u in finals]
+    for (label, *_), output, twist in zip(runs, outputs, twists, strict=True):
+        labels.append(f"{label}\nt={output.times[-1]:.2f} s, end twist {twist:.0f} deg")
     mass = mass_matrix(a, pre_same.material.density)
+    # the examples' effect on the full-space runs, against the run without examples
+    influences = [compare_runs(pre, output, outputs[0], mass).stats() for pre, output in
+                  ((pre_same, outputs[1]), (pre_other, outputs[2]))]
     flat_full, flat_reduced = finals[2].reshape(-1), finals[3].reshape(-1)
     diff = flat_reduced - flat_full
     reference = float(np.sqrt(flat_full @ (mass @ flat_full)))
     relative = float(np.sqrt(diff @ (mass @ diff))) / reference if reference > 0 else float("nan")
     meshes = [a, *(_deformed(pre_same, u) for u in finals)]
     scalars = [None, *(np.linalg.norm(u, axis=1) for u in finals)]
-    png = render_shapes(meshes, labels, path, scalars=scalars)
+    png = render_shapes(meshes, labels, path, scalars=scalars, ghost=a,
+                        scalar_name="displacement (m)")
     maxima = (0.0, *(float(np.linalg.norm(u, axis=1).max()) for u in finals))
     result = Figure3(png, tuple(labels), maxima, relative, int(steps))
     write_json_atomic(Path(path).with_suffix(".json"), {
         "scenes": [same_topology.name, other_topology.name], "steps": int(steps),
         "dt": same_topology.simulation.dt, "panels": list(labels),
         "final_max_displacement_m": list(maxima),
+        "end_twist_deg": [0.0, *twists],
+        "example_influence_full": {same_topology.name: influences[0],
+                                   other_topology.name: influences[1]},
         "reduced_vs_full_final_relative_m_norm": relative,
     })
     return result
