@@ -138,13 +138,14 @@ def test_influence_grows_with_k_ex_on_the_demo_scene(demo):
 
 def test_simulate_reports_influence_and_the_examples_bring_the_shape_to_their_manifold(demo):
     scene, pre = demo
-    output = simulate(scene, pre, steps=150, influence=True)
+    output = simulate(scene, pre, influence=True)  # the scene's 0.3 s
     stats = output.stats
     assert set(STATS_KEYS) <= set(stats)
     assert stats["example_influence"] > 0.5, stats
     assert stats["example_influence_max"] >= 0.5 * stats["example_influence"], stats
     # with examples the final shape is closer to the example manifold than without
-    assert stats["example_residual"] < stats["example_residual_none"], stats
+    # (observed 0.31 against 0.34)
+    assert stats["example_residual"] < 0.95 * stats["example_residual_none"], stats
     plain = simulate(without_examples(scene), pre, steps=20, influence=True)
     assert not set(STATS_KEYS) & set(plain.stats)
 
