@@ -105,13 +105,13 @@ def test_render_movie_shows_reduced_and_full_from_the_written_trajectories(tmp_p
     assert (out / "simulation.mp4").exists() == mp4_available()
 
 
-def test_render_animation_rejects_mismatched_panels():
+def test_animation_frames_rejects_mismatched_panels():
     from lbshape.geometry.primitives import structured_box
-    from lbshape.report.render import render_animation
+    from lbshape.report.render import animation_frames
 
     mesh = structured_box((1.0, 0.5, 0.5), (2, 1, 1))
     u = np.zeros((3, mesh.n_vertices, 3))
     with pytest.raises(LbshapeError, match="one label per panel"):
-        render_animation(mesh, [u, u], ["reduced"], np.arange(3.0))
+        animation_frames(mesh, [u, u], ["reduced"], np.arange(3.0))
     with pytest.raises(LbshapeError, match="shape"):
-        render_animation(mesh, [u[:2]], ["reduced"], np.arange(3.0))
+        animation_frames(mesh, [u[:2]], ["reduced"], np.arange(3.0))

@@ -1,10 +1,13 @@
-"""``lbshape bench [SCENE…] [--json] [--steps N] [--repeats K] [--out-dir DIR] [-j N]``.
+"""``lbshape bench [SCENE…] [--json] [--steps N] [--repeats K] [--out-dir DIR] [-j N] [--sweep]``.
 
 Runs ``full``, ``euclidean`` and ``reduced`` side by side in one process per scene
 (default scenes: bar-cuboid, bar-cylinder; names, TOML paths or globs) and writes
 ``table2.md`` and ``table2.json``. Several scenes run in ``-j`` worker processes and
 end with a summary table (on stderr with ``--json``); a failed scene is listed and
 does not stop the others (exit code non-zero at the end).
+With ``--sweep`` it sweeps r, s and m of the reduced method per scene instead
+(:mod:`lbshape.report.pareto`) and writes ``pareto.md``, ``pareto.json`` and
+``pareto.png``.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.batch import expand_scenes, run_jobs, summary_table
 from lbshape.pipeline.simulate import WARMUP_STEPS
+from lbshape.report import pareto
 from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene
 from lbshape.report.tables import write_table2
 from lbshape.scene import load_scene
@@ -26,7 +30,7 @@ def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "bench", help="the methods side by side: per-step times and error vs full (Table 2)")
     parser.add_argument("scenes", nargs="*", metavar="SCENE",
-                        help="built-in scene names or TOML paths (default: bar-cuboid "
+                        help="built-in scene names, TOML paths or globs (default: bar-cuboid "
                              "bar-cylinder)")
     parser.add_argument("--json", action="store_true", help='print {"rows": [...]} as JSON')
     parser.add_argument("--steps", type=int, default=None,
@@ -37,6 +41,9 @@ def register(subparsers) -> None:
     parser.add_argument("-j", "--jobs", type=int, default=1,
                         help="worker processes for several scenes (default 1; concurrent "
                              "jobs share the machine's cores, which their timings include)")
+    parser.add_argument("--sweep", action="store_true",
+                        help="instead: sweep r, s and m per scene (default: bar-cuboid "
+                             "bar-cylinder demo) and write pareto.md/.json/.png")
     parser.set_defaults(func=run)
 
 
@@ -48,6 +55,8 @@ def run(args) -> int:
         raise LbshapeError(f"--repeats must be >= 1, got {args.repeats}")
     if args.jobs < 1:
         raise LbshapeError(f"-j/--jobs must be >= 1, got {args.jobs}")
+    if args.sweep:
+        return _sweep(args)
     names, unmatched = expand_scenes(args.scenes or DEFAULT_SCENES)
     if len(names) == 1 and not unmatched:  # one scene: errors as a one-line error
         jobs = []
@@ -105,3 +114,19 @@ def _print_summary(jobs, *, file) -> None:
 
 def _ms(value) -> str:
     return "—" if value is None else f"{value:.3f}"
+
+
+def _sweep(args) -> int:
+    scenes = [load_scene(name) for name in (args.scenes or pareto.DEFAULT_SCENES)]
+    sweeps = [pareto.sweep_scene(scene, steps=args.steps, repeats=args.repeats,
+                                 progress=not args.json) for scene in scenes]
+    paths = pareto.write_pareto(sweeps, args.out_dir or DEFAULT_OUT)
+    if args.json:
+        print_json(pareto.pareto_payload(sweeps, {}))
+    else:
+        for sweep in sweeps:
+            front = pareto.pareto_front(sweep.points)
+            print(f"bench --sweep {sweep.scene}: {len(sweep.points)} settings, "
+                  f"{len(front)} on the Pareto front; {pareto.verdict(sweep)}")
+        print(f"bench --sweep: {', '.join(str(p) for p in paths)}")
+    return 0

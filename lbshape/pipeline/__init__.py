@@ -2,6 +2,7 @@
 
 __all__ = [
     "batch",
+    "influence",
     "meshes",
     "precompute",
     "routes",

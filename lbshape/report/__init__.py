@@ -7,6 +7,7 @@ __all__ = [
     "figures",
     "machine",
     "movie",
+    "pareto",
     "plots",
     "render",
     "tables",

@@ -5,7 +5,7 @@ already, the ``full`` reference; each run writes its usual outputs
 (``stats.json``, ``states.npz`` and the ParaView trajectory) into
 ``OUT/runs/METHOD/``. The frames are then read back from those ``states.npz`` files
 (:func:`read_states`) — the same samples the ParaView trajectory holds — drawn side
-by side by :func:`lbshape.report.render.render_animation` and written as a GIF
+by side by :func:`lbshape.report.render.animation_frames` and written as a GIF
 (and an MP4 where the encoder is installed) by :mod:`lbshape.report.movie`.
 """
 
@@ -22,7 +22,7 @@ from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import METHODS, simulate
 from lbshape.report.movie import DEFAULT_FPS, Movie, write_movie
-from lbshape.report.render import render_animation
+from lbshape.report.render import animation_frames
 
 log = logging.getLogger(__name__)
 
@@ -112,6 +112,6 @@ def simulation_movie(scene, out: str | Path, *, method: str = "reduced",
     times = max((t for t, _ in states), key=len)
     fields = [_hold_last(u, len(times)) for _, u in states]
     labels = [f"{scene.name}: {name}" for name in methods]
-    frames = render_animation(pre.mesh, fields, labels, times, progress=progress)
+    frames = animation_frames(pre.mesh, fields, labels, times, progress=progress)
     movies = write_movie(frames, out / f"{MOVIE_STEM}.gif", fps=fps, mp4=mp4)
     return SceneMovie(movies, methods, tuple(runs), int(frames.shape[0]), "; ".join(messages))
