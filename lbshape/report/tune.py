@@ -36,6 +36,7 @@ from lbshape.io.toml_writer import dumps
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import WARMUP_STEPS, simulate
 from lbshape.report.bench import trajectory_error
+from lbshape.report.machine import load_text, machine_description, machine_text
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +86,8 @@ class TuneResult:
         full_t_total_ms: per-step time of the ``full`` reference (ms).
         trials: every candidate, in the order tried.
         best: the cheapest candidate meeting E, or None.
+        machine: the conditions of the timings (:func:`~lbshape.report.machine.machine_description`
+            at the end of the search).
     """
 
     scene: str
@@ -94,6 +97,7 @@ class TuneResult:
     full_t_total_ms: float
     trials: tuple[Trial, ...]
     best: Trial | None
+    machine: dict = dataclasses.field(default_factory=dict)
 
     @property
     def closest(self) -> Trial | None:
@@ -193,7 +197,8 @@ def tune_scene(scene, *, error: float, m_values: Sequence[int] | None = None,
     meeting = [t for t in trials if t.meets(error)]
     best = min(meeting, key=lambda t: t.t_total_ms) if meeting else None
     return TuneResult(scene.name, float(error), steps, repeats,
-                      float(reference.stats["t_total_ms"]), tuple(trials), best)
+                      float(reference.stats["t_total_ms"]), tuple(trials), best,
+                      machine_description())
 
 
 def _trial(variant, reference, mass, *, steps: int, repeats: int) -> Trial:
@@ -229,6 +234,8 @@ def tune_markdown(result: TuneResult) -> str:
         "error: `max_t ‖u(t) − u_full(t)‖_M / max_t ‖u_full(t)‖_M` against the full-space "
         f"run of the scene as written ({result.full_t_total_ms:.3f} ms per step).",
         "",
+        *([f"Machine: {machine_text(result.machine)}; load average (1, 5, 15 min) at the end: "
+           f"{load_text(result.machine)}.", ""] if result.machine else []),
         "| m | r | s asked | s | t_interp (ms) | t_total (ms) | error vs full | ≤ E | note |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
