@@ -104,3 +104,12 @@ def test_bench_batch_with_a_bad_scene(tmp_path, capsys):
     assert "| ok " in table[1]
     assert err.strip().splitlines()[-1].startswith("error: 1 of 2 scenes failed")
     assert json.loads((tmp_path / "out" / "table2.json").read_text())["rows"] == rows
+
+
+def test_an_unusable_cache_folder_is_a_one_line_error(tmp_path, monkeypatch, capsys):
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("")
+    monkeypatch.setenv("LBSHAPE_CACHE", str(blocker / "cache"))
+    assert main(["precompute", "demo"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: cannot use the cache folder") and "\n" not in err, err

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_npz_atomic
 
 log = logging.getLogger(__name__)
@@ -88,10 +89,18 @@ def artifact_lock(name: str, key: str, *, root: Path | None = None) -> Iterator[
 
     Blocks until no other process holds it. Yields the lock file's path
     (``<root>/<name>-<key[:16]>.lock``, created with its folder if needed).
+
+    Raises:
+        LbshapeError: the cache folder cannot be created or written.
     """
     path = artifact_path(name, key, root).with_suffix(".lock")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a+b") as handle:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle = open(path, "a+b")  # noqa: SIM115 -- closed by the with block below
+    except OSError as exc:
+        raise LbshapeError(f"cannot use the cache folder {path.parent}: "
+                           f"{exc.strerror or exc}") from None
+    with handle:
         fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
         try:
             yield path
