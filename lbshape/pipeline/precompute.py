@@ -15,6 +15,12 @@ Stages (only those the scene needs; paper pre-computation steps 1–6):
    interpolation route), trained on poses as large as the examples
                                                               — scenes with examples.
 
+Scenes with ``[[regions]]`` (local examples) replace stages 7–9 by
+``regions``: per-region spectra, example parts embedded per region and the small
+region matrices (:mod:`lbshape.shapespace.local_examples`); stage 6 still
+computes the whole object's spectrum (eigenfunction pictures, and the measured
+comparison of the two local-example variants).
+
 Everything is cached under a key derived from :meth:`Scene.precompute_key_fields`,
 the gmsh scripts or mesh files behind the meshes, and the package versions, so
 changing dt, steps, loads, damping or k_ex never redoes the precompute, while
@@ -45,6 +51,13 @@ from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.io.cache import cache_key, file_digest, load_artifact, save_artifact
 from lbshape.scene.schema import MeshSource, Scene
+from lbshape.shapespace.local_examples import (
+    LocalShapeSpace,
+    RegionSpec,
+    build_local_space,
+    region_cells,
+    submesh,
+)
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +96,7 @@ class Precomputed:
         lb_cubature_elements, lb_cubature_weights: cubature of the LB displacement
             subspace (basis :meth:`lb_basis`), or None; ``lb_cubature_errors``.
         example_names: (k,) labels.
+        local: the local-example shape space (scenes with regions), or None.
         stage_seconds: wall time per stage (s) of the run that built the artifact.
         from_cache: True when loaded from the cache.
     """
@@ -106,6 +120,7 @@ class Precomputed:
     lb_cubature_weights: np.ndarray | None = None
     lb_cubature_errors: dict = field(default_factory=dict)
     example_names: tuple[str, ...] = ()
+    local: LocalShapeSpace | None = None
     stage_seconds: dict = field(default_factory=dict)
     from_cache: bool = False
 
@@ -115,7 +130,13 @@ class Precomputed:
 
     @property
     def has_examples(self) -> bool:
+        """Global examples (the whole object's shape space)."""
         return self.example_coefficients is not None
+
+    @property
+    def has_local_examples(self) -> bool:
+        """Local examples by region (:attr:`local`)."""
+        return self.local is not None
 
     # --- shape-space maps in the elastic reduced coordinates (see module docstring)
     @property
@@ -201,7 +222,9 @@ class _Stages:
 def stage_names(scene: Scene) -> list[str]:
     """The stages this scene needs, in order."""
     names = ["mesh", "modes", "derivatives", "basis", "cubature"]
-    if scene.has_examples:
+    if scene.has_local_examples:
+        names += ["lb", "regions"]
+    elif scene.has_examples:
         names += ["lb", "examples", "projections", "lb-cubature"]
     return names
 
@@ -211,6 +234,9 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False) -> 
     key = scene_cache_key(scene)
     if not force:
         required = _REQUIRED + (_REQUIRED_EXAMPLES if scene.has_examples else ())
+        if scene.has_local_examples:
+            required = _REQUIRED + ("eigenvalues", "eigenvectors") \
+                + LocalShapeSpace.required_arrays(len(scene.regions))
         cached = load_artifact(scene.name, key, required=required)
         if cached is not None:
             return _from_arrays(scene, key, *cached)
@@ -259,10 +285,46 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
     meta = {"scene": scene.name, "cubature_errors": {
         "train": cubature.train_error, "holdout": cubature.holdout_error,
         "tolerance": cubature.tol, "reached_tolerance": bool(cubature.reached_tol)}}
-    if scene.has_examples:
+    if scene.has_local_examples:
+        local, eigen = _local_space(scene, mesh, U, stages)
+        arrays.update(local.arrays())
+        arrays.update(eigen)
+        meta["example_names"] = [_example_label(p) for p in scene.examples.poses]
+        meta["local_regions"] = [reg.name for reg in scene.regions]
+        meta["local_representation_errors"] = local.representation_errors
+    elif scene.has_examples:
         arrays.update(_shape_space_arrays(scene, mesh, U, stages))
         meta["example_names"] = [_example_label(p) for p in scene.examples.poses]
     return arrays, meta
+
+
+def _local_space(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Stages):
+    """The ``lb`` and ``regions`` stages of a scene with local examples."""
+    from lbshape.spectral.spectrum import lb_spectrum
+
+    m = scene.reduced.m
+    with stages.stage("lb"):
+        spectrum = lb_spectrum(mesh, m)
+    rests: dict[MeshSource, TetMesh] = {}  # examples often share one mesh
+    poses = scene.examples.poses
+
+    def example_part(k: int, spec: RegionSpec):
+        source = poses[k].source
+        if source not in rests:
+            rests[source] = source.build()
+        what = f"region '{spec.name}' on example {k + 1} ({_example_label(poses[k])})"
+        cells = region_cells(rests[source], group=spec.group, region=spec.region, what=what)
+        part, _ = submesh(rests[source], cells, what=what)
+        return part, poses[k].posed(part).points
+
+    specs = [RegionSpec(reg.name, reg.selection.group, reg.selection.region, reg.examples)
+             for reg in scene.regions]
+    with stages.stage("regions"):
+        local = build_local_space(
+            mesh, scene.material, U, specs, example_part, m=m,
+            object_pose=lambda k, part: poses[k].posed(part).points,
+            global_eigenvectors=spectrum.eigenvectors)
+    return local, {"eigenvalues": spectrum.eigenvalues, "eigenvectors": spectrum.eigenvectors}
 
 
 def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Stages) -> dict:
@@ -356,8 +418,8 @@ def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
         cubature_elements=np.asarray(arrays["cub_elements"], dtype=np.int64),
         cubature_weights=np.asarray(arrays["cub_weights"]),
         cubature_errors=meta.get("cubature_errors", {}),
-        eigenvalues=arrays.get("eigenvalues") if has_examples else None,
-        eigenvectors=arrays.get("eigenvectors") if has_examples else None,
+        eigenvalues=arrays.get("eigenvalues"),
+        eigenvectors=arrays.get("eigenvectors"),
         example_coefficients=arrays.get("example_coefficients") if has_examples else None,
         projection=arrays.get("projection") if has_examples else None,
         alignment_residuals=arrays.get("alignment_residuals") if has_examples else None,
@@ -368,6 +430,9 @@ def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
                              "holdout": float(arrays["lb_cub_errors"][1])}
                             if has_examples else {}),
         example_names=tuple(meta.get("example_names", ())),
+        local=(LocalShapeSpace.from_arrays(meta["local_regions"], arrays,
+                                           meta.get("local_representation_errors", {}))
+               if "local_regions" in meta else None),
         stage_seconds=dict(meta.get("stage_seconds", {})),
         from_cache=from_cache,
     )

@@ -25,6 +25,7 @@ import numpy as np
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import Precomputed
 from lbshape.scene.schema import Scene
+from lbshape.shapespace.local_examples import local_example_driver, local_route
 
 log = logging.getLogger(__name__)
 
@@ -89,11 +90,13 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
                  load_patterns(scene, pre, mass)]
     k_ex = scene.examples.stiffness if scene.examples is not None else 0.0
     driver = None
-    if pre.has_examples and k_ex > 0:
+    route = scene.reduced.route(scene.material.model) if method == "reduced" else "euclidean"
+    if pre.has_local_examples and k_ex > 0:
+        driver = local_example_driver(pre.mesh, pre.material, pre.local,
+                                      route=local_route(route, pre.material))
+    elif pre.has_examples and k_ex > 0:
         from lbshape.pipeline.routes import example_driver
 
-        route = (scene.reduced.route(scene.material.model) if method == "reduced"
-                 else "euclidean")
         driver = example_driver(pre, route=route)
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,

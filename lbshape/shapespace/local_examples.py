@@ -1,0 +1,622 @@
+"""Local examples: regions of the object, each guided by its own examples (paper §5).
+
+**Variant used: per-region eigenfunctions** (the paper's Figure 7 caption). Each
+region R (a set of the object's tetrahedra) is a mesh of its own; its m smallest
+non-zero LB eigenpairs ``(λ_R, Φ_R)`` (Φ_R: (n_R, m), orthonormal in the region's
+volume mass ``M_R``) describe the region's displacement ``u_R`` (its vertices'
+rows of u) by the coefficients ``c_R = Φ_Rᵀ M_R u_R`` (m, 3); the descriptor is
+``λ_R ⊙ c_R`` as for the whole object. The paper's text instead projects the
+region's displacement, set to zero outside the region, on the *whole object's*
+eigenfunctions. Both are measured at precompute
+(:attr:`LocalShapeSpace.representation_errors`): the relative M_R-error of
+reconstructing a region's own pose from its m coefficients. On the cross (m = 10)
+the whole-object basis has about two functions per arm and none that varies
+across an arm's section, so it cannot hold an arm's twist and smears a field that
+is zero outside the arm over its neighbours; the per-region basis spends all m
+functions on the region. That is the reason for the choice (numbers in
+``docs/architecture.md``).
+
+**Examples of a region.** Example k guiding region R is the example mesh's part
+selected by R (the same physical group, or the expression evaluated on the example
+mesh in its own coordinates), with k's pose applied to *that part*: the pose's
+bar is the region (its extent along the pose axis, its anchor end), so "twist the
+left arm" is ``pose = "twist", axis = "x"`` on a region that is the left arm. An
+example without a pose (a posed mesh file) is restricted as it is. The part is
+brought into R's shape space with the global machinery
+(:func:`lbshape.shapespace.projections.embed_example`: frame and basis alignment
+against R's own spectrum; landmarks are not used for regions).
+
+**Forces.** Region R pulls only its own elements: in full space
+``f_R = k_ex M^(R) (u*_R − u)``, M^(R) the elastic mass assembled over R's
+tetrahedra and ``u*_R = E_R (L_R c*_R + 1 ⊗ ū_R)`` the region's target (E_R places
+region vertex rows into the object's, ``L_R = Φ_R ⊗ I₃``, ū_R (3,) the region's
+current mean displacement). The region's eigenfunctions exclude the constant, so
+its descriptor cannot see the region's translation, and the target carries the
+current one: the example force moves no region as a whole (that is left to the
+elastic forces, the loads and the supports — an arm anchored at a fixed centre
+takes its example's shape without being pulled off its anchor). Like the target,
+ū_R is taken at the start of the step. The forces add up:
+``f = k_ex (Σ_R M^(R) E_R (L_R c*_R + 1 ⊗ ū_R) − S u)`` with ``S = Σ_R M^(R)``. In
+the reduced coordinates q (``Uᵀ M U = I``) the pull is
+``k_ex (Σ_R T_R c*_R + Π q)`` and the spring ``k_ex S_q q``, with the precomputed
+``T_R = Uᵀ M^(R) E_R L_R`` (r, 3m), ``Π = Σ_R Uᵀ M^(R) E_R (1 ⊗ I₃) A_R`` (r, r;
+``ū_R = A_R q``) and ``S_q = Uᵀ S U`` (r, r); the descriptor of the current shape
+is ``D_R q`` with ``D_R = diag(λ_R ⊗ 1₃) T_Rᵀ / ρ`` (3m, r). The runtime step
+touches only these small matrices. (``free_translation=False`` drops Π: the
+variant in which a region's translation is pulled to zero, as the global path
+does for the whole object.)
+
+**Rules.** Regions are sets of tetrahedra: a physical group must be a volume
+group; an expression selects the tetrahedra whose centroid satisfies it. Regions
+must not share a tetrahedron (one-line error naming both). Tetrahedra in no region
+feel no example force (``S`` then differs from M: the spring only acts on covered
+elements). Each region must be one connected piece with more than m + 1 vertices.
+With one region covering every tetrahedron the whole path equals the global one.
+
+**Targets.** Per region, weights by paper eq. 5 on the region's descriptors and a
+target ``c*_R = argmin Σ_k w_k E_k(c − c_k)`` with E_k the StVK energy of example
+k's region shape ``X_R + Φ_R c_k`` over R's tetrahedra, evaluated exactly as a
+quartic polynomial (the ``lb-exact`` route, O((3m)⁴) per evaluation); for other
+materials, or the ``euclidean`` baseline, the energy is summed over R's elements.
+A region with two examples has a target that depends on one number, w₁; the
+reduced method tabulates it at set-up (:class:`TabulatedTarget`, measured against
+the Newton solve) so that a step only interpolates a table.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.interpolate import CubicSpline
+from scipy.sparse.csgraph import connected_components
+
+from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.elastic.materials import Material
+from lbshape.errors import LbshapeError
+from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.regions import evaluate_region
+from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
+from lbshape.shapespace.example_driver import ExampleDriver, TargetInfo
+from lbshape.shapespace.interpolation import TargetResult, TargetSolver, simplex_weights
+from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
+from lbshape.shapespace.projections import block_eigenfunctions, direct_projection, embed_example
+from lbshape.spectral.spectrum import lb_spectrum
+
+log = logging.getLogger(__name__)
+
+#: target energies of the local examples: exact polynomial (StVK) or all region elements
+LOCAL_ROUTES = ("lb-exact", "euclidean")
+
+
+# ------------------------------------------------------------------ regions
+def region_cells(mesh: TetMesh, *, group: str | None = None, region: str | None = None,
+                 what: str = "region") -> np.ndarray:
+    """(t_R,) sorted int64 tetrahedra of ``mesh`` in a region.
+
+    Args:
+        mesh: the mesh.
+        group: a volume physical group of the mesh, or
+        region: a safe expression in x, y, z (m) evaluated at tetrahedron centroids.
+        what: label for error messages.
+
+    Raises:
+        LbshapeError: neither or both given, an unknown (or non-volume) group, or an
+            empty selection.
+    """
+    if (group is None) == (region is None):
+        raise LbshapeError(f"{what}: give exactly one of a group or an expression")
+    if group is not None:
+        if group not in mesh.cell_groups:
+            raise LbshapeError(
+                f"{what}: mesh has no volume group '{group}' (volume groups: "
+                f"{', '.join(sorted(mesh.cell_groups)) or 'none'})")
+        cells = np.unique(np.asarray(mesh.cell_groups[group], dtype=np.int64))
+    else:
+        centroids = mesh.points[mesh.tets].mean(axis=1)
+        cells = np.flatnonzero(evaluate_region(region, centroids)).astype(np.int64)
+    if cells.size == 0:
+        raise LbshapeError(f"{what} selects no tetrahedron of the mesh")
+    return cells
+
+
+def check_partition(names: Sequence[str], cells: Sequence[np.ndarray], n_tets: int) -> np.ndarray:
+    """(n_tets,) bool: covered tetrahedra; one-line error if two regions overlap."""
+    owner = np.full(n_tets, -1, dtype=np.int64)
+    for index, (name, selected) in enumerate(zip(names, cells, strict=True)):
+        taken = owner[selected]
+        if (taken >= 0).any():
+            other = names[int(taken[taken >= 0][0])]
+            count = int((taken >= 0).sum())
+            raise LbshapeError(
+                f"local-example regions '{other}' and '{name}' share {count} tetrahedra; "
+                "regions must be disjoint")
+        owner[selected] = index
+    return owner >= 0
+
+
+def submesh(mesh: TetMesh, cells: np.ndarray, *,
+            what: str = "region") -> tuple[TetMesh, np.ndarray]:
+    """The mesh of some tetrahedra and its vertices' indices in ``mesh``.
+
+    Returns:
+        ``(sub, vertices)``: the sub-mesh (vertices in increasing original order,
+        no groups) and (n_R,) int64 original vertex indices.
+
+    Raises:
+        LbshapeError: the tetrahedra form more than one connected piece.
+    """
+    tets = np.asarray(mesh.tets, dtype=np.int64)[cells]
+    vertices = np.unique(tets)
+    local = np.searchsorted(vertices, tets)
+    n = vertices.size
+    rows = np.repeat(local, 4, axis=1).ravel()
+    cols = np.tile(local, (1, 4)).ravel()
+    graph = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+    pieces, _ = connected_components(graph, directed=False)
+    if pieces != 1:
+        raise LbshapeError(f"{what} is not connected ({pieces} pieces); split it into regions")
+    return TetMesh(np.asarray(mesh.points)[vertices], local), vertices
+
+
+# ------------------------------------------------------------ shape space
+@dataclass(frozen=True)
+class RegionSpace:
+    """One region's share of the local shape space (small arrays except ``cells``,
+    ``vertices`` and ``eigenvectors``, used at set-up and for output only).
+
+    Attributes:
+        name: region name.
+        cells: (t_R,) object tetrahedra of the region.
+        vertices: (n_R,) object vertices of the region (increasing).
+        examples: (k_R,) indices of its examples in the scene's example list.
+        eigenvalues: (m,) λ_R in 1/m².
+        eigenvectors: (n_R, m) Φ_R, M_R-orthonormal (M_R the region's volume mass, m³).
+        example_coefficients: (k_R, m, 3) example displacement coefficients (m^(5/2)).
+        alignment_residuals: (k_R,) basis alignment residuals.
+        to_reduced: (r, 3m) ``T_R = Uᵀ M^(R) E_R L_R``: region LB coefficients to the
+            pull in reduced coordinates.
+        translation: (r, r) ``Uᵀ M^(R) E_R (1 ⊗ I₃) A_R``: reduced coordinates q to
+            the pull that keeps the region's current mean displacement ``A_R q``.
+    """
+
+    name: str
+    cells: np.ndarray
+    vertices: np.ndarray
+    examples: np.ndarray
+    eigenvalues: np.ndarray
+    eigenvectors: np.ndarray
+    example_coefficients: np.ndarray
+    alignment_residuals: np.ndarray
+    to_reduced: np.ndarray
+    translation: np.ndarray
+
+    @property
+    def m(self) -> int:
+        return int(self.eigenvalues.size)
+
+    def descriptor_matrix(self, density: float) -> np.ndarray:
+        """(3m, r) ``D_R``: the region descriptor of ``U q`` is ``D_R q``."""
+        return np.repeat(self.eigenvalues, 3)[:, None] * self.to_reduced.T / density
+
+    @property
+    def example_descriptors(self) -> np.ndarray:
+        """(k_R, 3m) λ-weighted example coefficients, flattened row-major."""
+        k = self.example_coefficients.shape[0]
+        return self.example_coefficients.reshape(k, -1) * np.repeat(self.eigenvalues, 3)
+
+    def submesh(self, mesh: TetMesh) -> TetMesh:
+        """The region's own mesh (vertex order of :attr:`vertices`)."""
+        local = np.searchsorted(self.vertices, np.asarray(mesh.tets)[self.cells])
+        return TetMesh(np.asarray(mesh.points)[self.vertices], local)
+
+    def example_rest_points(self, mesh: TetMesh, index: int) -> np.ndarray:
+        """(n_R, 3) example ``index`` (position in :attr:`examples`) on the region's mesh."""
+        return np.asarray(mesh.points)[self.vertices] + \
+            self.eigenvectors @ self.example_coefficients[index]
+
+    def displacement(self, coefficients: np.ndarray) -> np.ndarray:
+        """(n_R, 3) region displacement ``Φ_R c`` of coefficients (3m,) or (m, 3)."""
+        return self.eigenvectors @ np.asarray(coefficients, dtype=float).reshape(self.m, 3)
+
+
+@dataclass(frozen=True)
+class LocalShapeSpace:
+    """The regions, the spring matrix and what was measured at precompute.
+
+    Attributes:
+        regions: one :class:`RegionSpace` per scene region, in scene order.
+        spring: (r, r) ``S_q = Uᵀ (Σ_R M^(R)) U`` (identity when every tetrahedron
+            is covered).
+        covered: fraction of the object's volume inside some region.
+        representation_errors: region name -> {"per-region": e_B, "whole-object":
+            e_A}: relative M_R-norm errors of reconstructing the region's posed
+            displacement (the first example's pose applied to the object's own
+            region) from m coefficients in each variant.
+    """
+
+    regions: tuple[RegionSpace, ...]
+    spring: np.ndarray
+    covered: float
+    representation_errors: dict
+
+    @property
+    def translation(self) -> np.ndarray:
+        """(r, r) ``Π = Σ_R`` :attr:`RegionSpace.translation`."""
+        return sum(reg.translation for reg in self.regions)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Flat arrays for the precompute artifact (see :func:`from_arrays`)."""
+        out = {"local_spring": self.spring, "local_covered": np.array(self.covered)}
+        for i, reg in enumerate(self.regions):
+            for key in ("cells", "vertices", "examples", "eigenvalues", "eigenvectors",
+                        "example_coefficients", "alignment_residuals", "to_reduced",
+                        "translation"):
+                out[f"local{i}_{key}"] = getattr(reg, key)
+        return out
+
+    @classmethod
+    def from_arrays(cls, names: Sequence[str], arrays: dict, errors: dict) -> LocalShapeSpace:
+        """Inverse of :meth:`arrays` (``names``: region names in order)."""
+        regions = []
+        for i, name in enumerate(names):
+            get = lambda key, i=i: np.asarray(arrays[f"local{i}_{key}"])  # noqa: E731
+            regions.append(RegionSpace(
+                name=name, cells=get("cells").astype(np.int64),
+                vertices=get("vertices").astype(np.int64),
+                examples=get("examples").astype(np.int64), eigenvalues=get("eigenvalues"),
+                eigenvectors=get("eigenvectors"),
+                example_coefficients=get("example_coefficients"),
+                alignment_residuals=get("alignment_residuals"), to_reduced=get("to_reduced"),
+                translation=get("translation")))
+        return cls(tuple(regions), np.asarray(arrays["local_spring"]),
+                   float(arrays["local_covered"]), dict(errors))
+
+    @staticmethod
+    def required_arrays(n_regions: int) -> tuple[str, ...]:
+        keys = ["local_spring", "local_covered"]
+        for i in range(n_regions):
+            keys += [f"local{i}_{k}" for k in ("cells", "vertices", "examples", "eigenvalues",
+                                                "eigenvectors", "example_coefficients",
+                                                "alignment_residuals", "to_reduced",
+                                                "translation")]
+        return tuple(keys)
+
+
+@dataclass(frozen=True)
+class RegionSpec:
+    """What the precompute needs of a scene region.
+
+    Attributes:
+        name: region name.
+        group: volume physical group, or None.
+        region: expression, or None.
+        examples: indices of its examples.
+    """
+
+    name: str
+    group: str | None
+    region: str | None
+    examples: tuple[int, ...]
+
+
+def build_local_space(
+    mesh: TetMesh,
+    material: Material,
+    U: np.ndarray,
+    specs: Sequence[RegionSpec],
+    example_part: Callable[[int, RegionSpec], tuple[TetMesh, np.ndarray]],
+    *,
+    m: int,
+    spectrum: Callable | None = None,
+    embed: Callable | None = None,
+    object_pose: Callable[[int, TetMesh], np.ndarray] | None = None,
+    global_eigenvectors: np.ndarray | None = None,
+) -> LocalShapeSpace:
+    """Region spectra, example coefficients per region and the small matrices.
+
+    Args:
+        mesh: the object's rest mesh (n vertices).
+        material: its material (density ρ for the elastic mass).
+        U: (3n, r) basis with ``Uᵀ M U = I`` (M the elastic mass).
+        specs: the regions.
+        example_part: ``(k, spec) -> (rest part, posed part points)``: example k's
+            part selected by the region, at rest (a TetMesh) and posed ((n_e, 3)).
+        m: eigenpairs per region.
+        spectrum: ``(mesh, m) -> LBSpectrum`` (default
+            :func:`lbshape.spectral.spectrum.lb_spectrum`).
+        embed: :func:`lbshape.shapespace.projections.embed_example` or a stand-in.
+        object_pose: optional ``(k, region mesh) -> posed points (n_R, 3)``: example
+            k's pose applied to the object's own region, for the representation
+            measurement (skipped without it).
+        global_eigenvectors: (n, m) the whole object's eigenvectors (M-orthonormal),
+            for the whole-object variant of that measurement.
+
+    Raises:
+        LbshapeError: overlapping, disconnected or too small regions, or an example
+            that cannot be embedded (message names region and example).
+    """
+    spectrum = spectrum or lb_spectrum
+    embed = embed or embed_example
+    names = [s.name for s in specs]
+    cells = [region_cells(mesh, group=s.group, region=s.region, what=f"region '{s.name}'")
+             for s in specs]
+    covered = check_partition(names, cells, mesh.n_tets)
+    volumes = np.abs(mesh.signed_volumes())
+    rho = float(material.density)
+    U = np.asarray(U, dtype=float)
+    r = U.shape[1]
+    spring = np.zeros((r, r))
+    regions, errors = [], {}
+    for spec, selected in zip(specs, cells, strict=True):
+        label = f"region '{spec.name}'"
+        sub, vertices = submesh(mesh, selected, what=label)
+        if sub.n_vertices <= m + 1:
+            raise LbshapeError(f"{label}: m={m} needs more than {m + 1} vertices, it has "
+                               f"{sub.n_vertices}")
+        spec_R = spectrum(sub, m)
+        rows = (3 * vertices[:, None] + np.arange(3)).ravel()
+        U_R = U[rows]
+        mass_R = mass_matrix(sub, rho)  # (3n_R, 3n_R) kg
+        spring += U_R.T @ (mass_R @ U_R)
+        volume_mass = mass_R[0::3, 0::3] / rho  # (n_R, n_R) m³
+        to_reduced = rho * direct_projection(U_R, spec_R.eigenvectors, volume_mass)
+        ones = np.kron(np.ones((sub.n_vertices, 1)), np.eye(3))  # (3n_R, 3) translations
+        G = U_R.T @ (mass_R @ ones)  # (r, 3): pull of a unit translation, kg
+        mean = G.T / (rho * sub.volume())  # (3, r): A_R, mean displacement of U q
+        translation = G @ mean
+        coefficients, residuals = [], []
+        for k in spec.examples:
+            what = f"{label}, example {k + 1}"
+            rest_part, posed_points = example_part(k, spec)
+            try:
+                embedded = embed(sub, spec_R, rest_part, [posed_points])
+            except LbshapeError as exc:
+                raise LbshapeError(f"{what}: {exc}") from None
+            coefficients.append(embedded.coefficients[0])
+            residuals.append(embedded.alignment.residual)
+            log.info("%s: alignment residual %.3g", what, embedded.alignment.residual)
+        if object_pose is not None:
+            errors[spec.name] = _representation_errors(
+                sub, vertices, volume_mass, spec_R.eigenvectors, object_pose(spec.examples[0], sub),
+                global_eigenvectors, mesh)
+        regions.append(RegionSpace(
+            name=spec.name, cells=selected, vertices=vertices,
+            examples=np.asarray(spec.examples, dtype=np.int64),
+            eigenvalues=np.asarray(spec_R.eigenvalues, dtype=float),
+            eigenvectors=np.asarray(spec_R.eigenvectors, dtype=float),
+            example_coefficients=np.asarray(coefficients, dtype=float).reshape(-1, m, 3),
+            alignment_residuals=np.asarray(residuals, dtype=float),
+            to_reduced=to_reduced, translation=translation))
+    covered_fraction = float(volumes[covered].sum() / volumes.sum())
+    if covered_fraction < 1.0:
+        log.info("local examples: %.1f %% of the volume is in no region (no example force "
+                 "there)", 100 * (1 - covered_fraction))
+    return LocalShapeSpace(tuple(regions), 0.5 * (spring + spring.T), covered_fraction, errors)
+
+
+def _representation_errors(sub, vertices, volume_mass, phi_R, posed, phi_global, mesh) -> dict:
+    """Relative M_R errors of the two variants' m-term reconstructions of a region
+    pose's displacement without its mean (the translation neither variant pulls)."""
+    u = np.asarray(posed) - sub.points  # (n_R, 3)
+    lumped = np.asarray(volume_mass.sum(axis=1)).ravel()
+    u = u - (lumped @ u) / lumped.sum()
+
+    def norm(field):
+        return float(np.sqrt(np.einsum("ik,ik->", field, volume_mass @ field)))
+
+    size = norm(u)
+    if size == 0.0:
+        return {"per-region": 0.0, "whole-object": 0.0}
+    per_region = phi_R @ (phi_R.T @ (volume_mass @ u))
+    out = {"per-region": norm(u - per_region) / size}
+    if phi_global is not None:
+        phi = np.asarray(phi_global)
+        # zero outside the region, projected on the whole object's eigenfunctions
+        coefficients = phi[vertices].T @ (volume_mass @ u)
+        out["whole-object"] = norm(u - phi[vertices] @ coefficients) / size
+    return out
+
+
+# ------------------------------------------------------------------ runtime
+def region_energy_models(mesh: TetMesh, material: Material, region: RegionSpace, *,
+                         route: str) -> list:
+    """One target energy model per example of a region (see the module docstring)."""
+    if route not in LOCAL_ROUTES:
+        raise LbshapeError(f"local examples support the routes {', '.join(LOCAL_ROUTES)}, "
+                           f"got {route!r}")
+    sub = region.submesh(mesh)
+    basis = block_eigenfunctions(region.eigenvectors).toarray()
+    energy = StVKPolynomialEnergy if route == "lb-exact" else EuclideanExampleEnergy
+    return [energy(region.example_rest_points(mesh, i), sub.tets, material, basis)
+            for i in range(region.example_coefficients.shape[0])]
+
+
+def local_route(route: str, material: Material) -> str:
+    """The local target route for a global route name and a material."""
+    if route == "euclidean" or material.model != "stvk":
+        return "euclidean"
+    return "lb-exact"
+
+
+class TabulatedTarget:
+    """The target of two examples as a table in w₁ (drop-in for a :class:`TargetSolver`).
+
+    With k = 2 the weights are ``(1 − w₁, w₁)`` and the target ``z*(w₁)`` is a
+    smooth curve from ``z_0`` to ``z_1``; it is solved at ``samples`` equally spaced
+    w₁ (warm-started in turn) and interpolated by a cubic spline. The error is
+    measured at the midpoints against the Newton solve: :attr:`error` is its
+    maximum relative to the example separation ``‖z_1 − z_0‖``.
+
+    Args:
+        solver: the Newton :class:`TargetSolver` of the two examples.
+        samples: table size, ≥ 3.
+
+    Raises:
+        LbshapeError: a solver of other than two examples.
+    """
+
+    def __init__(self, solver: TargetSolver, *, samples: int = 33):
+        if len(solver.models) != 2:
+            raise LbshapeError(f"a tabulated target needs 2 examples, got {len(solver.models)}")
+        self.models = solver.models
+        self.offsets = solver.offsets
+        grid = np.linspace(0.0, 1.0, int(samples))
+        fine = np.linspace(0.0, 1.0, 2 * int(samples) - 1)
+        solver.reset()
+        solved = np.array([solver.solve(np.array([1.0 - w, w])).z for w in fine])
+        solver.reset()
+        self._spline = CubicSpline(grid, solved[0::2], axis=0)
+        separation = float(np.linalg.norm(self.offsets[1] - self.offsets[0])) or 1.0
+        check = self._spline(fine[1::2])
+        self.error = float(np.linalg.norm(check - solved[1::2], axis=1).max()) / separation
+
+    @property
+    def dimension(self) -> int:
+        return int(self.offsets.shape[1])
+
+    def solve(self, weights: np.ndarray):
+        """The tabulated target for weights (2,) (a :class:`TargetResult`, 0 iterations)."""
+        w = float(np.clip(np.asarray(weights, dtype=float)[1], 0.0, 1.0))
+        return TargetResult(np.asarray(self._spline(w)), 0, 0.0, float("nan"))
+
+
+class LocalExampleDriver:
+    """Per-region :class:`ExampleDriver` s whose pulls add up (drop-in for the global one).
+
+    Args:
+        drivers: one driver per region; region R's ``to_reduced`` is ``T_R``.
+        spring: (r, r) ``S_q`` (see the module docstring).
+        names: region names.
+        translation: (r, r) ``Π`` added to the pull (``Π q``), or None.
+
+    Attributes:
+        spring: the spring matrix the dynamics use instead of the identity.
+        last: per-region :class:`TargetInfo` of the last :meth:`target` call.
+    """
+
+    def __init__(self, drivers: Sequence[ExampleDriver], spring: np.ndarray,
+                 names: Sequence[str], *, translation: np.ndarray | None = None):
+        if not drivers:
+            raise LbshapeError("local examples need at least one region")
+        self.drivers = list(drivers)
+        self.spring = np.asarray(spring, dtype=float)
+        self.names = tuple(names)
+        r = self.drivers[0].D.shape[1]
+        if self.spring.shape != (r, r):
+            raise LbshapeError(f"spring must be ({r}, {r}), got {self.spring.shape}")
+        self.translation = None if translation is None else np.asarray(translation, dtype=float)
+        self.last: tuple[TargetInfo, ...] = ()
+
+    def target(self, q: np.ndarray) -> TargetInfo:
+        """Pull ``Σ_R T_R c*_R + Π q`` (r,), concatenated weights, total iterations."""
+        started = time.perf_counter()
+        infos = tuple(driver.target(q) for driver in self.drivers)
+        self.last = infos
+        total = np.sum([info.q_target for info in infos], axis=0)
+        if self.translation is not None:
+            total = total + self.translation @ q
+        return TargetInfo(total, np.concatenate([info.weights for info in infos]),
+                          int(sum(info.iterations for info in infos)),
+                          time.perf_counter() - started)
+
+    def region_weights(self, q: np.ndarray) -> dict[str, np.ndarray]:
+        """Region name -> (k_R,) eq.-5 weights for reduced coordinates q (r,)."""
+        return {name: d.weights(q) for name, d in zip(self.names, self.drivers, strict=True)}
+
+
+def local_example_driver(mesh: TetMesh, material: Material, space: LocalShapeSpace, *,
+                         route: str, tabulate: bool = True, free_translation: bool = True,
+                         tolerance: float = 1e-6, max_iterations: int = 20) -> LocalExampleDriver:
+    """The runtime driver of the local examples (set-up is n_R-sized, steps are not).
+
+    Args:
+        mesh: the object's rest mesh.
+        material: its material.
+        space: the local shape space of the precompute.
+        route: one of :data:`LOCAL_ROUTES`.
+        tabulate: regions with two examples use a :class:`TabulatedTarget`.
+        free_translation: keep each region's current translation in its target
+            (the module docstring); False pulls it to zero.
+        tolerance, max_iterations: Newton settings of the target solves.
+    """
+    drivers = []
+    for region in space.regions:
+        models = region_energy_models(mesh, material, region, route=route)
+        k = region.example_coefficients.shape[0]
+        solver = TargetSolver(models, region.example_coefficients.reshape(k, -1),
+                              tolerance=tolerance, max_iterations=max_iterations)
+        if tabulate and k == 2:
+            solver = TabulatedTarget(solver)
+            log.info("region %s: tabulated target, error %.2g of the example separation",
+                     region.name, solver.error)
+        drivers.append(ExampleDriver(region.descriptor_matrix(material.density),
+                                     region.example_descriptors, solver,
+                                     to_reduced=region.to_reduced))
+    return LocalExampleDriver(drivers, space.spring, [reg.name for reg in space.regions],
+                              translation=space.translation if free_translation else None)
+
+
+# --------------------------------------------------------------- full space
+class FullSpaceLocalForce:
+    """The local example force of the full-space reference (n-sized by design).
+
+    Per step: region coefficients ``c_R = Φ_Rᵀ M_R u_R``, weights (eq. 5), target
+    ``c*_R`` by Newton with the energy over all of R's elements, and the pull
+    ``Σ_R M^(R) E_R (L_R c*_R + 1 ⊗ ū_R)`` (3n,) in kg·m; the spring matrix is
+    :attr:`mass` = ``Σ_R M^(R)`` (3n, 3n) kg.
+
+    Args:
+        mesh: the object's rest mesh.
+        material: its material.
+        space: the local shape space.
+        free_translation: as in :func:`local_example_driver`.
+        tolerance: target Newton tolerance.
+    """
+
+    def __init__(self, mesh: TetMesh, material: Material, space: LocalShapeSpace, *,
+                 free_translation: bool = True, tolerance: float = 1e-6):
+        self.names = tuple(reg.name for reg in space.regions)
+        self.free_translation = bool(free_translation)
+        n, rho = mesh.n_vertices, float(material.density)
+        self._regions = []
+        blocks = []
+        for region in space.regions:
+            sub = region.submesh(mesh)
+            mass_R = mass_matrix(sub, rho)
+            rows = (3 * region.vertices[:, None] + np.arange(3)).ravel()
+            place = sp.csr_matrix((np.ones(rows.size), (rows, np.arange(rows.size))),
+                                  shape=(3 * n, rows.size))
+            blocks.append(place @ mass_R @ place.T)
+            L = block_eigenfunctions(region.eigenvectors).toarray()
+            volume_mass = mass_R[0::3, 0::3] / rho
+            lam = np.repeat(region.eigenvalues, 3)
+            descriptor = lam[:, None] * (L.T @ sp.kron(volume_mass, sp.identity(3)).toarray())
+            k = region.example_coefficients.shape[0]
+            models = [EuclideanExampleEnergy(region.example_rest_points(mesh, i), sub.tets,
+                                             material, L) for i in range(k)]
+            solver = TargetSolver(models, region.example_coefficients.reshape(k, -1),
+                                  tolerance=tolerance)
+            ones = np.kron(np.ones((sub.n_vertices, 1)), np.eye(3))
+            mass_ones = np.asarray(mass_R @ ones)  # (3n_R, 3) kg
+            self._regions.append((rows, descriptor, region.example_descriptors, solver,
+                                  np.asarray(mass_R @ L), mass_ones, rho * sub.volume()))
+        self.mass = sp.csr_matrix(sum(blocks))
+        self.weights: dict[str, np.ndarray] = {}
+
+    def pull(self, u: np.ndarray) -> np.ndarray:
+        """(3n,) the pull (kg·m) for the displacement u (3n,) or (n, 3)."""
+        u = np.asarray(u, dtype=float).reshape(-1)
+        out = np.zeros_like(u)
+        for name, (rows, descriptor, examples, solver, ML, mass_ones, total) in zip(
+                self.names, self._regions, strict=True):
+            w = simplex_weights(examples, descriptor @ u[rows])
+            self.weights[name] = w
+            out[rows] += ML @ solver.solve(w).z
+            if self.free_translation:
+                out[rows] += mass_ones @ (mass_ones.T @ u[rows] / total)
+        return out
