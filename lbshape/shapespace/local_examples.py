@@ -381,9 +381,13 @@ def build_local_space(
             residuals.append(embedded.alignment.residual)
             log.info("%s: alignment residual %.3g", what, embedded.alignment.residual)
         if object_pose is not None:
-            errors[spec.name] = _representation_errors(
-                sub, vertices, volume_mass, spec_R.eigenvectors, object_pose(spec.examples[0], sub),
-                global_eigenvectors, mesh)
+            try:  # a pose may not fit the coarser object mesh: then nothing is measured
+                posed = object_pose(spec.examples[0], sub)
+            except LbshapeError as exc:
+                log.info("%s: representation not measured (%s)", label, exc)
+            else:
+                errors[spec.name] = _representation_errors(
+                    sub, vertices, volume_mass, spec_R.eigenvectors, posed, global_eigenvectors)
         regions.append(RegionSpace(
             name=spec.name, cells=selected, vertices=vertices,
             examples=np.asarray(spec.examples, dtype=np.int64),
@@ -399,7 +403,7 @@ def build_local_space(
     return LocalShapeSpace(tuple(regions), 0.5 * (spring + spring.T), covered_fraction, errors)
 
 
-def _representation_errors(sub, vertices, volume_mass, phi_R, posed, phi_global, mesh) -> dict:
+def _representation_errors(sub, vertices, volume_mass, phi_R, posed, phi_global) -> dict:
     """Relative M_R errors of the two variants' m-term reconstructions of a region
     pose's displacement without its mean (the translation neither variant pulls)."""
     u = np.asarray(posed) - sub.points  # (n_R, 3)
