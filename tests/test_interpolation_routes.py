@@ -15,7 +15,7 @@ from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.routes import ROUTES, example_driver, target_solver
-from lbshape.scene.schema import scene_from_dict
+from lbshape.scene import scene_from_dict
 from lbshape.shapespace.example_driver import ExampleDriver
 from lbshape.shapespace.interpolation import TargetSolver
 

@@ -16,7 +16,8 @@ from lbshape.geometry.poses import twist
 from lbshape.geometry.primitives import structured_box
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import reduced_simulation
-from lbshape.scene.schema import LocalRegion, Selection, load_scene
+from lbshape.scene.reader import load_scene
+from lbshape.scene.schema import LocalRegion, Selection
 from lbshape.shapespace.local_examples import (
     FullSpaceLocalForce,
     RegionSpec,

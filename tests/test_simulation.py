@@ -12,7 +12,7 @@ from lbshape.cli import main
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
-from lbshape.scene.schema import load_scene
+from lbshape.scene import load_scene
 
 
 @pytest.fixture(autouse=True)

@@ -20,52 +20,16 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from lbshape.dynamics.integrators import make_stepper
-from lbshape.dynamics.loads import TimeProfile
+from lbshape.dynamics.loads import TimedLoad
+from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.errors import SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class ReducedLoad:
-    """A load in reduced coordinates: ``profile(t) · pattern`` with pattern = Uᵀ f (r,)."""
-
-    pattern: np.ndarray
-    profile: TimeProfile
-
-
-@dataclass
-class RunRecord:
-    """What a run produced (kept even when it stopped early).
-
-    Attributes:
-        times: (k+1,) s, from t0.
-        states: (k+1, p) state per step (q for reduced runs, u for full space).
-        t_interp_ms: (k,) weights + target time per step.
-        t_total_ms: (k,) whole step time.
-        newton_iterations: (k,) per step.
-        stable: False if the run stopped on a solver failure.
-        message: the failure message, if any.
-    """
-
-    times: list[float] = field(default_factory=list)
-    states: list[np.ndarray] = field(default_factory=list)
-    t_interp_ms: list[float] = field(default_factory=list)
-    t_total_ms: list[float] = field(default_factory=list)
-    newton_iterations: list[int] = field(default_factory=list)
-    stable: bool = True
-    message: str = ""
-
-    def mean_ms(self, values: Sequence[float], warmup: int) -> float:
-        """Per-step mean after ``warmup`` steps (ms)."""
-        data = np.asarray(values[warmup:] if len(values) > warmup else values, dtype=float)
-        return float(data.mean()) if data.size else 0.0
 
 
 class ReducedSimulation:
@@ -77,7 +41,7 @@ class ReducedSimulation:
         dt: time step (s).
         integrator: ``"newmark"`` or ``"backward-euler"``.
         alpha, beta: Rayleigh coefficients (1/s, s).
-        loads: reduced loads.
+        loads: reduced loads (patterns ``Uᵀ f`` (r,)).
         driver: the example driver, or ``None`` (no example machinery at all). A
             driver with a ``spring`` attribute (r, r) (local examples,
             :class:`~lbshape.shapespace.local_examples.LocalExampleDriver`) uses it in
@@ -94,7 +58,7 @@ class ReducedSimulation:
         integrator: str = "newmark",
         alpha: float = 0.0,
         beta: float = 0.0,
-        loads: Sequence[ReducedLoad] = (),
+        loads: Sequence[TimedLoad] = (),
         driver: ExampleDriver | None = None,
         k_ex: float = 0.0,
     ):
@@ -141,12 +105,25 @@ class ReducedSimulation:
         return total
 
     def run(
-        self, steps: int, *, on_step: Callable[[int, float, np.ndarray], None] | None = None
+        self,
+        steps: int,
+        *,
+        stride: int = 1,
+        on_step: Callable[[int, float, np.ndarray], None] | None = None,
     ) -> RunRecord:
-        """Advance ``steps`` steps; a solver failure ends the run with ``stable=False``."""
-        record = RunRecord()
-        record.times.append(self.stepper.time)
-        record.states.append(self.stepper.x.copy())
+        """Advance ``steps`` steps; a solver failure ends the run with ``stable=False``.
+
+        Args:
+            steps: number of steps.
+            stride: keep every ``stride``-th state (and the initial one), ≥ 1.
+            on_step: called after each step with (step index from 0, time in s, q (r,)).
+
+        Returns:
+            The :class:`~lbshape.dynamics.record.RunRecord`; its states are the
+            reduced coordinates q (r,).
+        """
+        recorder = RunRecorder(stride=stride)
+        recorder.start(self.stepper.time, self.stepper.x)
         for index in range(steps):
             started = time.perf_counter()
             try:
@@ -155,15 +132,11 @@ class ReducedSimulation:
                 interpolated = time.perf_counter()
                 info = self.stepper.step()
             except SolverError as exc:
-                record.stable, record.message = False, str(exc)
                 log.error("reduced simulation stopped: %s", exc)
-                break
+                return recorder.record(stable=False, message=str(exc))
             finished = time.perf_counter()
-            record.t_interp_ms.append(1e3 * (interpolated - started))
-            record.t_total_ms.append(1e3 * (finished - started))
-            record.newton_iterations.append(int(info.iterations))
-            record.times.append(self.stepper.time)
-            record.states.append(self.stepper.x.copy())
+            recorder.step(self.stepper.time, self.stepper.x, interp_seconds=interpolated - started,
+                          total_seconds=finished - started, iterations=info.iterations)
             if on_step is not None:
                 on_step(index, self.stepper.time, self.stepper.x)
-        return record
+        return recorder.record()

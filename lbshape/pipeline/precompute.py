@@ -46,11 +46,19 @@ from pathlib import Path
 import numpy as np
 
 from lbshape import __version__
+from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
+from lbshape.elastic.cubature import inverse_frequency_scales, train_cubature
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.materials import Material
+from lbshape.elastic.modal_derivatives import modal_derivatives
+from lbshape.elastic.modes import linear_modes
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.shapes import MESHES_DIR, get_shape
 from lbshape.io.cache import cache_key, file_digest, load_artifact, save_artifact
+from lbshape.pipeline.meshes import build_mesh, posed_example, selected_vertices
 from lbshape.scene.schema import MeshSource, Scene
+from lbshape.shapespace.frames import body_frame
 from lbshape.shapespace.local_examples import (
     LocalShapeSpace,
     RegionSpec,
@@ -58,6 +66,8 @@ from lbshape.shapespace.local_examples import (
     region_cells,
     submesh,
 )
+from lbshape.shapespace.projections import block_eigenfunctions, embed_example, make_shape_space
+from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
 
@@ -173,8 +183,6 @@ def _source_digest(source: MeshSource) -> dict:
     """The mesh source's key plus the digest of the gmsh script behind a shape."""
     key = dict(source.key())
     if source.shape is not None:
-        from lbshape.geometry.shapes import MESHES_DIR, get_shape
-
         spec = get_shape(source.shape)
         key["script_sha256"] = file_digest(MESHES_DIR / spec.script)
         key["size_used"] = source.size if source.size is not None else spec.default_size
@@ -248,16 +256,11 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False) -> 
 
 
 def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
-    from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
-    from lbshape.elastic.cubature import inverse_frequency_scales, train_cubature
-    from lbshape.elastic.modal_derivatives import modal_derivatives
-    from lbshape.elastic.modes import linear_modes
-
     material, reduced = scene.material, scene.reduced
     with stages.stage("mesh"):
-        mesh = scene.object.build()
+        mesh = build_mesh(scene.object)
         fixed = (np.empty(0, dtype=np.int64) if scene.fixed is None
-                 else scene.fixed.vertices(mesh, what="fixed region"))
+                 else selected_vertices(scene.fixed, mesh, what="fixed region"))
         _check_sizes(scene, mesh, fixed)
     count = reduced.linear_modes or default_linear_modes(reduced.r)
     with stages.stage("modes"):
@@ -265,8 +268,6 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
     with stages.stage("derivatives"):
         derivatives = modal_derivatives(mesh, material, modes)
     with stages.stage("basis"):
-        from lbshape.elastic.element_kernels import mass_matrix
-
         mass = mass_matrix(mesh, material.density)
         basis = nonlinear_basis(modes, derivatives, mass, reduced.r)
         U = basis.U
@@ -300,7 +301,6 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
 
 def _local_space(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Stages):
     """The ``lb`` and ``regions`` stages of a scene with local examples."""
-    from lbshape.spectral.spectrum import lb_spectrum
 
     m = scene.reduced.m
     with stages.stage("lb"):
@@ -311,27 +311,23 @@ def _local_space(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Stages):
     def example_part(k: int, spec: RegionSpec):
         source = poses[k].source
         if source not in rests:
-            rests[source] = source.build()
+            rests[source] = build_mesh(source)
         what = f"region '{spec.name}' on example {k + 1} ({_example_label(poses[k])})"
         cells = region_cells(rests[source], group=spec.group, region=spec.region, what=what)
         part, _ = submesh(rests[source], cells, what=what)
-        return part, poses[k].posed(part).points
+        return part, posed_example(poses[k], part).points
 
     specs = [RegionSpec(reg.name, reg.selection.group, reg.selection.region, reg.examples)
              for reg in scene.regions]
     with stages.stage("regions"):
         local = build_local_space(
             mesh, scene.material, U, specs, example_part, m=m,
-            object_pose=lambda k, part: poses[k].posed(part).points,
+            object_pose=lambda k, part: posed_example(poses[k], part).points,
             global_eigenvectors=spectrum.eigenvectors)
     return local, {"eigenvalues": spectrum.eigenvalues, "eigenvectors": spectrum.eigenvectors}
 
 
 def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Stages) -> dict:
-    from lbshape.shapespace.frames import body_frame
-    from lbshape.shapespace.projections import embed_example, make_shape_space
-    from lbshape.spectral.spectrum import lb_spectrum
-
     m = scene.reduced.m
     with stages.stage("lb"):
         spectrum = lb_spectrum(mesh, m)
@@ -340,13 +336,13 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Sta
         coefficients, alignments = [], []
         for index, pose in enumerate(scene.examples.poses):
             label = f"example {index + 1} ({_example_label(pose)})"
-            rest = pose.source.build()
+            rest = build_mesh(pose.source)
             if rest.n_vertices <= m + 1:
                 raise LbshapeError(
                     f"{label}: m={m} is too large for an example mesh with "
                     f"{rest.n_vertices} vertices"
                 )
-            posed = pose.posed(rest)
+            posed = posed_example(pose, rest)
             landmarks = np.asarray(pose.landmarks, dtype=np.int64) if pose.landmarks else None
             try:
                 embedded = embed_example(mesh, spectrum, rest, [posed.points],
@@ -375,9 +371,6 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Sta
 
 def _train_lb_cubature(scene: Scene, mesh: TetMesh, spectrum, example_coefficients):
     """Cubature for the basis ``L = Φ ⊗ I₃``, training poses as large as the examples."""
-    from lbshape.elastic.cubature import inverse_frequency_scales, train_cubature
-    from lbshape.shapespace.projections import block_eigenfunctions
-
     L = block_eigenfunctions(spectrum.eigenvectors).toarray()
     size = float(np.ptp(mesh.points, axis=0).max())
     k = example_coefficients.shape[0]

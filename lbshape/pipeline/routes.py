@@ -1,8 +1,9 @@
 """The interpolation routes: which basis and which elements the target energies use.
 
-See :mod:`lbshape.shapespace.interpolation` for the target problem ``min_z Σ_k w_k E_k(z − z_k)``.
-The routes (:data:`ROUTES`) differ in the coordinates z, the basis B that
-maps them to displacements (metres) and the elements the energies sum over:
+See :mod:`lbshape.shapespace.interpolation` for the target problem ``min_z Σ_k w_k E_k(z − z_k)``
+and for the registry of routes (:data:`~lbshape.shapespace.interpolation.ROUTES`). The
+routes differ in the coordinates z, the basis B that maps them to displacements
+(metres) and the elements the energies sum over:
 
 * ``modal`` (the paper's): z = reduced coordinates q (r,), ``B = U`` (3n, r), the
   elastic cubature of the precompute; the examples enter through the direct
@@ -37,13 +38,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import Precomputed
-from lbshape.shapespace.interpolation import TargetSolver
+from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
+from lbshape.shapespace.example_driver import ExampleDriver
+from lbshape.shapespace.interpolation import ROUTES, TargetSolver
+from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
 
 log = logging.getLogger(__name__)
-
-ROUTES = ("modal", "lb", "lb-exact", "euclidean")
 
 
 @dataclass(frozen=True)
@@ -136,9 +139,6 @@ def target_solver(
     rests = [pre.example_rest_points(i) for i in range(k)]
     tets, material = pre.mesh.tets, pre.material
     if route in ("euclidean", "lb-exact"):
-        from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
-        from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
-
         energy = EuclideanExampleEnergy if route == "euclidean" else StVKPolynomialEnergy
         basis = pre.lb_basis()
         elements = np.arange(pre.mesh.n_tets, dtype=np.int64)
@@ -146,8 +146,6 @@ def target_solver(
         models = [energy(x, tets, material, basis) for x in rests]
         offsets, to_reduced, errors = coefficients, pre.lb_to_reduced, {}
     else:
-        from lbshape.elastic.reduced_forces import ReducedForceModel
-
         if route == "modal":
             basis, elements, weights = pre.U, pre.cubature_elements, pre.cubature_weights
             offsets, to_reduced = coefficients @ pre.lb_to_reduced.T, None
@@ -177,8 +175,6 @@ def example_driver(pre: Precomputed, *, route: str, **options):
         route: one of :data:`ROUTES`.
         **options: keyword options of :func:`target_solver`.
     """
-    from lbshape.shapespace.example_driver import ExampleDriver
-
     setup = target_solver(pre, route, **options)
     return ExampleDriver(pre.descriptor_matrix, pre.example_descriptors, setup.solver,
                          to_reduced=setup.to_reduced)
