@@ -76,7 +76,7 @@ CUBATURE_TRAINING_POSES = 120
 #: seed of every random choice of the precompute (training poses, candidates)
 PRECOMPUTE_SEED = 20170401
 #: bumped whenever the artifact's content or meaning changes (part of the cache key)
-PIPELINE_VERSION = 2
+PIPELINE_VERSION = 3
 #: arrays every artifact holds, and those of scenes with examples
 _REQUIRED = ("points", "tets", "fixed", "U", "omega2", "cub_elements", "cub_weights")
 _REQUIRED_EXAMPLES = ("eigenvalues", "eigenvectors", "example_coefficients", "projection",
@@ -279,6 +279,7 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
             n_train=CUBATURE_TRAINING_POSES, n_holdout=CUBATURE_TRAINING_POSES // 2,
         )
     arrays = {
+        **_group_arrays(mesh),
         "points": mesh.points, "tets": mesh.tets, "fixed": fixed, "U": U,
         "omega2": np.asarray(modes.omega2), "cub_elements": cubature.elements,
         "cub_weights": cubature.weights,
@@ -389,6 +390,23 @@ def _example_label(pose) -> str:
     return f"{source}:{pose.pose}" if pose.pose else str(source)
 
 
+def _group_arrays(mesh: TetMesh) -> dict[str, np.ndarray]:
+    """The mesh's physical groups as artifact arrays (loads may name them at run time)."""
+    out = {f"cgroup__{name}": np.asarray(v, dtype=np.int64) for name, v in mesh.cell_groups.items()}
+    out.update({f"vgroup__{name}": np.asarray(v, dtype=np.int64)
+                for name, v in mesh.vertex_groups.items()})
+    return out
+
+
+def _groups_from_arrays(arrays: dict) -> tuple[dict, dict]:
+    """Inverse of :func:`_group_arrays`: (cell groups, vertex groups)."""
+    cells = {k[len("cgroup__"):]: np.asarray(v, dtype=np.int64) for k, v in arrays.items()
+             if k.startswith("cgroup__")}
+    vertices = {k[len("vgroup__"):]: np.asarray(v, dtype=np.int64) for k, v in arrays.items()
+                if k.startswith("vgroup__")}
+    return cells, vertices
+
+
 def _check_sizes(scene: Scene, mesh: TetMesh, fixed: np.ndarray) -> None:
     free_dofs = 3 * (mesh.n_vertices - fixed.size) - (0 if fixed.size else 6)
     r, s, m = scene.reduced.r, scene.reduced.s, scene.reduced.m
@@ -402,7 +420,8 @@ def _check_sizes(scene: Scene, mesh: TetMesh, fixed: np.ndarray) -> None:
 
 def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
                  from_cache: bool = True) -> Precomputed:
-    mesh = TetMesh(np.asarray(arrays["points"]), np.asarray(arrays["tets"]))
+    mesh = TetMesh(np.asarray(arrays["points"]), np.asarray(arrays["tets"]),
+                   *_groups_from_arrays(arrays))
     has_examples = "example_coefficients" in arrays
     return Precomputed(
         scene=scene.name, key=key, mesh=mesh, material=scene.material,

@@ -624,3 +624,28 @@ class FullSpaceLocalForce:
             if self.free_translation:
                 out[rows] += mass_ones @ (mass_ones.T @ u[rows] / total)
         return out
+
+
+# ---------------------------------------------------------------- measures
+def region_descriptor(mesh: TetMesh, region: RegionSpace, u: np.ndarray) -> np.ndarray:
+    """(3m,) λ-weighted coefficients ``λ_R ⊙ Φ_Rᵀ M_R u_R`` of a displacement u (n, 3)."""
+    volume_mass = mass_matrix(region.submesh(mesh), 1.0)[0::3, 0::3]
+    u_R = np.asarray(u, dtype=float).reshape(-1, 3)[region.vertices]
+    c = region.eigenvectors.T @ (volume_mass @ u_R)
+    return c.reshape(-1) * np.repeat(region.eigenvalues, 3)
+
+
+def region_example_distance(mesh: TetMesh, region: RegionSpace,
+                            u: np.ndarray) -> tuple[float, np.ndarray]:
+    """How far a region's shape is from its examples (paper eq. 5's residual).
+
+    Returns:
+        ``(distance, weights)``: ``min_w ‖Σ w_k e_k − d‖ / max_k ‖e_k‖`` over the
+        simplex (0 on the examples' hull, 1 at rest when one example is the
+        largest) and the minimising weights (k_R,).
+    """
+    d = region_descriptor(mesh, region, u)
+    E = region.example_descriptors
+    w = simplex_weights(E, d)
+    scale = float(np.linalg.norm(E, axis=1).max()) or 1.0
+    return float(np.linalg.norm(w @ E - d)) / scale, w
