@@ -25,6 +25,8 @@ from lbshape.shapespace.local_examples import (
     check_partition,
     local_example_driver,
     region_cells,
+    region_descriptor,
+    rigid_fields,
     submesh,
 )
 
@@ -81,7 +83,7 @@ def test_overlapping_regions_and_disconnected_regions_are_one_line_errors():
 
 def test_rest_examples_exert_no_force():
     """Examples equal to the rest shape (another resolution): no force at rest, and
-    none on a region that only translates; a posed neighbour still pulls."""
+    none on a region that only moves rigidly; a posed neighbour still pulls."""
     specs = [RegionSpec("low", None, "z < 0.5", (0,)), RegionSpec("high", None, "z >= 0.5", (1,))]
     mesh, U, space = _local_space(specs, angles=(0.0, 0.8))
     low = space.regions[0]
@@ -97,7 +99,12 @@ def test_rest_examples_exert_no_force():
     inside_low = np.setdiff1d(low.vertices, space.regions[1].vertices)
     assert np.abs(rest[inside_low]).max() < 1e-12
     assert np.abs(rest).max() > 1e-3  # the twisted region does pull
-    shift = np.tile([0.01, -0.02, 0.03], (mesh.n_vertices, 1))
+    # a rigid motion (translation and infinitesimal rotation) of the region
+    part = low.submesh(mesh)
+    rigid = rigid_fields(part.points, mass_matrix(part, 1.0)) @ np.array(
+        [0.01, -0.02, 0.03, 0.02, -0.01, 0.03])
+    shift = np.zeros((mesh.n_vertices, 3))
+    shift[low.vertices] = rigid.reshape(-1, 3)
     only_low = FullSpaceLocalForce(mesh, MATERIAL, dataclasses.replace(
         space, regions=(low,)))
     f = k_ex * (only_low.pull(shift) - only_low.mass @ shift.reshape(-1))
@@ -138,11 +145,11 @@ def test_per_region_weights_follow_eq5():
     force = FullSpaceLocalForce(mesh, MATERIAL, space)
     force.pull(u)
     np.testing.assert_allclose(force.weights["low"], [0.3, 0.7], atol=1e-8)
-    for region, c in ((low, c_low), (high, c_high)):
-        d = c.reshape(-1) * np.repeat(region.eigenvalues, 3)
+    for region in (low, high):
+        d = region_descriptor(mesh, region, u)
+        E = region.example_descriptors(MATERIAL.density)
         grid = np.linspace(0.0, 1.0, 2001)
-        residual = [np.linalg.norm((1 - t) * region.example_descriptors[0]
-                                   + t * region.example_descriptors[1] - d) for t in grid]
+        residual = [np.linalg.norm((1 - t) * E[0] + t * E[1] - d) for t in grid]
         best = grid[int(np.argmin(residual))]
         np.testing.assert_allclose(force.weights[region.name], [1 - best, best], atol=1e-3)
     np.testing.assert_allclose(force.weights["high"], [1.0, 0.0], atol=1e-12)
@@ -185,7 +192,7 @@ def test_one_region_covering_the_object_reproduces_the_global_path():
     reference = reduced_simulation(scene, pre_global).run(steps)
     sim = reduced_simulation(whole, pre_local)
     sim.driver = local_example_driver(pre_local.mesh, pre_local.material, pre_local.local,
-                                      route="lb-exact", tabulate=False, free_translation=False)
+                                      route="lb-exact", tabulate=False, free_rigid=False)
     local = sim.run(steps)
     a, b = np.array(reference.states), np.array(local.states)
     assert np.abs(a).max() > 1e-3
@@ -193,19 +200,24 @@ def test_one_region_covering_the_object_reproduces_the_global_path():
 
 
 def test_reduced_pull_is_the_projection_of_the_region_target():
-    """At rest a one-example region's pull is ``Uᵀ M^(R) u*_R``: its example, placed on
-    the region's vertices and weighted by the region's mass only."""
+    """At rest a one-example region's pull is ``Uᵀ M^(R) P_R u*_R``: its example, placed
+    on the region's vertices, its rigid part removed, weighted by the region's mass."""
     specs = [RegionSpec("low", None, "z < 0.5", (0,))]
     mesh, U, space = _local_space(specs, angles=(0.8,), r=20)
     low = space.regions[0]
-    info = local_example_driver(mesh, MATERIAL, space, route="lb-exact").target(
-        np.zeros(U.shape[1]))
-    twisted = np.zeros((mesh.n_vertices, 3))
-    twisted[low.vertices] = low.displacement(low.example_coefficients[0])
+    part = low.submesh(mesh)
+    part_mass = mass_matrix(part, MATERIAL.density)
+    Q = rigid_fields(part.points, part_mass)
+    shape = low.displacement(low.example_coefficients[0]).reshape(-1)
     region_mass = FullSpaceLocalForce(mesh, MATERIAL, space).mass
-    expected = U.T @ (region_mass @ twisted.reshape(-1))
-    np.testing.assert_allclose(info.q_target, expected, rtol=0,
-                               atol=1e-9 * np.abs(expected).max())
+    for free_rigid, target in ((False, shape), (True, shape - Q @ (Q.T @ (part_mass @ shape)))):
+        info = local_example_driver(mesh, MATERIAL, space, route="lb-exact",
+                                    free_rigid=free_rigid).target(np.zeros(U.shape[1]))
+        placed = np.zeros((mesh.n_vertices, 3))
+        placed[low.vertices] = target.reshape(-1, 3)
+        expected = U.T @ (region_mass @ placed.reshape(-1))
+        np.testing.assert_allclose(info.q_target, expected, rtol=0,
+                                   atol=1e-9 * np.abs(expected).max())
     np.testing.assert_allclose(space.spring, U.T @ (region_mass @ U), atol=1e-12)
 
 

@@ -169,7 +169,7 @@ def _region_labels(pre) -> np.ndarray:
 def _local_example_shape(pre, index: int) -> np.ndarray | None:
     """(n, 3) the object with every region that example ``index`` guides in that
     example's region shape, kept on its interface with the rest of the object (the
-    region targets carry no translation of their own); None if no region uses it."""
+    example force shapes a region but does not place it); None if no region uses it."""
     mesh = pre.mesh
     u, count = np.zeros((mesh.n_vertices, 3)), np.zeros(mesh.n_vertices)
     for region in pre.local.regions:
@@ -188,14 +188,27 @@ def _local_example_shape(pre, index: int) -> np.ndarray | None:
     return u / np.maximum(count, 1)[:, None]
 
 
-def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Path, ...]:
-    """``local_examples.png``, ``local_result.png`` and ``local_examples.json``.
+def _view_vector(mesh) -> tuple[float, float, float]:
+    """A camera direction: mostly along the thin axis of a flat object, else oblique."""
+    extent = np.ptp(mesh.points, axis=0)
+    thin = int(np.argmin(extent))
+    if extent[thin] >= 0.3 * extent.max():
+        return (1.0, -1.0, 0.5)
+    view = np.array([0.35, -0.6, 0.35])
+    view[thin] = 1.0
+    return tuple(float(v) for v in view)
 
-    The first shows the object at rest coloured by region and each example as the
-    regions it guides see it (reconstructed on the object's mesh from the region's
-    m coefficients); the second the rest shape by region, the final frame of the
-    same run without examples (k_ex = 0) and ``output``'s final frame, coloured by
-    |u|. The JSON holds the example influence ``‖u_ex − u_none‖_M / ‖u_none‖_M``
+
+def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Path, ...]:
+    """``local_regions.png``, ``local_examples.png``, ``local_result.png`` and
+    ``local_examples.json``.
+
+    The regions picture colours the object at rest by region; the examples picture
+    shows the rest shape and each example as the regions it guides see it
+    (reconstructed on the object's mesh from the region's m coefficients), coloured
+    by the example's displacement; the result picture the rest shape, the final
+    frame of the same run without examples (k_ex = 0) and ``output``'s final frame,
+    coloured by |u|. The JSON holds the example influence ``‖u_ex − u_none‖_M / ‖u_none‖_M``
     and, per region, the distance to its examples (eq. 5's residual, relative to
     the largest example) and weights, without and with the examples.
     """
@@ -211,11 +224,17 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
             users = [reg.name for reg in pre.local.regions if index in reg.examples]
             shapes.append(u)
             captions.append(f"{example_caption(index, pose)} -> {', '.join(users)}")
+    view = _view_vector(pre.mesh)
+    regions_png = render_shapes(
+        [pre.mesh], [f"{scene.name}: regions ({names}; 0 = none)"],
+        out_dir / "local_regions.png", scalars=[labels], scalar_name="region",
+        window_size=(900, 640), view_vector=view, clim=(0.0, float(labels.max())))
     examples_png = render_shapes(
         [pre.mesh, *(_deformed(pre, u) for u in shapes)],
-        [f"regions ({names})", *captions], out_dir / "local_examples.png",
-        scalars=[labels, *(np.linalg.norm(u, axis=1) for u in shapes)],
-        scalar_name="region / |x_k - X| (m)")
+        ["rest", *captions], out_dir / "local_examples.png",
+        scalars=[None, *(np.linalg.norm(u, axis=1) for u in shapes)],
+        scalar_name="|x_k - X| (m)", window_size=(480 * (len(shapes) + 1), 560),
+        view_vector=view)
     method = output.stats.get("method", "reduced")
     none_scene = dataclasses.replace(
         scene, examples=dataclasses.replace(scene.examples, stiffness=0.0))
@@ -230,11 +249,14 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
         [f"rest, regions ({names})", f"no examples ({method}) t={t:.2f} s",
          f"local examples ({method}) t={t:.2f} s, influence {influence:.2f}"],
         out_dir / "local_result.png",
-        scalars=[None, np.linalg.norm(u_none, axis=1), np.linalg.norm(u_ex, axis=1)])
+        scalars=[None, np.linalg.norm(u_none, axis=1), np.linalg.norm(u_ex, axis=1)],
+        window_size=(1500, 640), view_vector=view)
     regions = {}
     for region in pre.local.regions:
-        d_none, w_none = region_example_distance(pre.mesh, region, u_none)
-        d_ex, w_ex = region_example_distance(pre.mesh, region, u_ex)
+        d_none, w_none = region_example_distance(pre.mesh, region, u_none,
+                                                 density=pre.material.density)
+        d_ex, w_ex = region_example_distance(pre.mesh, region, u_ex,
+                                             density=pre.material.density)
         regions[region.name] = {
             "examples": [int(k) for k in region.examples],
             "distance_to_examples": {"no_examples": d_none, "examples": d_ex},
@@ -248,7 +270,7 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
         "covered_volume_fraction": pre.local.covered,
         "representation_errors": pre.local.representation_errors,
     })
-    return examples_png, result_png, summary
+    return regions_png, examples_png, result_png, summary
 
 
 def eigenfunctions_figure(scene, pre, path: str | Path, *, count: int = 4) -> Path:
@@ -344,8 +366,8 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
 
     Writes ``simulation.png`` (``method``'s run), ``eigenfunctions.png`` and, with
     examples, ``examples_on_object.png`` and ``examples_raw.png`` (with local
-    examples: ``local_examples.png``, ``local_result.png`` and
-    ``local_examples.json``); plus ``summary.json`` (the run's stats and the files).
+    examples: ``local_regions.png``, ``local_examples.png``, ``local_result.png``
+    and ``local_examples.json``); plus ``summary.json`` (the run's stats and the files).
 
     Args:
         scene: the scene.
@@ -365,7 +387,7 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
     if pre.has_examples:
         paths.extend(examples_figures(scene, pre, out))
     if pre.has_local_examples:
-        paths.extend(local_examples_figures(scene, pre, output, out)[:2])
+        paths.extend(local_examples_figures(scene, pre, output, out)[:3])
     summary = write_json_atomic(out / "summary.json", {
         "scene": scene.name, "simulation": output.stats, "message": output.message,
         "pictures": [p.name for p in paths],

@@ -27,24 +27,28 @@ brought into R's shape space with the global machinery
 against R's own spectrum; landmarks are not used for regions).
 
 **Forces.** Region R pulls only its own elements: in full space
-``f_R = k_ex M^(R) (u*_R − u)``, M^(R) the elastic mass assembled over R's
-tetrahedra and ``u*_R = E_R (L_R c*_R + 1 ⊗ ū_R)`` the region's target (E_R places
-region vertex rows into the object's, ``L_R = Φ_R ⊗ I₃``, ū_R (3,) the region's
-current mean displacement). The region's eigenfunctions exclude the constant, so
-its descriptor cannot see the region's translation, and the target carries the
-current one: the example force moves no region as a whole (that is left to the
+``f_R = k_ex M^(R) P_R (u*_R − u)``, M^(R) the elastic mass assembled over R's
+tetrahedra, ``u*_R = E_R L_R c*_R`` the region's target (E_R places region vertex
+rows into the object's, ``L_R = Φ_R ⊗ I₃``) and ``P_R = I − Q_R Q_Rᵀ M^(R)`` the
+M^(R)-orthogonal projection that removes the region's (linearised) rigid motion:
+Q_R (3n_R, 6) holds its translations and infinitesimal rotations about its
+centroid, ``Q_Rᵀ M^(R) Q_R = I``. The example force thus has no net force and no
+net torque on a region: it shapes the region and leaves its placement to the
 elastic forces, the loads and the supports — an arm anchored at a fixed centre
-takes its example's shape without being pulled off its anchor). Like the target,
-ū_R is taken at the start of the step. The forces add up:
-``f = k_ex (Σ_R M^(R) E_R (L_R c*_R + 1 ⊗ ū_R) − S u)`` with ``S = Σ_R M^(R)``. In
-the reduced coordinates q (``Uᵀ M U = I``) the pull is
-``k_ex (Σ_R T_R c*_R + Π q)`` and the spring ``k_ex S_q q``, with the precomputed
-``T_R = Uᵀ M^(R) E_R L_R`` (r, 3m), ``Π = Σ_R Uᵀ M^(R) E_R (1 ⊗ I₃) A_R`` (r, r;
-``ū_R = A_R q``) and ``S_q = Uᵀ S U`` (r, r); the descriptor of the current shape
-is ``D_R q`` with ``D_R = diag(λ_R ⊗ 1₃) T_Rᵀ / ρ`` (3m, r). The runtime step
-touches only these small matrices. (``free_translation=False`` drops Π: the
-variant in which a region's translation is pulled to zero, as the global path
-does for the whole object.)
+takes its example's shape without being pulled off its anchor or turned about it,
+and a region whose example turns its own anchor (an S-bend of a beam through a
+fixed centre) does not fight the support. The descriptors that pick the weights
+are taken after the same projection (``λ_R ⊙ L_Rᵀ M_R P_R u``, examples alike), so
+a region's weights do not react to its rigid motion either. In reduced
+coordinates q (``Uᵀ M U = I``) the force is ``k_ex (Σ_R T'_R c*_R + Π q − S_q q)``
+with the precomputed ``T'_R = Uᵀ M^(R) P_R E_R L_R`` (r, 3m),
+``Π = Σ_R (Uᵀ M^(R) Q_R)(Uᵀ M^(R) Q_R)ᵀ`` (r, r) and ``S_q = Uᵀ (Σ_R M^(R)) U``
+(r, r); the descriptor of the current shape is ``D_R q``,
+``D_R = diag(λ_R ⊗ 1₃) T'_Rᵀ / ρ`` (3m, r). Like the target, ``Π q`` is taken at
+the start of each step. The runtime step touches only these small matrices.
+``free_rigid=False`` drops the projection (``P_R = I``, Π = 0): the variant in
+which a region's rigid motion is pulled back, as the global path does for the
+whole object; with one region covering the object it is the global path.
 
 **Rules.** Regions are sets of tetrahedra: a physical group must be a volume
 group; an expression selects the tetrahedra whose centroid satisfies it. Regions
@@ -163,6 +167,22 @@ def submesh(mesh: TetMesh, cells: np.ndarray, *,
     return TetMesh(np.asarray(mesh.points)[vertices], local), vertices
 
 
+def rigid_fields(points: np.ndarray, mass: sp.spmatrix) -> np.ndarray:
+    """(3n, 6) node-major translations and infinitesimal rotations about the
+    mass centre of ``points`` (n, 3), orthonormal in ``mass`` (3n, 3n)."""
+    points = np.asarray(points, dtype=float)
+    n = points.shape[0]
+    weights = np.asarray(mass[0::3, 0::3].sum(axis=1)).ravel()
+    x = points - weights @ points / weights.sum()
+    R = np.zeros((n, 3, 6))
+    R[:, :, :3] = np.eye(3)
+    for axis in range(3):  # e_axis × x
+        R[:, :, 3 + axis] = np.cross(np.eye(3)[axis], x)
+    R = R.reshape(3 * n, 6)
+    gram = R.T @ (mass @ R)
+    return np.linalg.solve(np.linalg.cholesky(gram), R.T).T
+
+
 # ------------------------------------------------------------ shape space
 @dataclass(frozen=True)
 class RegionSpace:
@@ -178,10 +198,9 @@ class RegionSpace:
         eigenvectors: (n_R, m) Φ_R, M_R-orthonormal (M_R the region's volume mass, m³).
         example_coefficients: (k_R, m, 3) example displacement coefficients (m^(5/2)).
         alignment_residuals: (k_R,) basis alignment residuals.
-        to_reduced: (r, 3m) ``T_R = Uᵀ M^(R) E_R L_R``: region LB coefficients to the
-            pull in reduced coordinates.
-        translation: (r, r) ``Uᵀ M^(R) E_R (1 ⊗ I₃) A_R``: reduced coordinates q to
-            the pull that keeps the region's current mean displacement ``A_R q``.
+        to_reduced: (r, 3m) ``T_R = Uᵀ M^(R) E_R L_R`` (no rigid projection).
+        rigid_reduced: (r, 6) ``Uᵀ M^(R) E_R Q_R`` (kg^(1/2)).
+        rigid_coefficients: (3m, 6) ``L_Rᵀ M^(R) Q_R``.
     """
 
     name: str
@@ -193,21 +212,38 @@ class RegionSpace:
     example_coefficients: np.ndarray
     alignment_residuals: np.ndarray
     to_reduced: np.ndarray
-    translation: np.ndarray
+    rigid_reduced: np.ndarray
+    rigid_coefficients: np.ndarray
 
     @property
     def m(self) -> int:
         return int(self.eigenvalues.size)
 
-    def descriptor_matrix(self, density: float) -> np.ndarray:
-        """(3m, r) ``D_R``: the region descriptor of ``U q`` is ``D_R q``."""
-        return np.repeat(self.eigenvalues, 3)[:, None] * self.to_reduced.T / density
+    def pull_matrix(self, *, free_rigid: bool = True) -> np.ndarray:
+        """(r, 3m) ``T'_R`` (``T_R`` with ``free_rigid=False``): target coefficients to pull."""
+        if not free_rigid:
+            return self.to_reduced
+        return self.to_reduced - self.rigid_reduced @ self.rigid_coefficients.T
 
-    @property
-    def example_descriptors(self) -> np.ndarray:
-        """(k_R, 3m) λ-weighted example coefficients, flattened row-major."""
+    def rigid_pull(self) -> np.ndarray:
+        """(r, r) ``Π_R``: reduced coordinates q to the pull that keeps the region's
+        current rigid motion."""
+        return self.rigid_reduced @ self.rigid_reduced.T
+
+    def descriptor_matrix(self, density: float, *, free_rigid: bool = True) -> np.ndarray:
+        """(3m, r) ``D_R``: the region descriptor of ``U q`` is ``D_R q``."""
+        T = self.pull_matrix(free_rigid=free_rigid)
+        return np.repeat(self.eigenvalues, 3)[:, None] * T.T / density
+
+    def example_descriptors(self, density: float, *, free_rigid: bool = True) -> np.ndarray:
+        """(k_R, 3m) λ-weighted example coefficients (after the rigid projection),
+        flattened row-major."""
         k = self.example_coefficients.shape[0]
-        return self.example_coefficients.reshape(k, -1) * np.repeat(self.eigenvalues, 3)
+        c = self.example_coefficients.reshape(k, -1)
+        if free_rigid:
+            B = self.rigid_coefficients
+            c = c - (c @ B) @ B.T / density
+        return c * np.repeat(self.eigenvalues, 3)
 
     def submesh(self, mesh: TetMesh) -> TetMesh:
         """The region's own mesh (vertex order of :attr:`vertices`)."""
@@ -245,9 +281,9 @@ class LocalShapeSpace:
     representation_errors: dict
 
     @property
-    def translation(self) -> np.ndarray:
-        """(r, r) ``Π = Σ_R`` :attr:`RegionSpace.translation`."""
-        return sum(reg.translation for reg in self.regions)
+    def rigid_pull(self) -> np.ndarray:
+        """(r, r) ``Π = Σ_R Π_R``."""
+        return sum(reg.rigid_pull() for reg in self.regions)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Flat arrays for the precompute artifact (see :func:`from_arrays`)."""
@@ -255,7 +291,7 @@ class LocalShapeSpace:
         for i, reg in enumerate(self.regions):
             for key in ("cells", "vertices", "examples", "eigenvalues", "eigenvectors",
                         "example_coefficients", "alignment_residuals", "to_reduced",
-                        "translation"):
+                        "rigid_reduced", "rigid_coefficients"):
                 out[f"local{i}_{key}"] = getattr(reg, key)
         return out
 
@@ -272,7 +308,8 @@ class LocalShapeSpace:
                 eigenvectors=get("eigenvectors"),
                 example_coefficients=get("example_coefficients"),
                 alignment_residuals=get("alignment_residuals"), to_reduced=get("to_reduced"),
-                translation=get("translation")))
+                rigid_reduced=get("rigid_reduced"),
+                rigid_coefficients=get("rigid_coefficients")))
         return cls(tuple(regions), np.asarray(arrays["local_spring"]),
                    float(arrays["local_covered"]), dict(errors))
 
@@ -283,7 +320,7 @@ class LocalShapeSpace:
             keys += [f"local{i}_{k}" for k in ("cells", "vertices", "examples", "eigenvalues",
                                                 "eigenvectors", "example_coefficients",
                                                 "alignment_residuals", "to_reduced",
-                                                "translation")]
+                                                "rigid_reduced", "rigid_coefficients")]
         return tuple(keys)
 
 
@@ -365,10 +402,9 @@ def build_local_space(
         spring += U_R.T @ (mass_R @ U_R)
         volume_mass = mass_R[0::3, 0::3] / rho  # (n_R, n_R) m³
         to_reduced = rho * direct_projection(U_R, spec_R.eigenvectors, volume_mass)
-        ones = np.kron(np.ones((sub.n_vertices, 1)), np.eye(3))  # (3n_R, 3) translations
-        G = U_R.T @ (mass_R @ ones)  # (r, 3): pull of a unit translation, kg
-        mean = G.T / (rho * sub.volume())  # (3, r): A_R, mean displacement of U q
-        translation = G @ mean
+        Q = rigid_fields(sub.points, mass_R)
+        mass_Q = mass_R @ Q  # (3n_R, 6)
+        L_R = block_eigenfunctions(spec_R.eigenvectors).toarray()
         coefficients, residuals = [], []
         for k in spec.examples:
             what = f"{label}, example {k + 1}"
@@ -395,7 +431,8 @@ def build_local_space(
             eigenvectors=np.asarray(spec_R.eigenvectors, dtype=float),
             example_coefficients=np.asarray(coefficients, dtype=float).reshape(-1, m, 3),
             alignment_residuals=np.asarray(residuals, dtype=float),
-            to_reduced=to_reduced, translation=translation))
+            to_reduced=to_reduced, rigid_reduced=U_R.T @ mass_Q,
+            rigid_coefficients=L_R.T @ mass_Q))
     covered_fraction = float(volumes[covered].sum() / volumes.sum())
     if covered_fraction < 1.0:
         log.info("local examples: %.1f %% of the volume is in no region (no example force "
@@ -405,10 +442,12 @@ def build_local_space(
 
 def _representation_errors(sub, vertices, volume_mass, phi_R, posed, phi_global) -> dict:
     """Relative M_R errors of the two variants' m-term reconstructions of a region
-    pose's displacement without its mean (the translation neither variant pulls)."""
+    pose's displacement without its rigid part (which neither variant pulls)."""
     u = np.asarray(posed) - sub.points  # (n_R, 3)
-    lumped = np.asarray(volume_mass.sum(axis=1)).ravel()
-    u = u - (lumped @ u) / lumped.sum()
+    mass3 = sp.kron(volume_mass, sp.identity(3)).tocsr()
+    Q = rigid_fields(sub.points, mass3)
+    flat = u.reshape(-1)
+    u = (flat - Q @ (Q.T @ (mass3 @ flat))).reshape(-1, 3)
 
     def norm(field):
         return float(np.sqrt(np.einsum("ik,ik->", field, volume_mass @ field)))
@@ -493,10 +532,10 @@ class LocalExampleDriver:
     """Per-region :class:`ExampleDriver` s whose pulls add up (drop-in for the global one).
 
     Args:
-        drivers: one driver per region; region R's ``to_reduced`` is ``T_R``.
+        drivers: one driver per region; region R's ``to_reduced`` is ``T'_R``.
         spring: (r, r) ``S_q`` (see the module docstring).
         names: region names.
-        translation: (r, r) ``Π`` added to the pull (``Π q``), or None.
+        rigid_pull: (r, r) ``Π`` added to the pull (``Π q``), or None.
 
     Attributes:
         spring: the spring matrix the dynamics use instead of the identity.
@@ -504,7 +543,7 @@ class LocalExampleDriver:
     """
 
     def __init__(self, drivers: Sequence[ExampleDriver], spring: np.ndarray,
-                 names: Sequence[str], *, translation: np.ndarray | None = None):
+                 names: Sequence[str], *, rigid_pull: np.ndarray | None = None):
         if not drivers:
             raise LbshapeError("local examples need at least one region")
         self.drivers = list(drivers)
@@ -513,7 +552,7 @@ class LocalExampleDriver:
         r = self.drivers[0].D.shape[1]
         if self.spring.shape != (r, r):
             raise LbshapeError(f"spring must be ({r}, {r}), got {self.spring.shape}")
-        self.translation = None if translation is None else np.asarray(translation, dtype=float)
+        self.rigid_pull = None if rigid_pull is None else np.asarray(rigid_pull, dtype=float)
         self.last: tuple[TargetInfo, ...] = ()
 
     def target(self, q: np.ndarray) -> TargetInfo:
@@ -522,8 +561,8 @@ class LocalExampleDriver:
         infos = tuple(driver.target(q) for driver in self.drivers)
         self.last = infos
         total = np.sum([info.q_target for info in infos], axis=0)
-        if self.translation is not None:
-            total = total + self.translation @ q
+        if self.rigid_pull is not None:
+            total = total + self.rigid_pull @ q
         return TargetInfo(total, np.concatenate([info.weights for info in infos]),
                           int(sum(info.iterations for info in infos)),
                           time.perf_counter() - started)
@@ -534,7 +573,7 @@ class LocalExampleDriver:
 
 
 def local_example_driver(mesh: TetMesh, material: Material, space: LocalShapeSpace, *,
-                         route: str, tabulate: bool = True, free_translation: bool = True,
+                         route: str, tabulate: bool = True, free_rigid: bool = True,
                          tolerance: float = 1e-6, max_iterations: int = 20) -> LocalExampleDriver:
     """The runtime driver of the local examples (set-up is n_R-sized, steps are not).
 
@@ -544,8 +583,8 @@ def local_example_driver(mesh: TetMesh, material: Material, space: LocalShapeSpa
         space: the local shape space of the precompute.
         route: one of :data:`LOCAL_ROUTES`.
         tabulate: regions with two examples use a :class:`TabulatedTarget`.
-        free_translation: keep each region's current translation in its target
-            (the module docstring); False pulls it to zero.
+        free_rigid: the example force leaves each region's rigid motion alone
+            (the module docstring); False pulls it back like the rest.
         tolerance, max_iterations: Newton settings of the target solves.
     """
     drivers = []
@@ -558,11 +597,12 @@ def local_example_driver(mesh: TetMesh, material: Material, space: LocalShapeSpa
             solver = TabulatedTarget(solver)
             log.info("region %s: tabulated target, error %.2g of the example separation",
                      region.name, solver.error)
-        drivers.append(ExampleDriver(region.descriptor_matrix(material.density),
-                                     region.example_descriptors, solver,
-                                     to_reduced=region.to_reduced))
+        rho = material.density
+        drivers.append(ExampleDriver(region.descriptor_matrix(rho, free_rigid=free_rigid),
+                                     region.example_descriptors(rho, free_rigid=free_rigid),
+                                     solver, to_reduced=region.pull_matrix(free_rigid=free_rigid)))
     return LocalExampleDriver(drivers, space.spring, [reg.name for reg in space.regions],
-                              translation=space.translation if free_translation else None)
+                              rigid_pull=space.rigid_pull if free_rigid else None)
 
 
 # --------------------------------------------------------------- full space
@@ -578,14 +618,14 @@ class FullSpaceLocalForce:
         mesh: the object's rest mesh.
         material: its material.
         space: the local shape space.
-        free_translation: as in :func:`local_example_driver`.
+        free_rigid: as in :func:`local_example_driver`.
         tolerance: target Newton tolerance.
     """
 
     def __init__(self, mesh: TetMesh, material: Material, space: LocalShapeSpace, *,
-                 free_translation: bool = True, tolerance: float = 1e-6):
+                 free_rigid: bool = True, tolerance: float = 1e-6):
         self.names = tuple(reg.name for reg in space.regions)
-        self.free_translation = bool(free_translation)
+        self.free_rigid = bool(free_rigid)
         n, rho = mesh.n_vertices, float(material.density)
         self._regions = []
         blocks = []
@@ -597,18 +637,19 @@ class FullSpaceLocalForce:
                                   shape=(3 * n, rows.size))
             blocks.append(place @ mass_R @ place.T)
             L = block_eigenfunctions(region.eigenvectors).toarray()
-            volume_mass = mass_R[0::3, 0::3] / rho
-            lam = np.repeat(region.eigenvalues, 3)
-            descriptor = lam[:, None] * (L.T @ sp.kron(volume_mass, sp.identity(3)).toarray())
+            ML = np.asarray(mass_R @ L)  # (3n_R, 3m) kg
+            mass_Q = np.asarray(mass_R @ rigid_fields(sub.points, mass_R))  # (3n_R, 6)
+            if self.free_rigid:
+                ML = ML - mass_Q @ (mass_Q.T @ L)  # M_R P_R L (symmetric projection)
+            descriptor = np.repeat(region.eigenvalues, 3)[:, None] * ML.T / rho
             k = region.example_coefficients.shape[0]
             models = [EuclideanExampleEnergy(region.example_rest_points(mesh, i), sub.tets,
                                              material, L) for i in range(k)]
             solver = TargetSolver(models, region.example_coefficients.reshape(k, -1),
                                   tolerance=tolerance)
-            ones = np.kron(np.ones((sub.n_vertices, 1)), np.eye(3))
-            mass_ones = np.asarray(mass_R @ ones)  # (3n_R, 3) kg
-            self._regions.append((rows, descriptor, region.example_descriptors, solver,
-                                  np.asarray(mass_R @ L), mass_ones, rho * sub.volume()))
+            self._regions.append((rows, descriptor,
+                                  region.example_descriptors(rho, free_rigid=self.free_rigid),
+                                  solver, ML, mass_Q))
         self.mass = sp.csr_matrix(sum(blocks))
         self.weights: dict[str, np.ndarray] = {}
 
@@ -616,27 +657,31 @@ class FullSpaceLocalForce:
         """(3n,) the pull (kg·m) for the displacement u (3n,) or (n, 3)."""
         u = np.asarray(u, dtype=float).reshape(-1)
         out = np.zeros_like(u)
-        for name, (rows, descriptor, examples, solver, ML, mass_ones, total) in zip(
+        for name, (rows, descriptor, examples, solver, ML, mass_Q) in zip(
                 self.names, self._regions, strict=True):
             w = simplex_weights(examples, descriptor @ u[rows])
             self.weights[name] = w
             out[rows] += ML @ solver.solve(w).z
-            if self.free_translation:
-                out[rows] += mass_ones @ (mass_ones.T @ u[rows] / total)
+            if self.free_rigid:
+                out[rows] += mass_Q @ (mass_Q.T @ u[rows])
         return out
 
 
 # ---------------------------------------------------------------- measures
 def region_descriptor(mesh: TetMesh, region: RegionSpace, u: np.ndarray) -> np.ndarray:
-    """(3m,) λ-weighted coefficients ``λ_R ⊙ Φ_Rᵀ M_R u_R`` of a displacement u (n, 3)."""
-    volume_mass = mass_matrix(region.submesh(mesh), 1.0)[0::3, 0::3]
-    u_R = np.asarray(u, dtype=float).reshape(-1, 3)[region.vertices]
-    c = region.eigenvectors.T @ (volume_mass @ u_R)
+    """(3m,) the region's descriptor ``λ_R ⊙ L_Rᵀ M_R P_R u_R`` of a displacement u (n, 3)
+    (rigid motion removed, as the runtime does)."""
+    sub = region.submesh(mesh)
+    mass = mass_matrix(sub, 1.0)
+    u_R = np.asarray(u, dtype=float).reshape(-1, 3)[region.vertices].reshape(-1)
+    Q = rigid_fields(sub.points, mass)
+    u_R = u_R - Q @ (Q.T @ (mass @ u_R))
+    c = region.eigenvectors.T @ (mass[0::3, 0::3] @ u_R.reshape(-1, 3))
     return c.reshape(-1) * np.repeat(region.eigenvalues, 3)
 
 
-def region_example_distance(mesh: TetMesh, region: RegionSpace,
-                            u: np.ndarray) -> tuple[float, np.ndarray]:
+def region_example_distance(mesh: TetMesh, region: RegionSpace, u: np.ndarray, *,
+                            density: float) -> tuple[float, np.ndarray]:
     """How far a region's shape is from its examples (paper eq. 5's residual).
 
     Returns:
@@ -645,7 +690,7 @@ def region_example_distance(mesh: TetMesh, region: RegionSpace,
         largest) and the minimising weights (k_R,).
     """
     d = region_descriptor(mesh, region, u)
-    E = region.example_descriptors
+    E = region.example_descriptors(density)
     w = simplex_weights(E, d)
     scale = float(np.linalg.norm(E, axis=1).max()) or 1.0
     return float(np.linalg.norm(w @ E - d)) / scale, w
