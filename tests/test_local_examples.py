@@ -60,10 +60,11 @@ def _twisted_examples(angles):
     return part
 
 
-def _local_space(specs, angles, *, seed=0, r=12):
+def _local_space(specs, angles, *, seed=0, r=12, fixed=None):
     mesh = structured_box(BAR, (2, 2, 8))
     U = _basis(mesh, r, np.random.default_rng(seed))
-    space = build_local_space(mesh, MATERIAL, U, specs, _twisted_examples(angles), m=M)
+    space = build_local_space(mesh, MATERIAL, U, specs, _twisted_examples(angles), m=M,
+                              fixed_vertices=fixed)
     return mesh, U, space
 
 
@@ -85,7 +86,8 @@ def test_rest_examples_exert_no_force():
     """Examples equal to the rest shape (another resolution): no force at rest, and
     none on a region that only moves rigidly; a posed neighbour still pulls."""
     specs = [RegionSpec("low", None, "z < 0.5", (0,)), RegionSpec("high", None, "z >= 0.5", (1,))]
-    mesh, U, space = _local_space(specs, angles=(0.0, 0.8))
+    bottom = np.flatnonzero(structured_box(BAR, (2, 2, 8)).points[:, 2] < 1e-9)
+    mesh, U, space = _local_space(specs, angles=(0.0, 0.8), fixed=bottom)
     low = space.regions[0]
     assert np.abs(low.example_coefficients).max() < 1e-12
     force = FullSpaceLocalForce(mesh, MATERIAL, space)
@@ -147,7 +149,7 @@ def test_per_region_weights_follow_eq5():
     np.testing.assert_allclose(force.weights["low"], [0.3, 0.7], atol=1e-8)
     for region in (low, high):
         d = region_descriptor(mesh, region, u)
-        E = region.example_descriptors(MATERIAL.density)
+        E = region.example_descriptors
         grid = np.linspace(0.0, 1.0, 2001)
         residual = [np.linalg.norm((1 - t) * E[0] + t * E[1] - d) for t in grid]
         best = grid[int(np.argmin(residual))]
@@ -200,8 +202,9 @@ def test_one_region_covering_the_object_reproduces_the_global_path():
 
 
 def test_reduced_pull_is_the_projection_of_the_region_target():
-    """At rest a one-example region's pull is ``Uᵀ M^(R) P_R u*_R``: its example, placed
-    on the region's vertices, its rigid part removed, weighted by the region's mass."""
+    """At rest a one-example region's pull is ``Uᵀ M^(R) u*_R``: its example placed on
+    the region's vertices and attached at the region's anchor (rigidly moved so that
+    it fits the resting anchor), weighted by the region's mass only."""
     specs = [RegionSpec("low", None, "z < 0.5", (0,))]
     mesh, U, space = _local_space(specs, angles=(0.8,), r=20)
     low = space.regions[0]
@@ -209,8 +212,17 @@ def test_reduced_pull_is_the_projection_of_the_region_target():
     part_mass = mass_matrix(part, MATERIAL.density)
     Q = rigid_fields(part.points, part_mass)
     shape = low.displacement(low.example_coefficients[0]).reshape(-1)
+    anchor = np.repeat(low.anchor, 3)
+    assert anchor.any() and not anchor.all()
+    # the rigid motion that best fits -shape on the anchor (lumped-mass least squares)
+    w = np.asarray(part_mass.sum(axis=1)).ravel()[anchor]
+    g, *_ = np.linalg.lstsq(Q[anchor] * np.sqrt(w)[:, None], -shape[anchor] * np.sqrt(w),
+                            rcond=None)
+    anchored = shape + Q @ g
+    np.testing.assert_allclose(np.abs(anchored[anchor]).max() < np.abs(shape[anchor]).max(),
+                               True)
     region_mass = FullSpaceLocalForce(mesh, MATERIAL, space).mass
-    for free_rigid, target in ((False, shape), (True, shape - Q @ (Q.T @ (part_mass @ shape)))):
+    for free_rigid, target in ((False, shape), (True, anchored)):
         info = local_example_driver(mesh, MATERIAL, space, route="lb-exact",
                                     free_rigid=free_rigid).target(np.zeros(U.shape[1]))
         placed = np.zeros((mesh.n_vertices, 3))

@@ -76,7 +76,7 @@ CUBATURE_TRAINING_POSES = 120
 #: seed of every random choice of the precompute (training poses, candidates)
 PRECOMPUTE_SEED = 20170401
 #: bumped whenever the artifact's content or meaning changes (part of the cache key)
-PIPELINE_VERSION = 3
+PIPELINE_VERSION = 5
 #: arrays every artifact holds, and those of scenes with examples
 _REQUIRED = ("points", "tets", "fixed", "U", "omega2", "cub_elements", "cub_weights")
 _REQUIRED_EXAMPLES = ("eigenvalues", "eigenvectors", "example_coefficients", "projection",
@@ -288,7 +288,7 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
         "train": cubature.train_error, "holdout": cubature.holdout_error,
         "tolerance": cubature.tol, "reached_tolerance": bool(cubature.reached_tol)}}
     if scene.has_local_examples:
-        local, eigen = _local_space(scene, mesh, U, stages)
+        local, eigen = _local_space(scene, mesh, U, fixed, stages)
         arrays.update(local.arrays())
         arrays.update(eigen)
         meta["example_names"] = [_example_label(p) for p in scene.examples.poses]
@@ -300,7 +300,8 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
     return arrays, meta
 
 
-def _local_space(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Stages):
+def _local_space(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.ndarray,
+                 stages: _Stages):
     """The ``lb`` and ``regions`` stages of a scene with local examples."""
 
     m = scene.reduced.m
@@ -324,7 +325,7 @@ def _local_space(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Stages):
         local = build_local_space(
             mesh, scene.material, U, specs, example_part, m=m,
             object_pose=lambda k, part: posed_example(poses[k], part).points,
-            global_eigenvectors=spectrum.eigenvectors)
+            global_eigenvectors=spectrum.eigenvectors, fixed_vertices=fixed)
     return local, {"eigenvalues": spectrum.eigenvalues, "eigenvectors": spectrum.eigenvectors}
 
 

@@ -27,28 +27,30 @@ brought into R's shape space with the global machinery
 against R's own spectrum; landmarks are not used for regions).
 
 **Forces.** Region R pulls only its own elements: in full space
-``f_R = k_ex M^(R) P_R (u*_R − u)``, M^(R) the elastic mass assembled over R's
-tetrahedra, ``u*_R = E_R L_R c*_R`` the region's target (E_R places region vertex
-rows into the object's, ``L_R = Φ_R ⊗ I₃``) and ``P_R = I − Q_R Q_Rᵀ M^(R)`` the
-M^(R)-orthogonal projection that removes the region's (linearised) rigid motion:
-Q_R (3n_R, 6) holds its translations and infinitesimal rotations about its
-centroid, ``Q_Rᵀ M^(R) Q_R = I``. The example force thus has no net force and no
-net torque on a region: it shapes the region and leaves its placement to the
-elastic forces, the loads and the supports — an arm anchored at a fixed centre
-takes its example's shape without being pulled off its anchor or turned about it,
-and a region whose example turns its own anchor (an S-bend of a beam through a
-fixed centre) does not fight the support. The descriptors that pick the weights
-are taken after the same projection (``λ_R ⊙ L_Rᵀ M_R P_R u``, examples alike), so
-a region's weights do not react to its rigid motion either. In reduced
-coordinates q (``Uᵀ M U = I``) the force is ``k_ex (Σ_R T'_R c*_R + Π q − S_q q)``
-with the precomputed ``T'_R = Uᵀ M^(R) P_R E_R L_R`` (r, 3m),
-``Π = Σ_R (Uᵀ M^(R) Q_R)(Uᵀ M^(R) Q_R)ᵀ`` (r, r) and ``S_q = Uᵀ (Σ_R M^(R)) U``
-(r, r); the descriptor of the current shape is ``D_R q``,
-``D_R = diag(λ_R ⊗ 1₃) T'_Rᵀ / ρ`` (3m, r). Like the target, ``Π q`` is taken at
-the start of each step. The runtime step touches only these small matrices.
-``free_rigid=False`` drops the projection (``P_R = I``, Π = 0): the variant in
-which a region's rigid motion is pulled back, as the global path does for the
-whole object; with one region covering the object it is the global path.
+``f_R = k_ex M^(R) (u*_R − u)``, M^(R) the elastic mass assembled over R's
+tetrahedra. The target is the region's interpolated example shape ``L_R c*_R``
+(``L_R = Φ_R ⊗ I₃``, E_R places region vertex rows into the object's) **attached
+where the region is attached**: ``u*_R = E_R (L_R c*_R + Q_R g)`` with Q_R
+(3n_R, 6) the region's translations and infinitesimal rotations and g the rigid
+motion that best fits ``u − L_R c*_R`` (lumped-mass least squares) on the region's
+anchor — its vertices shared with the rest of the object, and its fixed vertices.
+Region eigenfunctions exclude the constant, so a region's coefficients hold no
+place of their own; anchoring puts the example where the region meets its
+neighbours and supports (a limb curls about its hip, an arm twists from the
+centre it is attached to, a beam through a fixed centre bends about that centre)
+instead of pulling the region's mean to rest or fighting the support. With
+``F_R`` (6, |anchor rows|) the fit, ``g = F_R (u − L_R c*_R)_anchor``; the forces
+add up: ``f = k_ex (Σ_R M^(R) E_R [(I − Q_R F_R S_R) L_R c*_R + Q_R F_R S_R u_R] − S u)``
+with ``S = Σ_R M^(R)``. In reduced coordinates q (``Uᵀ M U = I``):
+``k_ex (Σ_R T'_R c*_R + Π q − S_q q)`` with the precomputed
+``T'_R = T_R − (Uᵀ M^(R) Q_R)(F_R L_R,anchor)`` (r, 3m), ``T_R = Uᵀ M^(R) E_R L_R``,
+``Π = Σ_R (Uᵀ M^(R) Q_R)(F_R U_anchor)`` (r, r) and ``S_q = Uᵀ S U`` (r, r); the
+region descriptor of the current shape is ``D_R q``, ``D_R = diag(λ_R ⊗ 1₃) T_Rᵀ / ρ``
+(3m, r). Like the target, the anchor fit uses the state at the start of the step.
+The runtime step touches only these small matrices. ``free_rigid=False`` drops
+the anchoring (``u*_R = E_R L_R c*_R``): the region's mean is then pulled to rest,
+as the global path does for the whole object; with one region covering the object
+it is the global path.
 
 **Rules.** Regions are sets of tetrahedra: a physical group must be a volume
 group; an expression selects the tetrahedra whose centroid satisfies it. Regions
@@ -168,8 +170,8 @@ def submesh(mesh: TetMesh, cells: np.ndarray, *,
 
 
 def rigid_fields(points: np.ndarray, mass: sp.spmatrix) -> np.ndarray:
-    """(3n, 6) node-major translations and infinitesimal rotations about the
-    mass centre of ``points`` (n, 3), orthonormal in ``mass`` (3n, 3n)."""
+    """(3n, 6) node-major translations and infinitesimal rotations about the mass
+    centre of ``points`` (n, 3), orthonormal in ``mass`` (3n, 3n)."""
     points = np.asarray(points, dtype=float)
     n = points.shape[0]
     weights = np.asarray(mass[0::3, 0::3].sum(axis=1)).ravel()
@@ -181,6 +183,44 @@ def rigid_fields(points: np.ndarray, mass: sp.spmatrix) -> np.ndarray:
     R = R.reshape(3 * n, 6)
     gram = R.T @ (mass @ R)
     return np.linalg.solve(np.linalg.cholesky(gram), R.T).T
+
+
+def region_anchor(mesh: TetMesh, cells: np.ndarray, vertices: np.ndarray,
+                  fixed_vertices: np.ndarray | None = None) -> np.ndarray:
+    """(n_R,) bool: the region's vertices shared with tetrahedra outside it, or fixed."""
+    outside = np.ones(mesh.n_tets, dtype=bool)
+    outside[cells] = False
+    anchor = np.isin(vertices, np.asarray(mesh.tets)[outside])
+    if fixed_vertices is not None:
+        anchor |= np.isin(vertices, fixed_vertices)
+    return anchor
+
+
+def anchor_fit(points: np.ndarray, mass: sp.spmatrix, anchor: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rigid fit on a region's anchor.
+
+    Args:
+        points: (n_R, 3) region vertices.
+        mass: (3n_R, 3n_R) the region's mass.
+        anchor: (n_R,) bool anchor vertices; none means the whole region.
+
+    Returns:
+        ``(Q, F, rows)``: Q (3n_R, 6) mass-orthonormal rigid fields, rows the
+        node-major anchor rows and F (6, rows.size) with ``g = F v[rows]`` the
+        lumped-mass least-squares rigid fit of a field v (3n_R,) on the anchor
+        (``Q F v[rows] = v`` for a rigid v; a degenerate anchor, e.g. collinear,
+        fits with the minimum-norm g).
+    """
+    Q = rigid_fields(points, mass)
+    anchor = np.asarray(anchor, dtype=bool)
+    if not anchor.any():
+        anchor = np.ones_like(anchor)
+    rows = (3 * np.flatnonzero(anchor)[:, None] + np.arange(3)).ravel()
+    w = np.asarray(mass.sum(axis=1)).ravel()[rows]
+    QA = Q[rows]
+    F = np.linalg.pinv((QA * w[:, None]).T @ QA, rcond=1e-10) @ (QA * w[:, None]).T
+    return Q, F, rows
 
 
 # ------------------------------------------------------------ shape space
@@ -198,9 +238,11 @@ class RegionSpace:
         eigenvectors: (n_R, m) Φ_R, M_R-orthonormal (M_R the region's volume mass, m³).
         example_coefficients: (k_R, m, 3) example displacement coefficients (m^(5/2)).
         alignment_residuals: (k_R,) basis alignment residuals.
-        to_reduced: (r, 3m) ``T_R = Uᵀ M^(R) E_R L_R`` (no rigid projection).
-        rigid_reduced: (r, 6) ``Uᵀ M^(R) E_R Q_R`` (kg^(1/2)).
-        rigid_coefficients: (3m, 6) ``L_Rᵀ M^(R) Q_R``.
+        to_reduced: (r, 3m) ``T_R = Uᵀ M^(R) E_R L_R`` (no anchoring).
+        rigid_reduced: (r, 6) ``Uᵀ M^(R) E_R Q_R``.
+        rigid_coefficients: (3m, 6) ``(F_R L_R,anchor)ᵀ``: the anchor fit of ``L_R c``.
+        anchor_reduced: (r, 6) ``(F_R U_anchor)ᵀ``: the anchor fit of ``U q``.
+        anchor: (n_R,) bool, the anchor vertices (:func:`region_anchor`).
     """
 
     name: str
@@ -214,6 +256,8 @@ class RegionSpace:
     to_reduced: np.ndarray
     rigid_reduced: np.ndarray
     rigid_coefficients: np.ndarray
+    anchor_reduced: np.ndarray
+    anchor: np.ndarray
 
     @property
     def m(self) -> int:
@@ -226,24 +270,18 @@ class RegionSpace:
         return self.to_reduced - self.rigid_reduced @ self.rigid_coefficients.T
 
     def rigid_pull(self) -> np.ndarray:
-        """(r, r) ``Π_R``: reduced coordinates q to the pull that keeps the region's
-        current rigid motion."""
-        return self.rigid_reduced @ self.rigid_reduced.T
+        """(r, r) ``Π_R``: reduced coordinates q to the pull of the anchor's rigid fit."""
+        return self.rigid_reduced @ self.anchor_reduced.T
 
-    def descriptor_matrix(self, density: float, *, free_rigid: bool = True) -> np.ndarray:
+    def descriptor_matrix(self, density: float) -> np.ndarray:
         """(3m, r) ``D_R``: the region descriptor of ``U q`` is ``D_R q``."""
-        T = self.pull_matrix(free_rigid=free_rigid)
-        return np.repeat(self.eigenvalues, 3)[:, None] * T.T / density
+        return np.repeat(self.eigenvalues, 3)[:, None] * self.to_reduced.T / density
 
-    def example_descriptors(self, density: float, *, free_rigid: bool = True) -> np.ndarray:
-        """(k_R, 3m) λ-weighted example coefficients (after the rigid projection),
-        flattened row-major."""
+    @property
+    def example_descriptors(self) -> np.ndarray:
+        """(k_R, 3m) λ-weighted example coefficients, flattened row-major."""
         k = self.example_coefficients.shape[0]
-        c = self.example_coefficients.reshape(k, -1)
-        if free_rigid:
-            B = self.rigid_coefficients
-            c = c - (c @ B) @ B.T / density
-        return c * np.repeat(self.eigenvalues, 3)
+        return self.example_coefficients.reshape(k, -1) * np.repeat(self.eigenvalues, 3)
 
     def submesh(self, mesh: TetMesh) -> TetMesh:
         """The region's own mesh (vertex order of :attr:`vertices`)."""
@@ -291,7 +329,7 @@ class LocalShapeSpace:
         for i, reg in enumerate(self.regions):
             for key in ("cells", "vertices", "examples", "eigenvalues", "eigenvectors",
                         "example_coefficients", "alignment_residuals", "to_reduced",
-                        "rigid_reduced", "rigid_coefficients"):
+                        "rigid_reduced", "rigid_coefficients", "anchor_reduced", "anchor"):
                 out[f"local{i}_{key}"] = getattr(reg, key)
         return out
 
@@ -309,7 +347,8 @@ class LocalShapeSpace:
                 example_coefficients=get("example_coefficients"),
                 alignment_residuals=get("alignment_residuals"), to_reduced=get("to_reduced"),
                 rigid_reduced=get("rigid_reduced"),
-                rigid_coefficients=get("rigid_coefficients")))
+                rigid_coefficients=get("rigid_coefficients"),
+                anchor_reduced=get("anchor_reduced"), anchor=get("anchor").astype(bool)))
         return cls(tuple(regions), np.asarray(arrays["local_spring"]),
                    float(arrays["local_covered"]), dict(errors))
 
@@ -320,7 +359,8 @@ class LocalShapeSpace:
             keys += [f"local{i}_{k}" for k in ("cells", "vertices", "examples", "eigenvalues",
                                                 "eigenvectors", "example_coefficients",
                                                 "alignment_residuals", "to_reduced",
-                                                "rigid_reduced", "rigid_coefficients")]
+                                                "rigid_reduced", "rigid_coefficients",
+                                                "anchor_reduced", "anchor")]
         return tuple(keys)
 
 
@@ -353,6 +393,7 @@ def build_local_space(
     embed: Callable | None = None,
     object_pose: Callable[[int, TetMesh], np.ndarray] | None = None,
     global_eigenvectors: np.ndarray | None = None,
+    fixed_vertices: np.ndarray | None = None,
 ) -> LocalShapeSpace:
     """Region spectra, example coefficients per region and the small matrices.
 
@@ -372,6 +413,7 @@ def build_local_space(
             measurement (skipped without it).
         global_eigenvectors: (n, m) the whole object's eigenvectors (M-orthonormal),
             for the whole-object variant of that measurement.
+        fixed_vertices: the object's fixed vertices (part of a region's anchor).
 
     Raises:
         LbshapeError: overlapping, disconnected or too small regions, or an example
@@ -402,8 +444,8 @@ def build_local_space(
         spring += U_R.T @ (mass_R @ U_R)
         volume_mass = mass_R[0::3, 0::3] / rho  # (n_R, n_R) m³
         to_reduced = rho * direct_projection(U_R, spec_R.eigenvectors, volume_mass)
-        Q = rigid_fields(sub.points, mass_R)
-        mass_Q = mass_R @ Q  # (3n_R, 6)
+        anchor = region_anchor(mesh, selected, vertices, fixed_vertices)
+        Q, F, anchor_rows = anchor_fit(sub.points, mass_R, anchor)
         L_R = block_eigenfunctions(spec_R.eigenvectors).toarray()
         coefficients, residuals = [], []
         for k in spec.examples:
@@ -431,8 +473,9 @@ def build_local_space(
             eigenvectors=np.asarray(spec_R.eigenvectors, dtype=float),
             example_coefficients=np.asarray(coefficients, dtype=float).reshape(-1, m, 3),
             alignment_residuals=np.asarray(residuals, dtype=float),
-            to_reduced=to_reduced, rigid_reduced=U_R.T @ mass_Q,
-            rigid_coefficients=L_R.T @ mass_Q))
+            to_reduced=to_reduced, rigid_reduced=U_R.T @ (mass_R @ Q),
+            rigid_coefficients=(F @ L_R[anchor_rows]).T,
+            anchor_reduced=(F @ U_R[anchor_rows]).T, anchor=anchor))
     covered_fraction = float(volumes[covered].sum() / volumes.sum())
     if covered_fraction < 1.0:
         log.info("local examples: %.1f %% of the volume is in no region (no example force "
@@ -583,8 +626,8 @@ def local_example_driver(mesh: TetMesh, material: Material, space: LocalShapeSpa
         space: the local shape space of the precompute.
         route: one of :data:`LOCAL_ROUTES`.
         tabulate: regions with two examples use a :class:`TabulatedTarget`.
-        free_rigid: the example force leaves each region's rigid motion alone
-            (the module docstring); False pulls it back like the rest.
+        free_rigid: anchor each region's target where the region is attached (the
+            module docstring); False leaves the targets unanchored.
         tolerance, max_iterations: Newton settings of the target solves.
     """
     drivers = []
@@ -598,8 +641,7 @@ def local_example_driver(mesh: TetMesh, material: Material, space: LocalShapeSpa
             log.info("region %s: tabulated target, error %.2g of the example separation",
                      region.name, solver.error)
         rho = material.density
-        drivers.append(ExampleDriver(region.descriptor_matrix(rho, free_rigid=free_rigid),
-                                     region.example_descriptors(rho, free_rigid=free_rigid),
+        drivers.append(ExampleDriver(region.descriptor_matrix(rho), region.example_descriptors,
                                      solver, to_reduced=region.pull_matrix(free_rigid=free_rigid)))
     return LocalExampleDriver(drivers, space.spring, [reg.name for reg in space.regions],
                               rigid_pull=space.rigid_pull if free_rigid else None)
@@ -611,7 +653,8 @@ class FullSpaceLocalForce:
 
     Per step: region coefficients ``c_R = Φ_Rᵀ M_R u_R``, weights (eq. 5), target
     ``c*_R`` by Newton with the energy over all of R's elements, and the pull
-    ``Σ_R M^(R) E_R (L_R c*_R + 1 ⊗ ū_R)`` (3n,) in kg·m; the spring matrix is
+    ``Σ_R M^(R) E_R (L_R c*_R + Q_R g_R)`` (3n,) in kg·m (g_R the anchor fit, see the
+    module docstring); the spring matrix is
     :attr:`mass` = ``Σ_R M^(R)`` (3n, 3n) kg.
 
     Args:
@@ -638,18 +681,18 @@ class FullSpaceLocalForce:
             blocks.append(place @ mass_R @ place.T)
             L = block_eigenfunctions(region.eigenvectors).toarray()
             ML = np.asarray(mass_R @ L)  # (3n_R, 3m) kg
-            mass_Q = np.asarray(mass_R @ rigid_fields(sub.points, mass_R))  # (3n_R, 6)
-            if self.free_rigid:
-                ML = ML - mass_Q @ (mass_Q.T @ L)  # M_R P_R L (symmetric projection)
             descriptor = np.repeat(region.eigenvalues, 3)[:, None] * ML.T / rho
+            Q, F, anchor_rows = anchor_fit(sub.points, mass_R, region.anchor)
+            mass_QF = np.asarray(mass_R @ Q) @ F  # (3n_R, anchor rows)
+            if self.free_rigid:
+                ML = ML - mass_QF @ L[anchor_rows]
             k = region.example_coefficients.shape[0]
             models = [EuclideanExampleEnergy(region.example_rest_points(mesh, i), sub.tets,
                                              material, L) for i in range(k)]
             solver = TargetSolver(models, region.example_coefficients.reshape(k, -1),
                                   tolerance=tolerance)
-            self._regions.append((rows, descriptor,
-                                  region.example_descriptors(rho, free_rigid=self.free_rigid),
-                                  solver, ML, mass_Q))
+            self._regions.append((rows, descriptor, region.example_descriptors, solver, ML,
+                                  mass_QF, rows.reshape(-1)[anchor_rows]))
         self.mass = sp.csr_matrix(sum(blocks))
         self.weights: dict[str, np.ndarray] = {}
 
@@ -657,31 +700,27 @@ class FullSpaceLocalForce:
         """(3n,) the pull (kg·m) for the displacement u (3n,) or (n, 3)."""
         u = np.asarray(u, dtype=float).reshape(-1)
         out = np.zeros_like(u)
-        for name, (rows, descriptor, examples, solver, ML, mass_Q) in zip(
+        for name, (rows, descriptor, examples, solver, ML, mass_QF, anchor_rows) in zip(
                 self.names, self._regions, strict=True):
             w = simplex_weights(examples, descriptor @ u[rows])
             self.weights[name] = w
             out[rows] += ML @ solver.solve(w).z
             if self.free_rigid:
-                out[rows] += mass_Q @ (mass_Q.T @ u[rows])
+                out[rows] += mass_QF @ u[anchor_rows]
         return out
 
 
 # ---------------------------------------------------------------- measures
 def region_descriptor(mesh: TetMesh, region: RegionSpace, u: np.ndarray) -> np.ndarray:
-    """(3m,) the region's descriptor ``λ_R ⊙ L_Rᵀ M_R P_R u_R`` of a displacement u (n, 3)
-    (rigid motion removed, as the runtime does)."""
-    sub = region.submesh(mesh)
-    mass = mass_matrix(sub, 1.0)
-    u_R = np.asarray(u, dtype=float).reshape(-1, 3)[region.vertices].reshape(-1)
-    Q = rigid_fields(sub.points, mass)
-    u_R = u_R - Q @ (Q.T @ (mass @ u_R))
-    c = region.eigenvectors.T @ (mass[0::3, 0::3] @ u_R.reshape(-1, 3))
+    """(3m,) the region's descriptor ``λ_R ⊙ Φ_Rᵀ M_R u_R`` of a displacement u (n, 3)."""
+    volume_mass = mass_matrix(region.submesh(mesh), 1.0)[0::3, 0::3]
+    u_R = np.asarray(u, dtype=float).reshape(-1, 3)[region.vertices]
+    c = region.eigenvectors.T @ (volume_mass @ u_R)
     return c.reshape(-1) * np.repeat(region.eigenvalues, 3)
 
 
-def region_example_distance(mesh: TetMesh, region: RegionSpace, u: np.ndarray, *,
-                            density: float) -> tuple[float, np.ndarray]:
+def region_example_distance(mesh: TetMesh, region: RegionSpace,
+                            u: np.ndarray) -> tuple[float, np.ndarray]:
     """How far a region's shape is from its examples (paper eq. 5's residual).
 
     Returns:
@@ -690,7 +729,7 @@ def region_example_distance(mesh: TetMesh, region: RegionSpace, u: np.ndarray, *
         largest) and the minimising weights (k_R,).
     """
     d = region_descriptor(mesh, region, u)
-    E = region.example_descriptors(density)
+    E = region.example_descriptors
     w = simplex_weights(E, d)
     scale = float(np.linalg.norm(E, axis=1).max()) or 1.0
     return float(np.linalg.norm(w @ E - d)) / scale, w
