@@ -149,7 +149,7 @@ def test_per_region_weights_follow_eq5():
     np.testing.assert_allclose(force.weights["low"], [0.3, 0.7], atol=1e-8)
     for region in (low, high):
         d = region_descriptor(mesh, region, u)
-        E = region.example_descriptors
+        E = region.example_descriptors(MATERIAL.density)
         grid = np.linspace(0.0, 1.0, 2001)
         residual = [np.linalg.norm((1 - t) * E[0] + t * E[1] - d) for t in grid]
         best = grid[int(np.argmin(residual))]

@@ -253,8 +253,10 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
         window_size=(1500, 640), view_vector=view)
     regions = {}
     for region in pre.local.regions:
-        d_none, w_none = region_example_distance(pre.mesh, region, u_none)
-        d_ex, w_ex = region_example_distance(pre.mesh, region, u_ex)
+        d_none, w_none = region_example_distance(pre.mesh, region, u_none,
+                                                 density=pre.material.density)
+        d_ex, w_ex = region_example_distance(pre.mesh, region, u_ex,
+                                             density=pre.material.density)
         regions[region.name] = {
             "examples": [int(k) for k in region.examples],
             "distance_to_examples": {"no_examples": d_none, "examples": d_ex},

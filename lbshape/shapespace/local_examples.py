@@ -243,6 +243,7 @@ class RegionSpace:
         rigid_coefficients: (3m, 6) ``(F_R L_R,anchor)ᵀ``: the anchor fit of ``L_R c``.
         anchor_reduced: (r, 6) ``(F_R U_anchor)ᵀ``: the anchor fit of ``U q``.
         anchor: (n_R,) bool, the anchor vertices (:func:`region_anchor`).
+        rigid_lb: (3m, 6) ``L_Rᵀ M^(R) Q_R``: LB coefficients (times ρ) of the rigid fields.
     """
 
     name: str
@@ -258,6 +259,7 @@ class RegionSpace:
     rigid_coefficients: np.ndarray
     anchor_reduced: np.ndarray
     anchor: np.ndarray
+    rigid_lb: np.ndarray
 
     @property
     def m(self) -> int:
@@ -273,15 +275,22 @@ class RegionSpace:
         """(r, r) ``Π_R``: reduced coordinates q to the pull of the anchor's rigid fit."""
         return self.rigid_reduced @ self.anchor_reduced.T
 
-    def descriptor_matrix(self, density: float) -> np.ndarray:
-        """(3m, r) ``D_R``: the region descriptor of ``U q`` is ``D_R q``."""
-        return np.repeat(self.eigenvalues, 3)[:, None] * self.to_reduced.T / density
+    def descriptor_matrix(self, density: float, *, free_rigid: bool = True) -> np.ndarray:
+        """(3m, r) ``D_R``: the region descriptor of ``U q`` is ``D_R q`` — of the
+        shape relative to its anchor's rigid fit (``free_rigid``), else as it is."""
+        T = self.to_reduced.T
+        if free_rigid:
+            T = T - self.rigid_lb @ self.anchor_reduced.T
+        return np.repeat(self.eigenvalues, 3)[:, None] * T / density
 
-    @property
-    def example_descriptors(self) -> np.ndarray:
-        """(k_R, 3m) λ-weighted example coefficients, flattened row-major."""
+    def example_descriptors(self, density: float, *, free_rigid: bool = True) -> np.ndarray:
+        """(k_R, 3m) λ-weighted example coefficients (relative to the anchor's rigid
+        fit with ``free_rigid``), flattened row-major."""
         k = self.example_coefficients.shape[0]
-        return self.example_coefficients.reshape(k, -1) * np.repeat(self.eigenvalues, 3)
+        c = self.example_coefficients.reshape(k, -1)
+        if free_rigid:
+            c = c - (c @ self.rigid_coefficients) @ self.rigid_lb.T / density
+        return c * np.repeat(self.eigenvalues, 3)
 
     def submesh(self, mesh: TetMesh) -> TetMesh:
         """The region's own mesh (vertex order of :attr:`vertices`)."""
@@ -329,7 +338,8 @@ class LocalShapeSpace:
         for i, reg in enumerate(self.regions):
             for key in ("cells", "vertices", "examples", "eigenvalues", "eigenvectors",
                         "example_coefficients", "alignment_residuals", "to_reduced",
-                        "rigid_reduced", "rigid_coefficients", "anchor_reduced", "anchor"):
+                        "rigid_reduced", "rigid_coefficients", "anchor_reduced", "anchor",
+                        "rigid_lb"):
                 out[f"local{i}_{key}"] = getattr(reg, key)
         return out
 
@@ -348,7 +358,8 @@ class LocalShapeSpace:
                 alignment_residuals=get("alignment_residuals"), to_reduced=get("to_reduced"),
                 rigid_reduced=get("rigid_reduced"),
                 rigid_coefficients=get("rigid_coefficients"),
-                anchor_reduced=get("anchor_reduced"), anchor=get("anchor").astype(bool)))
+                anchor_reduced=get("anchor_reduced"), anchor=get("anchor").astype(bool),
+                rigid_lb=get("rigid_lb")))
         return cls(tuple(regions), np.asarray(arrays["local_spring"]),
                    float(arrays["local_covered"]), dict(errors))
 
@@ -360,7 +371,7 @@ class LocalShapeSpace:
                                                 "eigenvectors", "example_coefficients",
                                                 "alignment_residuals", "to_reduced",
                                                 "rigid_reduced", "rigid_coefficients",
-                                                "anchor_reduced", "anchor")]
+                                                "anchor_reduced", "anchor", "rigid_lb")]
         return tuple(keys)
 
 
@@ -475,7 +486,8 @@ def build_local_space(
             alignment_residuals=np.asarray(residuals, dtype=float),
             to_reduced=to_reduced, rigid_reduced=U_R.T @ (mass_R @ Q),
             rigid_coefficients=(F @ L_R[anchor_rows]).T,
-            anchor_reduced=(F @ U_R[anchor_rows]).T, anchor=anchor))
+            anchor_reduced=(F @ U_R[anchor_rows]).T, anchor=anchor,
+            rigid_lb=L_R.T @ (mass_R @ Q)))
     covered_fraction = float(volumes[covered].sum() / volumes.sum())
     if covered_fraction < 1.0:
         log.info("local examples: %.1f %% of the volume is in no region (no example force "
@@ -641,7 +653,8 @@ def local_example_driver(mesh: TetMesh, material: Material, space: LocalShapeSpa
             log.info("region %s: tabulated target, error %.2g of the example separation",
                      region.name, solver.error)
         rho = material.density
-        drivers.append(ExampleDriver(region.descriptor_matrix(rho), region.example_descriptors,
+        drivers.append(ExampleDriver(region.descriptor_matrix(rho, free_rigid=free_rigid),
+                                     region.example_descriptors(rho, free_rigid=free_rigid),
                                      solver, to_reduced=region.pull_matrix(free_rigid=free_rigid)))
     return LocalExampleDriver(drivers, space.spring, [reg.name for reg in space.regions],
                               rigid_pull=space.rigid_pull if free_rigid else None)
@@ -681,17 +694,20 @@ class FullSpaceLocalForce:
             blocks.append(place @ mass_R @ place.T)
             L = block_eigenfunctions(region.eigenvectors).toarray()
             ML = np.asarray(mass_R @ L)  # (3n_R, 3m) kg
-            descriptor = np.repeat(region.eigenvalues, 3)[:, None] * ML.T / rho
             Q, F, anchor_rows = anchor_fit(sub.points, mass_R, region.anchor)
             mass_QF = np.asarray(mass_R @ Q) @ F  # (3n_R, anchor rows)
+            relative = ML.T.copy()  # (3m, 3n_R): Lᵀ M_R (I − Q F S) when anchored
             if self.free_rigid:
+                relative[:, anchor_rows] -= L.T @ mass_QF
                 ML = ML - mass_QF @ L[anchor_rows]
+            descriptor = np.repeat(region.eigenvalues, 3)[:, None] * relative / rho
             k = region.example_coefficients.shape[0]
             models = [EuclideanExampleEnergy(region.example_rest_points(mesh, i), sub.tets,
                                              material, L) for i in range(k)]
             solver = TargetSolver(models, region.example_coefficients.reshape(k, -1),
                                   tolerance=tolerance)
-            self._regions.append((rows, descriptor, region.example_descriptors, solver, ML,
+            examples = region.example_descriptors(rho, free_rigid=self.free_rigid)
+            self._regions.append((rows, descriptor, examples, solver, ML,
                                   mass_QF, rows.reshape(-1)[anchor_rows]))
         self.mass = sp.csr_matrix(sum(blocks))
         self.weights: dict[str, np.ndarray] = {}
@@ -712,16 +728,21 @@ class FullSpaceLocalForce:
 
 # ---------------------------------------------------------------- measures
 def region_descriptor(mesh: TetMesh, region: RegionSpace, u: np.ndarray) -> np.ndarray:
-    """(3m,) the region's descriptor ``λ_R ⊙ Φ_Rᵀ M_R u_R`` of a displacement u (n, 3)."""
-    volume_mass = mass_matrix(region.submesh(mesh), 1.0)[0::3, 0::3]
-    u_R = np.asarray(u, dtype=float).reshape(-1, 3)[region.vertices]
-    c = region.eigenvectors.T @ (volume_mass @ u_R)
+    """(3m,) the region's descriptor ``λ_R ⊙ Φ_Rᵀ M_R (u_R − Q_R g)`` of a displacement
+    u (n, 3), relative to its anchor's rigid fit g (as the runtime weighs examples)."""
+    sub = region.submesh(mesh)
+    mass = mass_matrix(sub, 1.0)
+    u_R = np.asarray(u, dtype=float).reshape(-1, 3)[region.vertices].reshape(-1)
+    Q, F, rows = anchor_fit(sub.points, mass, region.anchor)
+    u_R = (u_R - Q @ (F @ u_R[rows])).reshape(-1, 3)
+    c = region.eigenvectors.T @ (mass[0::3, 0::3] @ u_R)
     return c.reshape(-1) * np.repeat(region.eigenvalues, 3)
 
 
-def region_example_distance(mesh: TetMesh, region: RegionSpace,
-                            u: np.ndarray) -> tuple[float, np.ndarray]:
-    """How far a region's shape is from its examples (paper eq. 5's residual).
+def region_example_distance(mesh: TetMesh, region: RegionSpace, u: np.ndarray, *,
+                            density: float) -> tuple[float, np.ndarray]:
+    """How far a region's shape is from its examples (paper eq. 5's residual, on the
+    descriptors relative to the anchor's rigid fit; ``density`` ρ in kg/m³).
 
     Returns:
         ``(distance, weights)``: ``min_w ‖Σ w_k e_k − d‖ / max_k ‖e_k‖`` over the
@@ -729,7 +750,7 @@ def region_example_distance(mesh: TetMesh, region: RegionSpace,
         largest) and the minimising weights (k_R,).
     """
     d = region_descriptor(mesh, region, u)
-    E = region.example_descriptors
+    E = region.example_descriptors(density)
     w = simplex_weights(E, d)
     scale = float(np.linalg.norm(E, axis=1).max()) or 1.0
     return float(np.linalg.norm(w @ E - d)) / scale, w
