@@ -34,7 +34,7 @@ from lbshape.pipeline.meshes import example_mesh
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
 from lbshape.report.render import render_eigenfunctions, render_shapes
-from lbshape.shapespace.local_examples import region_example_distance
+from lbshape.shapespace.local_examples import anchor_fit, region_example_distance
 from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
@@ -168,20 +168,18 @@ def _region_labels(pre) -> np.ndarray:
 
 def _local_example_shape(pre, index: int) -> np.ndarray | None:
     """(n, 3) the object with every region that example ``index`` guides in that
-    example's region shape, kept on its interface with the rest of the object (the
-    example force shapes a region but does not place it); None if no region uses it."""
+    example's region shape, attached at the region's anchor as the runtime attaches
+    its targets (the rest state's rigid fit); None if no region uses it."""
     mesh = pre.mesh
     u, count = np.zeros((mesh.n_vertices, 3)), np.zeros(mesh.n_vertices)
     for region in pre.local.regions:
         hits = np.flatnonzero(region.examples == index)
         if hits.size == 0:
             continue
-        shape = region.displacement(region.example_coefficients[hits[0]])
-        outside = np.setdiff1d(np.arange(mesh.n_tets), region.cells)
-        interface = np.isin(region.vertices, np.asarray(mesh.tets)[outside])
-        if interface.any():
-            shape = shape - shape[interface].mean(axis=0)
-        u[region.vertices] += shape
+        shape = region.displacement(region.example_coefficients[hits[0]]).reshape(-1)
+        part = region.submesh(mesh)
+        Q, F, rows = anchor_fit(part.points, mass_matrix(part, 1.0), region.anchor)
+        u[region.vertices] += (shape - Q @ (F @ shape[rows])).reshape(-1, 3)
         count[region.vertices] += 1
     if not count.any():
         return None
