@@ -45,6 +45,7 @@ from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_text_atomic
 from lbshape.pipeline.precompute import Precomputed, precompute
 from lbshape.pipeline.routes import ROUTES, target_solver
+from lbshape.report.machine import machine_description
 from lbshape.report.plots import pyplot, save_figure
 from lbshape.scene import Scene, load_scene
 from lbshape.shapespace.interpolation import simplex_weights
@@ -400,8 +401,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> list[Path]:
     """Run the benchmark; return the paths written."""
-    from lbshape.report.machine import machine_description
-
     args = parse_args(argv)
     if args.calls < 1 or args.repeats < 1:
         raise LbshapeError("--calls and --repeats must be >= 1")

@@ -47,8 +47,15 @@ def _top_level_imports(tree: ast.Module) -> list[ast.AST]:
     return [node for node in tree.body if isinstance(node, ast.Import | ast.ImportFrom)]
 
 
+def _type_checking_imports(tree: ast.Module) -> list[ast.AST]:
+    """Imports under a top-level ``if TYPE_CHECKING:`` (annotations only, never run)."""
+    return [node for block in tree.body
+            if isinstance(block, ast.If) and getattr(block.test, "id", None) == "TYPE_CHECKING"
+            for node in block.body if isinstance(node, ast.Import | ast.ImportFrom)]
+
+
 def _nested_imports(tree: ast.Module) -> list[ast.AST]:
-    top = set(map(id, _top_level_imports(tree)))
+    top = set(map(id, _top_level_imports(tree) + _type_checking_imports(tree)))
     return [node for node in ast.walk(tree)
             if isinstance(node, ast.Import | ast.ImportFrom) and id(node) not in top]
 

@@ -19,11 +19,6 @@ from lbshape.report.bench import ROW_KEYS, trajectory_error
 STEPS = 15  # > the 10 warm-up steps
 
 
-@pytest.fixture(autouse=True)
-def _private_cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("LBSHAPE_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-
-
 def _png(path):
     import matplotlib.image
 

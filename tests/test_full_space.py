@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 import scipy.sparse.linalg as spla
+from conftest import central_difference_errors, observed_rates, rel
 
 import lbshape.dynamics.full as full_space
 from lbshape.dynamics.full import (
@@ -33,11 +34,6 @@ from lbshape.shapespace.interpolation import TargetSolver
 from lbshape.spectral.spectrum import lb_spectrum
 
 M_LB = 4  # LB eigenfunctions of the test shape spaces
-
-
-def rel(a, b) -> float:
-    a, b = np.asarray(a), np.asarray(b)
-    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
 
 
 def material(model: str = "stvk") -> Material:
@@ -106,15 +102,10 @@ def test_example_energy_derivatives_match_finite_differences(bar, model):
     d *= np.linalg.norm(y) / np.linalg.norm(d)
     g, H = energy.force_and_tangent(y)
     steps = np.array([0.04, 0.02, 0.01])
-    grad_errors, hess_errors = [], []
-    for h in steps:
-        fd_g = (energy.energy(y + h * d) - energy.energy(y - h * d)) / (2 * h)
-        grad_errors.append(abs(fd_g - g @ d) / abs(g @ d))
-        fd_H = (energy.force(y + h * d) - energy.force(y - h * d)) / (2 * h)
-        hess_errors.append(rel(fd_H, H @ d))
+    grad_errors = central_difference_errors(energy.energy, lambda _: g, y, d, steps)
+    hess_errors = central_difference_errors(energy.force, lambda _: H, y, d, steps)
     for name, errors in (("gradient", grad_errors), ("Hessian", hess_errors)):
-        errors = np.array(errors)
-        rates = np.log2(errors[:-1] / errors[1:])
+        rates = observed_rates(errors, steps)
         assert np.all(rates > 1.8), f"{name}: FD rates {rates}, errors {errors}"
         assert errors[-1] < 1e-4, f"{name}: FD error {errors[-1]:.2e} at h = {steps[-1]}"
     assert rel(H, H.T) < 1e-13

@@ -283,17 +283,6 @@ def test_precompute_key_depends_on_exactly_the_precompute_fields(write_scene, tm
     assert keys()[0] != base_pre
 
 
-def test_pose_parameters_match_the_pose_functions():
-    poses = pytest.importorskip("lbshape.geometry.poses")
-    from lbshape.geometry.poses import POSE_PARAMETERS, POSES
-
-    assert set(POSES) == set(poses.POSES)
-    for name in POSES:
-        required, optional = poses.pose_parameters(name)
-        assert POSE_PARAMETERS[name][:1] == required, (name, required)
-        assert set(POSE_PARAMETERS[name][1:]) == set(optional), (name, optional)
-
-
 def test_demo_scene_on_its_real_meshes():
     """Regions select the top/bottom groups; the example poses keep the top in place."""
     if importlib.util.find_spec("lbshape.geometry.shapes") is None:

@@ -15,17 +15,9 @@ from lbshape.pipeline.simulate import simulate
 from lbshape.scene import load_scene
 
 
-@pytest.fixture(autouse=True)
-def _private_cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("LBSHAPE_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-
-
 @pytest.fixture(scope="module")
 def demo():
-    import os
-    import tempfile
-
-    os.environ.setdefault("LBSHAPE_CACHE", tempfile.mkdtemp(prefix="lbshape-cache-"))
+    """The demo scene and its precompute, in the session's private cache."""
     scene = load_scene("demo")
     return scene, precompute(scene)
 

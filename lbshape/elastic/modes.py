@@ -51,6 +51,7 @@ from lbshape.fem.dolfinx_bridge import dof_to_input_order, p1_dof_vertices, to_d
 from lbshape.fem.eigenproblem import (
     b_orthonormalise,
     check_residuals,
+    check_tol_and_target,
     converged_pairs,
     fix_signs,
     relative_residuals,
@@ -367,10 +368,7 @@ class _Request(NamedTuple):
 def _checked_request(mesh: TetMesh, material: Material, count, *, fixed_vertices, comm,
                      tol: float, target: float | None) -> _Request:
     """Validate the arguments of :func:`linear_modes` (mesh-dependent parts on rank 0)."""
-    if not (0.0 < tol < 1.0):
-        raise LbshapeError(f"tol must be in (0, 1), got {tol!r}")
-    if target is not None and not (math.isfinite(target) and target < 0.0):
-        raise LbshapeError(f"target must be a finite negative number, got {target!r}")
+    check_tol_and_target(tol, target)
     sigma, n, fixed = compute_on_root(comm, lambda: (
         default_target(mesh, material) if target is None else float(target),
         mesh.n_vertices, _check_fixed(fixed_vertices, mesh.n_vertices)))

@@ -1,7 +1,7 @@
 """Shared pieces of the symmetric generalized eigenproblems ``A x = λ B x`` (SLEPc).
 
 Used by the LB spectrum (:mod:`lbshape.spectral.spectrum`) and the linear elastic modes
-(:mod:`lbshape.elastic.modes`): one shift-and-invert configuration, reading the
+(:mod:`lbshape.elastic.modes`): one checked shift-and-invert configuration, reading the
 converged pairs out of SLEPc with a loud convergence check, and the
 post-processing every eigenpair set gets (B-orthonormalisation, a deterministic
 sign, relative residuals and their check, which the modal derivative solves share).
@@ -9,15 +9,28 @@ sign, relative residuals and their check, which the modal derivative solves shar
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse as sp
 
-from lbshape.errors import SolverError
+from lbshape.errors import LbshapeError, SolverError
 
 #: a column's sign is fixed at its first entry with |x| ≥ (1 − SIGN_RTOL) max|x|
 SIGN_RTOL = 1e-6
+
+
+def check_tol_and_target(tol: float, target: float | None) -> None:
+    """A SLEPc tolerance in (0, 1) and a shift-and-invert target σ < 0 (or None: default).
+
+    Raises:
+        LbshapeError: either is out of range.
+    """
+    if not (0.0 < tol < 1.0):
+        raise LbshapeError(f"tol must be in (0, 1), got {tol!r}")
+    if target is not None and not (math.isfinite(target) and target < 0.0):
+        raise LbshapeError(f"target must be a finite negative number, got {target!r}")
 
 
 def shift_invert_eps(A, B, *, comm, prefix: str, nev: int, sigma: float, tol: float,

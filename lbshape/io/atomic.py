@@ -27,11 +27,22 @@ from pathlib import Path
 import numpy as np
 
 
-def default_file_mode() -> int:
-    """``0o666 & ~umask``: the mode ``open()`` gives a new file in this process."""
+def _umask() -> int:
+    """The process umask, read without changing it where Linux allows (no race with threads)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
     umask = os.umask(0o022)
     os.umask(umask)
-    return 0o666 & ~umask
+    return umask
+
+
+def default_file_mode() -> int:
+    """``0o666 & ~umask``: the mode ``open()`` gives a new file in this process."""
+    return 0o666 & ~_umask()
 
 
 @contextlib.contextmanager

@@ -9,12 +9,15 @@ valid, readable trajectory of what was computed.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from lbshape.geometry.mesh import TetMesh
 from lbshape.io.atomic import write_atomic, write_text_atomic
+
+if TYPE_CHECKING:  # io sits below every concept package; the mesh type is only an annotation
+    from lbshape.geometry.mesh import TetMesh
 
 
 class TrajectoryWriter:

@@ -381,22 +381,16 @@ def speed_error_sweep(
             references[m] = simulate(variant, pre, method="full", steps=steps)
             if references[m].message:
                 log.error("sweep: full reference (m=%d) stopped: %s", m, references[m].message)
-        full = references[m]
-        interp, total, output = [], [], None
-        for _ in range(repeats):
-            output = simulate(variant, pre, method="reduced", steps=steps)
-            interp.append(output.stats["t_interp_ms"])
-            total.append(output.stats["t_total_ms"])
-            if output.message:
-                log.error("sweep: m=%d r=%d s=%d stopped: %s", m, r, s, output.message)
-                break
-        error = _error_vs_full(output, full, mass_matrix(pre.mesh, pre.material.density))
+        outputs, (timing,) = _run_interleaved(variant, pre, ("reduced",), steps=steps,
+                                              repeats=repeats)
+        error = _error_vs_full(outputs["reduced"], references[m],
+                               mass_matrix(pre.mesh, pre.material.density))
         holdout = pre.cubature_errors.get("holdout")
+        total = timing.summary("t_total_ms")
         points.append(SweepPoint(
             m=m, r=pre.r, s_max=s, s=int(pre.cubature_elements.size),
-            t_interp_ms=float(np.median(interp)), t_total_ms=float(np.median(total)),
-            t_total_min_ms=float(np.min(total)), t_total_max_ms=float(np.max(total)),
-            error_vs_full=error,
+            t_interp_ms=timing.summary("t_interp_ms")["median"], t_total_ms=total["median"],
+            t_total_min_ms=total["min"], t_total_max_ms=total["max"], error_vs_full=error,
             cubature_holdout_error=None if holdout is None else float(holdout),
         ))
         log.info("sweep %s: %s", scene.name, points[-1])

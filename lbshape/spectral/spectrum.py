@@ -65,6 +65,7 @@ from lbshape.fem.dolfinx_bridge import p1_dof_vertices, to_dolfinx
 from lbshape.fem.eigenproblem import (
     b_orthonormalise,
     check_residuals,
+    check_tol_and_target,
     converged_pairs,
     fix_signs,
     relative_residuals,
@@ -259,10 +260,7 @@ def _check_request(m, n: int, tol: float, target: float | None) -> None:
         raise LbshapeError(
             f"m={m} is too large for a mesh with {n} vertices: need m + 1 < {n}"
         )
-    if not (0.0 < tol < 1.0):
-        raise LbshapeError(f"tol must be in (0, 1), got {tol!r}")
-    if target is not None and not (math.isfinite(target) and target < 0.0):
-        raise LbshapeError(f"target must be a finite negative number, got {target!r}")
+    check_tol_and_target(tol, target)
 
 
 def lb_spectrum_from_matrices(
