@@ -50,7 +50,7 @@ def _basis(mesh, r: int, rng) -> np.ndarray:
 
 def _twisted_examples(angles):
     """example_part for a finer bar twisted by ``angles[k]`` about z (pose on the part)."""
-    example = structured_box(BAR, (3, 3, 10))
+    example = structured_box(BAR, (2, 2, 10))
 
     def part(k, spec):
         cells = region_cells(example, group=spec.group, region=spec.region)
