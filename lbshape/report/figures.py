@@ -244,7 +244,7 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
     t = output.times[-1]
     result_png = render_shapes(
         [pre.mesh, _deformed(pre, u_none), _deformed(pre, u_ex)],
-        [f"rest, regions ({names})", f"no examples ({method}) t={t:.2f} s",
+        ["rest", f"no examples ({method}) t={t:.2f} s",
          f"local examples ({method}) t={t:.2f} s, influence {influence:.2f}"],
         out_dir / "local_result.png",
         scalars=[None, np.linalg.norm(u_none, axis=1), np.linalg.norm(u_ex, axis=1)],

@@ -637,7 +637,8 @@ def local_example_driver(mesh: TetMesh, material: Material, space: LocalShapeSpa
         material: its material.
         space: the local shape space of the precompute.
         route: one of :data:`LOCAL_ROUTES`.
-        tabulate: regions with two examples use a :class:`TabulatedTarget`.
+        tabulate: regions with two examples use a :class:`TabulatedTarget` on the
+            ``lb-exact`` route (the ``euclidean`` baseline solves every step).
         free_rigid: anchor each region's target where the region is attached (the
             module docstring); False leaves the targets unanchored.
         tolerance, max_iterations: Newton settings of the target solves.
@@ -648,7 +649,7 @@ def local_example_driver(mesh: TetMesh, material: Material, space: LocalShapeSpa
         k = region.example_coefficients.shape[0]
         solver = TargetSolver(models, region.example_coefficients.reshape(k, -1),
                               tolerance=tolerance, max_iterations=max_iterations)
-        if tabulate and k == 2:
+        if tabulate and k == 2 and route == "lb-exact":  # the baseline solves every step
             solver = TabulatedTarget(solver)
             log.info("region %s: tabulated target, error %.2g of the example separation",
                      region.name, solver.error)
