@@ -97,6 +97,11 @@ log = logging.getLogger(__name__)
 
 #: target energies of the local examples: exact polynomial (StVK) or all region elements
 LOCAL_ROUTES = ("lb-exact", "euclidean")
+#: largest relative RMS residual of a region part's frame alignment. The residual is a
+#: vertex-to-vertex distance, and an object's region often has only tens of vertices
+#: (a teddy's leg: ~50 against the example part's ~800), so a matching part measures
+#: ~0.25 by resolution alone; the basis alignment residual still guards the match.
+REGION_FRAME_RMS = 0.35
 
 
 # ------------------------------------------------------------------ regions
@@ -431,7 +436,9 @@ def build_local_space(
             that cannot be embedded (message names region and example).
     """
     spectrum = spectrum or lb_spectrum
-    embed = embed or embed_example
+    if embed is None:
+        def embed(*args):
+            return embed_example(*args, max_frame_rms=REGION_FRAME_RMS)
     names = [s.name for s in specs]
     cells = [region_cells(mesh, group=s.group, region=s.region, what=f"region '{s.name}'")
              for s in specs]
