@@ -242,3 +242,19 @@ def test_scene_regions_must_be_disjoint(tmp_path):
     path.write_text(lines)
     with pytest.raises(LbshapeError, match="share"):
         precompute(load_scene(path))
+
+
+@pytest.mark.parametrize("name, m, r, s, regions, example_shape", [
+    ("cross", 10, 42, 21, ("left", "right", "middle"), "cross-example"),
+    ("teddy-local", 6, 30, 30, ("left_leg", "right_leg", "left_arm", "right_arm"),
+     "teddy-example"),
+    ("teddy-global", 6, 30, 30, (), "teddy-example"),
+])
+def test_paper_local_scenes_load_with_table2_sizes(name, m, r, s, regions, example_shape):
+    scene = load_scene(name)
+    assert (scene.reduced.m, scene.reduced.r, scene.reduced.s) == (m, r, s)
+    assert tuple(reg.name for reg in scene.regions) == regions
+    assert {p.source.shape for p in scene.examples.poses} == {example_shape}
+    assert not scene.is_free and scene.loads
+    used = {k for reg in scene.regions for k in reg.examples}
+    assert not regions or used == set(range(len(scene.examples.poses)))
