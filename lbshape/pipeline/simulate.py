@@ -136,11 +136,11 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *,
     if k_ex > 0:
         route = (resolve_route(scene.reduced.interpolation, scene.material.model)
                  if method == "reduced" else BASELINE_ROUTE)
-    if k_ex > 0 and pre.has_local_examples:
+    if k_ex > 0 and pre.has_examples:
+        driver = example_driver(pre, route=route)
+    elif k_ex > 0:  # local examples
         driver = local_example_driver(pre.mesh, pre.material, pre.local,
                                       route=local_route(route, pre.material))
-    elif k_ex > 0:
-        driver = example_driver(pre, route=route)
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
@@ -160,11 +160,11 @@ def full_simulation(scene: Scene, pre: Precomputed) -> FullSpaceSimulator:
     loads = load_patterns(scene, pre, mass_matrix(pre.mesh, pre.material.density))
     k_ex = example_stiffness(scene, pre)
     examples, local = None, None
-    if k_ex > 0 and pre.has_local_examples:
-        local = (FullSpaceLocalForce(pre.mesh, pre.material, pre.local), k_ex)
-    elif k_ex > 0:
+    if k_ex > 0 and pre.has_examples:
         examples = FullSpaceExamples(pre.eigenvalues, pre.eigenvectors,
                                      pre.example_coefficients, k_ex)
+    elif k_ex > 0:  # local examples (example_stiffness is 0 without any examples)
+        local = (FullSpaceLocalForce(pre.mesh, pre.material, pre.local), k_ex)
     return FullSpaceSimulator(
         pre.mesh, pre.material, dt=scene.simulation.dt, fixed_vertices=pre.fixed_vertices,
         integrator=scene.simulation.integrator, alpha=scene.damping.alpha,
