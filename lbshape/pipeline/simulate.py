@@ -46,6 +46,12 @@ from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic, write_npz_atomic
 from lbshape.io.trajectory import TrajectoryWriter
+from lbshape.pipeline.influence import (
+    Influence,
+    compare_runs,
+    has_example_force,
+    without_examples,
+)
 from lbshape.pipeline.meshes import selected_vertices
 from lbshape.pipeline.precompute import Precomputed
 from lbshape.pipeline.routes import example_driver
@@ -193,8 +199,14 @@ def run_method(scene: Scene, pre: Precomputed, *, method: str, steps: int,
 
 
 def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
-             steps: int | None = None, out: Path | None = None) -> SimulationOutput:
-    """Run ``scene`` with ``method`` for ``steps`` (default: the scene's) steps."""
+             steps: int | None = None, out: Path | None = None,
+             influence: bool = False) -> SimulationOutput:
+    """Run ``scene`` with ``method`` for ``steps`` (default: the scene's) steps.
+
+    With ``influence`` and a scene whose examples act (``k_ex > 0``), the same
+    scene is also run without examples and the stats gain the example influence
+    keys (:data:`lbshape.pipeline.influence.STATS_KEYS`).
+    """
     if method not in METHODS:
         raise LbshapeError(f"method must be one of {METHODS}, got {method!r}")
     steps = scene.simulation.steps if steps is None else int(steps)
@@ -219,9 +231,34 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "stable": bool(record.stable), "max_displacement": max_disp,
     }
     output = SimulationOutput(stats, record.times, frames, record.message)
+    if influence and record.stable and has_example_force(scene, pre):
+        stats.update(example_influence(scene, pre, output, method=method, steps=steps)[0].stats())
     if out is not None:
         write_outputs(Path(out), pre, output)
     return output
+
+
+def example_influence(scene: Scene, pre: Precomputed, output: SimulationOutput, *,
+                      method: str, steps: int | None = None
+                      ) -> tuple[Influence, SimulationOutput]:
+    """Run ``scene`` without examples and compare with ``output``, its run with examples.
+
+    See :mod:`lbshape.pipeline.influence`. The reference uses the same method,
+    steps and precompute with ``k_ex = 0``.
+
+    Returns:
+        ``(influence, the run without examples)``.
+
+    Raises:
+        LbshapeError: no example force in the scene, or a run that stopped early.
+    """
+    if not has_example_force(scene, pre):
+        raise LbshapeError(f"scene {scene.name} has no example force to measure")
+    reference = simulate(without_examples(scene), pre, method=method, steps=steps)
+    if output.message or reference.message:
+        raise LbshapeError(f"example influence of {scene.name} ({method}): a run stopped: "
+                           f"{output.message or reference.message}")
+    return compare_runs(pre, output, reference), reference
 
 
 def write_outputs(out: Path, pre: Precomputed, output: SimulationOutput) -> None:

@@ -10,7 +10,10 @@
   final frame without and with the examples;
 * :func:`figure3` — the paper's Figure 3: rest; no examples, same-topology examples
   and other-topology examples in full space; other-topology examples reduced — the
-  final frame of each;
+  final frame of each, with the end twist and the examples' influence;
+* :func:`comparison_figure` / :func:`comparison_animation` — several runs of one
+  scene side by side (e.g. no examples, examples reduced, full reference): the
+  final frames as a PNG, the whole runs as a GIF, with the end twist in the captions;
 * :func:`render_scene` — all of the above that a scene supports, into one folder.
 
 Numbers behind each composite picture go to a JSON file next to it. Nothing here
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,10 +34,11 @@ from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import RESULTS_DIR
+from lbshape.pipeline.influence import compare_runs, end_twist_degrees
 from lbshape.pipeline.meshes import example_mesh
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
-from lbshape.report.render import render_eigenfunctions, render_shapes
+from lbshape.report.render import render_animation, render_eigenfunctions, render_shapes
 from lbshape.shapespace.local_examples import anchor_fit, region_example_distance
 from lbshape.spectral.spectrum import lb_spectrum
 
@@ -331,31 +336,103 @@ def figure3(same_topology, other_topology, path: str | Path, *,
         (f"{other_label} examples (full)", other_topology, pre_other, "full"),
         (f"{other_label} examples (reduced)", other_topology, pre_other, "reduced"),
     ]
-    finals, labels = [], ["rest"]
+    outputs, labels = [], ["rest"]
     for label, scene, pre, method in runs:
         output = simulate(scene, pre, method=method, steps=steps)
         if output.message:
             raise LbshapeError(f"Figure 3 run '{label}' stopped: {output.message}")
-        finals.append(output.displacements[-1])
-        labels.append(f"{label} t={output.times[-1]:.2f} s")
+        outputs.append(output)
         log.info("figure 3: %s done", label)
+    finals = [output.displacements[-1] for output in outputs]
+    twists = [end_twist_degrees(a.points, u) for u in finals]
+    for (label, *_), output, twist in zip(runs, outputs, twists, strict=True):
+        labels.append(f"{label}\nt={output.times[-1]:.2f} s, end twist {twist:.0f} deg")
     mass = mass_matrix(a, pre_same.material.density)
+    # the examples' effect on the full-space runs, against the run without examples
+    influences = [compare_runs(pre, output, outputs[0], mass).stats() for pre, output in
+                  ((pre_same, outputs[1]), (pre_other, outputs[2]))]
     flat_full, flat_reduced = finals[2].reshape(-1), finals[3].reshape(-1)
     diff = flat_reduced - flat_full
     reference = float(np.sqrt(flat_full @ (mass @ flat_full)))
     relative = float(np.sqrt(diff @ (mass @ diff))) / reference if reference > 0 else float("nan")
     meshes = [a, *(_deformed(pre_same, u) for u in finals)]
     scalars = [None, *(np.linalg.norm(u, axis=1) for u in finals)]
-    png = render_shapes(meshes, labels, path, scalars=scalars)
+    png = render_shapes(meshes, labels, path, scalars=scalars, ghost=a,
+                        scalar_name="displacement (m)")
     maxima = (0.0, *(float(np.linalg.norm(u, axis=1).max()) for u in finals))
     result = Figure3(png, tuple(labels), maxima, relative, int(steps))
     write_json_atomic(Path(path).with_suffix(".json"), {
         "scenes": [same_topology.name, other_topology.name], "steps": int(steps),
         "dt": same_topology.simulation.dt, "panels": list(labels),
         "final_max_displacement_m": list(maxima),
+        "end_twist_deg": [0.0, *twists],
+        "example_influence_full": {same_topology.name: influences[0],
+                                   other_topology.name: influences[1]},
         "reduced_vs_full_final_relative_m_norm": relative,
     })
     return result
+
+
+def _twist_caption(pre, u: np.ndarray) -> str:
+    """`twist X deg` of the bar's free end for bar-like objects, '' otherwise."""
+    try:
+        return f"end twist {end_twist_degrees(pre.mesh.points, u):.0f} deg"
+    except LbshapeError:
+        return ""
+
+
+def comparison_figure(pre, runs: Sequence[tuple[str, object]], path: str | Path, *,
+                      frame: int = -1, twist: bool = False,
+                      view_vector: tuple[float, float, float] = (1.0, -1.0, 0.5),
+                      view_up: tuple[float, float, float] | None = None,
+                      zoom: float = 1.0) -> Path:
+    """One frame of several runs of a scene side by side, after the rest shape.
+
+    Args:
+        pre: the scene's precompute (rest mesh).
+        runs: ``(caption, SimulationOutput)`` pairs sampled at the same times.
+        path: output PNG.
+        frame: which sample (default: the last).
+        twist: add the twist of the end section (for a bar along z) to the captions.
+        view_vector: direction from the object to the camera; ``view_up`` its up
+            direction and ``zoom`` a zoom factor.
+
+    Each panel shows the rest shape as a faint wireframe and is coloured by |u| on
+    one shared scale; its caption gives the time (and the twist).
+    """
+    if not runs:
+        raise LbshapeError("no runs to compare")
+    finals = [np.asarray(output.displacements[frame]) for _, output in runs]
+    labels = ["rest"]
+    for (caption, output), u in zip(runs, finals, strict=True):
+        words = _twist_caption(pre, u) if twist else ""
+        labels.append(f"{caption}\nt = {output.times[frame]:.2f} s" + (f", {words}" if words
+                                                                         else ""))
+    meshes = [pre.mesh, *(_deformed(pre, u) for u in finals)]
+    scalars = [None, *(np.linalg.norm(u, axis=1) for u in finals)]
+    return render_shapes(meshes, labels, path, scalars=scalars, ghost=pre.mesh,
+                         scalar_name="displacement (m)", window_size=(330 * len(meshes), 560),
+                         view_vector=view_vector, view_up=view_up, zoom=zoom)
+
+
+def comparison_animation(pre, runs: Sequence[tuple[str, object]], path: str | Path, *,
+                         frames: int = 40, fps: float = 12.0, twist: bool = False) -> Path:
+    """A GIF of several runs of a scene side by side (same sample times), ``frames`` frames;
+    with ``twist`` each panel's caption follows the twist of a bar's end section."""
+    if not runs:
+        raise LbshapeError("no runs to animate")
+    times = np.asarray(runs[0][1].times)
+    for caption, output in runs:
+        if len(output.times) != len(times) or not np.allclose(output.times, times):
+            raise LbshapeError(f"run '{caption}' is sampled at other times than the first run")
+    picks = np.unique(np.linspace(0, len(times) - 1, max(2, frames)).round().astype(int))
+    displacements = [np.asarray(output.displacements)[picks] for _, output in runs]
+    notes = None
+    if twist:
+        notes = [[_twist_caption(pre, u[f]) for u in displacements] for f in range(picks.size)]
+    return render_animation(pre.mesh, displacements, [caption for caption, _ in runs], path,
+                            times=times[picks], scalar_name="displacement (m)", fps=fps,
+                            notes=notes, window_size=(280 * len(runs), 470))
 
 
 def render_scene(scene, out: str | Path, *, steps: int | None = None, method: str = "reduced",
