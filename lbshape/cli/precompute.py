@@ -54,7 +54,7 @@ def precompute_summary(name: str, *, force: bool = False) -> dict:
     pre = precompute(scene, force=force)
     return {"scene": scene.name, "origin": "cache" if pre.from_cache else "computed",
             "key": pre.key, "n_vertices": pre.mesh.n_vertices, "n_tets": pre.mesh.n_tets,
-            "m": str(pre.eigenvalues.size) if pre.has_examples else "—", "r": pre.r,
+            "m": "—" if pre.eigenvalues is None else str(pre.eigenvalues.size), "r": pre.r,
             "s": int(pre.cubature_elements.size),
             "stage_seconds": float(sum(pre.stage_seconds.values()))}
 
@@ -71,6 +71,12 @@ def run_one(name: str, *, force: bool = False) -> int:
         residuals = ", ".join(f"{r:.3f}" for r in pre.alignment_residuals)
         print(f"  shape space: m={pre.eigenvalues.size}, {len(pre.example_names)} examples, "
               f"alignment residuals [{residuals}]")
+    if pre.has_local_examples:
+        for region in pre.local.regions:
+            residuals = ", ".join(f"{r:.3f}" for r in region.alignment_residuals)
+            print(f"  region {region.name}: {region.vertices.size} vertices, "
+                  f"m={region.m}, examples {[int(k) + 1 for k in region.examples]}, "
+                  f"alignment residuals [{residuals}]")
     total = sum(pre.stage_seconds.values())
     print("  stage times (s): " + ", ".join(
         f"{name} {seconds:.2f}" for name, seconds in pre.stage_seconds.items())

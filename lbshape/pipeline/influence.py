@@ -16,7 +16,8 @@ effect. With M the consistent elastic mass (kg) and
   ``d = λ ⊙ (Φᵀ M₁ u)`` (3m,) to the convex hull of the example descriptors,
   ``min_{w ∈ simplex} ‖Σ_k w_k e_k − d‖``, divided by ``max_k ‖e_k‖`` (how far
   the examples themselves are from the rest shape), so 0 means "on the example
-  manifold" and 1 "as far from it as the examples are from rest".
+  manifold" and 1 "as far from it as the examples are from rest". With local
+  examples: the largest of the regions' residuals, each on its own descriptors.
 
 A measure is ``None`` when it is undefined: the reference never moves (division
 by zero) while the example run does. Two trajectories that agree to round-off
@@ -45,6 +46,7 @@ from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import Precomputed
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.interpolation import simplex_weights
+from lbshape.shapespace.local_examples import region_example_distance
 
 #: M-norm differences below ROUNDOFF × sqrt(mass) × bounding-box diagonal count as none
 ROUNDOFF = 1e-12
@@ -133,9 +135,18 @@ def manifold_residual(pre: Precomputed, u: np.ndarray) -> float:
     return distance / scale if scale > 0.0 else distance
 
 
+def local_residual(pre: Precomputed, u: np.ndarray) -> float:
+    """Local examples: the largest region's relative eq. 5 residual of u (n, 3), each on
+    the region's own descriptors
+    (:func:`lbshape.shapespace.local_examples.region_example_distance`)."""
+    return max(region_example_distance(pre.mesh, region, u, density=pre.material.density)[0]
+               for region in pre.local.regions)
+
+
 def has_example_force(scene: Scene, pre: Precomputed) -> bool:
     """True when the scene's examples act on its motion (examples and ``k_ex > 0``)."""
-    return bool(pre.has_examples and scene.examples is not None and scene.examples.stiffness > 0)
+    active = pre.has_examples or pre.has_local_examples
+    return bool(active and scene.examples is not None and scene.examples.stiffness > 0)
 
 
 def without_examples(scene: Scene) -> Scene:
@@ -171,6 +182,9 @@ def compare_runs(pre: Precomputed, with_ex, without, mass=None) -> Influence:
     if pre.has_examples:
         residual = manifold_residual(pre, with_ex.displacements[-1])
         residual_none = manifold_residual(pre, without.displacements[-1])
+    elif pre.has_local_examples:
+        residual = local_residual(pre, with_ex.displacements[-1])
+        residual_none = local_residual(pre, without.displacements[-1])
     return Influence(final, maximum, residual, residual_none)
 
 

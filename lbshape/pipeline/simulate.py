@@ -57,6 +57,11 @@ from lbshape.pipeline.precompute import Precomputed
 from lbshape.pipeline.routes import example_driver
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.interpolation import BASELINE_ROUTE, resolve_route
+from lbshape.shapespace.local_examples import (
+    FullSpaceLocalForce,
+    local_example_driver,
+    local_route,
+)
 
 log = logging.getLogger(__name__)
 
@@ -113,7 +118,8 @@ def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[TimedLoad]:
 def example_stiffness(scene: Scene, pre: Precomputed) -> float:
     """k_ex in 1/s² when the example force is active (examples precomputed, k_ex > 0), else 0."""
     k_ex = scene.examples.stiffness if scene.examples is not None else 0.0
-    return float(k_ex) if pre.has_examples and k_ex > 0 else 0.0
+    active = pre.has_examples or pre.has_local_examples
+    return float(k_ex) if active and k_ex > 0 else 0.0
 
 
 def reduced_simulation(scene: Scene, pre: Precomputed, *,
@@ -136,7 +142,11 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *,
     if k_ex > 0:
         route = (resolve_route(scene.reduced.interpolation, scene.material.model)
                  if method == "reduced" else BASELINE_ROUTE)
+    if k_ex > 0 and pre.has_examples:
         driver = example_driver(pre, route=route)
+    elif k_ex > 0:  # local examples
+        driver = local_example_driver(pre.mesh, pre.material, pre.local,
+                                      route=local_route(route, pre.material))
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
@@ -147,23 +157,24 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *,
 def full_simulation(scene: Scene, pre: Precomputed) -> FullSpaceSimulator:
     """The :class:`~lbshape.dynamics.full.FullSpaceSimulator` of a scene (the ``full`` method).
 
-    Contact planes are not modelled by the full-space method and local regions are
-    treated as global examples; both are logged as warnings.
+    Contact planes are not modelled by the full-space method (logged as a warning);
+    local examples use :class:`~lbshape.shapespace.local_examples.FullSpaceLocalForce`.
     """
     if scene.planes:
         log.warning("scene %s: contact planes are not modelled by the full-space method",
                     scene.name)
-    if scene.regions:
-        log.warning("scene %s: local example regions are treated as global examples by the "
-                    "full-space method", scene.name)
     loads = load_patterns(scene, pre, mass_matrix(pre.mesh, pre.material.density))
     k_ex = example_stiffness(scene, pre)
-    examples = (FullSpaceExamples(pre.eigenvalues, pre.eigenvectors, pre.example_coefficients,
-                                  k_ex) if k_ex > 0 else None)
+    examples, local = None, None
+    if k_ex > 0 and pre.has_examples:
+        examples = FullSpaceExamples(pre.eigenvalues, pre.eigenvectors,
+                                     pre.example_coefficients, k_ex)
+    elif k_ex > 0:  # local examples (example_stiffness is 0 without any examples)
+        local = (FullSpaceLocalForce(pre.mesh, pre.material, pre.local), k_ex)
     return FullSpaceSimulator(
         pre.mesh, pre.material, dt=scene.simulation.dt, fixed_vertices=pre.fixed_vertices,
         integrator=scene.simulation.integrator, alpha=scene.damping.alpha,
-        beta=scene.damping.beta, loads=loads, examples=examples,
+        beta=scene.damping.beta, loads=loads, examples=examples, local_examples=local,
     )
 
 

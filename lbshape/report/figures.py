@@ -5,6 +5,9 @@
 * :func:`examples_figures` — the examples reconstructed on the object's mesh (what
   the method sees) and the raw example meshes posed (what the user gave);
 * :func:`eigenfunctions_figure` — the object's LB eigenfunctions on its interior;
+* :func:`local_examples_figures` — scenes with local examples (the paper's Figures
+  6 and 7): the regions, each example as the regions it guides see it, and the
+  final frame without and with the examples;
 * :func:`figure3` — the paper's Figure 3: rest; no examples, same-topology examples
   and other-topology examples in full space; other-topology examples reduced — the
   final frame of each, with the end twist and the examples' influence;
@@ -36,6 +39,7 @@ from lbshape.pipeline.meshes import example_mesh
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
 from lbshape.report.render import render_animation, render_eigenfunctions, render_shapes
+from lbshape.shapespace.local_examples import anchor_fit, region_example_distance
 from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
@@ -157,6 +161,119 @@ def examples_figures(scene, pre, out_dir: str | Path) -> tuple[Path, Path]:
         out_dir / "examples_raw.png",
     )
     return on_object, raw_path
+
+
+def _region_labels(pre) -> np.ndarray:
+    """(n,) region number per vertex (1, 2, …; 0 outside every region)."""
+    labels = np.zeros(pre.mesh.n_vertices)
+    for number, region in enumerate(pre.local.regions, start=1):
+        labels[region.vertices] = number
+    return labels
+
+
+def _local_example_shape(pre, index: int) -> np.ndarray | None:
+    """(n, 3) the object with every region that example ``index`` guides in that
+    example's region shape, attached at the region's anchor as the runtime attaches
+    its targets (the rest state's rigid fit); None if no region uses it."""
+    mesh = pre.mesh
+    u, count = np.zeros((mesh.n_vertices, 3)), np.zeros(mesh.n_vertices)
+    for region in pre.local.regions:
+        hits = np.flatnonzero(region.examples == index)
+        if hits.size == 0:
+            continue
+        shape = region.displacement(region.example_coefficients[hits[0]]).reshape(-1)
+        part = region.submesh(mesh)
+        Q, F, rows = anchor_fit(part.points, mass_matrix(part, 1.0), region.anchor)
+        u[region.vertices] += (shape - Q @ (F @ shape[rows])).reshape(-1, 3)
+        count[region.vertices] += 1
+    if not count.any():
+        return None
+    return u / np.maximum(count, 1)[:, None]
+
+
+def _view_vector(mesh) -> tuple[float, float, float]:
+    """A camera direction: mostly along the thin axis of a flat object, else oblique."""
+    extent = np.ptp(mesh.points, axis=0)
+    thin = int(np.argmin(extent))
+    if extent[thin] >= 0.3 * extent.max():
+        return (1.0, -1.0, 0.5)
+    view = np.array([0.35, -0.6, 0.35])
+    view[thin] = 1.0
+    return tuple(float(v) for v in view)
+
+
+def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Path, ...]:
+    """``local_regions.png``, ``local_examples.png``, ``local_result.png`` and
+    ``local_examples.json``.
+
+    The regions picture colours the object at rest by region; the examples picture
+    shows the rest shape and each example as the regions it guides see it
+    (reconstructed on the object's mesh from the region's m coefficients), coloured
+    by the example's displacement; the result picture the rest shape, the final
+    frame of the same run without examples (k_ex = 0) and ``output``'s final frame,
+    coloured by |u|. The JSON holds the example influence ``‖u_ex − u_none‖_M / ‖u_none‖_M``
+    and, per region, the distance to its examples (eq. 5's residual, relative to
+    the largest example) and weights, without and with the examples.
+    """
+    if not pre.has_local_examples:
+        raise LbshapeError(f"scene {scene.name} has no local examples to draw")
+    out_dir = Path(out_dir)
+    labels = _region_labels(pre)
+    names = ", ".join(f"{i}={reg.name}" for i, reg in enumerate(pre.local.regions, start=1))
+    shapes, captions = [], []
+    for index, pose in enumerate(scene.examples.poses):
+        u = _local_example_shape(pre, index)
+        if u is not None:
+            users = [reg.name for reg in pre.local.regions if index in reg.examples]
+            shapes.append(u)
+            captions.append(f"{example_caption(index, pose)} -> {', '.join(users)}")
+    view = _view_vector(pre.mesh)
+    regions_png = render_shapes(
+        [pre.mesh], [f"{scene.name}: regions ({names}; 0 = none)"],
+        out_dir / "local_regions.png", scalars=[labels], scalar_name="region",
+        window_size=(900, 640), view_vector=view, clim=(0.0, float(labels.max())))
+    examples_png = render_shapes(
+        [pre.mesh, *(_deformed(pre, u) for u in shapes)],
+        ["rest", *captions], out_dir / "local_examples.png",
+        scalars=[None, *(np.linalg.norm(u, axis=1) for u in shapes)],
+        scalar_name="|x_k - X| (m)", window_size=(480 * (len(shapes) + 1), 560),
+        view_vector=view)
+    method = output.stats.get("method", "reduced")
+    none_scene = dataclasses.replace(
+        scene, examples=dataclasses.replace(scene.examples, stiffness=0.0))
+    none = simulate(none_scene, pre, method=method, steps=output.stats["steps"])
+    u_none, u_ex = none.displacements[-1], output.displacements[-1]
+    mass = mass_matrix(pre.mesh, pre.material.density)
+    diff, ref = (u_ex - u_none).reshape(-1), u_none.reshape(-1)
+    influence = float(np.sqrt(diff @ (mass @ diff)) / np.sqrt(ref @ (mass @ ref)))
+    t = output.times[-1]
+    result_png = render_shapes(
+        [pre.mesh, _deformed(pre, u_none), _deformed(pre, u_ex)],
+        ["rest", f"no examples ({method}) t={t:.2f} s",
+         f"local examples ({method}) t={t:.2f} s, influence {influence:.2f}"],
+        out_dir / "local_result.png",
+        scalars=[None, np.linalg.norm(u_none, axis=1), np.linalg.norm(u_ex, axis=1)],
+        window_size=(1500, 640), view_vector=view)
+    regions = {}
+    for region in pre.local.regions:
+        d_none, w_none = region_example_distance(pre.mesh, region, u_none,
+                                                 density=pre.material.density)
+        d_ex, w_ex = region_example_distance(pre.mesh, region, u_ex,
+                                             density=pre.material.density)
+        regions[region.name] = {
+            "examples": [int(k) for k in region.examples],
+            "distance_to_examples": {"no_examples": d_none, "examples": d_ex},
+            "weights": {"no_examples": w_none.tolist(), "examples": w_ex.tolist()},
+            "moves_toward_examples": bool(d_ex < d_none),
+            "alignment_residuals": region.alignment_residuals.tolist(),
+        }
+    summary = write_json_atomic(out_dir / "local_examples.json", {
+        "scene": scene.name, "method": method, "steps": output.stats["steps"],
+        "time_s": float(t), "example_influence": influence, "regions": regions,
+        "covered_volume_fraction": pre.local.covered,
+        "representation_errors": pre.local.representation_errors,
+    })
+    return regions_png, examples_png, result_png, summary
 
 
 def eigenfunctions_figure(scene, pre, path: str | Path, *, count: int = 4) -> Path:
@@ -323,8 +440,9 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
     """Every picture of one scene into ``out`` (see the module docstring).
 
     Writes ``simulation.png`` (``method``'s run), ``eigenfunctions.png`` and, with
-    examples, ``examples_on_object.png`` and ``examples_raw.png``; plus
-    ``summary.json`` (the run's stats and the files).
+    examples, ``examples_on_object.png`` and ``examples_raw.png`` (with local
+    examples: ``local_regions.png``, ``local_examples.png``, ``local_result.png``
+    and ``local_examples.json``); plus ``summary.json`` (the run's stats and the files).
 
     Args:
         scene: the scene.
@@ -343,6 +461,8 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
     paths.append(eigenfunctions_figure(scene, pre, out / "eigenfunctions.png"))
     if pre.has_examples:
         paths.extend(examples_figures(scene, pre, out))
+    if pre.has_local_examples:
+        paths.extend(local_examples_figures(scene, pre, output, out)[:3])
     summary = write_json_atomic(out / "summary.json", {
         "scene": scene.name, "simulation": output.stats, "message": output.message,
         "pictures": [p.name for p in paths],
