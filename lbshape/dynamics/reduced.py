@@ -46,7 +46,10 @@ class ReducedSimulation:
         integrator: ``"newmark"`` or ``"backward-euler"``.
         alpha, beta: Rayleigh coefficients (1/s, s).
         loads: reduced loads (patterns ``Uᵀ f`` (r,)).
-        driver: the example driver, or ``None`` (no example machinery at all).
+        driver: the example driver, or ``None`` (no example machinery at all). A
+            driver with a ``spring`` attribute (r, r) (local examples,
+            :class:`~lbshape.shapespace.local_examples.LocalExampleDriver`) uses it in
+            place of the identity in the spring ``k_ex S q``.
         k_ex: example stiffness (1/s²); 0 disables the example force.
         contact: penalty contact with planes (:class:`~lbshape.dynamics.contact.PlaneContact`
             built on the rest positions, ``x = X + U q``), implicit in q; or ``None``.
@@ -73,7 +76,8 @@ class ReducedSimulation:
         self.driver = driver if (driver is not None and k_ex > 0.0) else None
         self.k_ex = float(k_ex) if self.driver is not None else 0.0
         self.q_target = np.zeros(self.r)
-        self._identity = np.eye(self.r)
+        spring = getattr(self.driver, "spring", None)
+        self._spring = np.eye(self.r) if spring is None else np.asarray(spring, dtype=float)
         _, K0 = elastic.force_and_tangent(np.zeros(self.r))
         self.stepper = make_stepper(
             integrator,
@@ -90,8 +94,8 @@ class ReducedSimulation:
     def _force_and_tangent(self, q: np.ndarray):
         f, K = self.elastic.force_and_tangent(q)
         if self.k_ex:
-            f = f + self.k_ex * q
-            K = K + self.k_ex * self._identity
+            f = f + self.k_ex * (self._spring @ q)
+            K = K + self.k_ex * self._spring
         if self.contact is not None:
             res = self.contact.evaluate(_ORIGIN, _IDENTITY3, q, rigid=False)
             if res.active:
@@ -102,7 +106,7 @@ class ReducedSimulation:
     def _potential(self, q: np.ndarray) -> float:
         energy = float(self.elastic.energy(q))
         if self.k_ex:
-            energy += 0.5 * self.k_ex * float(q @ q)
+            energy += 0.5 * self.k_ex * float(q @ (self._spring @ q))
         if self.contact is not None:
             energy += self.contact.evaluate(_ORIGIN, _IDENTITY3, q, rigid=False).energy
         return energy
