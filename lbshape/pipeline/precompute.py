@@ -50,7 +50,12 @@ from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.shapes import MESHES_DIR, get_shape
 from lbshape.io.cache import cache_key, file_digest, load_artifact, save_artifact
-from lbshape.pipeline.meshes import build_mesh, posed_example, selected_vertices
+from lbshape.pipeline.meshes import (
+    build_mesh,
+    posed_example,
+    posed_file_meshes,
+    selected_vertices,
+)
 from lbshape.scene.schema import MeshSource, Scene
 from lbshape.shapespace.frames import body_frame
 from lbshape.shapespace.projections import block_eigenfunctions, embed_example, make_shape_space
@@ -275,13 +280,19 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Sta
         coefficients, alignments = [], []
         for index, pose in enumerate(scene.examples.poses):
             label = f"example {index + 1} ({_example_label(pose)})"
-            rest = build_mesh(pose.source)
+            if pose.pose is None:  # a posed file: its rest, or the object, shares its tets
+                try:
+                    posed, rest = posed_file_meshes(pose, mesh)
+                except LbshapeError as exc:
+                    raise LbshapeError(f"{label}: {exc}") from None
+            else:
+                rest = build_mesh(pose.source)
+                posed = posed_example(pose, rest)
             if rest.n_vertices <= m + 1:
                 raise LbshapeError(
                     f"{label}: m={m} is too large for an example mesh with "
                     f"{rest.n_vertices} vertices"
                 )
-            posed = posed_example(pose, rest)
             landmarks = np.asarray(pose.landmarks, dtype=np.int64) if pose.landmarks else None
             try:
                 embedded = embed_example(mesh, spectrum, rest, [posed.points],
