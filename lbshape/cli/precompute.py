@@ -1,7 +1,11 @@
-"""``lbshape precompute SCENE [--force]``: build or reuse the cached precompute."""
+"""``lbshape precompute SCENE [--force]``: build or reuse the cached precompute.
+
+Under ``mpirun`` every rank computes; only rank 0 prints and writes the cache.
+"""
 
 from __future__ import annotations
 
+from lbshape.cli._mpi import errors_on_rank_zero, world_rank_size
 from lbshape.pipeline.precompute import precompute
 from lbshape.scene import load_scene
 
@@ -15,8 +19,12 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    scene = load_scene(args.scene)
-    pre = precompute(scene, force=args.force, progress=True)
+    rank, _ = world_rank_size()
+    with errors_on_rank_zero():
+        scene = load_scene(args.scene)
+        pre = precompute(scene, force=args.force, progress=rank == 0, save=rank == 0)
+    if rank != 0:
+        return 0
     origin = "cache" if pre.from_cache else "computed"
     print(f"precompute {scene.name} ({origin}, key {pre.key[:16]}): n={pre.mesh.n_vertices} "
           f"vertices, {pre.mesh.n_tets} tets, r={pre.r}, s={pre.cubature_elements.size}, "

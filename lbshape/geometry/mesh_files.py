@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh, check_mesh, gmsh_model, load_mesh, mesh_from_gmsh_model
+from lbshape.io.atomic import write_atomic
 
 __all__ = [
     "SURFACE_FORMATS",
@@ -45,6 +46,7 @@ __all__ = [
     "read_mesh_file",
     "read_surface",
     "tetrahedralise_surface",
+    "write_msh",
 ]
 
 log = logging.getLogger(__name__)
@@ -397,3 +399,34 @@ def harmonic_extension(mesh: TetMesh, vertices: np.ndarray, values: np.ndarray) 
         u[free] = np.column_stack([spsolve(K[free][:, free].tocsc(), rhs[:, c])
                                    for c in range(3)])
     return u
+
+
+def write_msh(mesh: TetMesh, path: str | Path) -> Path:
+    """Write a tet mesh as gmsh ``.msh`` (format 4.1, ASCII), atomically.
+
+    Its vertex groups and cell groups are not written (a mesh read from a
+    surface or meshio file has none); one discrete volume holds the tetrahedra.
+
+    Raises:
+        LbshapeError: a path not ending in ``.msh`` or that cannot be written.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".msh":
+        raise LbshapeError(f"{path}: output must be a .msh file")
+    with gmsh_model("lbshape-write") as gmsh:
+        volume = gmsh.model.addDiscreteEntity(3)
+        gmsh.model.mesh.addNodes(3, volume, np.arange(1, mesh.n_vertices + 1).tolist(),
+                                 mesh.points.ravel().tolist())
+        gmsh.model.mesh.addElementsByType(volume, 4, [], (mesh.tets + 1).ravel().tolist())
+        gmsh.option.setNumber("Mesh.SaveAll", 1)
+
+        def write(tmp: Path) -> None:
+            gmsh.write(str(tmp))
+            if tmp.stat().st_size == 0:
+                raise LbshapeError(f"{path}: gmsh wrote nothing")
+
+        try:
+            write_atomic(path, write)
+        except OSError as exc:
+            raise LbshapeError(f"cannot write {path}: {exc.strerror or exc}") from None
+    return path

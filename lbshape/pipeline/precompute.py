@@ -219,8 +219,10 @@ def stage_names(scene: Scene) -> list[str]:
     return names
 
 
-def precompute(scene: Scene, *, force: bool = False, progress: bool = False) -> Precomputed:
-    """Build or reuse the scene's precompute (see the module docstring)."""
+def precompute(scene: Scene, *, force: bool = False, progress: bool = False,
+               save: bool = True) -> Precomputed:
+    """Build or reuse the scene's precompute (see the module docstring); ``save=False``
+    leaves the cache untouched (e.g. on MPI ranks other than 0)."""
     key = scene_cache_key(scene)
     if not force:
         required = _REQUIRED + (_REQUIRED_EXAMPLES if scene.has_examples else ())
@@ -230,7 +232,8 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False) -> 
     stages = _Stages(stage_names(scene), show=progress)
     arrays, meta = _compute(scene, stages)
     meta["stage_seconds"] = stages.seconds
-    save_artifact(scene.name, key, arrays, meta)
+    if save:
+        save_artifact(scene.name, key, arrays, meta)
     return _from_arrays(scene, key, arrays, meta, from_cache=False)
 
 
