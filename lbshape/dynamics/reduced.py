@@ -42,7 +42,10 @@ class ReducedSimulation:
         integrator: ``"newmark"`` or ``"backward-euler"``.
         alpha, beta: Rayleigh coefficients (1/s, s).
         loads: reduced loads (patterns ``Uᵀ f`` (r,)).
-        driver: the example driver, or ``None`` (no example machinery at all).
+        driver: the example driver, or ``None`` (no example machinery at all). A
+            driver with a ``spring`` attribute (r, r) (local examples,
+            :class:`~lbshape.shapespace.local_examples.LocalExampleDriver`) uses it in
+            place of the identity in the spring ``k_ex S q``.
         k_ex: example stiffness (1/s²); 0 disables the example force.
     """
 
@@ -65,7 +68,8 @@ class ReducedSimulation:
         self.driver = driver if (driver is not None and k_ex > 0.0) else None
         self.k_ex = float(k_ex) if self.driver is not None else 0.0
         self.q_target = np.zeros(self.r)
-        self._identity = np.eye(self.r)
+        spring = getattr(self.driver, "spring", None)
+        self._spring = np.eye(self.r) if spring is None else np.asarray(spring, dtype=float)
         _, K0 = elastic.force_and_tangent(np.zeros(self.r))
         self.stepper = make_stepper(
             integrator,
@@ -82,14 +86,14 @@ class ReducedSimulation:
     def _force_and_tangent(self, q: np.ndarray):
         f, K = self.elastic.force_and_tangent(q)
         if self.k_ex:
-            f = f + self.k_ex * q
-            K = K + self.k_ex * self._identity
+            f = f + self.k_ex * (self._spring @ q)
+            K = K + self.k_ex * self._spring
         return f, K
 
     def _potential(self, q: np.ndarray) -> float:
         energy = float(self.elastic.energy(q))
         if self.k_ex:
-            energy += 0.5 * self.k_ex * float(q @ q)
+            energy += 0.5 * self.k_ex * float(q @ (self._spring @ q))
         return energy
 
     def _external(self, t: float) -> np.ndarray:
