@@ -37,7 +37,8 @@ def posed_example(pose: ExamplePose, rest: TetMesh) -> TetMesh:
 
 
 def posed_file_meshes(pose: ExamplePose, object_mesh: TetMesh) -> tuple[TetMesh, TetMesh]:
-    """(posed, rest) meshes, with one connectivity, of an example given as a posed file.
+    """(posed, rest) meshes, with one connectivity, of an example given as a posed file
+    (a mesh file without analytic pose; a built-in shape without pose is at rest).
 
     The vertex correspondence between a posed mesh and its rest is what makes its
     displacement well defined, so it is required:
@@ -52,7 +53,7 @@ def posed_file_meshes(pose: ExamplePose, object_mesh: TetMesh) -> tuple[TetMesh,
     Raises:
         LbshapeError: no correspondence (the message says which files to give).
     """
-    name = pose.source.mesh_file.name if pose.source.mesh_file else pose.source.shape
+    name = pose.source.mesh_file.name
     if pose.rest is None:
         posed = build_mesh(pose.source)
         if not _same_connectivity(posed, object_mesh):

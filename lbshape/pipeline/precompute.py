@@ -253,7 +253,10 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False,
     """Build or reuse the scene's precompute (see the module docstring); ``save=False``
     leaves the cache untouched (e.g. on MPI ranks other than 0)."""
     key = scene_cache_key(scene)
-    with artifact_lock(scene.name, key):  # concurrent jobs on one scene compute it once
+    # concurrent jobs on one scene compute it once; a caller that does not save (an
+    # MPI rank other than 0, in step with rank 0's solvers) neither waits nor locks
+    lock = artifact_lock(scene.name, key) if save else contextlib.nullcontext()
+    with lock:
         if not force:
             required = _REQUIRED + (_REQUIRED_EXAMPLES if scene.has_examples else ())
             if scene.has_local_examples:
@@ -353,7 +356,7 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Sta
         coefficients, alignments = [], []
         for index, pose in enumerate(scene.examples.poses):
             label = f"example {index + 1} ({_example_label(pose)})"
-            if pose.pose is None:  # a posed file: its rest, or the object, shares its tets
+            if pose.pose is None and pose.source.mesh_file is not None:  # a posed file
                 try:
                     posed, rest = posed_file_meshes(pose, mesh)
                 except LbshapeError as exc:

@@ -206,7 +206,8 @@ class Reduced:
 class ExamplePose:
     """One example: a mesh and an optional analytic pose applied to it.
 
-    An example without a pose is a posed shape. With ``rest`` (its un-posed
+    An example given as a mesh file without a pose is a posed shape (a built-in
+    shape without a pose is the shape at rest). With ``rest`` (its un-posed
     shape, any mesh or topology) its displacement is the posed shape's LB
     coefficients minus the rest's, each in its own basis mapped to the object's;
     without ``rest`` the object's rest coefficients are subtracted instead
