@@ -74,12 +74,20 @@ def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[tuple[np.ndarray
     return patterns
 
 
-def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced"):
-    """The :class:`~lbshape.dynamics.reduced.ReducedSimulation` of a scene."""
-    from lbshape.dynamics.reduced import ReducedLoad, ReducedSimulation
+def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced",
+                       newton_iterations: int | None | str = "realtime"):
+    """The :class:`~lbshape.dynamics.reduced.ReducedSimulation` of a scene (Newton updates
+    per step: the real-time default, a number, or ``None`` for converged Newton)."""
+    from lbshape.dynamics.reduced import (
+        REALTIME_NEWTON_ITERATIONS,
+        ReducedLoad,
+        ReducedSimulation,
+    )
     from lbshape.elastic.element_kernels import mass_matrix
     from lbshape.elastic.reduced_forces import ReducedForceModel
 
+    if newton_iterations == "realtime":
+        newton_iterations = REALTIME_NEWTON_ITERATIONS
     elastic = ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U,
                                 pre.cubature_elements, pre.cubature_weights)
     loads = []
@@ -98,7 +106,7 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
-        k_ex=k_ex,
+        k_ex=k_ex, newton_iterations=newton_iterations,
     )
 
 
