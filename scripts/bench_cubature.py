@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import os
 
-from lbshape.io.atomic import write_bytes_atomic
-
 if __name__ == "__main__":  # single-threaded BLAS for the timings, set before numpy loads
     for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(_var, "1")
@@ -31,7 +29,6 @@ import csv
 import io
 import itertools
 import logging
-import platform
 import timeit
 from pathlib import Path
 
@@ -42,6 +39,9 @@ from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.geometry.mesh import TetMesh
+from lbshape.io.atomic import write_bytes_atomic
+from lbshape.report.machine import load_text, machine_description, machine_text
+from lbshape.report.plots import pyplot, save_figure
 
 log = logging.getLogger(__name__)
 
@@ -195,11 +195,6 @@ def time_force_and_tangent(
 # -- outputs --------------------------------------------------------------------------------
 def write_error_outputs(result: dict, out_dir: Path) -> tuple[Path, Path]:
     """Write ``cubature_error_vs_s.csv`` and ``.png``; returns their paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     text = io.StringIO()
     text.write(
         f"# {result['mesh']}: {result['n_vertices']} vertices, {result['n_tets']} tets, "
@@ -215,7 +210,7 @@ def write_error_outputs(result: dict, out_dir: Path) -> tuple[Path, Path]:
     write_bytes_atomic(csv_path, text.getvalue().encode())
 
     s, train, hold = np.array(result["rows"]).T
-    fig, ax = plt.subplots(figsize=(5.5, 3.8), dpi=120)
+    fig, ax = pyplot().subplots(figsize=(5.5, 3.8), dpi=120)
     ax.semilogy(s, hold, label="held-out poses")
     ax.semilogy(s, train, "--", label="training poses")
     ax.axvline(60, color="0.6", lw=0.8, ls=":", label="s = 60 (bar, Table 2)")
@@ -225,27 +220,20 @@ def write_error_outputs(result: dict, out_dir: Path) -> tuple[Path, Path]:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png")
-    plt.close(fig)
-    png_path = Path(out_dir) / "cubature_error_vs_s.png"
-    write_bytes_atomic(png_path, buffer.getvalue())
-    return csv_path, png_path
+    return csv_path, save_figure(fig, Path(out_dir) / "cubature_error_vs_s.png")
 
 
 def write_timing_markdown(rows: list[dict], out_dir: Path, *, number: int, repeats: int) -> Path:
     """Write ``reduced_force_timing.md``; returns its path."""
-    threads = {k: os.environ.get(k, "unset") for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
-    load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
+    machine = machine_description()
     lines = [
         "# Reduced force and tangent per call (`ReducedForceModel.force_and_tangent`)",
         "",
-        f"Machine: {platform.machine()}, {os.cpu_count()} cores, numpy {np.__version__}; "
-        "threads: " + ", ".join(f"{k}={v}" for k, v in threads.items())
-        + f". Median, min and max over {repeats} samples of {number} calls each "
-        "(cases interleaved), warm-up excluded. Load average (1, 5, 15 min) when "
-        f"written: {load} — other processes shared the cores, so the median includes "
-        "their interference and the min is the closest to an unloaded machine.",
+        f"Machine: {machine_text(machine)}. Median, min and max over {repeats} samples of "
+        f"{number} calls each (cases interleaved), warm-up excluded. Load average (1, 5, 15 "
+        f"min) when written: {load_text(machine)} — other processes shared the cores, so "
+        "the median includes their interference and the min is the closest to an unloaded "
+        "machine.",
         "",
         "| material | r | s | median µs | min µs | max µs |",
         "|---|---|---|---|---|---|",

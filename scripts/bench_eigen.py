@@ -21,8 +21,6 @@ from __future__ import annotations
 
 import os
 
-from lbshape.io.atomic import write_bytes_atomic
-
 if __name__ == "__main__":  # before numpy/PETSc load their threading libraries
     for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(_var, "1")
@@ -30,7 +28,6 @@ if __name__ == "__main__":  # before numpy/PETSc load their threading libraries
 import csv
 import io
 import logging
-import platform
 import statistics
 import sys
 import time
@@ -39,6 +36,10 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
+
+from lbshape.io.atomic import write_bytes_atomic
+from lbshape.report.machine import load_average, machine_text
+from lbshape.report.plots import pyplot, save_figure
 
 log = logging.getLogger("bench_eigen")
 
@@ -146,31 +147,34 @@ def run_benchmark(ks: Sequence[int] = DEFAULT_K, ms: Sequence[int] = DEFAULT_M, 
                   repeats: Callable[[int], tuple[int, int]] = default_repeats,
                   tol: float = TOL) -> list[Row]:
     """Run all sizes, write ``eigen_benchmark.{csv,md,png}`` to ``out_dir``, return rows."""
-    load_before = os.getloadavg()[0]
+    load_before = load_average()
     rows = [row for k in ks for row in bench_one(k, ms, repeats=repeats, tol=tol)]
-    note = (f"1-minute load average {load_before:.1f} before and {os.getloadavg()[0]:.1f} after "
+    load_after = load_average()
+    note = (f"1-minute load average {_first(load_before)} before and {_first(load_after)} after "
             "the run (the machine is shared; other load slows the memory-bound solves).")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_bytes_atomic(out_dir / "eigen_benchmark.csv", _csv_text(rows).encode())
     table = markdown_table(rows, tol=tol, note=note)
     write_bytes_atomic(out_dir / "eigen_benchmark.md", table.encode())
-    write_bytes_atomic(out_dir / "eigen_benchmark.png", _plot_png(rows))
+    _plot_png(rows, out_dir / "eigen_benchmark.png")
     return rows
+
+
+def _first(load: list[float] | None) -> str:
+    """The 1-minute load average as text ("unknown" where not available)."""
+    return "unknown" if load is None else f"{load[0]:.1f}"
 
 
 def _environment() -> str:
     from petsc4py import PETSc
     from slepc4py import SLEPc
 
-    threads = ", ".join(f"{v}={os.environ.get(v, 'unset')}"
-                        for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"))
     petsc = ".".join(map(str, PETSc.Sys.getVersion()))
     slepc = ".".join(map(str, SLEPc.Sys.getVersion()))
     import scipy
 
-    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores; {threads}; "
-            f"PETSc {petsc}, SLEPc {slepc}, scipy {scipy.__version__}, numpy {np.__version__}")
+    return f"{machine_text()}; PETSc {petsc}, SLEPc {slepc}, scipy {scipy.__version__}"
 
 
 def markdown_table(rows: Sequence[Row], *, tol: float = TOL, note: str = "") -> str:
@@ -223,13 +227,9 @@ def _csv_text(rows: Sequence[Row]) -> str:
     return buffer.getvalue()
 
 
-def _plot_png(rows: Sequence[Row]) -> bytes:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=120)
+def _plot_png(rows: Sequence[Row], path: Path) -> Path:
+    """Solve time against vertices, SLEPc and scipy per m, written to the PNG ``path``."""
+    fig, ax = pyplot().subplots(figsize=(6.4, 4.4), dpi=120)
     for m, marker in zip(sorted({r.m for r in rows}), "os^v", strict=False):
         sel = [r for r in rows if r.m == m]
         n = [r.n_vertices for r in sel]
@@ -242,10 +242,7 @@ def _plot_png(rows: Sequence[Row]) -> bytes:
     ax.grid(True, which="both", lw=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png")
-    plt.close(fig)
-    return buffer.getvalue()
+    return save_figure(fig, path)
 
 
 def main() -> int:

@@ -8,8 +8,6 @@ repeats, warm-up excluded, with the thread settings).
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import timeit
 from pathlib import Path
 
@@ -18,7 +16,8 @@ import numpy as np
 from lbshape.elastic.element_kernels import ElementKernel
 from lbshape.elastic.materials import MODELS, Material
 from lbshape.geometry.primitives import structured_box
-from lbshape.report.demo import write_json_atomic
+from lbshape.io.atomic import write_json_atomic
+from lbshape.report.machine import machine_description
 
 DEFAULT_OUT = Path(__file__).resolve().parents[1] / "results" / "bench_element_kernels.json"
 
@@ -53,6 +52,7 @@ def bench_element_kernels(
         "median_us", "min_us", "max_us"}, …]}``.
     """
     rng = np.random.default_rng(0) if rng is None else rng
+    machine = machine_description()
     divisions = int(np.ceil((n_elements / 6) ** (1 / 3)))
     mesh = structured_box((0.2, 0.2, 0.2), (divisions,) * 3)
     tets = mesh.tets[rng.choice(mesh.n_tets, size=n_elements, replace=False)]
@@ -66,8 +66,8 @@ def bench_element_kernels(
             rows.append({"model": model, "method": method, **timing})
     return {
         "n_elements": n_elements,
-        "threads": {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")},
-        "machine": platform.processor() or platform.machine(),
+        "threads": machine["threads"],
+        "machine": machine["cpu"],
         "rows": rows,
     }
 

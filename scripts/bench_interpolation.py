@@ -47,7 +47,6 @@ import csv
 import dataclasses
 import io
 import logging
-import tempfile
 import time
 from pathlib import Path
 
@@ -57,7 +56,9 @@ from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_text_atomic
 from lbshape.pipeline.precompute import Precomputed, precompute
 from lbshape.pipeline.routes import BOUNDARIES, ROUTES, target_solver
-from lbshape.scene.schema import Scene, load_scene
+from lbshape.report.machine import machine_description
+from lbshape.report.plots import pyplot, save_figure
+from lbshape.scene import Scene, load_scene
 from lbshape.shapespace.example_driver import ExampleDriver
 
 log = logging.getLogger(__name__)
@@ -396,11 +397,7 @@ def benchmark_markdown(rows: list[dict], *, paper_m: dict[str, int], repeats: in
 
 def write_plot(rows: list[dict], path: Path) -> Path:
     """Time per call and target error against m, per scene and route (PNG, atomic)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, (ax_t, ax_e) = plt.subplots(1, 2, figsize=(10.0, 4.0), dpi=120)
     styles = {"lb-table": "v-", "modal": "o-", "lb": "s-", "lb-exact": "D-",
               "euclidean": "^--"}
@@ -440,17 +437,7 @@ def write_plot(rows: list[dict], path: Path) -> Path:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=6)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, format="png")
-        os.replace(tmp, path)
-    finally:
-        plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
+    return save_figure(fig, path)
 
 
 def write_outputs(rows: list[dict], out_dir: Path, **context) -> list[Path]:
@@ -483,8 +470,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> list[Path]:
     """Run the benchmark; return the paths written."""
-    from lbshape.report.bench import machine_description
-
     args = parse_args(argv)
     if args.calls < 1 or args.repeats < 1:
         raise LbshapeError("--calls and --repeats must be >= 1")

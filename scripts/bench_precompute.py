@@ -10,7 +10,6 @@ Usage: ``.venv/bin/python scripts/bench_precompute.py``
 from __future__ import annotations
 
 import os
-import platform
 import tempfile
 from pathlib import Path
 
@@ -30,7 +29,7 @@ def run(repeats: int = 1) -> list[dict]:
     """Precompute each case from scratch ``repeats`` times; rows of stage seconds."""
     os.environ["LBSHAPE_CACHE"] = tempfile.mkdtemp(prefix="lbshape-bench-")
     from lbshape.pipeline.precompute import precompute
-    from lbshape.scene.schema import scene_from_dict
+    from lbshape.scene import scene_from_dict
 
     rows = []
     for label, shape, fixed, r, s in CASES:
@@ -52,6 +51,7 @@ def run(repeats: int = 1) -> list[dict]:
 
 def write(rows: list[dict]) -> None:
     from lbshape.io.atomic import write_text_atomic
+    from lbshape.report.machine import machine_text
 
     header = ["case", "n_vertices", "n_tets", "r", "s", "free", *STAGES, "total",
               "cubature_holdout"]
@@ -59,8 +59,7 @@ def write(rows: list[dict]) -> None:
     write_text_atomic(RESULTS / "precompute_stages.csv", "\n".join(csv) + "\n")
     lines = [
         "# Elastic precompute time per stage (s)", "",
-        f"Wall clock, one process, {os.environ.get('OMP_NUM_THREADS', 'default')} "
-        f"OpenMP thread(s), {platform.machine()}, {os.cpu_count()} cores; every run from "
+        f"Wall clock, one process, {machine_text()}; every run from "
         "scratch (cache bypassed). Target: whole elastic precompute <= 60 s per scene.", "",
         "| case | vertices | tets | r | s | free | " + " | ".join(STAGES)
         + " | total | cubature held-out error |",

@@ -4,7 +4,7 @@ Usage: ``.venv/bin/python scripts/bench_table2.py [SCENE ...] [--steps N] [--rep
 [--sweep-scene NAME] [--sweep-r 10,20,30] [--sweep-s 20,60,120] [--sweep-m 6,14]
 [--sweep-steps N] [--no-sweep] [--out-dir results]``.
 
-Writes (atomically, via :mod:`lbshape.report.bench`):
+Writes (atomically, via :mod:`lbshape.report.tables`):
 
 * ``table2.md`` and ``table2.json``: ``full``, ``euclidean`` and ``reduced`` side by
   side on each scene (default: bar-cuboid, bar-cylinder) — per-step times (median
@@ -25,15 +25,9 @@ import argparse
 import logging
 from pathlib import Path
 
-from lbshape.report.bench import (
-    DEFAULT_OUT,
-    DEFAULT_SCENES,
-    bench_scene,
-    speed_error_sweep,
-    write_sweep,
-    write_table2,
-)
-from lbshape.scene.schema import load_scene
+from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene, speed_error_sweep
+from lbshape.report.tables import write_sweep, write_table2
+from lbshape.scene import load_scene
 
 log = logging.getLogger(__name__)
 

@@ -1,4 +1,13 @@
-"""Shared test fixtures."""
+"""Shared test fixtures and helpers.
+
+Fixtures: ``private_cache`` (autouse, whole session) points ``$LBSHAPE_CACHE`` at one
+folder under pytest's temporary base directory, so no test reads or writes the
+user's cache and no test depends on which ran before it; ``load_script`` loads a
+benchmark script of ``scripts/``.
+
+Helpers, imported by the test modules (``from conftest import rel``):
+:func:`rel`, :func:`central_difference_errors` and :func:`observed_rates`.
+"""
 
 from __future__ import annotations
 
@@ -6,9 +15,19 @@ import importlib.util
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def private_cache(tmp_path_factory) -> Path:
+    """``$LBSHAPE_CACHE`` for the whole session: ``<basetemp>/cache`` (restored after)."""
+    folder = tmp_path_factory.getbasetemp() / "cache"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("LBSHAPE_CACHE", str(folder))
+        yield folder
 
 
 @pytest.fixture(scope="session")
@@ -25,3 +44,44 @@ def load_script():
         return sys.modules[name]
 
     return load
+
+
+def rel(a, b) -> float:
+    """Relative error ``‖a − b‖ / ‖b‖``, 2-norm over all entries of arrays of any shape."""
+    a, b = np.asarray(a), np.asarray(b)
+    return float(np.linalg.norm(np.ravel(a - b)) / np.linalg.norm(np.ravel(b)))
+
+
+def central_difference_errors(value, derivative, x, direction, steps) -> np.ndarray:
+    """Relative errors (len(steps),) of central differences of ``value`` along ``direction``.
+
+    Args:
+        value: function of x, returning a scalar or an array.
+        derivative: function of x returning the Jacobian of ``value`` (its gradient
+            for a scalar), so that ``derivative(x) @ direction`` is the exact
+            directional derivative.
+        x: the point, shape (k,).
+        direction: (k,) the direction of differentiation.
+        steps: step lengths h (along ``direction``, units of x).
+    """
+    exact = derivative(x) @ direction
+    errors = []
+    for h in steps:
+        fd = (value(x + h * direction) - value(x - h * direction)) / (2 * h)
+        errors.append(rel(fd, exact))
+    return np.array(errors)
+
+
+def observed_rates(errors, steps) -> np.ndarray:
+    """Observed orders ``log(e_i / e_{i+1}) / log(h_i / h_{i+1})`` between successive steps.
+
+    Args:
+        errors: (s, ...) positive errors, one row per step.
+        steps: (s,) step sizes h (mesh sizes, time steps or difference steps).
+
+    Returns:
+        (s − 1, ...) the orders, one row per pair of successive steps.
+    """
+    errors = np.asarray(errors, dtype=float)
+    steps = np.asarray(steps, dtype=float).reshape((-1,) + (1,) * (errors.ndim - 1))
+    return np.log(errors[:-1] / errors[1:]) / np.log(steps[:-1] / steps[1:])

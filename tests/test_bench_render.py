@@ -19,11 +19,6 @@ from lbshape.report.bench import ROW_KEYS, trajectory_error
 STEPS = 15  # > the 10 warm-up steps
 
 
-@pytest.fixture(autouse=True)
-def _private_cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("LBSHAPE_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-
-
 def _png(path):
     import matplotlib.image
 
@@ -100,7 +95,7 @@ def test_bench_command_rows_match_the_contract_and_independent_errors(tmp_path, 
     from lbshape.geometry.shapes import build_shape
     from lbshape.pipeline.precompute import precompute
     from lbshape.pipeline.simulate import simulate
-    from lbshape.scene.schema import load_scene
+    from lbshape.scene import load_scene
 
     code = main(["bench", "demo", "--json", "--steps", str(STEPS), "--repeats", "1",
                  "--out-dir", str(tmp_path)])
@@ -190,7 +185,8 @@ def test_render_command_writes_non_blank_pngs(tmp_path):
 
 def test_figure3_panels_for_a_same_and_other_topology_pair(tmp_path):
     from lbshape.report.figures import figure3
-    from lbshape.scene.schema import MeshSource, load_scene
+    from lbshape.scene import load_scene
+    from lbshape.scene.schema import MeshSource
 
     other = load_scene("demo")  # cylinder examples
     poses = tuple(dataclasses.replace(p, source=MeshSource(shape="demo-bar"))

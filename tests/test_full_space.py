@@ -12,33 +12,28 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 import scipy.sparse.linalg as spla
+from conftest import central_difference_errors, observed_rates, rel
 
 import lbshape.dynamics.full as full_space
 from lbshape.dynamics.full import (
     FullSpaceDiverged,
     FullSpaceExamples,
-    FullSpaceLoad,
     FullSpaceSimulator,
-    run_full_space,
 )
-from lbshape.dynamics.loads import TimeProfile, gravity_pattern
-from lbshape.dynamics.reduced import ReducedLoad, ReducedSimulation
+from lbshape.dynamics.loads import TimedLoad, TimeProfile, gravity_pattern
+from lbshape.dynamics.reduced import ReducedSimulation
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import MODELS, Material
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.geometry.primitives import structured_box
+from lbshape.pipeline.simulate import run_full_space
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_driver import ExampleDriver
 from lbshape.shapespace.interpolation import TargetSolver
 from lbshape.spectral.spectrum import lb_spectrum
 
 M_LB = 4  # LB eigenfunctions of the test shape spaces
-
-
-def rel(a, b) -> float:
-    a, b = np.asarray(a), np.asarray(b)
-    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
 
 
 def material(model: str = "stvk") -> Material:
@@ -107,15 +102,10 @@ def test_example_energy_derivatives_match_finite_differences(bar, model):
     d *= np.linalg.norm(y) / np.linalg.norm(d)
     g, H = energy.force_and_tangent(y)
     steps = np.array([0.04, 0.02, 0.01])
-    grad_errors, hess_errors = [], []
-    for h in steps:
-        fd_g = (energy.energy(y + h * d) - energy.energy(y - h * d)) / (2 * h)
-        grad_errors.append(abs(fd_g - g @ d) / abs(g @ d))
-        fd_H = (energy.force(y + h * d) - energy.force(y - h * d)) / (2 * h)
-        hess_errors.append(rel(fd_H, H @ d))
+    grad_errors = central_difference_errors(energy.energy, lambda _: g, y, d, steps)
+    hess_errors = central_difference_errors(energy.force, lambda _: H, y, d, steps)
     for name, errors in (("gradient", grad_errors), ("Hessian", hess_errors)):
-        errors = np.array(errors)
-        rates = np.log2(errors[:-1] / errors[1:])
+        rates = observed_rates(errors, steps)
         assert np.all(rates > 1.8), f"{name}: FD rates {rates}, errors {errors}"
         assert errors[-1] < 1e-4, f"{name}: FD error {errors[-1]:.2e} at h = {steps[-1]}"
     assert rel(H, H.T) < 1e-13
@@ -131,11 +121,11 @@ def gravity_run(bar, acceleration: float):
     # backward Euler with ζ ≥ 1 in every mode (α = ω₁, β = 1/ω₁): settles in ~10 T₁
     sim = FullSpaceSimulator(mesh, mat, dt=0.5 * np.pi / omega1, fixed_vertices=bar.fixed,
                              integrator="backward-euler", alpha=omega1, beta=1.0 / omega1,
-                             loads=[FullSpaceLoad(g, TimeProfile())])
+                             loads=[TimedLoad(g, TimeProfile())])
     result = sim.run(60, stride=20)
     static = spla.spsolve(K, g[sim.free_dofs])
-    settled = result.displacements[-1].reshape(-1)[sim.free_dofs]
-    before = result.displacements[-2].reshape(-1)[sim.free_dofs]
+    settled = result.displacements()[-1].reshape(-1)[sim.free_dofs]
+    before = result.displacements()[-2].reshape(-1)[sim.free_dofs]
     return rel(settled, static), rel(before, settled)
 
 
@@ -164,7 +154,7 @@ def test_first_mode_period_matches_eigenfrequency_with_newmark_stretch(bar):
     sim = FullSpaceSimulator(mesh, mat, dt=dt, fixed_vertices=bar.fixed,
                              initial_displacement=u0.reshape(-1, 3), newton_rtol=1e-12)
     result = sim.run(48)  # three periods
-    x = result.displacements.reshape(len(result.times), -1)[:, probe.free_dofs]
+    x = result.displacements().reshape(len(result.times), -1)[:, probe.free_dofs]
     q = x @ (M @ mode)  # modal coordinate: sampled A cos(ω̃ t) for Newmark
     # q_{n+1} + q_{n-1} = 2 cos(ω̃ Δt) q_n, least squares over the run
     cos_wdt = float(q[1:-1] @ (q[2:] + q[:-2]) / (2 * q[1:-1] @ q[1:-1]))
@@ -189,7 +179,7 @@ def test_strong_example_force_pulls_a_free_body_to_the_example_shape(bar):
                              alpha=2 * np.sqrt(k_ex),
                              examples=FullSpaceExamples(bar.lam, phi, c1[None], k_ex))
     result = sim.run(60, stride=20)
-    u = result.displacements[-1]
+    u = result.displacements()[-1]
     err = rel(u, target)
     assert err < 1e-2, f"relative distance to the example shape {err:.3e}"
     np.testing.assert_allclose(sim.target_coefficients, c1.ravel(), rtol=0, atol=1e-12 *
@@ -208,7 +198,7 @@ def test_strong_example_force_pulls_a_free_body_to_the_example_shape(bar):
 def test_zero_example_stiffness_builds_and_calls_no_example_machinery(bar, monkeypatch):
     mesh, mat = bar.mesh, material()
     g = gravity_pattern(mass_matrix(mesh, mat.density), np.array([0.0, 0.0, -9.81]))
-    loads = [FullSpaceLoad(g, TimeProfile("ramp", 0.0, 0.05))]
+    loads = [TimedLoad(g, TimeProfile("ramp", 0.0, 0.05))]
     plain = FullSpaceSimulator(mesh, mat, dt=0.01, fixed_vertices=bar.fixed, loads=loads)
     reference = plain.run(12, stride=3)
 
@@ -223,7 +213,7 @@ def test_zero_example_stiffness_builds_and_calls_no_example_machinery(bar, monke
                              examples=examples)
     assert not sim.uses_examples
     result = sim.run(12, stride=3)
-    np.testing.assert_array_equal(result.displacements, reference.displacements)
+    np.testing.assert_array_equal(result.displacements(), reference.displacements())
     np.testing.assert_array_equal(result.times, reference.times)
     assert np.all(result.t_interp_ms < 0.1 * result.t_total_ms)
     assert result.max_displacement > 0
@@ -246,7 +236,7 @@ def test_full_space_is_the_reduced_method_in_a_complete_mass_orthonormal_basis()
     g = gravity_pattern(M, np.array([0.0, -3.0, -9.81]))
     profile = TimeProfile("ramp", 0.0, 0.04)
     sim = FullSpaceSimulator(mesh, mat, dt=dt, fixed_vertices=fixed, alpha=alpha, beta=beta,
-                             loads=[FullSpaceLoad(g, profile)], newton_rtol=1e-12,
+                             loads=[TimedLoad(g, profile)], newton_rtol=1e-12,
                              examples=FullSpaceExamples(lam, phi, coefficients, k_ex))
     weights = []
     full = sim.run(40, on_step=lambda i, t, u: weights.append(sim.weights.copy()))
@@ -269,16 +259,16 @@ def test_full_space_is_the_reduced_method_in_a_complete_mass_orthonormal_basis()
     elastic = ReducedForceModel(mesh.points, mesh.tets, mat, U, np.arange(mesh.n_tets),
                                 np.ones(mesh.n_tets))
     reduced = ReducedSimulation(elastic, r=free.size, dt=dt, alpha=alpha, beta=beta,
-                                loads=[ReducedLoad(U.T @ g, profile)], driver=driver, k_ex=k_ex)
+                                loads=[TimedLoad(U.T @ g, profile)], driver=driver, k_ex=k_ex)
     reduced.stepper.rtol = 1e-12
     # its energy monitor counts the target's pull as potential energy appearing at
     # step 1 from rest; the full-space one counts it as external work
     reduced.stepper.energy_factor = None
     record = reduced.run(40)
     assert record.stable, record.message
-    u_reduced = (np.asarray(record.states) @ U.T).reshape(full.displacements.shape)
-    assert np.abs(full.displacements).max() > 1e-3  # a real motion, example-driven
-    err = rel(full.displacements, u_reduced)
+    u_reduced = (np.asarray(record.states) @ U.T).reshape(full.displacements().shape)
+    assert np.abs(full.displacements()).max() > 1e-3  # a real motion, example-driven
+    err = rel(full.displacements(), u_reduced)
     assert err < 1e-7, f"full-space vs complete-basis reduced trajectory: {err:.2e}"
     # both examples blend, with weights that change along the run
     assert weights.min() > 0.1 and np.ptp(weights[:, 0]) > 0.2, weights[::8]
@@ -290,7 +280,7 @@ def test_absurd_load_raises_solver_error_naming_the_step_and_keeps_the_partial_r
     dt = 0.01
     g = gravity_pattern(mass_matrix(mesh, mat.density), np.array([0.0, 0.0, -1e4]))
     sim = FullSpaceSimulator(mesh, mat, dt=dt, fixed_vertices=bar.fixed,
-                             loads=[FullSpaceLoad(g, TimeProfile("ramp", 0.0, 0.1))])
+                             loads=[TimedLoad(g, TimeProfile("ramp", 0.0, 0.1))])
     with pytest.raises(SolverError) as info:
         sim.run(30)
     exc = info.value
@@ -301,12 +291,12 @@ def test_absurd_load_raises_solver_error_naming_the_step_and_keeps_the_partial_r
     partial = exc.partial
     assert not partial.stable and partial.message == str(exc)
     assert step >= 2, f"expected a failure after some good steps, got step {step}"
-    assert partial.steps == step - 1 and len(partial.displacements) == step
+    assert partial.steps == step - 1 and len(partial.displacements()) == step
     assert t == pytest.approx(step * dt, rel=1e-6)
     # what was kept is the run up to the last good step
     again = FullSpaceSimulator(mesh, mat, dt=dt, fixed_vertices=bar.fixed,
-                               loads=[FullSpaceLoad(g, TimeProfile("ramp", 0.0, 0.1))])
-    np.testing.assert_array_equal(again.run(step - 1).displacements, partial.displacements)
+                               loads=[TimedLoad(g, TimeProfile("ramp", 0.0, 0.1))])
+    np.testing.assert_array_equal(again.run(step - 1).displacements(), partial.displacements())
 
 
 def test_scene_adapter_reports_a_divergence_as_unstable_with_the_partial_run(bar):
@@ -321,20 +311,23 @@ def test_scene_adapter_reports_a_divergence_as_unstable_with_the_partial_run(bar
     pre = SimpleNamespace(mesh=mesh, material=mat, fixed_vertices=bar.fixed, has_examples=True,
                           eigenvalues=bar.lam, eigenvectors=bar.phi,
                           example_coefficients=c1[None])
-    times, frames, t_interp, t_total, stable, message = run_full_space(
-        scene, pre, steps=6, stride=2, warmup=1)
+    record = run_full_space(scene, pre, steps=6, stride=2)
+    times, frames, stable, message = (record.times, record.displacements(), record.stable,
+                                      record.message)
+    t_interp, t_total = record.mean_ms(warmup=1)
     direct = FullSpaceSimulator(mesh, mat, dt=0.01, fixed_vertices=bar.fixed,
                                 examples=FullSpaceExamples(bar.lam, bar.phi, c1[None], 1e4))
     expected = direct.run(6, stride=2)
     assert stable and message == ""
-    np.testing.assert_array_equal(frames, expected.displacements)
+    np.testing.assert_array_equal(frames, expected.displacements())
     np.testing.assert_allclose(times, [0.0, 0.02, 0.04, 0.06])
     assert 0 < t_interp < t_total
     # an absurd load: Newton fails, the adapter keeps the run
     scene.loads = (SimpleNamespace(type="gravity", vector=(0.0, 0.0, -1e4), selection=None,
                                    profile=TimeProfile("ramp", 0.0, 0.1)),)
     scene.examples = None
-    _, frames, _, _, stable, message = run_full_space(scene, pre, steps=30, stride=1, warmup=0)
+    record = run_full_space(scene, pre, steps=30, stride=1)
+    frames, stable, message = record.displacements(), record.stable, record.message
     found = re.search(r"step (\d+) \(t = ", message)
     assert not stable and found, message
     assert len(frames) == int(found.group(1)), (len(frames), message)
@@ -349,7 +342,7 @@ def test_bad_inputs_raise_lbshape_error(bar):
         FullSpaceSimulator(mesh, mat, dt=0.01, fixed_vertices=np.arange(n))
     with pytest.raises(LbshapeError, match="pattern must have shape"):
         FullSpaceSimulator(mesh, mat, dt=0.01,
-                           loads=[FullSpaceLoad(np.zeros(n), TimeProfile())])
+                           loads=[TimedLoad(np.zeros(n), TimeProfile())])
     with pytest.raises(LbshapeError, match="dt must be > 0"):
         FullSpaceSimulator(mesh, mat, dt=0.0)
     with pytest.raises(LbshapeError, match="k_ex"):

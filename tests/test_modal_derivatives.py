@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.linalg
+from conftest import rel
 
 from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
 from lbshape.elastic.materials import Material, strain_energy_ufl
@@ -22,10 +23,6 @@ from lbshape.geometry.primitives import structured_box
 
 MATERIAL = Material(young=2.0e5, poisson=0.3, density=1100.0)
 K_MODES = 5
-
-
-def rel(a, b) -> float:
-    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
 
 
 def m_subspace_angles(A: np.ndarray, B: np.ndarray, M) -> np.ndarray:

@@ -4,13 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from lbshape.errors import LbshapeError
-from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.mesh import TetMesh, check_mesh, gmsh_model, mesh_from_gmsh_model
 from lbshape.geometry.poses import POSES, apply_pose, arc, pose_parameters, s_bend, twist
-from lbshape.geometry.primitives import box, structured_box
-from lbshape.shapespace.frames import _third_moments, align_to_object, body_frame
+from lbshape.geometry.primitives import box, cylinder, structured_box
+from lbshape.geometry.shapes import build_shape
+from lbshape.shapespace.frames import (
+    MAX_RELATIVE_RMS,
+    _third_moments,
+    align_to_object,
+    body_frame,
+)
 
 BAR_DIV = (4, 4, 16)
 
@@ -234,6 +241,92 @@ def test_degenerate_cube_rotated_copy_is_resolved_by_icp():
     assert aligned.candidates == 24
     assert aligned.icp_rms < 1e-8, f"ICP RMS {aligned.icp_rms:.2e} m"
     # the aligned copy coincides with the cube up to one of its symmetries
-    from scipy.spatial import cKDTree
     d, _ = cKDTree(cube.points).query(aligned.points)
     assert d.max() < 1e-8
+
+
+def _ball(h: float) -> TetMesh:
+    """Unstructured gmsh mesh of the unit ball (radius 1 m, edge length ``h`` m)."""
+    with gmsh_model("ball") as gmsh:
+        gmsh.model.occ.addSphere(0.0, 0.0, 0.0, 1.0)
+        gmsh.model.occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMin", h)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        gmsh.option.setNumber("Mesh.RandomSeed", 1)
+        gmsh.model.mesh.generate(3)
+        return check_mesh(mesh_from_gmsh_model(gmsh.model, source="ball"), source="ball")
+
+
+@pytest.fixture(scope="module")
+def degenerate_shapes() -> dict[str, tuple[TetMesh, list[int]]]:
+    """Meshes with degenerate principal moments and their expected cluster labels:
+    isotropic (a cube, a ball) or with exactly two equal moments (a square-section
+    box, a cylinder). All are unstructured, so only one rotation (or a symmetry of
+    the vertex set) puts a copy exactly on the original."""
+    return {
+        "cube": (box((1.0, 1.0, 1.0), 0.25), [0, 0, 0]),
+        "ball": (_ball(0.3), [0, 0, 0]),
+        "square box": (box((1.0, 1.0, 2.0), 0.25), [0, 1, 1]),
+        "cylinder": (cylinder(0.3, 1.0, 0.12), [0, 1, 1]),
+    }
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("shape", ["cube", "ball", "square box", "cylinder"])
+def test_rotated_scaled_copy_of_a_degenerate_shape_lands_on_it(degenerate_shapes, shape, seed):
+    mesh, clusters = degenerate_shapes[shape]
+    frame = body_frame(mesh)
+    np.testing.assert_array_equal(frame.degenerate, clusters,
+                                  err_msg=f"moments {frame.second_moments}")
+    rng = np.random.default_rng(seed)
+    R = Rotation.random(random_state=rng).as_matrix()
+    copy = 1.7 * mesh.points @ R.T + rng.normal(size=3)
+    aligned = align_to_object(copy, mesh.tets, frame, reference_points=mesh.points)
+    assert aligned.icp_rms < 1e-8, f"ICP RMS {aligned.icp_rms:.2e} m"
+    d, _ = cKDTree(mesh.points).query(aligned.points)
+    assert d.max() < 1e-8, f"aligned copy is {d.max():.2e} m off the object"
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_cube_alignment_does_not_depend_on_the_eigensolver_basis(monkeypatch, seed):
+    """Inside a degenerate eigenspace any orthonormal basis is correct and another
+    LAPACK may return another one: rotate the basis of every isotropic tensor."""
+    cube = structured_box((1.0, 1.0, 1.0), (3, 3, 3))
+    rng = np.random.default_rng(seed)
+    Q = Rotation.random(random_state=rng).as_matrix()
+    eigh = np.linalg.eigh
+
+    def other_basis(a):
+        values, vectors = eigh(a)
+        isotropic = np.ptp(values) <= 1e-12 * np.abs(values).max()
+        return values, vectors @ Q if isotropic else vectors
+
+    monkeypatch.setattr(np.linalg, "eigh", other_basis)
+    R = Rotation.from_rotvec([0.5, 0.2, -0.3]).as_matrix()
+    aligned = align_to_object(cube.points @ R.T * 2.0, cube.tets, body_frame(cube),
+                              reference_points=cube.points)
+    assert aligned.icp_rms < 1e-8, f"ICP RMS {aligned.icp_rms:.2e} m"
+
+
+@pytest.mark.parametrize("pair", [("demo-bar", "demo-cylinder"), ("bar-cuboid", "bar-cylinder")])
+def test_builtin_cross_topology_pairs_pass_the_residual_check_with_margin(pair):
+    """Cuboid bar vs cylinder examples of the built-in scenes: measured relative RMS
+    0.121 (demo) and 0.086 (bar), well below the threshold."""
+    obj, example = (build_shape(name) for name in pair)
+    aligned = align_to_object(example.points, example.tets, body_frame(obj),
+                              reference_points=obj.points)
+    assert aligned.relative_rms < 0.7 * MAX_RELATIVE_RMS, \
+        f"relative RMS {aligned.relative_rms:.3f} vs threshold {MAX_RELATIVE_RMS}"
+
+
+def test_mismatched_example_is_refused_with_a_one_line_error(bar):
+    cube = box((0.585, 0.585, 0.585), 0.1)  # the bar's volume, not its shape
+    with pytest.raises(LbshapeError, match=r"^example 2 \(cube\): example does not correspond to "
+                       r"the object: frame alignment residual 0\.\d+ exceeds 0\.2 ") as info:
+        align_to_object(cube.points, cube.tets, body_frame(bar), reference_points=bar.points,
+                        name="example 2 (cube)")
+    assert "\n" not in str(info.value)
+    # without a threshold the residual is reported, and it is clearly above it
+    aligned = align_to_object(cube.points, cube.tets, body_frame(bar),
+                              reference_points=bar.points, max_relative_rms=None)
+    assert aligned.relative_rms > 1.25 * MAX_RELATIVE_RMS, f"{aligned.relative_rms:.3f}"

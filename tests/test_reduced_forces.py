@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import central_difference_errors, observed_rates, rel
 
 from lbshape.elastic.element_kernels import ElementKernel, FullSpaceElasticity
 from lbshape.elastic.materials import Material
@@ -17,10 +18,6 @@ R = 9
 
 def material(model: str) -> Material:
     return Material(model, young=2.0e5, poisson=0.35, density=1100.0)
-
-
-def rel(a, b) -> float:
-    return float(np.linalg.norm(np.ravel(a - b)) / np.linalg.norm(np.ravel(b)))
 
 
 @pytest.fixture(scope="module")
@@ -81,16 +78,6 @@ def test_element_forces_are_the_projected_element_forces(bar, model):
         assert rel(contributions[p], expected) < 1e-12, rel(contributions[p], expected)
 
 
-def central_difference_errors(value, derivative, q, direction, steps):
-    """Relative errors of central differences of ``value`` along ``direction``."""
-    exact = derivative(q) @ direction
-    errors = []
-    for h in steps:
-        fd = (value(q + h * direction) - value(q - h * direction)) / (2 * h)
-        errors.append(rel(fd, exact))
-    return np.array(errors)
-
-
 @pytest.fixture(scope="module")
 def cubature_model_factory(bar):
     mesh, U = bar
@@ -114,7 +101,7 @@ def test_tangent_is_the_derivative_of_the_force(bar, cubature_model_factory, mod
     direction *= np.linalg.norm(q) / np.linalg.norm(direction)
     steps = np.array([0.04, 0.02, 0.01])
     errors = central_difference_errors(reduced.force, reduced.tangent, q, direction, steps)
-    rates = np.log2(errors[:-1] / errors[1:])
+    rates = observed_rates(errors, steps)
     assert np.all(rates > 1.8), f"observed FD convergence rates {rates} (errors {errors})"
     small = central_difference_errors(reduced.force, reduced.tangent, q, direction, [1e-4])[0]
     assert small < 1e-7, f"FD of the force at h = 1e-4: relative error {small:.2e}"
@@ -139,7 +126,7 @@ def test_force_is_the_derivative_of_the_energy(bar, cubature_model_factory, mode
         return reduced.force(x)[None, :]
 
     errors = central_difference_errors(energy, gradient, q, direction, steps)
-    rates = np.log2(errors[:-1] / errors[1:])
+    rates = observed_rates(errors, steps)
     assert np.all(rates > 1.8), f"observed FD convergence rates {rates} (errors {errors})"
     small = central_difference_errors(energy, gradient, q, direction, [1e-4])[0]
     assert small < 1e-7, f"FD of the energy at h = 1e-4: relative error {small:.2e}"

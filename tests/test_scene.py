@@ -10,7 +10,8 @@ import pytest
 from lbshape.errors import LbshapeError
 from lbshape.geometry.primitives import structured_box
 from lbshape.io.cache import cache_key
-from lbshape.scene.schema import builtin_scene_names, load_scene
+from lbshape.pipeline.meshes import build_mesh, selected_vertices
+from lbshape.scene import builtin_scene_names, load_scene
 
 BASE = """\
 name = "test-bar"
@@ -109,9 +110,9 @@ def test_builtin_scenes_load_with_the_documented_sizes():
 def test_builtin_bar_regions_select_the_top_and_bottom_faces():
     mesh = structured_box((0.2, 0.2, 1.0), (2, 2, 5))
     scene = load_scene("bar-cuboid")
-    top = scene.fixed.vertices(mesh, what="fixed")
+    top = selected_vertices(scene.fixed, mesh, what="fixed")
     torque = next(load for load in scene.loads if load.type == "region_torque")
-    bottom = torque.selection.vertices(mesh)
+    bottom = selected_vertices(torque.selection, mesh)
     face = 9  # (2+1) x (2+1) vertices per end face
     assert top.size == face and np.all(mesh.points[top, 2] == 1.0)
     assert bottom.size == face and np.all(mesh.points[bottom, 2] == 0.0)
@@ -282,31 +283,20 @@ def test_precompute_key_depends_on_exactly_the_precompute_fields(write_scene, tm
     assert keys()[0] != base_pre
 
 
-def test_pose_parameters_match_the_pose_functions():
-    poses = pytest.importorskip("lbshape.geometry.poses")
-    from lbshape.scene.schema import POSE_PARAMETERS, POSES
-
-    assert set(POSES) == set(poses.POSES)
-    for name in POSES:
-        required, optional = poses.pose_parameters(name)
-        assert POSE_PARAMETERS[name][:1] == required, (name, required)
-        assert set(POSE_PARAMETERS[name][1:]) == set(optional), (name, optional)
-
-
 def test_demo_scene_on_its_real_meshes():
     """Regions select the top/bottom groups; the example poses keep the top in place."""
     if importlib.util.find_spec("lbshape.geometry.shapes") is None:
         pytest.skip("lbshape.geometry.shapes is not available yet")
     poses = pytest.importorskip("lbshape.geometry.poses")
     scene = load_scene("demo")
-    mesh = scene.object.build()
-    np.testing.assert_array_equal(np.sort(scene.fixed.vertices(mesh)),
+    mesh = build_mesh(scene.object)
+    np.testing.assert_array_equal(np.sort(selected_vertices(scene.fixed, mesh)),
                                   np.sort(mesh.vertex_groups["top"]))
     torque = next(load for load in scene.loads if load.type == "region_torque")
-    np.testing.assert_array_equal(np.sort(torque.selection.vertices(mesh)),
+    np.testing.assert_array_equal(np.sort(selected_vertices(torque.selection, mesh)),
                                   np.sort(mesh.vertex_groups["bottom"]))
     example = scene.examples.poses[0]
-    rest = example.source.build()
+    rest = build_mesh(example.source)
     posed = poses.apply_pose(rest, example.pose, **example.parameters)
     moved = np.linalg.norm(posed.points - rest.points, axis=1)
     top, bottom = rest.vertex_groups["top"], rest.vertex_groups["bottom"]

@@ -5,12 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from conftest import observed_rates
 from scipy.spatial.transform import Rotation
 
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.poses import apply_pose
-from lbshape.geometry.primitives import cylinder, structured_box
+from lbshape.geometry.primitives import box, cylinder, structured_box
 from lbshape.shapespace.alignment import align_bases, pose_basis_map
 from lbshape.shapespace.frames import align_to_object, body_frame
 from lbshape.shapespace.projections import (
@@ -59,7 +60,7 @@ def test_first_descriptor_of_a_box_converges_at_second_order():
         l1 = descriptors(mesh.points, spec.eigenvalues, spec.eigenvectors, spec.mass)[0]
         errors.append(abs(abs(l1[0]) - 2.0) + abs(l1[1]) + abs(l1[2]))
         h.append(1.0 / k)
-    rates = np.diff(np.log(errors)) / np.diff(np.log(h))
+    rates = observed_rates(errors, h)
     assert errors[-1] < 0.01, f"descriptor errors {errors}"
     assert rates.min() > 1.7 and rates[-1] < 2.3, f"observed rates {rates}, errors {errors}"
 
@@ -136,6 +137,13 @@ def test_arc_examples_on_cylinder_and_cuboid_agree(bar, bar_spectrum):
     u = apply_pose(bar, "arc", angle=1.0, direction="x").points - bar.points
     np.testing.assert_allclose(cuboid, lb_coefficients(u, bar_spectrum.eigenvectors,
                                                        bar_spectrum.mass), atol=1e-12)
+
+
+def test_embed_example_names_a_mismatched_example(bar, bar_spectrum):
+    cube = box((0.585, 0.585, 0.585), 0.1)  # the bar's volume, not its shape
+    with pytest.raises(LbshapeError, match=r"^example 2 \(cube\): example does not correspond "
+                                           r"to the object: frame alignment residual [^\n]*$"):
+        embed_example(bar, bar_spectrum, cube, [cube.points], name="example 2 (cube)")
 
 
 def test_direct_projection_matches_explicit_products(bar, bar_spectrum):

@@ -7,6 +7,7 @@ import os
 
 import numpy as np
 import pytest
+from conftest import observed_rates
 
 from lbshape.cli import main
 from lbshape.errors import LbshapeError
@@ -28,6 +29,8 @@ PLANAR_VOLUME = {"bar-cuboid": 0.04, "demo-bar": 0.04, "cross": 0.019,
 CYLINDER_VOLUME = math.pi * 0.1128**2 * 1.0
 
 _meshes: dict[str, object] = {}
+#: meshing the 11k-vertex teddy example takes ~17 s on a loaded two-core machine
+_SLOW_SHAPES = {"teddy-example"}
 
 
 def built(name):
@@ -50,7 +53,9 @@ def test_registry_names_and_targets():
         assert (SHAPES[name].target_vertices, SHAPES[name].target_tets) == (vertices, tets)
 
 
-@pytest.mark.parametrize("name", list(SHAPES))
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if n in _SLOW_SHAPES else n for n in SHAPES]
+)
 def test_default_mesh_hits_target_and_is_one_valid_body(name):
     spec = SHAPES[name]
     mesh = built(name)
@@ -136,7 +141,8 @@ def test_planar_shapes_have_the_exact_volume(name):
 
 @pytest.mark.parametrize(
     ("coarse", "fine", "exact"),
-    [("demo-cylinder", "bar-cylinder", CYLINDER_VOLUME), ("teddy", "teddy-example", None)],
+    [("demo-cylinder", "bar-cylinder", CYLINDER_VOLUME),
+     pytest.param("teddy", "teddy-example", None, marks=pytest.mark.slow)],
 )
 def test_curved_volume_error_converges_at_second_order(coarse, fine, exact):
     """Inscribed curved surfaces: volume error O(h^2); reference analytic or the CAD."""
@@ -145,7 +151,7 @@ def test_curved_volume_error_converges_at_second_order(coarse, fine, exact):
         np.testing.assert_allclose(geometry_volume(coarse), exact, rtol=1e-9)
     errors = [abs(built(n).volume() - reference) / reference for n in (coarse, fine)]
     sizes = [SHAPES[n].default_size for n in (coarse, fine)]
-    rate = math.log(errors[0] / errors[1]) / math.log(sizes[0] / sizes[1])
+    rate = observed_rates(errors, sizes)[0]
     assert errors[0] < 0.08, f"{coarse}: relative volume error {errors[0]:.3g}"
     assert 1.5 <= rate <= 2.5, f"observed rate {rate:.2f} (errors {errors}, h {sizes})"
 

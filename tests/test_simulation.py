@@ -12,20 +12,12 @@ from lbshape.cli import main
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
-from lbshape.scene.schema import load_scene
-
-
-@pytest.fixture(autouse=True)
-def _private_cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("LBSHAPE_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+from lbshape.scene import load_scene
 
 
 @pytest.fixture(scope="module")
 def demo():
-    import os
-    import tempfile
-
-    os.environ.setdefault("LBSHAPE_CACHE", tempfile.mkdtemp(prefix="lbshape-cache-"))
+    """The demo scene and its precompute, in the session's private cache."""
     scene = load_scene("demo")
     return scene, precompute(scene)
 

@@ -10,6 +10,11 @@ import sys
 from pathlib import Path
 
 from lbshape.cli._output import print_json
+from lbshape.errors import LbshapeError
+from lbshape.pipeline.simulate import WARMUP_STEPS
+from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene
+from lbshape.report.tables import write_table2
+from lbshape.scene import load_scene
 
 
 def register(subparsers) -> None:
@@ -28,11 +33,6 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from lbshape.errors import LbshapeError
-    from lbshape.pipeline.simulate import WARMUP_STEPS
-    from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene, write_table2
-    from lbshape.scene.schema import load_scene
-
     if args.steps is not None and args.steps <= WARMUP_STEPS:
         raise LbshapeError(f"--steps must be > {WARMUP_STEPS} (the warm-up steps), "
                            f"got {args.steps}")

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from lbshape.report.demo import run_demo
+
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser("demo", help="run the default job on the demo scene")
@@ -13,8 +15,6 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     import json
-
-    from lbshape.report.demo import run_demo
 
     path = run_demo(args.out)
     summary = json.loads(path.read_text())["simulation"]

@@ -8,6 +8,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from lbshape.cli._output import print_json
+from lbshape.fem.mpi import run_collectively
+from lbshape.geometry.mesh import load_mesh
+from lbshape.spectral.spectrum import lb_spectrum
+
 DEFAULT_M = 10
 
 
@@ -27,11 +32,6 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from mpi4py import MPI
-
-    from lbshape.cli._output import print_json
-    from lbshape.fem.mpi import run_collectively
-    from lbshape.geometry.mesh import load_mesh
-    from lbshape.spectral.spectrum import lb_spectrum
 
     comm = MPI.COMM_WORLD
     mesh, spectrum = run_collectively(

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from lbshape.geometry.shapes import SHAPES, get_shape, write_shape
+
 
 def register(subparsers) -> None:
-    from lbshape.geometry.shapes import SHAPES
-
     parser = subparsers.add_parser(
         "mesh",
         help="mesh a built-in shape with its gmsh script and write a .msh file",
@@ -24,8 +24,6 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from lbshape.geometry.shapes import get_shape, write_shape
-
     get_shape(args.name)  # an unknown name fails before any path is touched
     path = args.output if args.output is not None else Path(f"{args.name}.msh")
     mesh = write_shape(args.name, path, size=args.size)

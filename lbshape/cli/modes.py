@@ -10,12 +10,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from lbshape.cli._output import print_json
+from lbshape.elastic.materials import Material
+from lbshape.elastic.modes import linear_modes
+from lbshape.fem.mpi import run_collectively
+from lbshape.geometry.mesh import load_mesh
+from lbshape.geometry.regions import region_vertices
+
 DEFAULT_R = 10
 
 
 def register(subparsers) -> None:
-    from lbshape.elastic.materials import Material
-
     defaults = Material()
     parser = subparsers.add_parser(
         "modes",
@@ -40,10 +45,6 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from mpi4py import MPI
-
-    from lbshape.cli._output import print_json
-    from lbshape.elastic.modes import linear_modes
-    from lbshape.fem.mpi import run_collectively
 
     comm = MPI.COMM_WORLD
 
@@ -78,10 +79,6 @@ def run(args) -> int:
 
 def _inputs(args):
     """(mesh, material, fixed vertices or None) from the arguments, on rank 0."""
-    from lbshape.elastic.materials import Material
-    from lbshape.geometry.mesh import load_mesh
-    from lbshape.geometry.regions import region_vertices
-
     material = Material(young=args.young, poisson=args.poisson, density=args.density)
     mesh = load_mesh(args.mesh)
     fixed = (None if args.fixed is None

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from lbshape.pipeline.precompute import precompute
+from lbshape.scene import load_scene
+
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
@@ -12,9 +15,6 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.scene.schema import load_scene
-
     scene = load_scene(args.scene)
     pre = precompute(scene, force=args.force, progress=True)
     origin = "cache" if pre.from_cache else "computed"

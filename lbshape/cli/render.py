@@ -5,10 +5,13 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from lbshape.errors import LbshapeError
+from lbshape.pipeline.simulate import METHODS
+from lbshape.report.figures import DEFAULT_OUT, FIGURE3_SCENES, FIGURE3_STEPS, figure3, render_scene
+from lbshape.scene import load_scene
+
 
 def register(subparsers) -> None:
-    from lbshape.pipeline.simulate import METHODS
-
     parser = subparsers.add_parser(
         "render", help="off-screen PNGs: simulation, examples, eigenfunctions (and Figure 3)")
     parser.add_argument("scene", help="built-in scene name or path to a TOML file")
@@ -23,16 +26,6 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from lbshape.errors import LbshapeError
-    from lbshape.report.figures import (
-        DEFAULT_OUT,
-        FIGURE3_SCENES,
-        FIGURE3_STEPS,
-        figure3,
-        render_scene,
-    )
-    from lbshape.scene.schema import load_scene
-
     if args.steps is not None and args.steps < 1:
         raise LbshapeError(f"--steps must be >= 1, got {args.steps}")
     scene = load_scene(args.scene)

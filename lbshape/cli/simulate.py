@@ -6,11 +6,13 @@ import sys
 from pathlib import Path
 
 from lbshape.cli._output import print_json
+from lbshape.errors import LbshapeError
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulate import METHODS, simulate
+from lbshape.scene import load_scene
 
 
 def register(subparsers) -> None:
-    from lbshape.pipeline.simulate import METHODS
-
     parser = subparsers.add_parser("simulate", help="simulate a scene")
     parser.add_argument("scene", help="built-in scene name or path to a TOML file")
     parser.add_argument("--method", choices=METHODS, default="reduced")
@@ -22,11 +24,6 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from lbshape.errors import LbshapeError
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import simulate
-    from lbshape.scene.schema import load_scene
-
     if args.steps is not None and args.steps < 1:
         raise LbshapeError(f"--steps must be >= 1, got {args.steps}")
     scene = load_scene(args.scene)

@@ -1,8 +1,9 @@
-"""Time stepping: implicit integrators, external loads, and the reduced and full-space engines."""
+"""Time stepping: implicit integrators, loads, the reduced and full-space engines, run records."""
 
 __all__ = [
     "full",
     "integrators",
     "loads",
+    "record",
     "reduced",
 ]

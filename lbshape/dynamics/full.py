@@ -38,8 +38,8 @@ or no examples none of this machinery is built or called.
 **Failure.** A non-finite state, a Newton failure, an energy blow-up or a failed
 target solve raises :class:`FullSpaceDiverged` (a
 :class:`~lbshape.errors.SolverError`) naming the step and time; its ``partial``
-attribute holds the :class:`FullSpaceResult` of what was computed, for the caller
-to save.
+attribute holds the :class:`~lbshape.dynamics.record.RunRecord` of what was computed,
+for the caller to save.
 """
 
 from __future__ import annotations
@@ -53,7 +53,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from lbshape.dynamics.integrators import make_stepper
-from lbshape.dynamics.loads import TimeProfile
+from lbshape.dynamics.loads import TimedLoad, TimeProfile
+from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError, SolverError
@@ -62,19 +63,6 @@ from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class FullSpaceLoad:
-    """An external load ``profile(t) · pattern``.
-
-    Attributes:
-        pattern: (3n,) nodal forces in N, node-major, input vertex order.
-        profile: its time profile.
-    """
-
-    pattern: np.ndarray
-    profile: TimeProfile
 
 
 @dataclass(frozen=True)
@@ -94,51 +82,10 @@ class FullSpaceExamples:
     stiffness: float
 
 
-@dataclass(frozen=True)
-class FullSpaceResult:
-    """What a run computed (also when it stopped early).
-
-    Attributes:
-        times: (f,) sample times in s (the initial state, then every ``stride`` steps).
-        displacements: (f, n, 3) sampled displacements in m.
-        t_interp_ms: (s,) per-step wall time of weights + target in ms.
-        t_total_ms: (s,) per-step wall time of the whole step in ms.
-        newton_iterations: (s,) Newton iterations per step.
-        stable: False if the run stopped on a solver failure.
-        message: the failure message ('' if stable).
-        max_displacement: largest vertex displacement norm over every step (m).
-    """
-
-    times: np.ndarray
-    displacements: np.ndarray
-    t_interp_ms: np.ndarray
-    t_total_ms: np.ndarray
-    newton_iterations: np.ndarray
-    stable: bool
-    message: str
-    max_displacement: float
-
-    @property
-    def steps(self) -> int:
-        """Number of completed steps."""
-        return int(self.t_total_ms.size)
-
-    def mean_ms(self, *, warmup: int = 0) -> tuple[float, float]:
-        """Per-step means ``(t_interp, t_total)`` in ms after ``warmup`` steps.
-
-        With fewer than ``warmup + 1`` steps, the mean over all steps (0 without any).
-        """
-        def mean(values: np.ndarray) -> float:
-            data = values[warmup:] if values.size > warmup else values
-            return float(data.mean()) if data.size else 0.0
-
-        return mean(self.t_interp_ms), mean(self.t_total_ms)
-
-
 class FullSpaceDiverged(SolverError):
     """The full-space simulation failed; ``partial`` holds what was computed."""
 
-    def __init__(self, message: str, partial: FullSpaceResult):
+    def __init__(self, message: str, partial: RunRecord):
         super().__init__(message)
         self.partial = partial
 
@@ -186,7 +133,7 @@ class FullSpaceSimulator:
         integrator: str = "newmark",
         alpha: float = 0.0,
         beta: float = 0.0,
-        loads: Sequence[FullSpaceLoad] = (),
+        loads: Sequence[TimedLoad] = (),
         examples: FullSpaceExamples | None = None,
         initial_displacement: np.ndarray | None = None,
         initial_velocity: np.ndarray | None = None,
@@ -236,7 +183,7 @@ class FullSpaceSimulator:
         )
 
     # ----------------------------------------------------------------- set-up
-    def _check_loads(self, loads: Sequence[FullSpaceLoad]):
+    def _check_loads(self, loads: Sequence[TimedLoad]):
         patterns, profiles = [], []
         for index, load in enumerate(loads):
             pattern = np.asarray(load.pattern, dtype=float).reshape(-1)
@@ -366,7 +313,7 @@ class FullSpaceSimulator:
         *,
         stride: int = 1,
         on_step: Callable[[int, float, np.ndarray], None] | None = None,
-    ) -> FullSpaceResult:
+    ) -> RunRecord:
         """Advance ``steps`` steps from the current state.
 
         Args:
@@ -376,96 +323,51 @@ class FullSpaceSimulator:
                 displacement (n, 3) in m).
 
         Returns:
-            The :class:`FullSpaceResult` (``stable`` True).
+            The :class:`~lbshape.dynamics.record.RunRecord` (``stable`` True); its
+            states are the node-major displacements u (3n,) in m.
 
         Raises:
             FullSpaceDiverged: a step failed; its message names the step and time,
-                its ``partial`` holds the result up to the last good step.
+                its ``partial`` holds the record up to the last good step.
         """
         steps, stride = int(steps), int(stride)
         if steps < 1 or stride < 1:
             raise LbshapeError(f"steps and stride must be >= 1, got {steps} and {stride}")
+        recorder = RunRecorder(stride=stride)
         u = self.full_displacement()
-        times, frames = [self.time], [u.copy()]
+        recorder.start(self.time, u.reshape(-1))
         max_disp = _max_norm(u)
-        t_interp, t_total, iterations = [], [], []
         for index in range(1, steps + 1):
             started = time.perf_counter()
             try:
                 if self._k_ex:
-                    try:
-                        self._update_target()
-                    except SolverError as exc:
-                        step = self.stepper.steps_taken + 1
-                        raise SolverError(
-                            f"target interpolation failed at step {step} "
-                            f"(t = {self.time + self.stepper.dt:.6g} s): {exc}"
-                        ) from None
+                    self._update_target_at_step()
                 interpolated = time.perf_counter()
                 info = self.stepper.step()
             except SolverError as exc:
                 log.error("full-space simulation stopped: %s", exc)
-                partial = _result(times, frames, t_interp, t_total, iterations,
-                                  stable=False, message=str(exc), max_displacement=max_disp)
+                partial = recorder.record(stable=False, message=str(exc),
+                                          max_displacement=max_disp)
                 raise FullSpaceDiverged(str(exc), partial) from exc
             finished = time.perf_counter()
-            t_interp.append(1e3 * (interpolated - started))
-            t_total.append(1e3 * (finished - started))
-            iterations.append(info.iterations)
             u = self.full_displacement()
             max_disp = max(max_disp, _max_norm(u))
-            if index % stride == 0:
-                times.append(self.time)
-                frames.append(u.copy())
+            recorder.step(self.time, u.reshape(-1), interp_seconds=interpolated - started,
+                          total_seconds=finished - started, iterations=info.iterations)
             if on_step is not None:
                 on_step(index, self.time, u)
-        return _result(times, frames, t_interp, t_total, iterations,
-                       stable=True, message="", max_displacement=max_disp)
+        return recorder.record(max_displacement=max_disp)
 
-
-# --------------------------------------------------------------------- scenes
-def run_full_space(scene, pre, *, steps: int, stride: int, warmup: int):
-    """Run the ``full`` method of a scene (see :func:`lbshape.pipeline.simulate.simulate`).
-
-    Args:
-        scene: the :class:`~lbshape.scene.schema.Scene`.
-        pre: its :class:`~lbshape.pipeline.precompute.Precomputed` (mesh, material, fixed
-            vertices, LB spectrum and example coefficients).
-        steps: number of steps.
-        stride: keep every ``stride``-th state.
-        warmup: steps left out of the timing means.
-
-    Returns:
-        ``(times (f,), displacements (f, n, 3), t_interp_ms, t_total_ms, stable,
-        message)``; a solver failure returns what was computed with ``stable`` False.
-    """
-    from lbshape.pipeline.simulate import load_patterns
-
-    if scene.planes:
-        log.warning("scene %s: contact planes are not modelled by the full-space method",
-                    scene.name)
-    if scene.regions:
-        log.warning("scene %s: local example regions are treated as global examples by the "
-                    "full-space method", scene.name)
-    loads = [FullSpaceLoad(pattern, profile) for pattern, profile in
-             load_patterns(scene, pre, mass_matrix(pre.mesh, pre.material.density))]
-    examples = None
-    k_ex = scene.examples.stiffness if scene.examples is not None else 0.0
-    if pre.has_examples and k_ex > 0:
-        examples = FullSpaceExamples(pre.eigenvalues, pre.eigenvectors,
-                                     pre.example_coefficients, k_ex)
-    simulator = FullSpaceSimulator(
-        pre.mesh, pre.material, dt=scene.simulation.dt, fixed_vertices=pre.fixed_vertices,
-        integrator=scene.simulation.integrator, alpha=scene.damping.alpha,
-        beta=scene.damping.beta, loads=loads, examples=examples,
-    )
-    try:
-        result = simulator.run(steps, stride=stride)
-    except FullSpaceDiverged as exc:
-        result = exc.partial
-    t_interp, t_total = result.mean_ms(warmup=warmup)
-    return (result.times, result.displacements, t_interp, t_total, result.stable,
-            result.message)
+    def _update_target_at_step(self) -> None:
+        """:meth:`_update_target`, its failure named by the step and time it was for."""
+        try:
+            self._update_target()
+        except SolverError as exc:
+            step = self.stepper.steps_taken + 1
+            raise SolverError(
+                f"target interpolation failed at step {step} "
+                f"(t = {self.time + self.stepper.dt:.6g} s): {exc}"
+            ) from None
 
 
 # -------------------------------------------------------------------- helpers
@@ -517,16 +419,3 @@ def _vertex_indices(values, n: int) -> np.ndarray:
 
 def _max_norm(u: np.ndarray) -> float:
     return float(np.sqrt(np.max(np.einsum("ij,ij->i", u, u))))
-
-
-def _result(times, frames, t_interp, t_total, iterations, *, stable, message, max_displacement):
-    return FullSpaceResult(
-        times=np.asarray(times, dtype=float),
-        displacements=np.asarray(frames, dtype=float),
-        t_interp_ms=np.asarray(t_interp, dtype=float),
-        t_total_ms=np.asarray(t_total, dtype=float),
-        newton_iterations=np.asarray(iterations, dtype=np.int64),
-        stable=bool(stable),
-        message=message,
-        max_displacement=float(max_displacement),
-    )

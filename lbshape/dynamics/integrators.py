@@ -157,25 +157,11 @@ class ImplicitStepper:
         symmetric: bool = True,
     ):
         self._sparse = sp.issparse(mass)
-        if not self._sparse:
-            mass = np.asarray(mass, dtype=float)
-        if mass.ndim != 2 or mass.shape[0] != mass.shape[1] or mass.shape[0] == 0:
-            raise LbshapeError(f"mass must be a non-empty square matrix, got shape {mass.shape}")
-        n = mass.shape[0]
-        if not (np.isfinite(dt) and dt > 0):
-            raise LbshapeError(f"time step dt must be > 0 s, got {dt}")
-        for name, value in (("alpha", alpha), ("beta", beta), ("energy_budget", energy_budget)):
-            if not (np.isfinite(value) and value >= 0):
-                raise LbshapeError(f"{name} must be a finite number >= 0, got {value}")
-        if not rtol > 0 or atol < 0:
-            raise LbshapeError(f"Newton tolerances must be rtol > 0, atol >= 0, got {rtol}, {atol}")
-        if int(max_iterations) < 1:
-            raise LbshapeError(f"max_iterations must be >= 1, got {max_iterations}")
-        if energy_factor is not None and not energy_factor > 1:
-            raise LbshapeError(f"energy_factor must be > 1 or None, got {energy_factor}")
-        self.n = n
+        self.mass = _square_matrix(mass, "mass")
+        _check_settings(dt=dt, alpha=alpha, beta=beta, energy_budget=energy_budget, rtol=rtol,
+                        atol=atol, max_iterations=max_iterations, energy_factor=energy_factor)
+        self.n = self.mass.shape[0]
         self.dt = float(dt)
-        self.mass = mass.tocsr() if self._sparse else mass
         self._force_and_tangent = force_and_tangent
         self._external = external
         self._potential = potential
@@ -189,11 +175,16 @@ class ImplicitStepper:
         self._v = self._vector(v0, "v0")
         self._t = float(t0)
         self._steps = 0
+        self._setup_damping(alpha, beta, damping_stiffness)
+        self._setup_initial_state()
 
+    def _setup_damping(self, alpha: float, beta: float, damping_stiffness: Matrix | None) -> None:
+        """``D = α M + β K₀`` and the constant part ``c_a M + c_v D`` of the Newton matrix."""
         damping = alpha * self.mass
         if beta > 0:
             if damping_stiffness is None:
-                _, damping_stiffness = self._evaluate(np.zeros(n), 0, self._t, what="rest tangent")
+                _, damping_stiffness = self._evaluate(np.zeros(self.n), 0, self._t,
+                                                      what="rest tangent")
             damping = damping + beta * self._as_type(damping_stiffness)
         self.damping = damping
         self._alpha, self._beta = float(alpha), float(beta)
@@ -201,21 +192,22 @@ class ImplicitStepper:
         self._newton_base = ca * self.mass + cv * self.damping
         if self._sparse:
             self._newton_base = sp.csc_matrix(self._newton_base)
+        self._mass_norm = _inf_norm(self.mass)
+        self._damping_norm = _inf_norm(self.damping)
 
+    def _setup_initial_state(self) -> None:
+        """Force, load and acceleration at t0 (``M a₀ = f_ext − D v₀ − f(x₀)``), initial energy."""
         f0, _ = self._evaluate(self._x, 0, self._t, what="initial force")
         self._f = f0
         self._fext = self._load(self._t, 0)
         rhs = self._fext - self.damping @ self._v - f0
         self._a = self._solve_mass(rhs)
         self._energy = self.total_energy()
-        if potential is None:
-            initial = self._energy + 0.5 * abs(float(f0 @ self._x))
+        if self._potential is None:
+            self._initial_energy = self._energy + 0.5 * abs(float(f0 @ self._x))
         else:
-            initial = abs(self._energy)
-        self._initial_energy = initial
+            self._initial_energy = abs(self._energy)
         self._work = 0.0
-        self._mass_norm = _inf_norm(self.mass)
-        self._damping_norm = _inf_norm(self.damping)
 
     # ----------------------------------------------------------------- state
     @property
@@ -456,6 +448,31 @@ def make_stepper(
             f"integrator must be one of {INTEGRATORS}, got {integrator!r}"
         ) from None
     return cls(mass, force_and_tangent, **options)
+
+
+def _check_settings(*, dt, alpha, beta, energy_budget, rtol, atol, max_iterations,
+                    energy_factor) -> None:
+    """Raise :class:`LbshapeError` for a step, damping or tolerance setting out of range."""
+    if not (np.isfinite(dt) and dt > 0):
+        raise LbshapeError(f"time step dt must be > 0 s, got {dt}")
+    for name, value in (("alpha", alpha), ("beta", beta), ("energy_budget", energy_budget)):
+        if not (np.isfinite(value) and value >= 0):
+            raise LbshapeError(f"{name} must be a finite number >= 0, got {value}")
+    if not rtol > 0 or atol < 0:
+        raise LbshapeError(f"Newton tolerances must be rtol > 0, atol >= 0, got {rtol}, {atol}")
+    if int(max_iterations) < 1:
+        raise LbshapeError(f"max_iterations must be >= 1, got {max_iterations}")
+    if energy_factor is not None and not energy_factor > 1:
+        raise LbshapeError(f"energy_factor must be > 1 or None, got {energy_factor}")
+
+
+def _square_matrix(matrix: Matrix, name: str) -> Matrix:
+    """A non-empty square matrix as CSR (sparse input) or a float ndarray (dense input)."""
+    if not sp.issparse(matrix):
+        matrix = np.asarray(matrix, dtype=float)
+    if matrix.ndim != 2 or matrix.shape[0] != matrix.shape[1] or matrix.shape[0] == 0:
+        raise LbshapeError(f"{name} must be a non-empty square matrix, got shape {matrix.shape}")
+    return matrix.tocsr() if sp.issparse(matrix) else matrix
 
 
 def _norm(vector: np.ndarray) -> float:

@@ -1,7 +1,7 @@
 """External loads: nodal force vectors and their time profiles.
 
-A load is a fixed spatial pattern ``f (3n,)`` in newtons times a scalar time
-profile. Patterns are built once (n-sized, precompute); the reduced runtime only
+A load (:class:`TimedLoad`) is a fixed spatial pattern ``f (3n,)`` in newtons times
+a scalar time profile. Patterns are built once (n-sized, precompute); the reduced runtime only
 uses ``Uᵀ f`` (r,). Distribution over a region is by lumped (row-sum) mass, so a
 coarse or graded mesh carries the same resultant.
 
@@ -50,6 +50,20 @@ class TimeProfile:
         if self.kind == "ramp":
             return min(1.0, (t - self.start) / self.duration)
         return 1.0 if t < self.start + self.duration else 0.0
+
+
+@dataclass(frozen=True)
+class TimedLoad:
+    """An external load ``profile(t) · pattern`` in an engine's coordinates.
+
+    Attributes:
+        pattern: (p,) generalized forces: nodal forces (3n,) in N, node-major, for the
+            full-space engine; their projection ``Uᵀ f`` (r,) for the reduced engine.
+        profile: its time profile.
+    """
+
+    pattern: np.ndarray
+    profile: TimeProfile
 
 
 def gravity_pattern(mass: sp.spmatrix, acceleration: np.ndarray) -> np.ndarray:

@@ -38,14 +38,14 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg as sla
 
 from lbshape._jit import njit
 from lbshape.dynamics.integrators import INTEGRATORS
-from lbshape.dynamics.loads import TimeProfile
+from lbshape.dynamics.loads import TimedLoad
+from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
 
@@ -62,42 +62,6 @@ PHASES: tuple[str, ...] = ("weights", "target", "example_force", "internal_force
 _SCHEMES = {"newmark": (4.0, 4.0, 1.0, 2.0, 1.0), "backward-euler": (1.0, 1.0, 0.0, 1.0, 0.0)}
 
 
-@dataclass(frozen=True)
-class ReducedLoad:
-    """A load in reduced coordinates: ``profile(t) · pattern`` with pattern = Uᵀ f (r,)."""
-
-    pattern: np.ndarray
-    profile: TimeProfile
-
-
-@dataclass
-class RunRecord:
-    """What a run produced (kept even when it stopped early).
-
-    Attributes:
-        times: (k+1,) s, from t0.
-        states: (k+1, p) state per step (q for reduced runs, u for full space).
-        t_interp_ms: (k,) weights + target time per step.
-        t_total_ms: (k,) whole step time.
-        newton_iterations: (k,) per step.
-        stable: False if the run stopped on a solver failure.
-        message: the failure message, if any.
-    """
-
-    times: list[float] = field(default_factory=list)
-    states: list[np.ndarray] = field(default_factory=list)
-    t_interp_ms: list[float] = field(default_factory=list)
-    t_total_ms: list[float] = field(default_factory=list)
-    newton_iterations: list[int] = field(default_factory=list)
-    stable: bool = True
-    message: str = ""
-
-    def mean_ms(self, values: Sequence[float], warmup: int) -> float:
-        """Per-step mean after ``warmup`` steps (ms)."""
-        data = np.asarray(values[warmup:] if len(values) > warmup else values, dtype=float)
-        return float(data.mean()) if data.size else 0.0
-
-
 class ReducedSimulation:
     """Implicit reduced dynamics with optional example forces (see the module docstring).
 
@@ -108,7 +72,7 @@ class ReducedSimulation:
         dt: time step (s).
         integrator: ``"newmark"`` or ``"backward-euler"``.
         alpha, beta: Rayleigh coefficients (1/s, s).
-        loads: reduced loads.
+        loads: reduced loads (patterns ``Uᵀ f`` (r,)).
         driver: the example driver, or ``None`` (no example machinery at all).
         k_ex: example stiffness (1/s²); 0 disables the example force.
         newton_iterations: Newton updates per step, or ``None`` to iterate to ``rtol``.
@@ -132,7 +96,7 @@ class ReducedSimulation:
         integrator: str = "newmark",
         alpha: float = 0.0,
         beta: float = 0.0,
-        loads: Sequence[ReducedLoad] = (),
+        loads: Sequence[TimedLoad] = (),
         driver: ExampleDriver | None = None,
         k_ex: float = 0.0,
         newton_iterations: int | None = None,
@@ -315,35 +279,44 @@ class ReducedSimulation:
 
     # ------------------------------------------------------------------ run
     def run(
-        self, steps: int, *, on_step: Callable[[int, float, np.ndarray], None] | None = None
+        self,
+        steps: int,
+        *,
+        stride: int = 1,
+        on_step: Callable[[int, float, np.ndarray], None] | None = None,
     ) -> RunRecord:
-        """Advance ``steps`` steps; a solver failure ends the run with ``stable=False``."""
-        record = RunRecord()
-        record.times.append(self.time)
-        record.states.append(self.x.copy())
+        """Advance ``steps`` steps; a solver failure ends the run with ``stable=False``.
+
+        Args:
+            steps: number of steps.
+            stride: keep every ``stride``-th state (and the initial one), ≥ 1.
+            on_step: called after each step with (step index from 0, time in s, q (r,)).
+
+        Returns:
+            The :class:`~lbshape.dynamics.record.RunRecord`; its states are the
+            reduced coordinates q (r,). The split of each step's time into
+            :data:`PHASES` is kept in :attr:`phase_seconds`.
+        """
+        recorder = RunRecorder(stride=stride)
+        recorder.start(self.time, self.x)
         phases = np.zeros((steps, len(PHASES)))
+        self.phase_seconds = phases[:0]
         marks = self._marks
-        done = 0
         for index in range(steps):
             try:
                 iterations = self.step()
             except SolverError as exc:
-                record.stable, record.message = False, str(exc)
                 log.error("reduced simulation stopped: %s", exc)
-                break
+                return recorder.record(stable=False, message=str(exc))
             row = phases[index]
             row[:5] = np.diff(marks[:6])
             row[5] = (marks[6] - marks[0]) - row[:5].sum()
-            done = index + 1
-            record.t_interp_ms.append(1e3 * (marks[2] - marks[0]))
-            record.t_total_ms.append(1e3 * (marks[6] - marks[0]))
-            record.newton_iterations.append(int(iterations))
-            record.times.append(self.time)
-            record.states.append(self.x.copy())
+            self.phase_seconds = phases[:index + 1]
+            recorder.step(self.time, self.x, interp_seconds=marks[2] - marks[0],
+                          total_seconds=marks[6] - marks[0], iterations=iterations)
             if on_step is not None:
                 on_step(index, self.time, self.x)
-        self.phase_seconds = phases[:done]
-        return record
+        return recorder.record()
 
 
 # ---------------------------------------------------------------- compiled kernels

@@ -52,6 +52,7 @@ from lbshape.fem.dolfinx_bridge import (
     petsc_vec_to_input_order,
     to_dolfinx,
 )
+from lbshape.fem.eigenproblem import check_residuals
 from lbshape.geometry.mesh import TetMesh
 
 log = logging.getLogger(__name__)
@@ -189,14 +190,8 @@ def modal_derivatives(
     norms = np.linalg.norm(rhs[free_dofs], axis=0)
     misfit = np.linalg.norm((K @ vectors - rhs)[free_dofs], axis=0)
     residuals = np.divide(misfit, norms, out=np.zeros(p), where=norms > 0)
-    bad = residuals > RESIDUAL_RTOL
-    if bad.any():
-        worst = int(np.argmax(residuals))
-        raise SolverError(
-            f"modal derivative solves with large residuals: {int(bad.sum())} of "
-            f"{pairs.shape[0]} exceed {RESIDUAL_RTOL:.0e} (worst: pair {tuple(pairs[worst])}, "
-            f"residual {residuals[worst]:.2e})"
-        )
+    check_residuals(residuals, RESIDUAL_RTOL, what="modal derivative solves",
+                    describe=lambda q: f"pair {tuple(pairs[q])}")
     seconds = time.perf_counter() - started
     log.info("modal derivatives: n=%d pairs=%d free=%s max residual %.1e in %.2f s",
              n, pairs.shape[0], rigid is not None, residuals.max(initial=0.0), seconds)

@@ -39,6 +39,7 @@ import dataclasses
 import logging
 import math
 import time
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -49,11 +50,15 @@ from lbshape.errors import LbshapeError, SolverError
 from lbshape.fem.dolfinx_bridge import dof_to_input_order, p1_dof_vertices, to_dolfinx
 from lbshape.fem.eigenproblem import (
     b_orthonormalise,
+    check_residuals,
+    check_tol_and_target,
+    converged_pairs,
     fix_signs,
-    reason_name,
     relative_residuals,
     shift_invert_eps,
 )
+from lbshape.fem.mpi import compute_on_root
+from lbshape.fem.petsc_gather import gather_csr, gather_rows
 from lbshape.geometry.mesh import TetMesh
 
 log = logging.getLogger(__name__)
@@ -185,8 +190,8 @@ def elastic_matrices(
     import ufl
     from petsc4py import PETSc
 
-    n, fixed = _from_root(comm, lambda: (mesh.n_vertices,
-                                         _check_fixed(fixed_vertices, mesh.n_vertices)))
+    n, fixed = compute_on_root(comm, lambda: (mesh.n_vertices,
+                                              _check_fixed(fixed_vertices, mesh.n_vertices)))
 
     msh = to_dolfinx(mesh, comm)
     V = dolfinx.fem.VectorFunctionSpace(msh, ("Lagrange", 1))
@@ -202,7 +207,7 @@ def elastic_matrices(
 
     n_owned = V.dofmap.index_map.size_local
     owned_rows = dof_to_input_order(p1_dof_vertices(V)[:n_owned], 3)
-    K_csr, M_csr = _gather_csr(K, owned_rows, comm, 3 * n), _gather_csr(M, owned_rows, comm, 3 * n)
+    K_csr, M_csr = (gather_csr(A, owned_rows, comm=comm, size=3 * n) for A in (K, M))
 
     free_mask = np.ones(3 * n, dtype=bool)
     free_mask[(3 * fixed[:, None] + np.arange(3)).ravel()] = False
@@ -232,20 +237,6 @@ def elastic_matrices(
     )
 
 
-def _from_root(comm: MPI.Comm, compute):
-    """``compute()`` on rank 0, broadcast; an LbshapeError there is raised on every rank."""
-    value = error = None
-    if comm.rank == 0:
-        try:
-            value = compute()
-        except LbshapeError as exc:
-            error = exc
-    value, error = comm.bcast((value, error), root=0)
-    if error is not None:
-        raise error
-    return value
-
-
 def _check_fixed(fixed_vertices, n: int) -> np.ndarray:
     """Validated, sorted, unique fixed vertex indices (f,) int64."""
     if fixed_vertices is None:
@@ -263,36 +254,6 @@ def _check_fixed(fixed_vertices, n: int) -> np.ndarray:
     if fixed.size == n:
         raise LbshapeError("every vertex is fixed: nothing can move")
     return fixed
-
-
-def _gather_csr(A, local_rows: np.ndarray, comm: MPI.Comm, size: int) -> sp.csr_matrix | None:
-    """Distributed PETSc AIJ -> (size, size) scipy CSR in input order on rank 0.
-
-    ``local_rows[i]`` is the input index of the i-th locally owned row.
-    """
-    indptr, indices, data = A.getValuesCSR()
-    start = A.getOwnershipRange()[0]
-    parts = comm.gather((start, indptr, indices, data, local_rows), root=0)
-    if comm.rank != 0:
-        return None
-    parts.sort(key=lambda part: part[0])
-    global_to_input = np.concatenate([part[4] for part in parts])
-    rows = np.concatenate([np.repeat(part[4], np.diff(part[1])) for part in parts])
-    cols = np.concatenate([global_to_input[part[2]] for part in parts])
-    vals = np.concatenate([part[3] for part in parts])
-    return sp.csr_matrix((vals, (rows, cols)), shape=(size, size))
-
-
-def _gather_columns(local: np.ndarray, local_rows: np.ndarray, comm: MPI.Comm,
-                    size: int) -> np.ndarray | None:
-    """Local rows (l, k) from every rank -> (size, k) in input order on rank 0, zero elsewhere."""
-    parts = comm.gather((local_rows, local), root=0)
-    if comm.rank != 0:
-        return None
-    out = np.zeros((size, local.shape[1]), dtype=np.float64)
-    for rows, values in parts:
-        out[rows] = values
-    return out
 
 
 def default_target(mesh: TetMesh, material: Material) -> float:
@@ -362,11 +323,53 @@ def linear_modes(
             exactly 6 rigid modes for a free body.
     """
     started = time.perf_counter()
-    if not (0.0 < tol < 1.0):
-        raise LbshapeError(f"tol must be in (0, 1), got {tol!r}")
-    if target is not None and not (math.isfinite(target) and target < 0.0):
-        raise LbshapeError(f"target must be a finite negative number, got {target!r}")
-    sigma, n, fixed = _from_root(comm, lambda: (
+    request = _checked_request(mesh, material, count, fixed_vertices=fixed_vertices, comm=comm,
+                               tol=tol, target=target)
+    sigma, n, fixed = request.sigma, request.n_vertices, request.fixed
+    with elastic_matrices(mesh, material, fixed_vertices=fixed, comm=comm) as mats:
+        values, local, tol = _solve_eigenproblem(mats, request.nev, sigma, tol)
+        n_rigid, scale = _count_rigid(values)
+        _check_rigid_count(n_rigid, request.n_rigid, values, scale)
+        vectors = gather_rows(local, mats.local_rows, comm=comm, size=3 * n)
+    omega2 = values[n_rigid:request.nev]
+    rigid, elastic = compute_on_root(
+        comm, lambda: _split_orthonormal(vectors[:, :request.nev], mats.mass, n_rigid),
+        share=False) or (None, None)
+    residuals, rigid_residual = compute_on_root(
+        comm, lambda: _free_dof_residuals(mats, omega2, elastic, rigid))
+    _check_residuals(omega2, residuals, rigid_residual, limit=RESIDUAL_FACTOR * tol,
+                     scale=scale)
+    seconds = time.perf_counter() - started
+    log.info("elastic modes: n=%d fixed=%d k=%d rigid=%d target=%.3e f_1=%.6g Hz in %.2f s",
+             n, fixed.size, count, n_rigid, sigma, math.sqrt(omega2[0]) / (2 * math.pi),
+             seconds)
+    return LinearModes(
+        omega2=omega2, frequencies_hz=np.sqrt(omega2) / (2.0 * math.pi), vectors=elastic,
+        n_rigid=n_rigid, rigid=rigid, fixed_vertices=fixed, residuals=residuals,
+        rigid_omega2=values[:n_rigid], target=sigma, stiffness=mats.stiffness, mass=mats.mass,
+        seconds=seconds,
+    )
+
+
+class _Request(NamedTuple):
+    """A validated :func:`linear_modes` request (the same on every rank).
+
+    sigma: target in rad²/s²; n_vertices: n; fixed: (f,) sorted fixed vertices;
+    n_rigid: rigid modes expected (6 free, 0 clamped); nev: pairs to compute.
+    """
+
+    sigma: float
+    n_vertices: int
+    fixed: np.ndarray
+    n_rigid: int
+    nev: int
+
+
+def _checked_request(mesh: TetMesh, material: Material, count, *, fixed_vertices, comm,
+                     tol: float, target: float | None) -> _Request:
+    """Validate the arguments of :func:`linear_modes` (mesh-dependent parts on rank 0)."""
+    check_tol_and_target(tol, target)
+    sigma, n, fixed = compute_on_root(comm, lambda: (
         default_target(mesh, material) if target is None else float(target),
         mesh.n_vertices, _check_fixed(fixed_vertices, mesh.n_vertices)))
     expected_rigid = 0 if fixed.size else FREE_BODY_RIGID_MODES
@@ -378,50 +381,42 @@ def linear_modes(
             f"{count} modes are too many for a mesh with {n_free} free DOFs: need "
             f"count + {expected_rigid} rigid < {n_free}"
         )
-    nev = int(count) + expected_rigid
+    return _Request(sigma, n, fixed, expected_rigid, int(count) + expected_rigid)
 
-    with elastic_matrices(mesh, material, fixed_vertices=fixed, comm=comm) as mats:
-        values, local, tol = _solve_eigenproblem(mats, nev, sigma, tol)
-        n_rigid, scale = _count_rigid(values)
-        _check_rigid_count(n_rigid, expected_rigid, values, scale)
-        K, M = mats.stiffness, mats.mass
-        vectors = _gather_columns(local, mats.local_rows, comm, 3 * n)
-        free_dofs = mats.free_dofs
 
-    omega2 = values[n_rigid:nev]
-    residuals = rigid_residual = None
-    rigid = elastic = None
-    if comm.rank == 0:
-        vectors = b_orthonormalise(vectors[:, :nev], M, what="elastic mode vectors")
-        rigid, elastic = vectors[:, :n_rigid], fix_signs(vectors[:, n_rigid:])
-        Kf, Mf = K[free_dofs], M[free_dofs]
-        residuals = relative_residuals(Kf, Mf, omega2, elastic)
-        if n_rigid:
-            rigid_residual = float(np.max(np.linalg.norm(Kf @ rigid, axis=0)
-                                          / np.linalg.norm(Mf @ rigid, axis=0)))
-    residuals, rigid_residual = comm.bcast((residuals, rigid_residual), root=0)
-    bad = residuals > RESIDUAL_FACTOR * tol
-    if bad.any():
-        worst = int(np.argmax(residuals))
-        raise SolverError(
-            f"elastic eigenpairs with large residuals: {int(bad.sum())} of {count} exceed "
-            f"{RESIDUAL_FACTOR * tol:.1e} (worst: mode {worst + 1}, omega^2={omega2[worst]:.6e}, "
-            f"residual {residuals[worst]:.2e})"
-        )
+def _split_orthonormal(vectors: np.ndarray, mass: sp.spmatrix,
+                       n_rigid: int) -> tuple[np.ndarray, np.ndarray]:
+    """(rigid (3n, n_rigid), elastic (3n, k)) from the M-orthonormalised (3n, nev) block;
+    elastic signs fixed."""
+    vectors = b_orthonormalise(vectors, mass, what="elastic mode vectors")
+    return vectors[:, :n_rigid], fix_signs(vectors[:, n_rigid:])
+
+
+def _free_dof_residuals(mats: ElasticMatrices, omega2: np.ndarray, elastic: np.ndarray,
+                        rigid: np.ndarray) -> tuple[np.ndarray, float | None]:
+    """Relative residuals (k,) of the elastic pairs on the free DOFs, and the rigid modes'
+    ``max ‖Kr‖/‖Mr‖`` in rad²/s² (``None`` without rigid modes)."""
+    Kf, Mf = mats.stiffness[mats.free_dofs], mats.mass[mats.free_dofs]
+    residuals = relative_residuals(Kf, Mf, omega2, elastic)
+    if not rigid.shape[1]:
+        return residuals, None
+    return residuals, float(np.max(np.linalg.norm(Kf @ rigid, axis=0)
+                                   / np.linalg.norm(Mf @ rigid, axis=0)))
+
+
+def _check_residuals(omega2: np.ndarray, residuals: np.ndarray, rigid_residual: float | None,
+                     *, limit: float, scale: float) -> None:
+    """Elastic residuals ≤ ``limit``; rigid ``‖Kr‖/‖Mr‖ ≤ RIGID_RTOL · scale``.
+
+    ``scale`` is the first elastic ω² in rad²/s².
+    """
+    check_residuals(residuals, limit, what="elastic eigenpairs",
+                    describe=lambda i: f"mode {i + 1}, omega^2={omega2[i]:.6e}")
     if rigid_residual is not None and rigid_residual > RIGID_RTOL * scale:
         raise SolverError(
             f"rigid modes are not in the null space of K: max |Kr|/|Mr| = {rigid_residual:.3e} "
             f"> {RIGID_RTOL:g} x first elastic omega^2 {scale:.3e}"
         )
-    seconds = time.perf_counter() - started
-    log.info("elastic modes: n=%d fixed=%d k=%d rigid=%d target=%.3e f_1=%.6g Hz in %.2f s",
-             n, fixed.size, count, n_rigid, sigma, math.sqrt(omega2[0]) / (2 * math.pi),
-             seconds)
-    return LinearModes(
-        omega2=omega2, frequencies_hz=np.sqrt(omega2) / (2.0 * math.pi), vectors=elastic,
-        n_rigid=n_rigid, rigid=rigid, fixed_vertices=fixed, residuals=residuals,
-        rigid_omega2=values[:n_rigid], target=sigma, stiffness=K, mass=M, seconds=seconds,
-    )
 
 
 def _solve_eigenproblem(mats: ElasticMatrices, nev: int, sigma: float,
@@ -436,22 +431,8 @@ def _solve_eigenproblem(mats: ElasticMatrices, nev: int, sigma: float,
         eps.setFromOptions()
         tol = eps.getTolerances()[0]  # as overridden by -elastic_eps_tol, if given
         eps.solve()
-        n_converged = eps.getConverged()
-        if n_converged < nev:
-            raise SolverError(
-                f"elastic eigensolver converged {n_converged} of {nev} requested pairs "
-                f"({reason_name(eps.getConvergedReason())}, {eps.getIterationNumber()} "
-                f"iterations, tol={tol:g}, target={sigma:.3e})"
-            )
-        values = np.empty(n_converged)
-        vr = mats.stiffness_petsc.createVecRight()
-        try:
-            local = np.empty((vr.getLocalSize(), n_converged))
-            for i in range(n_converged):
-                values[i] = eps.getEigenpair(i, vr).real
-                local[:, i] = vr.getArray(readonly=True)
-        finally:
-            vr.destroy()
+        values, local = converged_pairs(eps, nev=nev, what="elastic eigensolver", tol=tol,
+                                        sigma=sigma)
     finally:
         eps.destroy()
     # SLEPc may converge more pairs than asked; the nev nearest σ are the smallest

@@ -1,7 +1,8 @@
-"""The finite-element bridge: DOLFINx meshes, generalized eigenproblems (SLEPc), MPI helpers."""
+"""Finite elements: the DOLFINx bridge, generalized eigenproblems (SLEPc), MPI and PETSc gathers."""
 
 __all__ = [
     "dolfinx_bridge",
     "eigenproblem",
     "mpi",
+    "petsc_gather",
 ]

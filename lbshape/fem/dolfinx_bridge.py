@@ -12,6 +12,7 @@ import scipy.sparse as sp
 import ufl
 from mpi4py import MPI
 
+from lbshape.fem.petsc_gather import gather_csr
 from lbshape.geometry.mesh import TetMesh
 
 
@@ -62,12 +63,8 @@ def petsc_to_scipy(A, dof_vertices: np.ndarray, block_size: int = 1) -> sp.csr_m
         dof_vertices: (nb,) from :func:`p1_dof_vertices`.
         block_size: 1 for scalar P1, 3 for vector P1.
     """
-    indptr, indices, data = A.getValuesCSR()
-    n = A.getSize()[0]
-    B = sp.csr_matrix((data, indices, indptr), shape=(n, n))
     order = dof_to_input_order(dof_vertices, block_size)
-    P = sp.csr_matrix((np.ones(n), (order, np.arange(n))), shape=(n, n))
-    return (P @ B @ P.T).tocsr()
+    return gather_csr(A, order, comm=MPI.COMM_SELF, size=A.getSize()[0])
 
 
 def dof_to_input_order(dof_vertices: np.ndarray, block_size: int = 1) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Commands that run under MPI: read inputs on rank 0, solve on every rank."""
+"""MPI helpers: compute on rank 0 and share the result (or its user error) with every rank."""
 
 from __future__ import annotations
 
@@ -6,6 +6,29 @@ from collections.abc import Callable
 from typing import Any
 
 from lbshape.errors import LbshapeError
+
+
+def compute_on_root(comm, compute: Callable[[], Any], *, share: bool = True):
+    """``compute()`` on rank 0 only; its result broadcast to every rank if ``share``.
+
+    A :class:`~lbshape.errors.LbshapeError` raised by ``compute`` on rank 0 is
+    broadcast and raised on every rank, so no rank waits for the others forever.
+
+    Args:
+        comm: the communicator (``mpi4py.MPI.Comm``).
+        compute: a function of no arguments, called on rank 0.
+        share: broadcast the result; otherwise the other ranks get ``None``.
+    """
+    value = error = None
+    if comm.rank == 0:
+        try:
+            value = compute()
+        except LbshapeError as exc:
+            error = exc
+    shared, error = comm.bcast((value if share else None, error), root=0)
+    if error is not None:
+        raise error
+    return shared if share else value
 
 
 def run_collectively(comm, read_inputs: Callable[[], Any], solve: Callable[[Any], Any]):
@@ -16,15 +39,7 @@ def run_collectively(comm, read_inputs: Callable[[], Any], solve: Callable[[Any]
     ``inputs`` is ``None`` on the other ranks.
     """
     try:
-        error = inputs = None
-        if comm.rank == 0:
-            try:
-                inputs = read_inputs()
-            except LbshapeError as exc:
-                error = exc
-        error = comm.bcast(error, root=0)
-        if error is not None:
-            raise error
+        inputs = compute_on_root(comm, read_inputs, share=False)
         return inputs, solve(inputs)
     except LbshapeError as exc:
         if comm.rank == 0:

@@ -25,15 +25,17 @@ towards the other end.
     offset of the far end in metres; ψ_max is solved for it
     (``|amplitude| ≤ 0.7 L``, the offset reached at ψ_max ≈ 1.36 rad).
 
-:func:`apply_pose` validates names and parameters against :data:`POSES` and
-rejects a pose that inverts tetrahedra of the mesh.
+:data:`POSES` is the one registry of poses (scenes validate against it, with
+:data:`POSE_PARAMETERS` and :data:`POSE_CHOICES`); :func:`apply_pose` validates names
+and parameters against it and rejects a pose that inverts tetrahedra of the mesh.
 """
 
 from __future__ import annotations
 
 import inspect
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from types import MappingProxyType
 
 import numpy as np
 from scipy.optimize import brentq
@@ -200,15 +202,32 @@ def _bend(points, psi: Callable, *, direction: str, axis: str, anchor: str) -> n
 
 #: pose name -> vertex map ``f(points, **params) -> points``
 POSES: dict[str, Callable[..., np.ndarray]] = {"twist": twist, "s-bend": s_bend, "arc": arc}
+#: string-valued pose parameters and their choices; every other parameter is a number
+POSE_CHOICES: Mapping[str, tuple[str, ...]] = MappingProxyType({
+    "axis": tuple(_AXES),
+    "direction": tuple(_AXES),
+    "anchor": _ANCHORS,
+    "profile": _PROFILES,
+})
+
+
+def _keyword_parameters(pose: Callable[..., np.ndarray]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(required, optional) keyword-only parameters of a vertex map, in signature order."""
+    params = [p for p in inspect.signature(pose).parameters.values() if p.kind is p.KEYWORD_ONLY]
+    required = tuple(p.name for p in params if p.default is p.empty)
+    optional = tuple(p.name for p in params if p.default is not p.empty)
+    return required, optional
+
+
+#: pose name -> its keyword parameters, the required one first (from the signatures)
+POSE_PARAMETERS: Mapping[str, tuple[str, ...]] = MappingProxyType(
+    {name: sum(_keyword_parameters(pose), ()) for name, pose in POSES.items()}
+)
 
 
 def pose_parameters(name: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """(required, optional) keyword parameters of pose ``name``."""
-    signature = inspect.signature(_pose(name))
-    params = [p for p in signature.parameters.values() if p.kind is p.KEYWORD_ONLY]
-    required = tuple(p.name for p in params if p.default is p.empty)
-    optional = tuple(p.name for p in params if p.default is not p.empty)
-    return required, optional
+    return _keyword_parameters(_pose(name))
 
 
 def apply_pose(mesh: TetMesh, name: str, **params) -> TetMesh:
@@ -235,7 +254,7 @@ def apply_pose(mesh: TetMesh, name: str, **params) -> TetMesh:
     if missing:
         raise LbshapeError(f"pose {name!r} needs parameter(s) {', '.join(missing)}")
     for key, value in params.items():
-        if key in ("axis", "direction", "anchor", "profile"):
+        if key in POSE_CHOICES:
             if not isinstance(value, str):
                 raise LbshapeError(f"pose {name!r}: {key} must be a string, got {value!r}")
         elif isinstance(value, bool) or not isinstance(value, int | float | np.number) \

@@ -17,8 +17,6 @@ import importlib.util
 import logging
 import math
 import numbers
-import os
-import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -28,6 +26,7 @@ from types import ModuleType
 
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh, check_mesh, gmsh_model, mesh_from_gmsh_model
+from lbshape.io.atomic import write_atomic
 from lbshape.io.paths import MESHES_DIR
 
 log = logging.getLogger(__name__)
@@ -164,27 +163,19 @@ def write_shape(name: str, path: str | Path, *, size: float | None = None) -> Te
         raise LbshapeError(f"{path}: output must be a .msh file")
     with _generated(name, size) as (gmsh, source):
         mesh = check_mesh(mesh_from_gmsh_model(gmsh.model, source=source), source=source)
-        tmp = None
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".msh", dir=path.parent)
-            os.close(fd)
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; use the usual mode
-            gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
-            gmsh.option.setNumber("Mesh.Binary", 0)
-            gmsh.option.setNumber("Mesh.SaveAll", 0)  # the physical groups cover the body
-            gmsh.write(tmp)
-            if os.path.getsize(tmp) == 0:
+        gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
+        gmsh.option.setNumber("Mesh.Binary", 0)
+        gmsh.option.setNumber("Mesh.SaveAll", 0)  # the physical groups cover the body
+
+        def write(tmp: Path) -> None:
+            gmsh.write(str(tmp))
+            if tmp.stat().st_size == 0:
                 raise LbshapeError(f"{path}: gmsh wrote nothing")
-            os.replace(tmp, path)
-            tmp = None
+
+        try:
+            write_atomic(path, write)
         except OSError as exc:
             raise LbshapeError(f"cannot write {path}: {exc.strerror or exc}") from None
-        finally:
-            if tmp is not None and os.path.exists(tmp):
-                os.unlink(tmp)
     log.info("wrote %s (%d vertices, %d tets)", path, mesh.n_vertices, mesh.n_tets)
     return mesh
 

@@ -17,12 +17,13 @@ import hashlib
 import json
 import logging
 import os
-import tempfile
 import zipfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
+
+from lbshape.io.atomic import write_npz_atomic
 
 log = logging.getLogger(__name__)
 
@@ -77,18 +78,9 @@ def save_artifact(
     *, root: Path | None = None,
 ) -> Path:
     """Write arrays + metadata atomically; return the path."""
-    path = artifact_path(name, key, root)
-    path.parent.mkdir(parents=True, exist_ok=True)
     payload = {"key": key, "format": FORMAT_VERSION, "arrays": sorted(arrays), **(meta or {})}
-    fd, tmp = tempfile.mkstemp(suffix=".npz.tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            np.savez(handle, __meta__=np.array(json.dumps(payload)), **arrays)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
+    return write_npz_atomic(artifact_path(name, key, root),
+                            __meta__=np.array(json.dumps(payload)), **arrays)
 
 
 def load_artifact(

@@ -8,14 +8,16 @@ valid, readable trajectory of what was computed.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from lbshape.geometry.mesh import TetMesh
+from lbshape.io.atomic import write_atomic, write_text_atomic
+
+if TYPE_CHECKING:  # io sits below every concept package; the mesh type is only an annotation
+    from lbshape.geometry.mesh import TetMesh
 
 
 class TrajectoryWriter:
@@ -47,15 +49,8 @@ class TrajectoryWriter:
         data = meshio.Mesh(
             self.mesh.points + u, [("tetra", self.mesh.tets)], point_data={"displacement": u}
         )
-        path = self.folder / frame
-        fd, tmp = tempfile.mkstemp(suffix=".vtu", dir=self.folder)
-        os.close(fd)
-        try:
-            meshio.write(tmp, data, file_format="vtu")
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        path = write_atomic(self.folder / frame,
+                            lambda tmp: meshio.write(tmp, data, file_format="vtu"))
         self._frames.append((float(time), frame))
         return path
 
@@ -67,11 +62,7 @@ class TrajectoryWriter:
         lines += [f'    <DataSet timestep="{t:.9g}" part="0" file={quoteattr(f)}/>'
                   for t, f in self._frames]
         lines += ["  </Collection>", "</VTKFile>", ""]
-        fd, tmp = tempfile.mkstemp(suffix=".pvd", dir=self.folder)
-        with os.fdopen(fd, "w") as handle:
-            handle.write("\n".join(lines))
-        os.replace(tmp, self.pvd_path)
-        return self.pvd_path
+        return write_text_atomic(self.pvd_path, "\n".join(lines))
 
     @property
     def frame_count(self) -> int:

@@ -1,6 +1,7 @@
-"""From a scene to results: the cached precompute, the interpolation routes and running a method."""
+"""From a scene to results: its meshes, the cached precompute, target routes, running a method."""
 
 __all__ = [
+    "meshes",
     "precompute",
     "routes",
     "simulate",

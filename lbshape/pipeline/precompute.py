@@ -44,11 +44,32 @@ from pathlib import Path
 import numpy as np
 
 from lbshape import __version__
+from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
+from lbshape.elastic.cubature import (
+    inverse_frequency_scales,
+    train_cubature,
+    train_example_cubatures,
+)
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.materials import Material
+from lbshape.elastic.modal_derivatives import modal_derivatives
+from lbshape.elastic.modes import linear_modes
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.shapes import MESHES_DIR, get_shape
 from lbshape.io.cache import cache_key, file_digest, load_artifact, save_artifact
+from lbshape.pipeline.meshes import build_mesh, posed_example, selected_vertices
 from lbshape.scene.schema import MeshSource, Scene
+from lbshape.shapespace.frames import body_frame
+from lbshape.shapespace.projections import direct_projection, embed_example, make_shape_space
+from lbshape.shapespace.target_table import (
+    TargetTable,
+    block_basis,
+    clamp_is_safe,
+    clamped_eigenvectors,
+    tabulate_examples,
+)
+from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
 
@@ -163,14 +184,10 @@ class Precomputed:
         """(n, m) Φ, or Φ_F faded to zero at the fixed vertices when ``clamped``."""
         if not clamped or self.fixed_vertices.size == 0:
             return self.eigenvectors
-        from lbshape.shapespace.target_table import clamped_eigenvectors
-
         return clamped_eigenvectors(self.eigenvectors, self.fixed_vertices, self.mesh.points)
 
     def lb_basis(self, *, clamped: bool = False) -> np.ndarray:
         """(3n, 3m) dense ``L = Φ ⊗ I₃`` (node-major rows, column 3i+k); ``clamped``: L_F."""
-        from lbshape.shapespace.target_table import block_basis
-
         return block_basis(self.target_eigenvectors(clamped))
 
     def lb_to_reduced_for(self, *, clamped: bool) -> np.ndarray:
@@ -184,8 +201,6 @@ def _source_digest(source: MeshSource) -> dict:
     """The mesh source's key plus the digest of the gmsh script behind a shape."""
     key = dict(source.key())
     if source.shape is not None:
-        from lbshape.geometry.shapes import MESHES_DIR, get_shape
-
         spec = get_shape(source.shape)
         key["script_sha256"] = file_digest(MESHES_DIR / spec.script)
         key["size_used"] = source.size if source.size is not None else spec.default_size
@@ -254,16 +269,11 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False) -> 
 
 
 def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
-    from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
-    from lbshape.elastic.cubature import inverse_frequency_scales, train_cubature
-    from lbshape.elastic.modal_derivatives import modal_derivatives
-    from lbshape.elastic.modes import linear_modes
-
     material, reduced = scene.material, scene.reduced
     with stages.stage("mesh"):
-        mesh = scene.object.build()
+        mesh = build_mesh(scene.object)
         fixed = (np.empty(0, dtype=np.int64) if scene.fixed is None
-                 else scene.fixed.vertices(mesh, what="fixed region"))
+                 else selected_vertices(scene.fixed, mesh, what="fixed region"))
         _check_sizes(scene, mesh, fixed)
     count = reduced.linear_modes or default_linear_modes(reduced.r)
     with stages.stage("modes"):
@@ -271,8 +281,6 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
     with stages.stage("derivatives"):
         derivatives = modal_derivatives(mesh, material, modes)
     with stages.stage("basis"):
-        from lbshape.elastic.element_kernels import mass_matrix
-
         mass = mass_matrix(mesh, material.density)
         basis = nonlinear_basis(modes, derivatives, mass, reduced.r)
         U = basis.U
@@ -299,15 +307,6 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
 
 def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.ndarray,
                         stages: _Stages) -> dict:
-    from lbshape.shapespace.frames import body_frame
-    from lbshape.shapespace.projections import direct_projection, embed_example, make_shape_space
-    from lbshape.shapespace.target_table import (
-        clamp_is_safe,
-        clamped_eigenvectors,
-        tabulate_examples,
-    )
-    from lbshape.spectral.spectrum import lb_spectrum
-
     m = scene.reduced.m
     with stages.stage("lb"):
         spectrum = lb_spectrum(mesh, m)
@@ -316,13 +315,13 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.nd
         coefficients, alignments = [], []
         for index, pose in enumerate(scene.examples.poses):
             label = f"example {index + 1} ({_example_label(pose)})"
-            rest = pose.source.build()
+            rest = build_mesh(pose.source)
             if rest.n_vertices <= m + 1:
                 raise LbshapeError(
                     f"{label}: m={m} is too large for an example mesh with "
                     f"{rest.n_vertices} vertices"
                 )
-            posed = pose.posed(rest)
+            posed = posed_example(pose, rest)
             landmarks = np.asarray(pose.landmarks, dtype=np.int64) if pose.landmarks else None
             try:
                 embedded = embed_example(mesh, spectrum, rest, [posed.points],
@@ -365,13 +364,10 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.nd
 
 def _train_lb_cubatures(scene: Scene, mesh: TetMesh, eigenvectors, eigenvalues,
                         example_coefficients, path) -> dict:
-    """One cubature per example for the LB basis ``Φ ⊗ I₃`` (the clamped one of the
-    target routes), trained on the example's rest shape along the path (P, 3m) of exact
+    """One cubature per example for the LB basis ``Φ ⊗ I₃`` (the one of the target
+    routes), trained on the example's rest shape along the path (P, 3m) of exact
     targets between the examples (:func:`lbshape.elastic.cubature.train_example_cubatures`);
     arrays (k, s) padded."""
-    from lbshape.elastic.cubature import inverse_frequency_scales, train_example_cubatures
-    from lbshape.shapespace.target_table import block_basis
-
     k = example_coefficients.shape[0]
     rests = [mesh.points + eigenvectors @ c for c in example_coefficients]
     rules = train_example_cubatures(
@@ -441,6 +437,4 @@ def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
 
 
 def _table(arrays):
-    from lbshape.shapespace.target_table import TargetTable
-
     return TargetTable.from_arrays(arrays)

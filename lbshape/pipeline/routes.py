@@ -1,8 +1,9 @@
 """The interpolation routes: which basis and which elements the target energies use.
 
-See :mod:`lbshape.shapespace.interpolation` for the target problem ``min_z Σ_k w_k E_k(z − z_k)``.
-The routes (:data:`ROUTES`) differ in the coordinates z, the basis B that
-maps them to displacements (metres) and the elements the energies sum over:
+See :mod:`lbshape.shapespace.interpolation` for the target problem ``min_z Σ_k w_k E_k(z − z_k)``
+and for the registry of routes (:data:`~lbshape.shapespace.interpolation.ROUTES`). The
+routes differ in the coordinates z, the basis B that maps them to displacements
+(metres) and the elements the energies sum over:
 
 * ``modal`` (the paper's): z = reduced coordinates q (r,), ``B = U`` (3n, r), the
   elastic cubature of the precompute; the examples enter through the direct
@@ -54,13 +55,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import Precomputed
-from lbshape.shapespace.interpolation import TargetSolver
+from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
+from lbshape.shapespace.example_driver import ExampleDriver
+from lbshape.shapespace.interpolation import ROUTES, TargetSolver
+from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
+from lbshape.shapespace.target_table import TableSolver
 
 log = logging.getLogger(__name__)
 
-ROUTES = ("lb-table", "modal", "lb", "lb-exact", "euclidean")
 #: the boundary treatments of the LB basis (see the module docstring)
 BOUNDARIES = ("clamped", "free")
 #: Newton iterations per call of the fallback target solve (warm-started each time step)
@@ -176,8 +181,6 @@ def target_solver(
     tets, material = pre.mesh.tets, pre.material
     lb_to_reduced = pre.lb_to_reduced_for(clamped=clamped)
     if route == "lb-table":
-        from lbshape.shapespace.target_table import TableSolver
-
         table = pre.target_table
         table.set_reduced_map(lb_to_reduced)
         solver = TableSolver(table, [None] * k, coefficients)
@@ -189,9 +192,6 @@ def target_solver(
             weights=np.zeros(0), seconds=seconds,
             cubature_errors={} if check is None else {"table_max_error": check.max_error})
     if route in ("euclidean", "lb-exact"):
-        from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
-        from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
-
         energy = EuclideanExampleEnergy if route == "euclidean" else StVKPolynomialEnergy
         basis = pre.lb_basis(clamped=clamped)
         elements = np.arange(pre.mesh.n_tets, dtype=np.int64)
@@ -199,8 +199,6 @@ def target_solver(
         models = [energy(x, tets, material, basis) for x in rests]
         offsets, to_reduced, errors = coefficients, lb_to_reduced, {}
     else:
-        from lbshape.elastic.reduced_forces import ReducedForceModel
-
         if route == "modal":
             basis, elements, weights = pre.U, pre.cubature_elements, pre.cubature_weights
             offsets, to_reduced = coefficients @ lb_to_reduced.T, None
@@ -235,8 +233,6 @@ def example_driver(pre: Precomputed, *, route: str, **options):
         route: one of :data:`ROUTES`.
         **options: keyword options of :func:`target_solver`.
     """
-    from lbshape.shapespace.example_driver import ExampleDriver
-
     setup = target_solver(pre, route, **options)
     return ExampleDriver(pre.descriptor_matrix, pre.example_descriptors, setup.solver,
                          to_reduced=setup.to_reduced)

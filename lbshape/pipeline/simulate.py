@@ -8,6 +8,12 @@
   target is found in LB space with the energy summed over all elements;
 * ``full`` — full-space FEM with full-space interpolation: the accuracy reference.
 
+This module is the one place where scene data becomes engine input: load patterns
+(:func:`load_patterns`), the example stiffness and driver, and the engines set up
+from a scene and its precompute (:func:`reduced_simulation`, :func:`full_simulation`).
+The engines (:mod:`lbshape.dynamics`) see arrays only and both return a
+:class:`~lbshape.dynamics.record.RunRecord`.
+
 Outputs in ``DIR``: ``stats.json`` (keys fixed by the command-line contract),
 ``trajectory.pvd`` + ``trajectory_*.vtu`` (ParaView), and ``states.npz`` (the
 sampled full-space displacements, for error measurements).
@@ -22,9 +28,29 @@ from pathlib import Path
 
 import numpy as np
 
+from lbshape.dynamics.full import (
+    FullSpaceDiverged,
+    FullSpaceExamples,
+    FullSpaceSimulator,
+)
+from lbshape.dynamics.loads import (
+    TimedLoad,
+    gravity_pattern,
+    region_force_pattern,
+    region_torque_pattern,
+)
+from lbshape.dynamics.record import RunRecord
+from lbshape.dynamics.reduced import REALTIME_NEWTON_ITERATIONS, ReducedSimulation
+from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
+from lbshape.io.atomic import write_json_atomic, write_npz_atomic
+from lbshape.io.trajectory import TrajectoryWriter
+from lbshape.pipeline.meshes import selected_vertices
 from lbshape.pipeline.precompute import Precomputed
+from lbshape.pipeline.routes import example_driver
 from lbshape.scene.schema import Scene
+from lbshape.shapespace.interpolation import BASELINE_ROUTE, resolve_route
 
 log = logging.getLogger(__name__)
 
@@ -52,10 +78,14 @@ class SimulationOutput:
     message: str = ""
 
 
-def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[tuple[np.ndarray, object]]:
-    """Full-space load patterns (3n,) with their time profiles."""
-    from lbshape.dynamics.loads import gravity_pattern, region_force_pattern, region_torque_pattern
+def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[TimedLoad]:
+    """The scene's loads as full-space patterns (3n,) in N with their time profiles.
 
+    Args:
+        scene: the scene (its ``loads``).
+        pre: its precompute (the mesh the regions are selected on).
+        mass: (3n, 3n) node-major consistent mass in kg.
+    """
     mesh = pre.mesh
     patterns = []
     for index, load in enumerate(scene.loads):
@@ -63,29 +93,32 @@ def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[tuple[np.ndarray
         if load.type == "gravity":
             pattern = gravity_pattern(mass, load.vector)
         elif load.type == "region_force":
-            pattern = region_force_pattern(mass, load.selection.vertices(mesh, what=what),
+            pattern = region_force_pattern(mass, selected_vertices(load.selection, mesh, what=what),
                                            load.vector)
         elif load.type == "region_torque":
-            pattern = region_torque_pattern(mass, mesh.points,
-                                            load.selection.vertices(mesh, what=what), load.vector)
+            pattern = region_torque_pattern(
+                mass, mesh.points, selected_vertices(load.selection, mesh, what=what), load.vector)
         else:  # the scene schema only admits the types above
             raise LbshapeError(f"unsupported load type {load.type!r}")
-        patterns.append((pattern, load.profile))
+        patterns.append(TimedLoad(pattern, load.profile))
     return patterns
 
 
-def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced",
-                       newton_iterations: int | None | str = "realtime"):
-    """The :class:`~lbshape.dynamics.reduced.ReducedSimulation` of a scene (Newton updates
-    per step: the real-time default, a number, or ``None`` for converged Newton)."""
-    from lbshape.dynamics.reduced import (
-        REALTIME_NEWTON_ITERATIONS,
-        ReducedLoad,
-        ReducedSimulation,
-    )
-    from lbshape.elastic.element_kernels import mass_matrix
-    from lbshape.elastic.reduced_forces import ReducedForceModel
+def example_stiffness(scene: Scene, pre: Precomputed) -> float:
+    """k_ex in 1/s² when the example force is active (examples precomputed, k_ex > 0), else 0."""
+    k_ex = scene.examples.stiffness if scene.examples is not None else 0.0
+    return float(k_ex) if pre.has_examples and k_ex > 0 else 0.0
 
+
+def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced",
+                       newton_iterations: int | None | str = "realtime") -> ReducedSimulation:
+    """The :class:`~lbshape.dynamics.reduced.ReducedSimulation` of a scene.
+
+    ``method`` picks the example target's route: the scene's
+    ``reduced.interpolation`` for ``reduced``, the all-element baseline for
+    ``euclidean``. ``newton_iterations``: Newton updates per step, ``"realtime"`` for
+    :data:`~lbshape.dynamics.reduced.REALTIME_NEWTON_ITERATIONS`, ``None`` to converge.
+    """
     if newton_iterations == "realtime":
         newton_iterations = REALTIME_NEWTON_ITERATIONS
     elastic = ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U,
@@ -93,21 +126,62 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
     loads = []
     if scene.loads:
         mass = mass_matrix(pre.mesh, pre.material.density)
-        loads = [ReducedLoad(pre.U.T @ p, profile) for p, profile in
-                 load_patterns(scene, pre, mass)]
-    k_ex = scene.examples.stiffness if scene.examples is not None else 0.0
+        loads = [TimedLoad(pre.U.T @ load.pattern, load.profile)
+                 for load in load_patterns(scene, pre, mass)]
+    k_ex = example_stiffness(scene, pre)
     driver = None
-    if pre.has_examples and k_ex > 0:
-        from lbshape.pipeline.routes import example_driver
-
-        route = (scene.reduced.route(scene.material.model) if method == "reduced"
-                 else "euclidean")
+    if k_ex > 0:
+        route = (resolve_route(scene.reduced.interpolation, scene.material.model)
+                 if method == "reduced" else BASELINE_ROUTE)
         driver = example_driver(pre, route=route)
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
         k_ex=k_ex, newton_iterations=newton_iterations,
     )
+
+
+def full_simulation(scene: Scene, pre: Precomputed) -> FullSpaceSimulator:
+    """The :class:`~lbshape.dynamics.full.FullSpaceSimulator` of a scene (the ``full`` method).
+
+    Contact planes are not modelled by the full-space method and local regions are
+    treated as global examples; both are logged as warnings.
+    """
+    if scene.planes:
+        log.warning("scene %s: contact planes are not modelled by the full-space method",
+                    scene.name)
+    if scene.regions:
+        log.warning("scene %s: local example regions are treated as global examples by the "
+                    "full-space method", scene.name)
+    loads = load_patterns(scene, pre, mass_matrix(pre.mesh, pre.material.density))
+    k_ex = example_stiffness(scene, pre)
+    examples = (FullSpaceExamples(pre.eigenvalues, pre.eigenvectors, pre.example_coefficients,
+                                  k_ex) if k_ex > 0 else None)
+    return FullSpaceSimulator(
+        pre.mesh, pre.material, dt=scene.simulation.dt, fixed_vertices=pre.fixed_vertices,
+        integrator=scene.simulation.integrator, alpha=scene.damping.alpha,
+        beta=scene.damping.beta, loads=loads, examples=examples,
+    )
+
+
+def run_full_space(scene: Scene, pre: Precomputed, *, steps: int, stride: int = 1) -> RunRecord:
+    """Run the ``full`` method of a scene for ``steps`` steps, keeping every ``stride``-th state.
+
+    A divergence does not raise: the record of what was computed comes back with
+    ``stable`` False and the failure message.
+    """
+    try:
+        return full_simulation(scene, pre).run(steps, stride=stride)
+    except FullSpaceDiverged as exc:
+        return exc.partial
+
+
+def run_method(scene: Scene, pre: Precomputed, *, method: str, steps: int,
+               stride: int = 1) -> RunRecord:
+    """Run ``scene`` with one of :data:`METHODS`; a solver failure gives ``stable`` False."""
+    if method == "full":
+        return run_full_space(scene, pre, steps=steps, stride=stride)
+    return reduced_simulation(scene, pre, method=method).run(steps, stride=stride)
 
 
 def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
@@ -119,54 +193,35 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
     if steps < 1:
         raise LbshapeError(f"steps must be >= 1, got {steps}")
     stride = max(1, math.ceil(steps / MAX_FRAMES))
+    record = run_method(scene, pre, method=method, steps=steps, stride=stride)
     if method == "full":
-        times, frames, t_interp, t_total, stable, message = _run_full(scene, pre, steps, stride)
-        steps_done = int(round((times[-1] - times[0]) / scene.simulation.dt)) if len(times) else 0
+        frames = record.displacements()
         r, s = 3 * (pre.mesh.n_vertices - pre.fixed_vertices.size), pre.mesh.n_tets
     else:
-        sim = reduced_simulation(scene, pre, method=method)
-        record = sim.run(steps)
-        q = np.asarray(record.states)
-        picked = np.arange(0, len(q), stride)
-        times = np.asarray(record.times)[picked]
-        frames = (q[picked] @ pre.U.T).reshape(len(picked), -1, 3)
-        t_interp = record.mean_ms(record.t_interp_ms, WARMUP_STEPS)
-        t_total = record.mean_ms(record.t_total_ms, WARMUP_STEPS)
-        stable, message = record.stable, record.message
-        steps_done = len(record.t_total_ms)
+        frames = record.displacements(pre.U)
         r, s = pre.r, int(pre.cubature_elements.size)
+    t_interp, t_total = record.mean_ms(warmup=WARMUP_STEPS)
     max_disp = float(np.max(np.linalg.norm(frames, axis=2))) if frames.size else 0.0
     stats = {
         "scene": scene.name, "method": method,
         "n_vertices": pre.mesh.n_vertices, "n_tets": pre.mesh.n_tets,
         "m": scene.reduced.m, "r": int(r), "s": int(s),
-        "dt": scene.simulation.dt, "steps": int(steps_done),
+        "dt": scene.simulation.dt, "steps": record.steps,
         "t_interp_ms": t_interp, "t_total_ms": t_total,
-        "stable": bool(stable), "max_displacement": max_disp,
+        "stable": bool(record.stable), "max_displacement": max_disp,
     }
-    output = SimulationOutput(stats, times, frames, message)
+    output = SimulationOutput(stats, record.times, frames, record.message)
     if out is not None:
         write_outputs(Path(out), pre, output)
     return output
 
 
-def _run_full(scene: Scene, pre: Precomputed, steps: int, stride: int):
-    from lbshape.dynamics.full import run_full_space
-
-    return run_full_space(scene, pre, steps=steps, stride=stride, warmup=WARMUP_STEPS)
-
-
 def write_outputs(out: Path, pre: Precomputed, output: SimulationOutput) -> None:
     """stats.json, states.npz and the ParaView trajectory, each written atomically."""
-    from lbshape.io.atomic import write_json_atomic
-    from lbshape.io.trajectory import TrajectoryWriter
-
     out.mkdir(parents=True, exist_ok=True)
     writer = TrajectoryWriter(out, pre.mesh)
     for t, u in zip(output.times, output.displacements, strict=True):
         writer.write(float(t), u)
     writer.close()
-    tmp = out / "states.tmp.npz"
-    np.savez(tmp, times=output.times, displacements=output.displacements)
-    tmp.replace(out / "states.npz")
+    write_npz_atomic(out / "states.npz", times=output.times, displacements=output.displacements)
     write_json_atomic(out / "stats.json", output.stats)

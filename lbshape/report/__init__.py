@@ -4,5 +4,8 @@ __all__ = [
     "bench",
     "demo",
     "figures",
+    "machine",
+    "plots",
     "render",
+    "tables",
 ]

@@ -1,4 +1,4 @@
-"""Speed against accuracy: the methods side by side (the paper's Table 2) and sweeps.
+"""Speed against accuracy: measuring the methods side by side (the paper's Table 2) and sweeps.
 
 * :func:`trajectory_error` — ``max_t ‖u(t) − u_full(t)‖_M / max_t ‖u_full(t)‖_M``
   with M the consistent elastic mass (kg), over the same sample times;
@@ -7,31 +7,29 @@
   evenly over the methods); per-step times are the means after the simulation's
   warm-up steps (:data:`lbshape.pipeline.simulate.WARMUP_STEPS`), summarised by the median
   and the range over repeats; the error of each method against ``full``;
-* :func:`write_table2` — ``table2.md`` (the paper's Table 2 layout, plus speed-ups,
-  errors and the conditions of the measurement) and ``table2.json``;
-* :func:`speed_error_sweep` + :func:`write_sweep` — the reduced method's per-step
-  time against its error versus ``full`` while r, s (and optionally m) vary.
+* :func:`speed_error_sweep` — the reduced method's per-step time against its error
+  versus ``full`` while r, s (and optionally m) vary.
 
-Every file is written atomically. Timings are wall clock; the thread settings and
-the machine are stated next to them.
+Timings are wall clock. The tables are written by :mod:`lbshape.report.tables`, the
+plots drawn by :mod:`lbshape.report.plots`, the machine described by
+:mod:`lbshape.report.machine`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import io
 import logging
-import os
-import platform
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
-from lbshape.io.atomic import write_json_atomic, write_text_atomic
 from lbshape.io.paths import RESULTS_DIR
+from lbshape.pipeline.meshes import build_mesh
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulate import METHODS, WARMUP_STEPS, simulate
 
 log = logging.getLogger(__name__)
 
@@ -50,8 +48,6 @@ DEFAULT_OUT = RESULTS_DIR
 TARGET_T_TOTAL_MS = 1.0
 TARGET_INTERP_SPEEDUP = 20.0
 TARGET_ERROR = 0.10
-#: environment variables that set the BLAS / OpenMP thread counts
-THREAD_VARIABLES: tuple[str, ...] = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 # ----------------------------------------------------------------------------- error
@@ -185,12 +181,10 @@ def example_vertex_count(scene) -> int:
     """Vertex count of the scene's last example mesh (0 without examples)."""
     if scene.examples is None or not scene.examples.poses:
         return 0
-    return int(scene.examples.poses[-1].source.build().n_vertices)
+    return int(build_mesh(scene.examples.poses[-1].source).n_vertices)
 
 
 def _check_methods(methods: Sequence[str]) -> tuple[str, ...]:
-    from lbshape.pipeline.simulate import METHODS
-
     methods = tuple(methods)
     if not methods:
         raise LbshapeError("give at least one method")
@@ -203,8 +197,6 @@ def _check_methods(methods: Sequence[str]) -> tuple[str, ...]:
 
 
 def _check_steps_repeats(steps: int, repeats: int) -> None:
-    from lbshape.pipeline.simulate import WARMUP_STEPS
-
     if isinstance(steps, bool) or int(steps) != steps or steps <= WARMUP_STEPS:
         raise LbshapeError(
             f"steps must be an integer > {WARMUP_STEPS} (the warm-up steps left out of the "
@@ -238,18 +230,30 @@ def bench_scene(
         The :class:`SceneBenchmark`. A run that stops on a solver failure is kept
         (``stable`` False in its timing, ``error_vs_full`` None) and logged.
     """
-    from lbshape.elastic.element_kernels import mass_matrix
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import WARMUP_STEPS, simulate
-
     methods = _check_methods(methods)
     steps = scene.simulation.steps if steps is None else steps
     _check_steps_repeats(steps, repeats)
     steps, repeats = int(steps), int(repeats)
     if pre is None:
         pre = precompute(scene, progress=progress)
+    outputs, timings = _run_interleaved(scene, pre, methods, steps=steps, repeats=repeats)
+    mass = mass_matrix(pre.mesh, pre.material.density)
     examples = example_vertex_count(scene)
+    rows = tuple(
+        _row(scene.name, outputs[timing.method], timing, examples,
+             error=_error_vs_full(outputs[timing.method], outputs.get("full"), mass))
+        for timing in timings
+    )
+    return SceneBenchmark(scene.name, float(scene.simulation.dt), steps, repeats, WARMUP_STEPS,
+                          rows, timings)
 
+
+def _run_interleaved(scene, pre, methods: tuple[str, ...], *, steps: int, repeats: int):
+    """Each method ``repeats`` times, interleaved (a failed method is not run again).
+
+    Returns:
+        ``({method: its first SimulationOutput}, (MethodTiming per method, in order))``.
+    """
     outputs: dict[str, object] = {}
     interp: dict[str, list[float]] = {m: [] for m in methods}
     total: dict[str, list[float]] = {m: [] for m in methods}
@@ -263,198 +267,39 @@ def bench_scene(
                      method, repeat + 1, output.stats["t_interp_ms"], output.stats["t_total_ms"])
             interp[method].append(float(output.stats["t_interp_ms"]))
             total[method].append(float(output.stats["t_total_ms"]))
-            if first is None:
-                outputs[method] = output
+            outputs.setdefault(method, output)
             if output.message:
                 log.error("bench %s: method %s stopped: %s", scene.name, method, output.message)
-
-    mass = mass_matrix(pre.mesh, pre.material.density)
-    full = outputs.get("full")
-    rows, timings = [], []
-    for method in methods:
-        output = outputs[method]
-        stats = output.stats
-        error = None
-        if full is not None and full.stats["stable"] and stats["stable"]:
-            error = trajectory_error(output.displacements, full.displacements, mass,
-                                     times=output.times, times_full=full.times)
-        timing = MethodTiming(method, tuple(interp[method]), tuple(total[method]),
-                              bool(stats["stable"]), output.message)
-        rows.append({
-            "scene": scene.name, "method": method,
-            "n_vertices": int(stats["n_vertices"]), "n_tets": int(stats["n_tets"]),
-            "example_vertices": examples, "m": int(stats["m"]),
-            "r": int(stats["r"]), "s": int(stats["s"]),
-            "t_interp_ms": timing.summary("t_interp_ms")["median"],
-            "t_total_ms": timing.summary("t_total_ms")["median"],
-            "error_vs_full": error,
-        })
-        timings.append(timing)
-    return SceneBenchmark(scene.name, float(scene.simulation.dt), steps, repeats, WARMUP_STEPS,
-                          tuple(rows), tuple(timings))
+    timings = tuple(
+        MethodTiming(m, tuple(interp[m]), tuple(total[m]), bool(outputs[m].stats["stable"]),
+                     outputs[m].message)
+        for m in methods
+    )
+    return outputs, timings
 
 
-# ---------------------------------------------------------------------- conditions
-def machine_description() -> dict:
-    """Machine, thread settings and load: the conditions of a timing."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        load = [round(value, 2) for value in os.getloadavg()]
-    except OSError:
-        load = None
-    return {
-        "cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
-        "numpy": np.__version__,
-        "threads": {name: os.environ.get(name, "unset") for name in THREAD_VARIABLES},
-        "load_average": load,
-    }
-
-
-# -------------------------------------------------------------------------- Table 2
-def _fmt(value: float | None, spec: str = ".3f") -> str:
-    return "—" if value is None else format(value, spec)
-
-
-def _ratio(numerator: float | None, denominator: float | None) -> float | None:
-    if numerator is None or not denominator:
+def _error_vs_full(output, full, mass) -> float | None:
+    """:func:`trajectory_error` of a run against ``full`` (None if either is missing or
+    stopped early)."""
+    if full is None or not (full.stats["stable"] and output.stats["stable"]):
         return None
-    return numerator / denominator
+    return trajectory_error(output.displacements, full.displacements, mass,
+                            times=output.times, times_full=full.times)
 
 
-def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
-    """The Markdown of ``table2.md`` (see :func:`write_table2`)."""
-    lines = [
-        "# Table 2: per-step cost and accuracy",
-        "",
-        "Columns as in the paper's Table 2: DOFs (3 × vertices) and tetrahedra of the "
-        "object, vertices of the last example, m LB eigenfunctions, r reduced "
-        "coordinates, s cubature elements; per-step times in ms for the Euclidean "
-        "baseline (Zhu et al. 2015: target found in LB space with the energy over all "
-        "elements, reduced dynamics) and the reduced method (the paper's); speed-ups "
-        "euclidean / reduced; the full-space reference's per-step time; and the error "
-        "of each method against it, `max_t ‖u(t) − u_full(t)‖_M / max_t ‖u_full(t)‖_M` "
-        "(M the consistent elastic mass).",
-        "",
-        "| model | DOFs | tets | ex. | m | r | s | euclidean t_interp | euclidean t_total "
-        "| reduced t_interp | reduced t_total | speed-up interp | speed-up total "
-        "| full t_total | error reduced | error euclidean |",
-        "|---|" + "---|" * 15,
-    ]
-    for result in results:
-        any_row = result.rows[0]
-        euclid, reduced, full = (result.row(m) or {} for m in ("euclidean", "reduced", "full"))
-        r = reduced.get("r", euclid.get("r"))
-        s = reduced.get("s", euclid.get("s"))
-        lines.append(
-            f"| {result.scene} | {3 * any_row['n_vertices']} | {any_row['n_tets']} "
-            f"| {any_row['example_vertices']} | {any_row['m']} | {_fmt(r, 'd')} | {_fmt(s, 'd')} "
-            f"| {_fmt(euclid.get('t_interp_ms'))} | {_fmt(euclid.get('t_total_ms'))} "
-            f"| {_fmt(reduced.get('t_interp_ms'))} | {_fmt(reduced.get('t_total_ms'))} "
-            f"| {_fmt(_ratio(euclid.get('t_interp_ms'), reduced.get('t_interp_ms')), '.1f')}× "
-            f"| {_fmt(_ratio(euclid.get('t_total_ms'), reduced.get('t_total_ms')), '.1f')}× "
-            f"| {_fmt(full.get('t_total_ms'), '.2f')} "
-            f"| {_fmt(reduced.get('error_vs_full'), '.2%')} "
-            f"| {_fmt(euclid.get('error_vs_full'), '.2%')} |"
-        )
-    lines += [
-        "",
-        "## Spread of the per-step times (ms): median [min, max] over repeats",
-        "",
-        "| model | method | repeats | t_interp | t_total | stable |",
-        "|---|---|---|---|---|---|",
-    ]
-    for result in results:
-        for timing in result.timings:
-            ti, tt = timing.summary("t_interp_ms"), timing.summary("t_total_ms")
-            status = "yes" if timing.stable else f"no: {timing.message}"
-            lines.append(
-                f"| {result.scene} | {timing.method} | {len(timing.t_total_ms)} "
-                f"| {ti['median']:.3f} [{ti['min']:.3f}, {ti['max']:.3f}] "
-                f"| {tt['median']:.3f} [{tt['min']:.3f}, {tt['max']:.3f}] | {status} |"
-            )
-    threads = ", ".join(f"{k}={v}" for k, v in machine["threads"].items())
-    load = machine.get("load_average")
-    lines += [
-        "",
-        "## Conditions",
-        "",
-    ]
-    for result in results:
-        lines.append(
-            f"- {result.scene}: dt = {result.dt:g} s, {result.steps} steps per run, "
-            f"{result.repeats} repeats per method (methods interleaved), the first "
-            f"{result.warmup} steps of each run left out of the per-step means."
-        )
-    lines += [
-        f"- Machine: {machine['cpu']}, {machine['cores']} cores, Python {machine['python']}, "
-        f"numpy {machine['numpy']}; threads: {threads}; one process, wall clock.",
-        f"- Load average (1, 5, 15 min) when written: "
-        f"{', '.join(str(v) for v in load) if load else 'unknown'} — other processes may "
-        "have shared the cores; the min is the closest to an unloaded machine.",
-        "",
-        "## Targets (reported, not enforced)",
-        "",
-    ]
-    for result in results:
-        reduced, euclid = result.row("reduced"), result.row("euclidean")
-        if reduced is None:
-            continue
-        checks = [_verdict(f"reduced t_total ≤ {TARGET_T_TOTAL_MS:g} ms per step",
-                           reduced["t_total_ms"], reduced["t_total_ms"] <= TARGET_T_TOTAL_MS,
-                           ".3f", " ms")]
-        if euclid is not None:
-            speedup = _ratio(euclid["t_interp_ms"], reduced["t_interp_ms"])
-            checks.append(_verdict(
-                f"interpolation speed-up ≥ {TARGET_INTERP_SPEEDUP:g}×", speedup,
-                speedup is not None and speedup >= TARGET_INTERP_SPEEDUP, ".1f", "×"))
-        error = reduced["error_vs_full"]
-        checks.append(_verdict(f"reduced error vs full ≤ {TARGET_ERROR:.0%}", error,
-                               error is not None and error <= TARGET_ERROR, ".2%", ""))
-        lines.append(f"- {result.scene}: " + "; ".join(checks) + ".")
-    return "\n".join(lines) + "\n"
-
-
-def _verdict(label: str, value: float | None, met: bool, spec: str, unit: str) -> str:
-    return f"{label}: {_fmt(value, spec)}{unit if value is not None else ''} " \
-           f"**{'met' if met else 'NOT met'}**"
-
-
-def table2_payload(results: Sequence[SceneBenchmark], machine: dict) -> dict:
-    """The document of ``table2.json``: the contract rows plus spreads and conditions."""
+def _row(scene: str, output, timing: MethodTiming, examples: int, *,
+         error: float | None) -> dict:
+    """The contract row (keys :data:`ROW_KEYS`) of one method: sizes, median times, error."""
+    stats = output.stats
     return {
-        "rows": [row for result in results for row in result.rows],
-        "timings": [
-            {"scene": result.scene, "method": t.method, "repeats": len(t.t_total_ms),
-             "t_interp_ms": t.summary("t_interp_ms"), "t_total_ms": t.summary("t_total_ms"),
-             "stable": t.stable, "message": t.message}
-            for result in results for t in result.timings
-        ],
-        "settings": [
-            {"scene": result.scene, "dt": result.dt, "steps": result.steps,
-             "repeats": result.repeats, "warmup_steps": result.warmup}
-            for result in results
-        ],
-        "machine": machine,
+        "scene": scene, "method": timing.method,
+        "n_vertices": int(stats["n_vertices"]), "n_tets": int(stats["n_tets"]),
+        "example_vertices": examples, "m": int(stats["m"]),
+        "r": int(stats["r"]), "s": int(stats["s"]),
+        "t_interp_ms": timing.summary("t_interp_ms")["median"],
+        "t_total_ms": timing.summary("t_total_ms")["median"],
+        "error_vs_full": error,
     }
-
-
-def write_table2(results: Sequence[SceneBenchmark], out_dir: str | Path = DEFAULT_OUT
-                 ) -> tuple[Path, Path]:
-    """Write ``table2.md`` and ``table2.json`` to ``out_dir`` atomically; their paths."""
-    if not results:
-        raise LbshapeError("no benchmark results to write")
-    out_dir = Path(out_dir)
-    machine = machine_description()
-    md = write_text_atomic(out_dir / "table2.md", table2_markdown(results, machine))
-    js = write_json_atomic(out_dir / "table2.json", table2_payload(results, machine))
-    return md, js
 
 
 # ---------------------------------------------------------------------------- sweep
@@ -516,10 +361,6 @@ def speed_error_sweep(
         repeats: reduced runs per configuration.
         progress: precompute progress bars on stderr.
     """
-    from lbshape.elastic.element_kernels import mass_matrix
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import simulate
-
     steps = scene.simulation.steps if steps is None else steps
     _check_steps_repeats(steps, repeats)
     steps, repeats = int(steps), int(repeats)
@@ -540,107 +381,17 @@ def speed_error_sweep(
             references[m] = simulate(variant, pre, method="full", steps=steps)
             if references[m].message:
                 log.error("sweep: full reference (m=%d) stopped: %s", m, references[m].message)
-        full = references[m]
-        interp, total, output = [], [], None
-        for _ in range(repeats):
-            output = simulate(variant, pre, method="reduced", steps=steps)
-            interp.append(output.stats["t_interp_ms"])
-            total.append(output.stats["t_total_ms"])
-            if output.message:
-                log.error("sweep: m=%d r=%d s=%d stopped: %s", m, r, s, output.message)
-                break
-        error = None
-        if output.stats["stable"] and full.stats["stable"]:
-            mass = mass_matrix(pre.mesh, pre.material.density)
-            error = trajectory_error(output.displacements, full.displacements, mass,
-                                     times=output.times, times_full=full.times)
+        outputs, (timing,) = _run_interleaved(variant, pre, ("reduced",), steps=steps,
+                                              repeats=repeats)
+        error = _error_vs_full(outputs["reduced"], references[m],
+                               mass_matrix(pre.mesh, pre.material.density))
         holdout = pre.cubature_errors.get("holdout")
+        total = timing.summary("t_total_ms")
         points.append(SweepPoint(
             m=m, r=pre.r, s_max=s, s=int(pre.cubature_elements.size),
-            t_interp_ms=float(np.median(interp)), t_total_ms=float(np.median(total)),
-            t_total_min_ms=float(np.min(total)), t_total_max_ms=float(np.max(total)),
-            error_vs_full=error,
+            t_interp_ms=timing.summary("t_interp_ms")["median"], t_total_ms=total["median"],
+            t_total_min_ms=total["min"], t_total_max_ms=total["max"], error_vs_full=error,
             cubature_holdout_error=None if holdout is None else float(holdout),
         ))
         log.info("sweep %s: %s", scene.name, points[-1])
     return tuple(points)
-
-
-def sweep_csv(points: Sequence[SweepPoint], *, scene: str, steps: int, repeats: int,
-              dt: float) -> str:
-    """The text of ``speed_vs_error.csv`` (one comment line, a header, one row per point)."""
-    import csv
-
-    machine = machine_description()
-    threads = ", ".join(f"{k}={v}" for k, v in machine["threads"].items())
-    text = io.StringIO()
-    text.write(f"# scene {scene}, reduced method, dt = {dt:g} s, {steps} steps, median of "
-               f"{repeats} runs; error vs full with the same m; {machine['cpu']}, {threads}\n")
-    fields = [f.name for f in dataclasses.fields(SweepPoint)]
-    writer = csv.writer(text, lineterminator="\n")
-    writer.writerow(fields)
-    for point in points:
-        writer.writerow(["" if v is None else (f"{v:.6g}" if isinstance(v, float) else v)
-                         for v in dataclasses.astuple(point)])
-    return text.getvalue()
-
-
-def write_sweep(points: Sequence[SweepPoint], out_dir: str | Path = DEFAULT_OUT, *,
-                scene: str, steps: int, repeats: int, dt: float) -> tuple[Path, Path]:
-    """Write ``speed_vs_error.csv`` and ``.png`` (matplotlib, Agg) atomically; their paths."""
-    import tempfile
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    if not points:
-        raise LbshapeError("no sweep points to write")
-    out_dir = Path(out_dir)
-    csv_path = write_text_atomic(out_dir / "speed_vs_error.csv",
-                                 sweep_csv(points, scene=scene, steps=steps, repeats=repeats,
-                                           dt=dt))
-    base_m = points[0].m  # the grid lists the scene's m first
-    fig, ax = plt.subplots(figsize=(6.0, 4.2), dpi=120)
-    markers = "osD^v<>ph*"
-    for index, r in enumerate(sorted({p.r for p in points if p.m == base_m})):
-        unique = {p.s: p for p in points if p.m == base_m and p.r == r
-                  and p.error_vs_full is not None}  # s_max past the tolerance: same s
-        group = [unique[s] for s in sorted(unique)]
-        if not group:
-            continue
-        x = [p.t_total_ms for p in group]
-        ax.plot(x, [100 * p.error_vs_full for p in group], marker=markers[index % len(markers)],
-                label=f"r = {r} (m = {base_m})")
-        for p in group:
-            ax.annotate(f"s={p.s}", (p.t_total_ms, 100 * p.error_vs_full), fontsize=7,
-                        xytext=(3, 3), textcoords="offset points")
-    m_points = [p for p in points if p.m != base_m and p.error_vs_full is not None]
-    if m_points:
-        ax.plot([p.t_total_ms for p in m_points], [100 * p.error_vs_full for p in m_points],
-                "k^", label="other m")
-        for p in m_points:
-            ax.annotate(f"m={p.m}", (p.t_total_ms, 100 * p.error_vs_full), fontsize=7,
-                        xytext=(3, -9), textcoords="offset points")
-    ax.axhline(100 * TARGET_ERROR, color="0.6", lw=0.8, ls=":", label="10% error")
-    ax.axvline(TARGET_T_TOTAL_MS, color="0.6", lw=0.8, ls="--", label="1 ms per step")
-    ax.set_xlabel("reduced method: time per step (ms, median)")
-    ax.set_yscale("log")
-    ax.set_ylabel("trajectory error vs full (%)")
-    ax.set_title(f"{scene}: speed against error ({steps} steps of {dt:g} s)", fontsize=10)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    png_path = out_dir / "speed_vs_error.png"
-    png_path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".speed_vs_error.", suffix=".png", dir=png_path.parent)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, format="png")
-        os.replace(tmp, png_path)
-    finally:
-        plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return csv_path, png_path

@@ -17,9 +17,18 @@ import logging
 import time
 from pathlib import Path
 
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
+from lbshape.geometry.shapes import build_shape
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import RESULTS_DIR
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulate import simulate
+from lbshape.report.bench import trajectory_error
+from lbshape.report.figures import examples_figures, simulation_figure
+from lbshape.report.render import render_eigenfunctions
+from lbshape.scene import load_scene
+from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
 
@@ -29,10 +38,6 @@ DEFAULT_OUT = RESULTS_DIR / "demo"
 
 def spectra_figure(out: Path, *, m: int = 6) -> dict:
     """Eigenfunctions on the teddy's interior (Figure 2) and the demo meshes' spectra."""
-    from lbshape.geometry.shapes import build_shape
-    from lbshape.report.render import render_eigenfunctions
-    from lbshape.spectral.spectrum import lb_spectrum
-
     summary = {}
     for name in ("demo-bar", "demo-cylinder", "teddy"):
         started = time.perf_counter()
@@ -56,13 +61,6 @@ def spectra_figure(out: Path, *, m: int = 6) -> dict:
 
 def simulation_figures(out: Path) -> dict:
     """Precompute and simulate the demo scene (reduced and full); pictures and numbers."""
-    from lbshape.elastic.element_kernels import mass_matrix
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import simulate
-    from lbshape.report.bench import trajectory_error
-    from lbshape.report.figures import examples_figures, simulation_figure
-    from lbshape.scene.schema import load_scene
-
     scene = load_scene("demo")
     started = time.perf_counter()
     pre = precompute(scene, progress=True)

@@ -23,9 +23,15 @@ from pathlib import Path
 
 import numpy as np
 
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import RESULTS_DIR
+from lbshape.pipeline.meshes import example_mesh
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulate import simulate
+from lbshape.report.render import render_eigenfunctions, render_shapes
+from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
 
@@ -90,8 +96,6 @@ def simulation_figure(pre, output, path: str | Path, *, frames: int = 4,
         frames: how many frames (evenly spaced after t = 0).
         method: caption prefix (default: the run's method).
     """
-    from lbshape.report.render import render_shapes
-
     count = len(output.times)
     if count < 2:
         raise LbshapeError("the run has no frame after the initial state to draw")
@@ -103,11 +107,6 @@ def simulation_figure(pre, output, path: str | Path, *, frames: int = 4,
     labels = [f"{method} t={output.times[i]:.3f} s" for i in picks]
     values = [np.linalg.norm(output.displacements[i], axis=1) for i in picks]
     return render_shapes(meshes, labels, path, scalars=values)
-
-
-def posed_example(pose):
-    """The raw example mesh of an :class:`~lbshape.scene.schema.ExamplePose`, posed."""
-    return pose.posed(pose.source.build())
 
 
 def example_caption(index: int, pose) -> str:
@@ -128,8 +127,6 @@ def examples_figures(scene, pre, out_dir: str | Path) -> tuple[Path, Path]:
     object's mesh from its LB coefficients (``pre.example_rest_points(k)``); the
     second the example meshes as given, posed.
     """
-    from lbshape.report.render import render_shapes
-
     if not pre.has_examples or scene.examples is None:
         raise LbshapeError(f"scene {scene.name} has no examples to draw")
     out_dir = Path(out_dir)
@@ -148,7 +145,7 @@ def examples_figures(scene, pre, out_dir: str | Path) -> tuple[Path, Path]:
                          for k in range(count))],
         scalar_name="|x_k - X| (m)",
     )
-    raw = [posed_example(pose) for pose in scene.examples.poses]
+    raw = [example_mesh(pose) for pose in scene.examples.poses]
     raw_path = render_shapes(
         raw, [f"{caption} ({mesh.n_vertices} vertices)" for caption, mesh in
               zip(captions, raw, strict=True)],
@@ -163,13 +160,9 @@ def eigenfunctions_figure(scene, pre, path: str | Path, *, count: int = 4) -> Pa
     Uses the precomputed spectrum, or computes ``scene.reduced.m`` pairs for a
     scene without examples.
     """
-    from lbshape.report.render import render_eigenfunctions
-
     if pre.eigenvectors is not None:
         values, vectors = pre.eigenvalues, pre.eigenvectors
     else:
-        from lbshape.spectral.spectrum import lb_spectrum
-
         spectrum = lb_spectrum(pre.mesh, max(count, scene.reduced.m))
         values, vectors = spectrum.eigenvalues, spectrum.eigenvectors
     indices = tuple(range(min(count, values.size)))
@@ -202,11 +195,6 @@ def figure3(same_topology, other_topology, path: str | Path, *,
     Raises:
         LbshapeError: a scene without examples, or scenes with different objects.
     """
-    from lbshape.elastic.element_kernels import mass_matrix
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import simulate
-    from lbshape.report.render import render_shapes
-
     for scene in (same_topology, other_topology):
         if scene.examples is None:
             raise LbshapeError(f"Figure 3 needs scenes with examples; {scene.name} has none")
@@ -269,9 +257,6 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
         frames: frames in ``simulation.png``.
         progress: precompute progress bars on stderr.
     """
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.pipeline.simulate import simulate
-
     out = Path(out)
     pre = precompute(scene, progress=progress)
     output = simulate(scene, pre, method=method, steps=steps)

@@ -6,14 +6,13 @@ VTK falls back from X to an off-screen context (a harmless X warning may appear)
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from lbshape.geometry.mesh import TetMesh
+from lbshape.io.atomic import write_atomic
 
 _VTK_TETRA = 10
 
@@ -37,18 +36,11 @@ def to_grid(mesh: TetMesh, point_data: dict[str, np.ndarray] | None = None):
 
 
 def _save(plotter, path: Path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".png", dir=path.parent)
-    os.close(fd)
+    """Screenshot ``plotter`` to the PNG ``path`` atomically, then close it."""
     try:
-        plotter.screenshot(tmp)
-        os.replace(tmp, path)
+        return write_atomic(path, lambda tmp: plotter.screenshot(str(tmp)))
     finally:
         plotter.close()
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
 
 
 def render_eigenfunctions(

@@ -1,5 +1,11 @@
-"""Scenes: the validated schema, the TOML reader and the built-in scenes."""
+"""Scenes: the schema dataclasses (data only), the TOML reader and the built-in scenes."""
+
+from lbshape.scene.reader import builtin_scene_names, load_scene, scene_from_dict
+from lbshape.scene.schema import Scene
 
 __all__ = [
-    "schema",
+    "Scene",
+    "builtin_scene_names",
+    "load_scene",
+    "scene_from_dict",
 ]

@@ -1,12 +1,8 @@
-"""Scenes: the TOML schema, its validation, and the built-in scenes.
+"""The scene schema: frozen dataclasses that hold a validated scene, as plain data.
 
-A scene is a TOML file. Built-in scenes ship in ``lbshape/scenes/*.toml`` and are
-addressed by their stem (``load_scene("demo")``); anything else is a path.
-Validation is strict: an unknown key at any level, a value of the wrong type
-(``true`` is not a number; integers are accepted where floats are expected), a
-non-finite or out-of-range number, an unsafe region expression or a missing mesh
-file raises :class:`~lbshape.errors.LbshapeError` with a one-line message that
-names the key path, e.g. ``scene bar.toml: unknown key 'material.yung'``.
+A scene is a TOML file read and validated by :mod:`lbshape.scene.reader`; these
+classes only hold what it found. Nothing here builds meshes, applies poses or
+selects vertices: that is :mod:`lbshape.pipeline.meshes`.
 
 Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
 
@@ -35,8 +31,8 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
     linear_modes = 0           # int in [0, r]: linear modes in the basis, 0 = automatic (0)
     cubature_tolerance = 0.01  # (0, 1): relative cubature training error (0.01)
     interpolation = "auto"     # "auto" | "lb-table" | "lb-exact" | "lb" | "modal": target
-                               # route of the reduced method (lbshape.pipeline.routes);
-                               # auto = lb-table ("auto")
+                               # route of the reduced method (lbshape.shapespace.interpolation
+                               # ROUTE_CHOICES); auto = lb-table ("auto")
 
     [examples]                 # optional; no LB work without it
     stiffness = 200.0          # k_ex, 1/s^2, >= 0 (required): force k_ex (q* - q)
@@ -45,8 +41,8 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
     shape = "bar-cylinder"     # built-in shape, OR
     mesh = "example.msh"       # a mesh file (relative to the TOML file)
     size = 0.05                # m, > 0, shape only
-    pose = "twist"             # "twist" | "s-bend" | "arc"; omit if the mesh is posed
-    parameters = { angle = 1.57 }  # pose parameters (see POSE_PARAMETERS); pose only
+    pose = "twist"             # a key of lbshape.geometry.poses.POSES; omit if the mesh is posed
+    parameters = { angle = 1.57 }  # pose parameters (poses.POSE_PARAMETERS); pose only
     landmarks = [[0, 12]]      # optional (object vertex, example vertex) int pairs >= 0
 
     [fixed]                    # optional; without it the object is a free body
@@ -79,12 +75,12 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
     steps = 1000               # int >= 1 (1000)
     integrator = "newmark"     # "newmark" | "backward-euler" ("newmark")
 
-Pose parameters (:data:`POSE_PARAMETERS`, the keywords of lbshape.geometry.poses):
+Pose parameters (:data:`lbshape.geometry.poses.POSE_PARAMETERS`, the keywords of the poses):
 ``twist(angle [rad], axis, profile, anchor)``, ``s-bend(amplitude [m], direction,
 axis, anchor)``, ``arc(angle [rad], direction, axis, anchor)``; the first is required,
 the others default in lbshape.geometry.poses. ``axis``, ``direction``: ``"x"``, ``"y"`` or
 ``"z"``; ``anchor``: ``"min"`` | ``"max"`` (the bar end kept in place); ``profile``:
-``"linear"`` | ``"smooth"``.
+``"linear"`` | ``"smooth"`` (:data:`lbshape.geometry.poses.POSE_CHOICES`).
 
 :meth:`Scene.precompute_key_fields` holds exactly what determines the precompute
 (object, material, m/r/s and the other ``[reduced]`` settings, examples without
@@ -94,53 +90,39 @@ k_ex, fixed region, local regions); :meth:`Scene.runtime_fields` holds the rest
 
 from __future__ import annotations
 
-import logging
-import math
-import os
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any
 
-import numpy as np
-
-from lbshape.dynamics.integrators import INTEGRATORS
-from lbshape.dynamics.loads import PROFILES, TimeProfile
-from lbshape.elastic.materials import MODELS, Material
+from lbshape.dynamics.loads import TimeProfile
+from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
-from lbshape.geometry.regions import parse_region, region_vertices
 from lbshape.io.cache import file_digest
 
-#: target routes selectable for the reduced method (see lbshape.shapespace.interpolation)
-INTERPOLATION_ROUTES: tuple[str, ...] = ("auto", "lb-table", "lb-exact", "lb", "modal")
+__all__ = [
+    "LOAD_TYPES",
+    "Damping",
+    "ExamplePose",
+    "Examples",
+    "Load",
+    "LocalRegion",
+    "MeshSource",
+    "Plane",
+    "PoseValue",
+    "Reduced",
+    "Scene",
+    "Selection",
+    "Simulation",
+]
 
-log = logging.getLogger(__name__)
-
-#: analytic example poses known to scenes
-POSES: tuple[str, ...] = ("twist", "s-bend", "arc")
-#: keyword parameters per pose (as in lbshape.geometry.poses), the first one required
-POSE_PARAMETERS: Mapping[str, tuple[str, ...]] = MappingProxyType({
-    "twist": ("angle", "axis", "profile", "anchor"),
-    "s-bend": ("amplitude", "direction", "axis", "anchor"),
-    "arc": ("angle", "direction", "axis", "anchor"),
-})
-#: string-valued pose parameters and their choices; the others are numbers
-_POSE_CHOICES: Mapping[str, tuple[str, ...]] = MappingProxyType({
-    "axis": ("x", "y", "z"),
-    "direction": ("x", "y", "z"),
-    "anchor": ("min", "max"),
-    "profile": ("linear", "smooth"),
-})
-#: load types
+#: load types (patterns: :mod:`lbshape.dynamics.loads`)
 LOAD_TYPES: tuple[str, ...] = ("gravity", "region_force", "region_torque")
 
+#: a pose parameter's value: a number or one of its string choices
 PoseValue = float | str
 
 
-# ------------------------------------------------------------------ dataclasses
 @dataclass(frozen=True)
 class MeshSource:
     """Where a mesh comes from: a built-in shape (with optional size) or a file.
@@ -155,16 +137,6 @@ class MeshSource:
     mesh_file: Path | None = None
     size: float | None = None
 
-    def build(self):
-        """The :class:`~lbshape.geometry.mesh.TetMesh` (gmsh script run or file loaded)."""
-        if self.shape is not None:
-            from lbshape.geometry.shapes import build_shape
-
-            return build_shape(self.shape, size=self.size)
-        from lbshape.geometry.mesh import load_mesh
-
-        return load_mesh(self.mesh_file)
-
     def key(self) -> dict:
         """What identifies the mesh: shape and size, or the file's SHA-256."""
         if self.shape is not None:
@@ -176,24 +148,13 @@ class MeshSource:
 
 @dataclass(frozen=True)
 class Selection:
-    """A set of vertices: a safe region expression or a physical group name."""
+    """A set of vertices: a safe region expression or a physical group name.
+
+    Resolved on a mesh by :func:`lbshape.pipeline.meshes.selected_vertices`.
+    """
 
     region: str | None = None
     group: str | None = None
-
-    def vertices(self, mesh, *, what: str = "region") -> np.ndarray:
-        """(k,) int64 indices of the selected vertices of ``mesh``; error if none."""
-        if self.region is not None:
-            return region_vertices(self.region, mesh.points, what=what)
-        if self.group not in mesh.vertex_groups:
-            raise LbshapeError(
-                f"{what}: mesh has no physical group '{self.group}' "
-                f"(groups: {', '.join(sorted(mesh.vertex_groups)) or 'none'})"
-            )
-        idx = np.asarray(mesh.vertex_groups[self.group], dtype=np.int64)
-        if idx.size == 0:
-            raise LbshapeError(f"{what}: physical group '{self.group}' has no vertex")
-        return idx
 
     def key(self) -> dict:
         return {"region": self.region} if self.region is not None else {"group": self.group}
@@ -232,12 +193,6 @@ class Reduced:
     cubature_tolerance: float = 0.01
     interpolation: str = "auto"
 
-    def route(self, material_model: str) -> str:
-        """The interpolation route to use with a material model (resolves ``auto``)."""
-        if self.interpolation == "auto":
-            return "lb-table"
-        return self.interpolation
-
 
 @dataclass(frozen=True)
 class ExamplePose:
@@ -245,8 +200,10 @@ class ExamplePose:
 
     Attributes:
         source: the example's mesh.
-        pose: one of :data:`POSES`, or ``None`` if the mesh is already posed.
-        parameters: pose parameters (read-only mapping; see :data:`POSE_PARAMETERS`).
+        pose: a key of :data:`lbshape.geometry.poses.POSES`, or ``None`` if the mesh
+            is already posed.
+        parameters: pose parameters (read-only mapping; see
+            :data:`lbshape.geometry.poses.POSE_PARAMETERS`).
         landmarks: (object vertex, example vertex) correspondences.
     """
 
@@ -254,14 +211,6 @@ class ExamplePose:
     pose: str | None = None
     parameters: Mapping[str, PoseValue] = field(default_factory=lambda: MappingProxyType({}))
     landmarks: tuple[tuple[int, int], ...] = ()
-
-    def posed(self, rest):
-        """The example's rest mesh (a :class:`~lbshape.geometry.mesh.TetMesh`), posed."""
-        if self.pose is None:
-            return rest
-        from lbshape.geometry.poses import apply_pose
-
-        return apply_pose(rest, self.pose, **dict(self.parameters))
 
     def key(self) -> dict:
         return {
@@ -418,412 +367,3 @@ class Scene:
             "planes": [{"point": list(p.point), "normal": list(p.normal),
                         "stiffness": p.stiffness} for p in self.planes],
         }
-
-
-# ------------------------------------------------------------------ loading
-def builtin_scene_names() -> tuple[str, ...]:
-    """Names of the scenes shipped in ``lbshape/scenes/``, sorted."""
-    folder = resources.files("lbshape.scene").joinpath("builtin")
-    if not folder.is_dir():
-        return ()
-    return tuple(sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml")))
-
-
-def load_scene(name_or_path: str | os.PathLike) -> Scene:
-    """Load and validate a scene: a built-in name or a path to a TOML file.
-
-    A string naming an existing file, or ending in ``.toml``, or containing a path
-    separator is a path; anything else is looked up among
-    :func:`builtin_scene_names`.
-
-    Raises:
-        LbshapeError: unknown scene, unreadable file or invalid content.
-    """
-    text = os.fspath(name_or_path)
-    path = Path(text)
-    if path.is_file() or path.suffix == ".toml" or os.sep in text or "/" in text:
-        if not path.is_file():
-            raise LbshapeError(f"scene file not found: {path}")
-        return _load_file(path.resolve())
-    names = builtin_scene_names()
-    if text not in names:
-        raise LbshapeError(
-            f"unknown scene '{text}' (built-in scenes: {', '.join(names)}; "
-            "or give the path of a .toml file)"
-        )
-    resource = resources.files("lbshape.scene").joinpath("builtin", f"{text}.toml")
-    with resources.as_file(resource) as file:
-        return _load_file(Path(file))
-
-
-def _load_file(path: Path) -> Scene:
-    label = f"scene {path.name}"
-    try:
-        data = tomllib.loads(path.read_bytes().decode("utf-8"))
-    except OSError as exc:
-        raise LbshapeError(f"{label}: cannot read {path} ({exc.strerror})") from None
-    except UnicodeDecodeError:
-        raise LbshapeError(f"{label}: not UTF-8 text") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise LbshapeError(f"{label}: invalid TOML: {exc}") from None
-    return scene_from_dict(data, name=path.stem, base_dir=path.parent, label=label, source=path)
-
-
-def scene_from_dict(
-    data: Mapping[str, Any],
-    *,
-    name: str = "scene",
-    base_dir: str | os.PathLike = ".",
-    label: str | None = None,
-    source: Path | None = None,
-) -> Scene:
-    """Validate a parsed TOML document (nested dicts) and build the :class:`Scene`.
-
-    Args:
-        data: the document.
-        name: default scene name (the file stem) if the document has none.
-        base_dir: folder that relative mesh paths are resolved against.
-        label: prefix of error messages (default ``scene <name>``).
-        source: recorded in :attr:`Scene.source`.
-    """
-    ctx = _Context(label or f"scene {name}", Path(base_dir))
-    top = ctx.table(data, "", (
-        "name", "description", "object", "material", "damping", "reduced", "examples",
-        "fixed", "loads", "planes", "regions", "simulation",
-    ))
-    scene_name = top.string("name", name)
-    if not scene_name.strip():
-        raise ctx.error("'name' must be a non-empty string")
-    description = top.string("description", "")
-
-    obj = _mesh_source(top.subtable("object", ("shape", "mesh", "size"), required=True), ctx)
-
-    mat = top.subtable("material", ("model", "young", "poisson", "density"))
-    defaults = Material()
-    values = {
-        "model": mat.choice("model", defaults.model, MODELS),
-        "young": mat.number("young", defaults.young),
-        "poisson": mat.number("poisson", defaults.poisson),
-        "density": mat.number("density", defaults.density),
-    }
-    try:  # Material owns the ranges
-        material = Material(**values)
-    except LbshapeError as exc:
-        raise ctx.error(str(exc)) from None
-
-    damp = top.subtable("damping", ("alpha", "beta"))
-    damping = Damping(alpha=damp.number("alpha", 0.0, low=0.0, unit="1/s"),
-                      beta=damp.number("beta", 0.0, low=0.0, unit="s"))
-
-    red = top.subtable("reduced", ("m", "r", "s", "linear_modes", "cubature_tolerance",
-                                   "interpolation"))
-    r = red.integer("r", Reduced.r, low=1)
-    reduced = Reduced(
-        m=red.integer("m", Reduced.m, low=1),
-        r=r,
-        s=red.integer("s", Reduced.s, low=1),
-        linear_modes=red.integer("linear_modes", 0, low=0, high=r),
-        cubature_tolerance=red.number("cubature_tolerance", Reduced.cubature_tolerance,
-                                      low=0.0, high=1.0, open_low=True, open_high=True),
-        interpolation=red.choice("interpolation", Reduced.interpolation, INTERPOLATION_ROUTES),
-    )
-
-    examples = None
-    if "examples" in top.data:
-        ex = top.subtable("examples", ("stiffness", "pose"))
-        stiffness = ex.number("stiffness", low=0.0, unit="1/s^2")
-        poses = tuple(_example_pose(t, ctx) for t in ex.array_of_tables(
-            "pose", ("shape", "mesh", "size", "pose", "parameters", "landmarks"), minimum=1))
-        examples = Examples(stiffness, poses)
-
-    fixed = None
-    if "fixed" in top.data:
-        fixed = _selection(top.subtable("fixed", ("region", "group")), ctx, required=True)
-
-    loads = tuple(_load(t, ctx) for t in top.array_of_tables(
-        "loads", ("type", "vector", "region", "group", "profile", "start", "duration")))
-    planes = tuple(_plane(t, ctx) for t in top.array_of_tables(
-        "planes", ("point", "normal", "stiffness")))
-    n_examples = 0 if examples is None else len(examples.poses)
-    regions = tuple(_local_region(t, ctx, n_examples) for t in top.array_of_tables(
-        "regions", ("name", "region", "group", "examples")))
-    names = [reg.name for reg in regions]
-    if len(set(names)) != len(names):
-        raise ctx.error(f"'regions' names must be unique, got {names}")
-
-    sim = top.subtable("simulation", ("dt", "steps", "integrator"))
-    simulation = Simulation(
-        dt=sim.number("dt", Simulation.dt, low=0.0, open_low=True, unit="s"),
-        steps=sim.integer("steps", Simulation.steps, low=1),
-        integrator=sim.choice("integrator", Simulation.integrator, INTEGRATORS),
-    )
-    return Scene(
-        name=scene_name, description=description, object=obj, material=material,
-        damping=damping, reduced=reduced, examples=examples, fixed=fixed, loads=loads,
-        planes=planes, regions=regions, simulation=simulation, source=source,
-    )
-
-
-# ---------------------------------------------------------------- sub-parsers
-def _mesh_source(t: _Table, ctx: _Context) -> MeshSource:
-    if ("shape" in t.data) == ("mesh" in t.data):
-        raise ctx.error(f"'{t.path}' needs exactly one of 'shape' or 'mesh'")
-    if "shape" in t.data:
-        shape = t.string("shape")
-        known = _known_shapes()
-        if known is not None and shape not in known:
-            raise ctx.error(
-                f"'{t.key('shape')}': unknown shape '{shape}' (built-in shapes: "
-                f"{', '.join(sorted(known))})"
-            )
-        size = t.number("size", None, low=0.0, open_low=True, unit="m")
-        return MeshSource(shape=shape, size=size)
-    if "size" in t.data:
-        raise ctx.error(f"'{t.key('size')}' applies to built-in shapes only, not to 'mesh'")
-    raw = t.string("mesh")
-    path = Path(raw).expanduser()
-    path = path if path.is_absolute() else ctx.base_dir / path
-    if not path.is_file():
-        raise ctx.error(f"'{t.key('mesh')}': mesh file not found: {path}")
-    return MeshSource(mesh_file=path.resolve())
-
-
-def _example_pose(t: _Table, ctx: _Context) -> ExamplePose:
-    source = _mesh_source(t, ctx)
-    pose = t.choice("pose", None, POSES)
-    parameters: dict[str, PoseValue] = {}
-    if "parameters" in t.data:
-        if pose is None:
-            raise ctx.error(f"'{t.key('parameters')}' needs a 'pose'")
-        names = POSE_PARAMETERS[pose]
-        p = t.subtable("parameters", names)
-        parameters[names[0]] = p.number(names[0])
-        for other in names[1:]:
-            if other in p.data:
-                parameters[other] = p.choice(other, None, _POSE_CHOICES[other])
-    elif pose is not None:
-        raise ctx.error(f"'{t.key('parameters')}' is required for pose '{pose}' "
-                        f"(needs '{POSE_PARAMETERS[pose][0]}')")
-    landmarks = t.int_pairs("landmarks")
-    return ExamplePose(source, pose, MappingProxyType(parameters), landmarks)
-
-
-def _selection(t: _Table, ctx: _Context, *, required: bool) -> Selection | None:
-    has_region, has_group = "region" in t.data, "group" in t.data
-    if has_region and has_group:
-        raise ctx.error(f"'{t.path}' takes 'region' or 'group', not both")
-    if not (has_region or has_group):
-        if required:
-            raise ctx.error(f"'{t.path}' needs 'region' (an expression) or 'group'")
-        return None
-    if has_region:
-        return Selection(region=t.region("region"))
-    group = t.string("group")
-    if not group.strip():
-        raise ctx.error(f"'{t.key('group')}' must be a non-empty string")
-    return Selection(group=group)
-
-
-def _load(t: _Table, ctx: _Context) -> Load:
-    kind = t.choice("type", None, LOAD_TYPES)
-    vector = t.vector3("vector")
-    if kind == "gravity":
-        for key in ("region", "group"):
-            if key in t.data:
-                raise ctx.error(f"'{t.key(key)}' is not used by gravity loads")
-        selection = None
-    else:
-        selection = _selection(t, ctx, required=True)
-    profile_kind = t.choice("profile", "constant", PROFILES)
-    start = t.number("start", 0.0, low=0.0, unit="s")
-    duration = t.number("duration", 0.0, low=0.0, unit="s")
-    if profile_kind != "constant" and duration <= 0.0:
-        raise ctx.error(f"'{t.key('duration')}' must be > 0 s for a {profile_kind} profile")
-    return Load(kind, vector, selection, TimeProfile(profile_kind, start, duration))
-
-
-def _plane(t: _Table, ctx: _Context) -> Plane:
-    point = t.vector3("point")
-    normal = np.array(t.vector3("normal"))
-    length = float(np.linalg.norm(normal))
-    if length == 0.0:
-        raise ctx.error(f"'{t.key('normal')}' must be a non-zero vector")
-    stiffness = t.number("stiffness", low=0.0, open_low=True, unit="N/m")
-    return Plane(point, tuple(float(v) for v in normal / length), stiffness)
-
-
-def _local_region(t: _Table, ctx: _Context, n_examples: int) -> LocalRegion:
-    if n_examples == 0:
-        raise ctx.error(f"'{t.path}': local regions need [examples] with at least one pose")
-    name = t.string("name")
-    if not name.strip():
-        raise ctx.error(f"'{t.key('name')}' must be a non-empty string")
-    selection = _selection(t, ctx, required=True)
-    indices = t.int_list("examples", low=0, high=n_examples - 1)
-    if not indices or len(set(indices)) != len(indices):
-        raise ctx.error(f"'{t.key('examples')}' must list unique example indices, got {indices}")
-    return LocalRegion(name, selection, indices)
-
-
-def _known_shapes():
-    """``lbshape.geometry.shapes.SHAPES`` if that module exists yet, else ``None``."""
-    try:
-        from lbshape.geometry.shapes import SHAPES
-    except ModuleNotFoundError as exc:
-        if exc.name != "lbshape.geometry.shapes":
-            raise
-        log.debug("lbshape.geometry.shapes is not available: shape names are not checked")
-        return None
-    return SHAPES
-
-
-# ---------------------------------------------------------------- validation
-_REQUIRED = object()
-
-
-def _describe(value) -> str:
-    return repr(value) if isinstance(value, str) else f"{value!r} ({type(value).__name__})"
-
-
-class _Context:
-    def __init__(self, label: str, base_dir: Path):
-        self.label = label
-        self.base_dir = base_dir
-
-    def error(self, message: str) -> LbshapeError:
-        return LbshapeError(f"{self.label}: {message}")
-
-    def table(self, data, path: str, allowed: tuple[str, ...]) -> _Table:
-        return _Table(data, path, self, allowed)
-
-
-class _Table:
-    """A TOML table being validated: typed getters that name the key path."""
-
-    def __init__(self, data, path: str, ctx: _Context, allowed: tuple[str, ...]):
-        if not isinstance(data, dict):
-            raise ctx.error(f"'{path}' must be a table, got {_describe(data)}")
-        self.data, self.path, self.ctx = data, path, ctx
-        for key in data:
-            if key not in allowed:
-                raise ctx.error(f"unknown key '{self.key(key)}' (allowed: {', '.join(allowed)})")
-
-    def key(self, key: str) -> str:
-        return f"{self.path}.{key}" if self.path else key
-
-    def _get(self, key: str, default):
-        if key in self.data:
-            return self.data[key]
-        if default is _REQUIRED:
-            raise self.ctx.error(f"missing required key '{self.key(key)}'")
-        return default
-
-    def _type_error(self, key: str, expected: str, value) -> LbshapeError:
-        return self.ctx.error(f"'{self.key(key)}' must be {expected}, got {_describe(value)}")
-
-    def _check_number(self, key: str, value, expected: str = "a number") -> float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self._type_error(key, expected, value)
-        if not math.isfinite(value):
-            raise self.ctx.error(f"'{self.key(key)}' must be finite, got {value}")
-        return value
-
-    def number(self, key, default=_REQUIRED, *, low=None, high=None, open_low=False,
-               open_high=False, unit="") -> float | None:
-        if key not in self.data:
-            return self._get(key, default)
-        value = float(self._check_number(key, self.data[key]))
-        self._check_range(key, value, low, high, open_low, open_high, unit)
-        return value
-
-    def integer(self, key, default=_REQUIRED, *, low=None, high=None) -> int:
-        value = self._get(key, default)
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self._type_error(key, "an integer", value)
-        self._check_range(key, value, low, high, False, False, "")
-        return value
-
-    def _check_range(self, key, value, low, high, open_low, open_high, unit):
-        unit = f" {unit}" if unit else ""
-        too_low = low is not None and (value <= low if open_low else value < low)
-        too_high = high is not None and (value >= high if open_high else value > high)
-        if too_low or too_high:
-            if low is not None and high is not None:
-                left, right = "(" if open_low else "[", ")" if open_high else "]"
-                interval = f"in {left}{low:g}, {high:g}{right}"
-            elif low is not None:
-                interval = f"{'>' if open_low else '>='} {low:g}{unit}"
-            else:
-                interval = f"{'<' if open_high else '<='} {high:g}{unit}"
-            raise self.ctx.error(f"'{self.key(key)}' must be {interval}, got {value:g}")
-
-    def string(self, key, default=_REQUIRED) -> str:
-        value = self._get(key, default)
-        if value is None and default is None:
-            return None
-        if not isinstance(value, str):
-            raise self._type_error(key, "a string", value)
-        return value
-
-    def choice(self, key, default, choices: tuple[str, ...]) -> str | None:
-        value = self.string(key, default)
-        if value is not None and value not in choices:
-            raise self.ctx.error(
-                f"'{self.key(key)}' must be one of {', '.join(choices)}; got {value!r}"
-            )
-        return value
-
-    def region(self, key) -> str:
-        expression = self.string(key)
-        try:
-            parse_region(expression)
-        except LbshapeError as exc:
-            raise self.ctx.error(f"'{self.key(key)}': {exc}") from None
-        return expression
-
-    def vector3(self, key, default=_REQUIRED) -> tuple[float, float, float]:
-        value = self._get(key, default)
-        if not isinstance(value, list) or len(value) != 3:
-            raise self._type_error(key, "a list of 3 numbers", value)
-        for item in value:
-            self._check_number(key, item, "a list of 3 numbers")
-        return tuple(float(v) for v in value)
-
-    def int_list(self, key, *, low=None, high=None) -> tuple[int, ...]:
-        value = self._get(key, _REQUIRED)
-        if not isinstance(value, list) or any(
-            isinstance(v, bool) or not isinstance(v, int) for v in value
-        ):
-            raise self._type_error(key, "a list of integers", value)
-        for item in value:
-            self._check_range(key, item, low, high, False, False, "")
-        return tuple(value)
-
-    def int_pairs(self, key) -> tuple[tuple[int, int], ...]:
-        value = self._get(key, [])
-        expected = "a list of [object vertex, example vertex] integer pairs"
-        if not isinstance(value, list):
-            raise self._type_error(key, expected, value)
-        pairs = []
-        for pair in value:
-            if (not isinstance(pair, list) or len(pair) != 2
-                    or any(isinstance(v, bool) or not isinstance(v, int) or v < 0 for v in pair)):
-                raise self._type_error(key, expected + " (>= 0)", pair)
-            pairs.append((pair[0], pair[1]))
-        return tuple(pairs)
-
-    def subtable(self, key, allowed: tuple[str, ...], *, required: bool = False) -> _Table:
-        if key not in self.data:
-            if required:
-                raise self.ctx.error(f"missing required table '[{self.key(key)}]'")
-            return _Table({}, self.key(key), self.ctx, allowed)
-        return _Table(self.data[key], self.key(key), self.ctx, allowed)
-
-    def array_of_tables(self, key, allowed: tuple[str, ...], *, minimum: int = 0) -> list[_Table]:
-        value = self._get(key, [] if minimum == 0 else _REQUIRED)
-        if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
-            raise self._type_error(key, f"an array of tables ([[{self.key(key)}]])", value)
-        if len(value) < minimum:
-            raise self.ctx.error(f"'{self.key(key)}' needs at least {minimum} entries")
-        return [_Table(item, f"{self.key(key)}[{i}]", self.ctx, allowed)
-                for i, item in enumerate(value)]

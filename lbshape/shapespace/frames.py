@@ -27,20 +27,49 @@ unless the frame is ambiguous (see above); then a small set of candidate G
 (proper sign flips of ambiguous axes; 12 rotations about the distinct axis of a
 degenerate plane, with its flip if ambiguous; the 24 cube rotations for an
 isotropic shape) is scored against ``reference_points`` by the symmetric RMS
-nearest-neighbour distance (``cKDTree``), and the smallest wins. With degenerate
-moments each candidate is first refined by rigid, rotation-only ICP about the
-common centre of mass (on deterministic subsamples of at most ``ICP_SAMPLES``
-points; the winner is then refined on all points). With well-defined axes only
-signs are chosen, unrefined, so that a copy of the object lands exactly on it.
-Candidates within ``TIE_RTOL`` times the object's RMS radius of the best one are
-geometrically equivalent (a symmetric shape); among those, the rotation of
-smallest angle is taken, so **an example keeps its own orientation whenever its
-geometry cannot tell** (a remeshed copy in place stays in place). The procedure is
-deterministic.
+nearest-neighbour distance (``cKDTree``), and the smallest wins. With well-defined
+axes only signs are chosen, unrefined, so that a copy of the object lands exactly
+on it.
+
+**Degenerate moments.** Inside a degenerate eigenspace the axes from ``eigh`` are
+an arbitrary basis (another LAPACK returns another one), so candidates built on
+them alone may all start in a wrong basin of ICP. The search therefore also scores
+start rotations that do not depend on that basis: the identity (the example as
+given); *anchor* rotations, the Kabsch rotations taking two example vertices far
+from the centre with rarely shared radii onto object vertices at matching radius
+and mutual distance (:func:`_anchor_rotations`; these contain the exact rotation
+of a rotated copy); and ``GLOBAL_ROTATIONS`` rotations spread deterministically over
+SO(3). All starts are scored cheaply on subsamples of at most ``SCORE_SAMPLES``
+points; the ``REFINED_STARTS`` best that are at least ``START_SEPARATION`` apart,
+and the identity, are refined by rigid, rotation-only ICP about the common centre
+of mass (on subsamples of at most ``ICP_SAMPLES`` points; the winner is then
+refined on all points). Candidates within ``TIE_RTOL`` times the object's RMS
+radius of the best one are geometrically equivalent (a symmetric shape); among
+those, the rotation of smallest angle is taken, so **an example keeps its own
+orientation whenever its geometry cannot tell** (a remeshed copy in place stays in
+place). Rotated and scaled copies of cubes, balls, square-section boxes and
+cylinders land on the original to round-off. The procedure is deterministic.
+
+**Residual.** With ``reference_points`` the alignment reports ``icp_rms``, the
+symmetric RMS nearest-neighbour distance between the aligned example's vertices and
+the object's (m), and ``relative_rms = icp_rms / R`` with R the RMS radius of the
+object's vertices about its centre of mass. An alignment with ``relative_rms`` above
+``MAX_RELATIVE_RMS = 0.2`` is refused with a one-line :class:`LbshapeError` naming
+the example (``name``, or the caller's prefix: the precompute pipeline's
+``example k (shape:pose)``). The measure is vertex based, so it includes the
+resolution mismatch of the two meshes as well as their difference in shape.
+Measured (default sizes): legitimate pairs of different topology or resolution
+0.121 (demo-bar vs demo-cylinder), 0.086 (bar-cuboid vs bar-cylinder), 0.075
+(structured 4×4×16 bar vs gmsh cylinder), 0.131 (structured 5×5×5 cube vs gmsh
+cube, h = 0.15 m), 0.036 / 0.073 / 0.093 (cross, car, teddy vs their finer
+examples); refused: a cube for a bar 0.26–0.31 (demo-bar vs cube 0.264), a
+0.2×0.4×0.5 m box for the 0.2×0.2×1 m bar 0.255, and an exact copy of a cube
+left in a wrong ICP minimum 0.23 (the failure the anchor and global starts remove).
 """
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 from dataclasses import dataclass
@@ -48,6 +77,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
+from scipy.stats import qmc
 
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh, signed_volumes
@@ -68,6 +98,24 @@ CANDIDATE_ANGLE_TOL = 1e-5
 ICP_MAX_ITERATIONS = 60
 #: candidate rotations are refined on at most this many points of each set
 ICP_SAMPLES = 1000
+#: refuse an alignment whose RMS residual exceeds this fraction of the object's RMS radius
+MAX_RELATIVE_RMS = 0.2
+#: rotations of the deterministic global search over SO(3)
+GLOBAL_ROTATIONS = 512
+#: start rotations are scored on at most this many points of each set
+SCORE_SAMPLES = 256
+#: the best-scoring starts refined by ICP (besides the identity)
+REFINED_STARTS = 6
+#: a start within this angle (rad) of a better refined one is skipped
+START_SEPARATION = 0.2
+#: target vertices tried as the match of each anchor vertex
+ANCHOR_MATCHES = 12
+#: anchors lie at least this fraction of the largest radius from the centre
+ANCHOR_MIN_RADIUS = 0.5
+#: the two anchors' directions make an angle with at least this sine
+ANCHOR_MIN_SINE = 0.5
+#: radii within this fraction of the largest one count as shared when choosing anchors
+ANCHOR_RTOL = 1e-3
 #: start angles (rad) inside a 2-fold degenerate plane
 _PLANAR_STARTS = np.arange(12) * (np.pi / 6.0)
 
@@ -192,9 +240,17 @@ class AlignedShape:
         rotation: (3, 3) proper rotation R.
         translation: (3,) translation in metres.
         frame: the example's own :class:`BodyFrame` before alignment.
-        icp_rms: RMS symmetric nearest-neighbour distance to the reference points
-            after refinement (m), or ``None`` when no ICP ran.
-        candidates: number of candidate rotations tried (1 when unambiguous).
+        icp_rms: symmetric RMS nearest-neighbour distance between the aligned
+            points and the reference points (m), ICP-refined when the principal
+            moments are degenerate; ``None`` without reference points.
+        relative_rms: ``icp_rms`` divided by the reference points' RMS radius
+            about the object's centre of mass (dimensionless), the residual
+            checked against :data:`MAX_RELATIVE_RMS`; ``None`` without reference
+            points.
+        candidates: number of principal-frame candidates G (1 when unambiguous).
+        starts: number of start rotations scored (the frame candidates, plus the
+            identity, anchor and global-search rotations when moments are
+            degenerate).
     """
 
     points: np.ndarray
@@ -203,7 +259,9 @@ class AlignedShape:
     translation: np.ndarray
     frame: BodyFrame
     icp_rms: float | None
+    relative_rms: float | None
     candidates: int
+    starts: int
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         """The same similarity transform applied to other points (n, 3), e.g. poses."""
@@ -216,6 +274,8 @@ def align_to_object(
     object_frame: BodyFrame,
     *,
     reference_points: np.ndarray | None = None,
+    name: str | None = None,
+    max_relative_rms: float | None = MAX_RELATIVE_RMS,
 ) -> AlignedShape:
     """Move an example into the object's frame at the object's volume.
 
@@ -223,44 +283,53 @@ def align_to_object(
         example_points: (n, 3) example vertex positions in metres.
         example_tets: (t, 4) example tetrahedra.
         object_frame: :func:`body_frame` of the object's rest mesh.
-        reference_points: (p, 3) the object's rest points, used to resolve an
-            ambiguous frame by ICP; without them an ambiguous frame is resolved by
-            the smallest-rotation rule alone (and a warning is logged).
+        reference_points: (p, 3) the object's rest points in metres, used to
+            resolve an ambiguous frame and to measure the residual; without them
+            an ambiguous frame is resolved by the smallest-rotation rule alone (a
+            warning is logged) and no residual is checked.
+        name: how error messages name the example, e.g. ``"example 2 (cube)"``.
+        max_relative_rms: refuse an alignment whose relative RMS residual exceeds
+            this (``None``: report it, never refuse).
 
     Returns:
         :class:`AlignedShape` (see the module docstring for the convention).
+
+    Raises:
+        LbshapeError: the relative RMS residual exceeds ``max_relative_rms``.
     """
     example_points = np.asarray(example_points, dtype=float)
     frame = frame_of(example_points, example_tets)
     scale = float(np.cbrt(object_frame.volume / frame.volume))
     centred = scale * (example_points - frame.origin)
     candidates = _candidate_rotations(frame, object_frame)
-    ambiguous = len(candidates) > 1
-    rms = None
-    if ambiguous and reference_points is None:
-        log.warning("example frame is ambiguous (symmetric shape) and no reference points "
-                    "were given; keeping the smallest rotation of %d candidates",
-                    len(candidates))
-        rotation = min(candidates, key=_rotation_angle)
-    elif ambiguous:
-        reference = np.asarray(reference_points, dtype=float) - object_frame.origin
-        refine = not (frame.degenerate.max() == 2 and object_frame.degenerate.max() == 2)
-        if refine:  # candidates refined on subsamples, the winner on all points
-            src, dst = _subsample(centred), _subsample(reference)
-            refined = [_icp_rotation(src, dst, R, tol=CANDIDATE_ANGLE_TOL) for R in candidates]
-        else:  # principal axes are well defined: only choose among the sign flips
-            refined = [(R, _rms_distance(centred @ R.T, reference)) for R in candidates]
-        costs = np.array([cost for _, cost in refined])
-        radius = float(np.sqrt(np.mean(np.sum(reference**2, axis=1))))
-        ties = np.flatnonzero(costs <= costs.min() + TIE_RTOL * radius)
-        best = min(ties, key=lambda i: _rotation_angle(refined[i][0]))
-        rotation, rms = refined[best][0], float(costs[best])
-        if refine:
-            rotation, rms = _icp_rotation(centred, reference, rotation)
-        log.debug("frame alignment: %d candidates, RMS %.3e m (best %.3e m), %d ties",
-                  len(candidates), rms, costs.min(), ties.size)
-    else:
+    starts = len(candidates)
+    rms = relative = None
+    if reference_points is None:
         rotation = candidates[0]
+        if len(candidates) > 1:
+            log.warning("example frame is ambiguous (symmetric shape) and no reference points "
+                        "were given; keeping the smallest rotation of %d candidates",
+                        len(candidates))
+            rotation = min(candidates, key=_rotation_angle)
+    else:
+        reference = np.asarray(reference_points, dtype=float) - object_frame.origin
+        radius = float(np.sqrt(np.mean(np.sum(reference**2, axis=1))))
+        if frame.degenerate.max() < 2 or object_frame.degenerate.max() < 2:
+            rotation, rms, starts = _search_rotation(centred, reference, candidates, radius)
+        else:  # principal axes are well defined: only choose among the sign flips
+            costs = [_rms_distance(centred @ R.T, reference) for R in candidates]
+            best = _smallest_of_ties(candidates, costs, radius)
+            rotation, rms = candidates[best], float(costs[best])
+        relative = rms / radius
+        log.debug("frame alignment: %d starts, RMS %.3e m, relative %.3e",
+                  starts, rms, relative)
+        if max_relative_rms is not None and not relative <= max_relative_rms:
+            prefix = f"{name}: " if name else ""
+            raise LbshapeError(
+                f"{prefix}example does not correspond to the object: frame alignment residual "
+                f"{relative:.3f} exceeds {max_relative_rms:g} (RMS vertex distance {rms:.3g} m, "
+                f"object RMS radius {radius:.3g} m)"
+            )
     translation = object_frame.origin - scale * rotation @ frame.origin
     return AlignedShape(
         points=centred @ rotation.T + object_frame.origin,
@@ -269,8 +338,125 @@ def align_to_object(
         translation=translation,
         frame=frame,
         icp_rms=rms,
+        relative_rms=relative,
         candidates=len(candidates),
+        starts=starts,
     )
+
+
+def _search_rotation(source: np.ndarray, target: np.ndarray, candidates: list[np.ndarray],
+                     radius: float) -> tuple[np.ndarray, float, int]:
+    """The rotation of centred ``source`` (n, 3) onto centred ``target`` (p, 3) when
+    principal moments are degenerate: score all starts, refine the best few by ICP.
+
+    Returns (R (3, 3), RMS distance in m, number of starts scored).
+    """
+    identity = np.eye(3)
+    starts = np.concatenate([np.asarray(candidates), identity[None],
+                             _anchor_rotations(source, target), _global_rotations()])
+    scores = _scores(source, target, starts)
+    chosen: list[int] = []
+    for i in np.argsort(scores, kind="stable"):
+        if len(chosen) == REFINED_STARTS:
+            break
+        if all(_rotation_angle(starts[i] @ starts[j].T) > START_SEPARATION for j in chosen):
+            chosen.append(int(i))
+    if len(candidates) not in chosen:  # the identity: the example's own orientation
+        chosen.append(len(candidates))
+    src, dst = _subsample(source, ICP_SAMPLES), _subsample(target, ICP_SAMPLES)
+    refined = [_icp_rotation(src, dst, starts[i], tol=CANDIDATE_ANGLE_TOL) for i in chosen]
+    costs = [cost for _, cost in refined]
+    best = _smallest_of_ties([R for R, _ in refined], costs, radius)
+    rotation, rms = _icp_rotation(source, target, refined[best][0])
+    log.debug("rotation search: %d starts scored, %d refined, best start %.3e m",
+              len(starts), len(chosen), min(costs))
+    return rotation, rms, len(starts)
+
+
+def _smallest_of_ties(rotations, costs, radius: float) -> int:
+    """Index of the smallest rotation among those within TIE_RTOL · radius of the best cost."""
+    costs = np.asarray(costs, dtype=float)
+    ties = np.flatnonzero(costs <= costs.min() + TIE_RTOL * radius)
+    return int(min(ties, key=lambda i: _rotation_angle(rotations[i])))
+
+
+def _scores(source: np.ndarray, target: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+    """(k,) symmetric RMS nearest-neighbour distances (m) of subsamples of at most
+    SCORE_SAMPLES points of each set, for rotations (k, 3, 3) of ``source``.
+
+    Distances are rotation invariant, so the target subsample is rotated back onto
+    the unmoved source and both k-d trees are built once.
+    """
+    src, dst = _subsample(source, SCORE_SAMPLES), _subsample(target, SCORE_SAMPLES)
+    k = rotations.shape[0]
+    d1, _ = cKDTree(target).query(np.einsum("kij,nj->kni", rotations, src).reshape(-1, 3))
+    d2, _ = cKDTree(source).query(np.einsum("kji,nj->kni", rotations, dst).reshape(-1, 3))
+    total = (d1.reshape(k, -1) ** 2).sum(axis=1) + (d2.reshape(k, -1) ** 2).sum(axis=1)
+    return np.sqrt(total / (src.shape[0] + dst.shape[0]))
+
+
+def _anchor_rotations(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) rotations taking two anchor vertices of centred ``source`` (n, 3) onto
+    pairs of vertices of centred ``target`` (p, 3) at matching radius and separation.
+
+    The first anchor a₁ is the vertex at a radius of at least ANCHOR_MIN_RADIUS
+    times the largest whose radius is shared by the fewest vertices (within
+    ANCHOR_RTOL of the largest radius; the farther wins a tie); the second a₂ is
+    chosen the same way among the vertices at an angle to a₁ with sine at least
+    ANCHOR_MIN_SINE (the larger ``|a₁ × a₂|`` wins a tie). Each of the
+    ANCHOR_MATCHES target vertices b₁ closest to ``|a₁|`` in radius is paired with
+    the ANCHOR_MATCHES vertices b₂ closest to ``(|a₂|, |a₂ − a₁|)`` in radius and
+    distance to b₁; the rotation is the Kabsch solution of ``(a₁, a₂) → (b₁, b₂)``.
+    Nothing here depends on an eigensolver; an exact copy contributes its exact
+    rotation whenever its anchors' radii are shared by at most ANCHOR_MATCHES vertices.
+    """
+    rs, rt = np.linalg.norm(source, axis=1), np.linalg.norm(target, axis=1)
+    order = np.sort(rs)
+    tol = ANCHOR_RTOL * order[-1]
+    shared = np.searchsorted(order, rs + tol, side="right") - np.searchsorted(order, rs - tol)
+    far = rs >= ANCHOR_MIN_RADIUS * order[-1]
+    first = _fewest_shared(far, shared, -rs)
+    a1 = source[first]
+    spread = np.linalg.norm(np.cross(a1, source), axis=1)  # |a₁ × a| = |a₁| |a| sin θ
+    apart = far & (spread >= ANCHOR_MIN_SINE * rs[first] * rs)
+    if not apart.any():  # a needle: no vertex far from a₁'s line; take the farthest from it
+        apart = spread >= spread.max()
+    second = _fewest_shared(apart, shared, -spread)
+    a2 = source[second]
+    k = min(ANCHOR_MATCHES, target.shape[0])
+    anchors = np.array([a1, a2])
+    rotations = []
+    for j in np.argsort(np.abs(rt - rs[first]), kind="stable")[:k]:
+        mismatch = ((rt - rs[second]) ** 2
+                    + (np.linalg.norm(target - target[j], axis=1) - np.linalg.norm(a2 - a1)) ** 2)
+        mismatch[j] = np.inf
+        for i in np.argsort(mismatch, kind="stable")[:k]:
+            rotations.append(_kabsch(anchors, target[[j, i]]))
+    return np.array(rotations).reshape(-1, 3, 3)
+
+
+def _fewest_shared(mask: np.ndarray, shared: np.ndarray, tiebreak: np.ndarray) -> int:
+    """Index among ``mask`` of the smallest ``shared``, then smallest ``tiebreak``, then index."""
+    idx = np.flatnonzero(mask)
+    return int(idx[np.lexsort((idx, tiebreak[idx], shared[idx]))[0]])
+
+
+def _kabsch(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The proper rotation R minimising ``Σ |R sᵢ − tᵢ|²`` about the origin, (k, 3) pairs."""
+    u, _, vt = np.linalg.svd(source.T @ target)
+    d = np.sign(np.linalg.det(vt.T @ u.T))  # ±1: u and vt are orthogonal
+    return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+
+
+@functools.cache
+def _global_rotations() -> np.ndarray:
+    """(GLOBAL_ROTATIONS, 3, 3) rotations spread over SO(3): an unscrambled Halton
+    sequence through Shoemake's uniform map to unit quaternions (deterministic)."""
+    u = qmc.Halton(d=3, scramble=False).random(GLOBAL_ROTATIONS + 1)[1:]
+    a, b = np.sqrt(1.0 - u[:, 0]), np.sqrt(u[:, 0])
+    quat = np.column_stack([a * np.sin(2 * np.pi * u[:, 1]), a * np.cos(2 * np.pi * u[:, 1]),
+                            b * np.sin(2 * np.pi * u[:, 2]), b * np.cos(2 * np.pi * u[:, 2])])
+    return Rotation.from_quat(quat).as_matrix()
 
 
 def _candidate_rotations(example: BodyFrame, obj: BodyFrame) -> list[np.ndarray]:
@@ -335,10 +521,7 @@ def _icp_rotation(source: np.ndarray, target: np.ndarray, start: np.ndarray, *,
         # pairs (source point, target point)
         src = np.concatenate([source, source[to_source]])
         dst = np.concatenate([target[to_target], target])
-        H = src.T @ dst
-        u, _, vt = np.linalg.svd(H)
-        d = np.sign(np.linalg.det(vt.T @ u.T))
-        R_new = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+        R_new = _kabsch(src, dst)
         change = _rotation_angle(R_new @ R.T)
         R = R_new
         if change < tol:
@@ -346,9 +529,9 @@ def _icp_rotation(source: np.ndarray, target: np.ndarray, start: np.ndarray, *,
     return R, _rms_distance(source @ R.T, target)
 
 
-def _subsample(points: np.ndarray) -> np.ndarray:
-    """Every k-th point, k chosen so that at most ICP_SAMPLES remain (deterministic)."""
-    step = -(-points.shape[0] // ICP_SAMPLES)
+def _subsample(points: np.ndarray, count: int) -> np.ndarray:
+    """Every k-th point of (n, 3), k chosen so that at most ``count`` remain (deterministic)."""
+    step = -(-points.shape[0] // count)
     return points[::step]
 
 

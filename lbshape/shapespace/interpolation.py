@@ -6,8 +6,9 @@ exactly (active-set enumeration; k is a handful of examples).
 The target minimises ``F(z) = Σ_k w_k E_k(z − z_k)``, where ``E_k(y)`` is the elastic
 energy of deforming example shape k (its rest shape reconstructed on the object's
 mesh) by the displacement ``B y`` for a basis ``B``, evaluated with cubature, and
-``z_k`` is example k's own coordinate (so ``E_k(0) = 0``). The three routes differ
-only in the basis and the elements:
+``z_k`` is example k's own coordinate (so ``E_k(0) = 0``). The routes
+(:data:`ROUTES`, the one registry; scenes choose among :data:`ROUTE_CHOICES`) differ
+only in the basis and the elements (``lb-exact``: see :mod:`lbshape.pipeline.routes`):
 
 * ``modal`` (the paper's): ``B = U`` (the nonlinear modal basis), z = reduced
   coordinates q, the elastic cubature; examples enter through ``q_k = T c_k``.
@@ -37,6 +38,25 @@ from lbshape._jit import njit
 from lbshape.errors import LbshapeError, SolverError
 
 log = logging.getLogger(__name__)
+
+#: the target routes (basis and elements of the example energies; set up per run by
+#: :mod:`lbshape.pipeline.routes`)
+ROUTES: tuple[str, ...] = ("lb-table", "modal", "lb", "lb-exact", "euclidean")
+#: the all-element baseline route: the ``euclidean`` method's, never the reduced method's
+BASELINE_ROUTE = "euclidean"
+#: a scene's ``[reduced] interpolation`` choices: ``"auto"`` or a route of the reduced method
+ROUTE_CHOICES: tuple[str, ...] = ("auto",) + tuple(r for r in ROUTES if r != BASELINE_ROUTE)
+
+
+def resolve_route(choice: str, material_model: str) -> str:
+    """The route of a :data:`ROUTE_CHOICES` entry (``auto``: ``lb-table``, the tabulated
+    exact target, which falls back by itself to ``lb-exact`` or ``lb``)."""
+    if choice not in ROUTE_CHOICES:
+        raise LbshapeError(f"interpolation must be one of {', '.join(ROUTE_CHOICES)}, "
+                           f"got {choice!r}")
+    if choice == "auto":
+        return "lb-table"
+    return choice
 
 
 class EnergyModel(Protocol):

@@ -181,6 +181,7 @@ def embed_example(
     object_frame: BodyFrame | None = None,
     landmarks: np.ndarray | None = None,
     max_residual: float = MAX_RESIDUAL,
+    name: str | None = None,
 ) -> EmbeddedExample:
     """Frame alignment, example spectrum, basis alignment and coefficients in one go.
 
@@ -194,11 +195,19 @@ def embed_example(
             when omitted).
         landmarks: optional (q, 2) pairs (object vertex, example vertex).
         max_residual: largest accepted basis alignment residual.
+        name: how the frame alignment's refusal names the example (e.g.
+            ``"example 2 (cube)"``); callers that prefix their own label to every
+            error, as the precompute pipeline does, leave it out.
+
+    Raises:
+        LbshapeError: the example's shape does not match the object's (frame
+            alignment residual above :data:`lbshape.shapespace.frames.MAX_RELATIVE_RMS`)
+            or its LB basis cannot be aligned (residual above ``max_residual``).
     """
     m = object_spectrum.eigenvalues.shape[0]
     frame = body_frame(object_mesh) if object_frame is None else object_frame
     aligned = align_to_object(example_rest.points, example_rest.tets, frame,
-                              reference_points=object_mesh.points)
+                              reference_points=object_mesh.points, name=name)
     spectrum = offered_spectrum(example_rest.with_points(aligned.points), m)
     alignment = align_bases(object_spectrum, object_mesh, spectrum, aligned.points,
                             landmarks=landmarks, max_residual=max_residual)

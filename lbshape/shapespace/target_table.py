@@ -39,7 +39,9 @@ import numpy as np
 from lbshape._jit import njit
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
-from lbshape.shapespace.interpolation import TargetSolver
+from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
+from lbshape.shapespace.interpolation import TargetResult, TargetSolver
+from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
 
 log = logging.getLogger(__name__)
 
@@ -190,10 +192,7 @@ def exact_example_energies(rest_points: Sequence[np.ndarray], tets: np.ndarray,
     other materials: the all-element kernel
     (:class:`~lbshape.shapespace.euclidean_energy.EuclideanExampleEnergy`). Basis B (3n, p).
     """
-    if material.model == "stvk":
-        from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy as Energy
-    else:
-        from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy as Energy
+    Energy = StVKPolynomialEnergy if material.model == "stvk" else EuclideanExampleEnergy
     return [Energy(x, tets, material, basis) for x in rest_points]
 
 
@@ -638,8 +637,6 @@ class TableSolver:
 
     def solve(self, weights: np.ndarray, *, start: np.ndarray | None = None):
         """The tabulated target as a :class:`~lbshape.shapespace.interpolation.TargetResult`."""
-        from lbshape.shapespace.interpolation import TargetResult
-
         return TargetResult(self.table.z(weights), 0, float("nan"), float("nan"), True)
 
     def reset(self) -> None:

@@ -61,14 +61,18 @@ import scipy.sparse as sp
 from mpi4py import MPI
 
 from lbshape.errors import LbshapeError, SolverError
-from lbshape.fem.dolfinx_bridge import p1_dof_vertices, petsc_to_scipy, to_dolfinx
+from lbshape.fem.dolfinx_bridge import p1_dof_vertices, to_dolfinx
 from lbshape.fem.eigenproblem import (
     b_orthonormalise,
+    check_residuals,
+    check_tol_and_target,
+    converged_pairs,
     fix_signs,
-    reason_name,
     relative_residuals,
     shift_invert_eps,
 )
+from lbshape.fem.mpi import compute_on_root
+from lbshape.fem.petsc_gather import gather_csr, gather_rows
 from lbshape.geometry.mesh import TetMesh
 
 log = logging.getLogger(__name__)
@@ -150,40 +154,12 @@ class LBMatrices:
 
     def to_scipy(self) -> tuple[sp.csr_matrix, sp.csr_matrix] | tuple[None, None]:
         """(K, M) as (n, n) scipy CSR in input vertex order, on rank 0 (``None`` elsewhere)."""
-        if self.comm.size == 1:
-            dof_vertices = p1_dof_vertices(self.space)
-            return (petsc_to_scipy(self.stiffness, dof_vertices),
-                    petsc_to_scipy(self.mass, dof_vertices))
-        return self._gather_scipy(self.stiffness), self._gather_scipy(self.mass)
-
-    def _gather_scipy(self, A) -> sp.csr_matrix | None:
-        """Distributed PETSc AIJ -> scipy CSR in input vertex order on rank 0."""
-        indptr, indices, data = A.getValuesCSR()
-        start = A.getOwnershipRange()[0]
-        parts = self.comm.gather((start, indptr, indices, data, self.owned_vertices), root=0)
-        if self.comm.rank != 0:
-            return None
-        parts.sort(key=lambda part: part[0])
-        global_to_vertex = np.concatenate([part[4] for part in parts])
-        rows, cols, vals = [], [], []
-        for _, ptr, idx, val, owned in parts:
-            rows.append(np.repeat(owned, np.diff(ptr)))
-            cols.append(global_to_vertex[idx])
-            vals.append(val)
-        n = self.n_vertices
-        return sp.csr_matrix(
-            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
-        )
+        return tuple(gather_csr(A, self.owned_vertices, comm=self.comm, size=self.n_vertices)
+                     for A in (self.stiffness, self.mass))
 
     def gather_columns(self, local: np.ndarray) -> np.ndarray | None:
         """Owned dof rows (n_owned, k) from every rank -> (n, k) input order on rank 0."""
-        parts = self.comm.gather((self.owned_vertices, local), root=0)
-        if self.comm.rank != 0:
-            return None
-        out = np.empty((self.n_vertices, local.shape[1]), dtype=np.float64)
-        for vertices, values in parts:
-            out[vertices] = values
-        return out
+        return gather_rows(local, self.owned_vertices, comm=self.comm, size=self.n_vertices)
 
     def destroy(self) -> None:
         """Destroy the PETSc matrices (idempotent)."""
@@ -221,6 +197,7 @@ def lb_matrices(mesh: TetMesh, *, comm: MPI.Comm = MPI.COMM_SELF) -> LBMatrices:
     import dolfinx.fem.petsc
     import ufl
 
+    n, scale = compute_on_root(comm, lambda: (mesh.n_vertices, eigenvalue_scale(mesh)))
     msh = to_dolfinx(mesh, comm)
     V = dolfinx.fem.FunctionSpace(msh, ("Lagrange", 1))
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
@@ -229,8 +206,6 @@ def lb_matrices(mesh: TetMesh, *, comm: MPI.Comm = MPI.COMM_SELF) -> LBMatrices:
     K.assemble()
     M = dolfinx.fem.petsc.assemble_matrix(dolfinx.fem.form(ufl.inner(u, v) * ufl.dx))
     M.assemble()
-    n = comm.bcast(mesh.n_vertices if comm.rank == 0 else None, root=0)
-    scale = comm.bcast(eigenvalue_scale(mesh) if comm.rank == 0 else None, root=0)
     return LBMatrices(K, M, V, n_vertices=n, eigenvalue_scale=scale)
 
 
@@ -270,7 +245,7 @@ def lb_spectrum(
             (a mesh of several disconnected bodies).
     """
     started = time.perf_counter()
-    n = comm.bcast(mesh.n_vertices if comm.rank == 0 else None, root=0)
+    n = compute_on_root(comm, lambda: mesh.n_vertices)
     _check_request(m, n, tol, target)
     with lb_matrices(mesh, comm=comm) as mats:
         result = lb_spectrum_from_matrices(mats, m, tol=tol, target=target, verify=verify)
@@ -285,10 +260,7 @@ def _check_request(m, n: int, tol: float, target: float | None) -> None:
         raise LbshapeError(
             f"m={m} is too large for a mesh with {n} vertices: need m + 1 < {n}"
         )
-    if not (0.0 < tol < 1.0):
-        raise LbshapeError(f"tol must be in (0, 1), got {tol!r}")
-    if target is not None and not (math.isfinite(target) and target < 0.0):
-        raise LbshapeError(f"target must be a finite negative number, got {target!r}")
+    check_tol_and_target(tol, target)
 
 
 def lb_spectrum_from_matrices(
@@ -319,19 +291,11 @@ def lb_spectrum_from_matrices(
 
     K, M = mats.to_scipy()
     vectors = mats.gather_columns(local)
-    residuals = None
-    if comm.rank == 0:
-        vectors = fix_signs(b_orthonormalise(vectors, M, what="LB eigenvectors"))
-        residuals = relative_residuals(K, M, values, vectors)
-    residuals = comm.bcast(residuals, root=0)
-    bad = residuals > RESIDUAL_FACTOR * run.tol
-    if bad.any():
-        worst = int(np.argmax(residuals))
-        raise SolverError(
-            f"LB eigenpairs with large residuals: {int(bad.sum())} of {m} exceed "
-            f"{RESIDUAL_FACTOR * run.tol:.1e} (worst: pair {worst + 1}, "
-            f"lambda={values[worst]:.6e}, residual {residuals[worst]:.2e})"
-        )
+    vectors = compute_on_root(
+        comm, lambda: fix_signs(b_orthonormalise(vectors, M, what="LB eigenvectors")), share=False)
+    residuals = compute_on_root(comm, lambda: relative_residuals(K, M, values, vectors))
+    check_residuals(residuals, RESIDUAL_FACTOR * run.tol, what="LB eigenpairs",
+                    describe=lambda i: f"pair {i + 1}, lambda={values[i]:.6e}")
     seconds = time.perf_counter() - started
     log.info("LB spectrum: n=%d m=%d target=%.3e %s lambda_1=%.6e lambda_m=%.6e in %.2f s",
              mats.n_vertices, m, sigma, run.info, values[0], values[-1], seconds)
@@ -394,25 +358,11 @@ def _krylov_schur(mats: LBMatrices, nev: int, sigma: float, tol: float,
             eps.setDeflationSpace(deflation_space)
         tol = eps.getTolerances()[0]  # as overridden by -lb_eps_tol, if given
         eps.solve()
-        n_converged = eps.getConverged()
-        if n_converged < eps.getDimensions()[0]:
-            raise SolverError(
-                f"LB eigensolver converged {n_converged} of {eps.getDimensions()[0]} requested "
-                f"pairs ({reason_name(eps.getConvergedReason())}, "
-                f"{eps.getIterationNumber()} iterations, tol={tol:g}, target={sigma:.3e})"
-            )
+        values, local = converged_pairs(eps, nev=eps.getDimensions()[0], what="LB eigensolver",
+                                        tol=tol, sigma=sigma)
         pc = eps.getST().getKSP().getPC()
         info = (f"factor={pc.getFactorSolverType()} nev={eps.getDimensions()[0]} "
                 f"ncv={eps.getDimensions()[1]} iterations={eps.getIterationNumber()}")
-        values = np.array([eps.getEigenvalue(i).real for i in range(n_converged)])
-        vr = mats.stiffness.createVecRight()
-        try:
-            local = np.empty((vr.getLocalSize(), n_converged))
-            for i in range(n_converged):
-                eps.getEigenvector(i, vr)
-                local[:, i] = vr.getArray(readonly=True)
-        finally:
-            vr.destroy()
     finally:
         eps.destroy()
         for vec in basis:

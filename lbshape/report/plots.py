@@ -1,0 +1,80 @@
+"""Benchmark plots with matplotlib (Agg, off-screen); each written atomically as a PNG.
+
+* :func:`save_figure` — any figure to a PNG path (atomic), closing it;
+* :func:`speed_error_plot` — the reduced method's per-step time against its error
+  versus ``full`` over a sweep (``speed_vs_error.png``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from lbshape.io.atomic import write_atomic
+from lbshape.report.bench import TARGET_ERROR, TARGET_T_TOTAL_MS, SweepPoint
+
+
+def pyplot():
+    """``matplotlib.pyplot`` with the off-screen Agg backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_figure(fig, path: str | Path) -> Path:
+    """Write ``fig`` as a PNG to ``path`` atomically and close it; returns ``path``."""
+    try:
+        return write_atomic(path, lambda tmp: fig.savefig(tmp, format="png"))
+    finally:
+        pyplot().close(fig)
+
+
+def speed_error_plot(points: Sequence[SweepPoint], path: str | Path, *, scene: str, steps: int,
+                     dt: float) -> Path:
+    """Per-step time (ms) against trajectory error vs ``full`` (%), one line per r.
+
+    Points at the sweep's first m are grouped by r (annotated with s); points at
+    other m are shown apart. Failed runs (no error) are left out.
+
+    Args:
+        points: the sweep, the scene's own m first (see
+            :func:`lbshape.report.bench.speed_error_sweep`).
+        path: the PNG to write.
+        scene, steps, dt: for the title (dt in s).
+    """
+    plt = pyplot()
+    base_m = points[0].m  # the grid lists the scene's m first
+    fig, ax = plt.subplots(figsize=(6.0, 4.2), dpi=120)
+    markers = "osD^v<>ph*"
+    for index, r in enumerate(sorted({p.r for p in points if p.m == base_m})):
+        unique = {p.s: p for p in points if p.m == base_m and p.r == r
+                  and p.error_vs_full is not None}  # s_max past the tolerance: same s
+        group = [unique[s] for s in sorted(unique)]
+        if not group:
+            continue
+        x = [p.t_total_ms for p in group]
+        ax.plot(x, [100 * p.error_vs_full for p in group], marker=markers[index % len(markers)],
+                label=f"r = {r} (m = {base_m})")
+        for p in group:
+            ax.annotate(f"s={p.s}", (p.t_total_ms, 100 * p.error_vs_full), fontsize=7,
+                        xytext=(3, 3), textcoords="offset points")
+    m_points = [p for p in points if p.m != base_m and p.error_vs_full is not None]
+    if m_points:
+        ax.plot([p.t_total_ms for p in m_points], [100 * p.error_vs_full for p in m_points],
+                "k^", label="other m")
+        for p in m_points:
+            ax.annotate(f"m={p.m}", (p.t_total_ms, 100 * p.error_vs_full), fontsize=7,
+                        xytext=(3, -9), textcoords="offset points")
+    ax.axhline(100 * TARGET_ERROR, color="0.6", lw=0.8, ls=":", label="10% error")
+    ax.axvline(TARGET_T_TOTAL_MS, color="0.6", lw=0.8, ls="--", label="1 ms per step")
+    ax.set_xlabel("reduced method: time per step (ms, median)")
+    ax.set_yscale("log")
+    ax.set_ylabel("trajectory error vs full (%)")
+    ax.set_title(f"{scene}: speed against error ({steps} steps of {dt:g} s)", fontsize=10)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return save_figure(fig, path)

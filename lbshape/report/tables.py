@@ -1,0 +1,211 @@
+"""The benchmark's written tables: Table 2 (Markdown + JSON) and the sweep (CSV).
+
+* :func:`write_table2` — ``table2.md`` (the paper's Table 2 layout, plus speed-ups,
+  errors, the spread of the times, the conditions of the measurement and the
+  targets) and ``table2.json``;
+* :func:`write_sweep` — ``speed_vs_error.csv`` and its plot ``speed_vs_error.png``.
+
+Every file is written atomically.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+from collections.abc import Sequence
+from pathlib import Path
+
+from lbshape.errors import LbshapeError
+from lbshape.io.atomic import write_json_atomic, write_text_atomic
+from lbshape.report.bench import (
+    DEFAULT_OUT,
+    TARGET_ERROR,
+    TARGET_INTERP_SPEEDUP,
+    TARGET_T_TOTAL_MS,
+    SceneBenchmark,
+    SweepPoint,
+)
+from lbshape.report.machine import load_text, machine_description, threads_text
+from lbshape.report.plots import speed_error_plot
+
+_INTRO = (
+    "Columns as in the paper's Table 2: DOFs (3 × vertices) and tetrahedra of the "
+    "object, vertices of the last example, m LB eigenfunctions, r reduced "
+    "coordinates, s cubature elements; per-step times in ms for the Euclidean "
+    "baseline (Zhu et al. 2015: target found in LB space with the energy over all "
+    "elements, reduced dynamics) and the reduced method (the paper's); speed-ups "
+    "euclidean / reduced; the full-space reference's per-step time; and the error "
+    "of each method against it, `max_t ‖u(t) − u_full(t)‖_M / max_t ‖u_full(t)‖_M` "
+    "(M the consistent elastic mass)."
+)
+_COLUMNS = (
+    "| model | DOFs | tets | ex. | m | r | s | euclidean t_interp | euclidean t_total "
+    "| reduced t_interp | reduced t_total | speed-up interp | speed-up total "
+    "| full t_total | error reduced | error euclidean |"
+)
+
+
+def _fmt(value: float | None, spec: str = ".3f") -> str:
+    return "—" if value is None else format(value, spec)
+
+
+def _ratio(numerator: float | None, denominator: float | None) -> float | None:
+    if numerator is None or not denominator:
+        return None
+    return numerator / denominator
+
+
+def _cost_row(result: SceneBenchmark) -> str:
+    """One row of the main table: sizes, per-step times, speed-ups and errors."""
+    any_row = result.rows[0]
+    euclid, reduced, full = (result.row(m) or {} for m in ("euclidean", "reduced", "full"))
+    r = reduced.get("r", euclid.get("r"))
+    s = reduced.get("s", euclid.get("s"))
+    return (
+        f"| {result.scene} | {3 * any_row['n_vertices']} | {any_row['n_tets']} "
+        f"| {any_row['example_vertices']} | {any_row['m']} | {_fmt(r, 'd')} | {_fmt(s, 'd')} "
+        f"| {_fmt(euclid.get('t_interp_ms'))} | {_fmt(euclid.get('t_total_ms'))} "
+        f"| {_fmt(reduced.get('t_interp_ms'))} | {_fmt(reduced.get('t_total_ms'))} "
+        f"| {_fmt(_ratio(euclid.get('t_interp_ms'), reduced.get('t_interp_ms')), '.1f')}× "
+        f"| {_fmt(_ratio(euclid.get('t_total_ms'), reduced.get('t_total_ms')), '.1f')}× "
+        f"| {_fmt(full.get('t_total_ms'), '.2f')} "
+        f"| {_fmt(reduced.get('error_vs_full'), '.2%')} "
+        f"| {_fmt(euclid.get('error_vs_full'), '.2%')} |"
+    )
+
+
+def _spread_rows(result: SceneBenchmark) -> list[str]:
+    """Median [min, max] of the per-step times of each method over the repeats."""
+    rows = []
+    for timing in result.timings:
+        ti, tt = timing.summary("t_interp_ms"), timing.summary("t_total_ms")
+        status = "yes" if timing.stable else f"no: {timing.message}"
+        rows.append(
+            f"| {result.scene} | {timing.method} | {len(timing.t_total_ms)} "
+            f"| {ti['median']:.3f} [{ti['min']:.3f}, {ti['max']:.3f}] "
+            f"| {tt['median']:.3f} [{tt['min']:.3f}, {tt['max']:.3f}] | {status} |"
+        )
+    return rows
+
+
+def _conditions(results: Sequence[SceneBenchmark], machine: dict) -> list[str]:
+    """The run settings of each scene, the machine and its load."""
+    lines = [
+        f"- {result.scene}: dt = {result.dt:g} s, {result.steps} steps per run, "
+        f"{result.repeats} repeats per method (methods interleaved), the first "
+        f"{result.warmup} steps of each run left out of the per-step means."
+        for result in results
+    ]
+    return lines + [
+        f"- Machine: {machine['cpu']}, {machine['cores']} cores, Python {machine['python']}, "
+        f"numpy {machine['numpy']}; threads: {threads_text(machine)}; one process, wall clock.",
+        f"- Load average (1, 5, 15 min) when written: {load_text(machine)} — other processes "
+        "may have shared the cores; the min is the closest to an unloaded machine.",
+    ]
+
+
+def _verdict(label: str, value: float | None, met: bool, spec: str, unit: str) -> str:
+    return f"{label}: {_fmt(value, spec)}{unit if value is not None else ''} " \
+           f"**{'met' if met else 'NOT met'}**"
+
+
+def _targets(result: SceneBenchmark) -> list[str]:
+    """The verdicts on the targets (time per step, interpolation speed-up, error)."""
+    reduced, euclid = result.row("reduced"), result.row("euclidean")
+    if reduced is None:
+        return []
+    checks = [_verdict(f"reduced t_total ≤ {TARGET_T_TOTAL_MS:g} ms per step",
+                       reduced["t_total_ms"], reduced["t_total_ms"] <= TARGET_T_TOTAL_MS,
+                       ".3f", " ms")]
+    if euclid is not None:
+        speedup = _ratio(euclid["t_interp_ms"], reduced["t_interp_ms"])
+        checks.append(_verdict(
+            f"interpolation speed-up ≥ {TARGET_INTERP_SPEEDUP:g}×", speedup,
+            speedup is not None and speedup >= TARGET_INTERP_SPEEDUP, ".1f", "×"))
+    error = reduced["error_vs_full"]
+    checks.append(_verdict(f"reduced error vs full ≤ {TARGET_ERROR:.0%}", error,
+                           error is not None and error <= TARGET_ERROR, ".2%", ""))
+    return [f"- {result.scene}: " + "; ".join(checks) + "."]
+
+
+def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
+    """The Markdown of ``table2.md`` (see :func:`write_table2`).
+
+    Args:
+        results: one benchmark per scene.
+        machine: a :func:`~lbshape.report.machine.machine_description`.
+    """
+    lines = ["# Table 2: per-step cost and accuracy", "", _INTRO, "", _COLUMNS,
+             "|---|" + "---|" * 15]
+    lines += [_cost_row(result) for result in results]
+    lines += ["", "## Spread of the per-step times (ms): median [min, max] over repeats", "",
+              "| model | method | repeats | t_interp | t_total | stable |",
+              "|---|---|---|---|---|---|"]
+    lines += [row for result in results for row in _spread_rows(result)]
+    lines += ["", "## Conditions", "", *_conditions(results, machine)]
+    lines += ["", "## Targets (reported, not enforced)", ""]
+    lines += [line for result in results for line in _targets(result)]
+    return "\n".join(lines) + "\n"
+
+
+def table2_payload(results: Sequence[SceneBenchmark], machine: dict) -> dict:
+    """The document of ``table2.json``: the contract rows plus spreads and conditions."""
+    return {
+        "rows": [row for result in results for row in result.rows],
+        "timings": [
+            {"scene": result.scene, "method": t.method, "repeats": len(t.t_total_ms),
+             "t_interp_ms": t.summary("t_interp_ms"), "t_total_ms": t.summary("t_total_ms"),
+             "stable": t.stable, "message": t.message}
+            for result in results for t in result.timings
+        ],
+        "settings": [
+            {"scene": result.scene, "dt": result.dt, "steps": result.steps,
+             "repeats": result.repeats, "warmup_steps": result.warmup}
+            for result in results
+        ],
+        "machine": machine,
+    }
+
+
+def write_table2(results: Sequence[SceneBenchmark], out_dir: str | Path = DEFAULT_OUT
+                 ) -> tuple[Path, Path]:
+    """Write ``table2.md`` and ``table2.json`` to ``out_dir`` atomically; their paths."""
+    if not results:
+        raise LbshapeError("no benchmark results to write")
+    out_dir = Path(out_dir)
+    machine = machine_description()
+    md = write_text_atomic(out_dir / "table2.md", table2_markdown(results, machine))
+    js = write_json_atomic(out_dir / "table2.json", table2_payload(results, machine))
+    return md, js
+
+
+def sweep_csv(points: Sequence[SweepPoint], *, scene: str, steps: int, repeats: int,
+              dt: float) -> str:
+    """The text of ``speed_vs_error.csv`` (one comment line, a header, one row per point)."""
+    machine = machine_description()
+    text = io.StringIO()
+    text.write(f"# scene {scene}, reduced method, dt = {dt:g} s, {steps} steps, median of "
+               f"{repeats} runs; error vs full with the same m; {machine['cpu']}, "
+               f"{threads_text(machine)}\n")
+    fields = [f.name for f in dataclasses.fields(SweepPoint)]
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(fields)
+    for point in points:
+        writer.writerow(["" if v is None else (f"{v:.6g}" if isinstance(v, float) else v)
+                         for v in dataclasses.astuple(point)])
+    return text.getvalue()
+
+
+def write_sweep(points: Sequence[SweepPoint], out_dir: str | Path = DEFAULT_OUT, *,
+                scene: str, steps: int, repeats: int, dt: float) -> tuple[Path, Path]:
+    """Write ``speed_vs_error.csv`` and ``.png`` to ``out_dir`` atomically; their paths."""
+    if not points:
+        raise LbshapeError("no sweep points to write")
+    out_dir = Path(out_dir)
+    csv_path = write_text_atomic(out_dir / "speed_vs_error.csv",
+                                 sweep_csv(points, scene=scene, steps=steps, repeats=repeats,
+                                           dt=dt))
+    png_path = speed_error_plot(points, out_dir / "speed_vs_error.png", scene=scene,
+                                steps=steps, dt=dt)
+    return csv_path, png_path
