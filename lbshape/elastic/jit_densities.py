@@ -41,23 +41,6 @@ def stress_and_tangent(code, parameters, H9, P9, A):
 
 
 @njit
-def stress_and_projected_tangent(code, parameters, H9, BU, P9, A, T):
-    """As :func:`stress_and_tangent`, and ``T[e] = A[e] @ BU[e]`` (s, 9, r) for BU (s, 9, r)."""
-    s = H9.shape[1]
-    r = BU.shape[2]
-    work = np.empty((6, 3, 3))
-    for e in range(s):
-        _element(code, parameters, H9, P9, A, e, work)
-        for a in range(9):
-            for c in range(r):
-                T[e, a, c] = 0.0
-            for b in range(9):
-                coefficient = A[e, a, b]
-                for c in range(r):
-                    T[e, a, c] += coefficient * BU[e, b, c]
-
-
-@njit
 def _element(code, parameters, H9, P9, A, e, work):
     H = work[0]
     F = work[1]

@@ -27,7 +27,7 @@ import numpy as np
 
 from lbshape.elastic.element_kernels import ElementKernel
 from lbshape.elastic.energy_densities import density_model
-from lbshape.elastic.jit_densities import density_parameters, stress_and_projected_tangent
+from lbshape.elastic.jit_densities import density_parameters, stress_and_tangent
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
 
@@ -186,9 +186,10 @@ class ReducedForceModel:
         and the tangent (r, r) into ``K``; compiled element kernel
         (:mod:`lbshape.elastic.jit_densities`), preallocated work arrays, no checks."""
         np.dot(self._bu_k, q, out=self._h_work)
-        stress_and_projected_tangent(self._jit[0], self._jit[1], self._h_work.reshape(9, -1),
-                                     self._bu_e, self._p_work, self._a_work, self._t_work)
+        stress_and_tangent(self._jit[0], self._jit[1], self._h_work.reshape(9, -1),
+                           self._p_work, self._a_work)
         np.dot(self._wbu_k_t, self._p_work.reshape(-1), out=f)
+        np.matmul(self._a_work, self._bu_e, out=self._t_work)
         np.dot(self._wbu_e_t, self._t_work.reshape(-1, self.n_coordinates), out=K)
 
     def min_jacobian(self, q: np.ndarray) -> float:

@@ -40,7 +40,7 @@ from lbshape.dynamics.loads import (
     region_torque_pattern,
 )
 from lbshape.dynamics.record import RunRecord
-from lbshape.dynamics.reduced import REALTIME_NEWTON_ITERATIONS, ReducedSimulation
+from lbshape.dynamics.reduced import PHASES, REALTIME_NEWTON_ITERATIONS, ReducedSimulation
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
@@ -70,12 +70,15 @@ class SimulationOutput:
         times: (k,) sample times (s).
         displacements: (k, n, 3) sampled full-space displacements (m).
         message: solver failure message ('' if stable).
+        phase_ms: reduced methods: the median time per step of each part of the step
+            (:data:`~lbshape.dynamics.reduced.PHASES`) after the warm-up, in ms.
     """
 
     stats: dict
     times: np.ndarray
     displacements: np.ndarray
     message: str = ""
+    phase_ms: dict | None = None
 
 
 def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[TimedLoad]:
@@ -193,7 +196,17 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
     if steps < 1:
         raise LbshapeError(f"steps must be >= 1, got {steps}")
     stride = max(1, math.ceil(steps / MAX_FRAMES))
-    record = run_method(scene, pre, method=method, steps=steps, stride=stride)
+    phase_ms = None
+    if method == "full":
+        record = run_method(scene, pre, method=method, steps=steps, stride=stride)
+    else:
+        sim = reduced_simulation(scene, pre, method=method)
+        record = sim.run(steps, stride=stride)
+        phases = sim.phase_seconds[WARMUP_STEPS:] if len(sim.phase_seconds) > WARMUP_STEPS \
+            else sim.phase_seconds
+        if len(phases):
+            phase_ms = dict(zip(PHASES, (1e3 * np.median(phases, axis=0)).tolist(),
+                                strict=True))
     if method == "full":
         frames = record.displacements()
         r, s = 3 * (pre.mesh.n_vertices - pre.fixed_vertices.size), pre.mesh.n_tets
@@ -210,7 +223,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "t_interp_ms": t_interp, "t_total_ms": t_total,
         "stable": bool(record.stable), "max_displacement": max_disp,
     }
-    output = SimulationOutput(stats, record.times, frames, record.message)
+    output = SimulationOutput(stats, record.times, frames, record.message, phase_ms)
     if out is not None:
         write_outputs(Path(out), pre, output)
     return output
