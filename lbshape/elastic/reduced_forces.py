@@ -136,6 +136,10 @@ class ReducedForceModel:
         self._h_work = np.empty(9 * s)
         self._p_work = np.empty((9, s))
         self._jit = density_parameters(material)
+        # views made once: the run-time path creates no array objects
+        self._h_view = self._h_work.reshape(9, s)
+        self._p_flat = self._p_work.reshape(-1)
+        self._t_view = self._t_work.reshape(9 * s, r)
 
     # -- helpers ---------------------------------------------------------------------
     def _gradients(self, q: np.ndarray) -> np.ndarray:
@@ -186,11 +190,11 @@ class ReducedForceModel:
         and the tangent (r, r) into ``K``; compiled element kernel
         (:mod:`lbshape.elastic.jit_densities`), preallocated work arrays, no checks."""
         np.dot(self._bu_k, q, out=self._h_work)
-        stress_and_tangent(self._jit[0], self._jit[1], self._h_work.reshape(9, -1),
-                           self._p_work, self._a_work)
-        np.dot(self._wbu_k_t, self._p_work.reshape(-1), out=f)
+        stress_and_tangent(self._jit[0], self._jit[1], self._h_view, self._p_work,
+                           self._a_work)
+        np.dot(self._wbu_k_t, self._p_flat, out=f)
         np.matmul(self._a_work, self._bu_e, out=self._t_work)
-        np.dot(self._wbu_e_t, self._t_work.reshape(-1, self.n_coordinates), out=K)
+        np.dot(self._wbu_e_t, self._t_view, out=K)
 
     def min_jacobian(self, q: np.ndarray) -> float:
         """The smallest det F over the cubature elements at q (r,); ≤ 0: inverted."""
