@@ -17,6 +17,7 @@ from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.routes import exact_route, example_driver, target_solver
 from lbshape.scene import scene_from_dict
+from lbshape.shapespace.example_driver import ExampleDriver
 from lbshape.shapespace.interpolation import (
     SimplexWeights,
     TargetSolver,
@@ -166,7 +167,17 @@ def test_lb_table_route_is_the_default_and_falls_back_without_a_table(two):
     assert np.linalg.norm(out - info.q_target) < 1e-3 * scale
     # without a table the route solves the exact target at run time
     bare = dataclasses.replace(two, target_table=None)
-    assert target_solver(bare, "lb-table").route == "lb-exact"
+    fallback = target_solver(bare, "lb-table")
+    assert fallback.route == "lb-exact" and fallback.solver.max_iterations == 1
+    # one warm-started Newton step per call tracks the exact target as the state moves
+    driver = ExampleDriver(bare.descriptor_matrix, bare.example_descriptors, fallback.solver,
+                           to_reduced=fallback.to_reduced)
+    exact = _exact(two)
+    spread = _separation(exact.offsets)
+    for t in np.linspace(0.0, 1.0, 40):
+        driver.target_into(t * q, out)
+    z = exact.solve(driver.w).z
+    assert np.linalg.norm(fallback.solver._last - z) < 0.02 * spread
 
 
 def test_simplex_weights_precomputed_match_the_reference():

@@ -260,6 +260,10 @@ class TargetSolver:
         offsets: (k, p) the examples' own coordinates z_k.
         tolerance: stop when the Newton step is below ``tolerance · max_k ‖z_k‖``.
         max_iterations: Newton iterations per call.
+        tracking: the caller deliberately takes ``max_iterations`` warm-started steps
+            per call (one per time step) and follows the target across calls: stopping
+            before the tolerance is then the plan, reported by ``converged`` only, not
+            logged as a warning.
     """
 
     def __init__(
@@ -269,6 +273,7 @@ class TargetSolver:
         *,
         tolerance: float = 1e-6,
         max_iterations: int = 20,
+        tracking: bool = False,
     ):
         offsets = np.atleast_2d(np.asarray(offsets, dtype=float))
         if len(models) != offsets.shape[0]:
@@ -280,7 +285,7 @@ class TargetSolver:
         self.tolerance = float(tolerance)
         self.max_iterations = int(max_iterations)
         self._last: np.ndarray | None = None
-        self._warned = False
+        self._warned = bool(tracking)
 
     @property
     def dimension(self) -> int:
