@@ -196,3 +196,19 @@ def test_clamp_profile_is_zero_on_the_fixed_vertices_and_one_far_away():
     chi = clamp_profile(points, np.array([10]), blend=0.3)
     assert chi[10] == 0.0 and np.all(chi[:8] == 1.0)
     assert np.all(np.diff(chi[7:]) < 0)  # fades monotonically towards the fixed end
+
+
+def test_a_non_stvk_material_is_tabulated_from_the_all_element_energy(cache):
+    """No polynomial energy for stable Neo-Hookean: the table's exact solves use the
+    all-element energy, and it still meets its checked tolerance."""
+    scene = _scene([0.8, -0.4])
+    scene = dataclasses.replace(scene, material=dataclasses.replace(scene.material,
+                                                                     model="neohookean"))
+    pre = precompute(scene)
+    assert exact_route(pre) == "euclidean"
+    table = pre.target_table
+    assert table is not None and table.check.max_error <= table.check.tolerance
+    exact = _exact(pre)
+    w = np.array([0.35, 0.65])
+    d = table.z(w) - exact.solve(w, start=table.z(w)).z
+    assert np.sqrt(d @ _metric(pre) @ d) < 0.005 * _separation(exact.offsets)
