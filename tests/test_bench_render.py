@@ -147,11 +147,14 @@ def test_bench_command_rejects_too_few_steps_without_output(tmp_path, capsys):
 
 
 def test_bench_script_writes_table_and_sweep(tmp_path, load_script):
+    from lbshape.scene import load_scene
+
     module = load_script("bench_table2")
+    own = load_scene("demo").reduced  # the second sweep point is the scene's own (r, s)
     paths = module.main([
         "demo", "--steps", str(STEPS), "--repeats", "1", "--sweep-scene", "demo",
-        "--sweep-r", "12", "--sweep-s", "10,20", "--sweep-m", "", "--sweep-steps", str(STEPS),
-        "--sweep-repeats", "1", "--out-dir", str(tmp_path),
+        "--sweep-r", str(own.r), "--sweep-s", f"10,{own.s}", "--sweep-m", "",
+        "--sweep-steps", str(STEPS), "--sweep-repeats", "1", "--out-dir", str(tmp_path),
     ])
     assert sorted(Path(p).name for p in paths) == [
         "speed_vs_error.csv", "speed_vs_error.png", "step_breakdown.json", "step_breakdown.md",
@@ -165,7 +168,7 @@ def test_bench_script_writes_table_and_sweep(tmp_path, load_script):
     lines = (tmp_path / "speed_vs_error.csv").read_text().splitlines()
     assert lines[0].startswith("#")
     points = list(csv.DictReader(lines[1:]))
-    assert [(int(p["r"]), int(p["s_max"])) for p in points] == [(12, 10), (12, 20)]
+    assert [(int(p["r"]), int(p["s_max"])) for p in points] == [(own.r, 10), (own.r, own.s)]
     for p in points:
         assert 0 < int(p["s"]) <= int(p["s_max"]) and float(p["error_vs_full"]) > 0
     # the sweep point with the scene's own r and s is Table 2's reduced row

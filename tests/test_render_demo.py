@@ -32,18 +32,48 @@ def test_render_eigenfunction_panels(tmp_path):
 
 
 @pytest.mark.slow
-def test_demo_entry_point_writes_pictures_and_summary(tmp_path):
+def test_demo_entry_point_writes_pictures_and_summary(tmp_path, capsys):
+    from PIL import Image
+
     from lbshape.cli import main
+    from lbshape.report.demo import SUMMARY_KEYS
 
     assert main(["demo", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
     summary = json.loads((tmp_path / "summary.json").read_text())
     spectra = summary["spectra"]
     for name in ("demo-bar", "demo-cylinder", "teddy"):
         values = spectra[name]["eigenvalues"]
         assert values == sorted(values) and values[0] > 0
-    for picture in ("teddy_eigenfunctions.png", "demo_reduced.png", "demo_full.png",
-                    "examples_on_object.png"):
-        assert _png_pixels(tmp_path / picture).shape[0] > 100, picture
     simulation = summary["simulation"]
-    assert simulation["reduced"]["stable"] and simulation["full"]["stable"]
+    assert tuple(simulation) == SUMMARY_KEYS
+    for picture in ("teddy_eigenfunctions.png", "demo_reduced.png", "demo_full.png",
+                    "examples_on_object.png", "demo_comparison.png", "demo_end_view.png"):
+        assert _png_pixels(tmp_path / picture).shape[0] > 100, picture
+        assert picture in simulation["pictures"] or picture.startswith("teddy"), picture
+    with Image.open(tmp_path / "demo.gif") as gif:
+        assert gif.n_frames > 10
+    for run in ("reduced", "reduced_no_examples", "full", "full_no_examples"):
+        assert simulation[run]["stable"], run
     assert 0.0 <= simulation["error_vs_full"] < 1.0, simulation["error_vs_full"]
+    # the one-line headline states speed, error versus full and influence, as printed
+    assert simulation["headline"] in printed
+    for words in ("ms/step", "error vs full", "example influence"):
+        assert words in simulation["headline"], simulation["headline"]
+    twist = simulation["end_twist_deg"]
+    assert twist["reduced"] > twist["reduced_no_examples"] + 10.0, twist
+
+
+def test_demo_headline_states_speed_error_and_influence():
+    from lbshape.report.demo import headline
+
+    summary = {
+        "reduced": {"t_total_ms": 1.25}, "full": {"t_total_ms": 10.0}, "speedup_t_total": 8.0,
+        "error_vs_full": 0.034, "example_influence": 1.66,
+        "end_twist_deg": {"reduced": 39.2, "reduced_no_examples": 14.8, "full": 40.7},
+    }
+    line = headline(summary)
+    assert "\n" not in line
+    for words in ("1.25 ms/step", "10.00 ms/step", "8.0x", "3.4%", "influence 1.66", "39 deg",
+                  "15 deg", "41 deg"):
+        assert words in line, (words, line)

@@ -89,7 +89,7 @@ def test_builtin_scenes_load_with_the_documented_sizes():
     expected = {
         "bar-cuboid": (10, 30, 60, "bar-cuboid"),
         "bar-cylinder": (10, 30, 60, "bar-cylinder"),
-        "demo": (6, 12, 20, "demo-cylinder"),
+        "demo": (10, 20, 40, "demo-cylinder"),
     }
     for name, (m, r, s, example_shape) in expected.items():
         scene = load_scene(name)

@@ -80,7 +80,9 @@ def test_examples_pull_the_object_to_the_example_shape(demo):
     pre1 = precompute(quiet)
     out = simulate(quiet, pre1, steps=300)
     assert out.stats["stable"]
-    q1 = pre1.lb_to_reduced @ pre1.example_coefficients[0].ravel()
+    # the example in reduced coordinates, through the precompute's target basis
+    q1 = pre1.lb_to_reduced_for(clamped=pre1.target_boundary == "clamped") \
+        @ pre1.example_coefficients[0].ravel()
     # the static balance, by Newton in the reduced space
     q = q1.copy()
     for _ in range(30):
@@ -166,8 +168,13 @@ def test_simulate_command_writes_contract_outputs(tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["simulate", "demo", "--steps", "20", "--out", str(out), "--json"]) == 0
     stats = json.loads(capsys.readouterr().out)
+    from lbshape.pipeline.influence import STATS_KEYS
+
+    # the demo has examples: the contract keys, then the example influence
     assert list(stats) == ["scene", "method", "n_vertices", "n_tets", "m", "r", "s", "dt",
-                           "steps", "t_interp_ms", "t_total_ms", "stable", "max_displacement"]
+                           "steps", "t_interp_ms", "t_total_ms", "stable", "max_displacement",
+                           *STATS_KEYS]
+    assert stats["example_influence"] > 0.0
     assert json.loads((out / "stats.json").read_text()) == stats
     assert (out / "trajectory.pvd").exists() and stats["steps"] == 20
     assert main(["simulate", "no-such-scene"]) == 2

@@ -26,6 +26,12 @@ def run(args) -> int:
         residuals = ", ".join(f"{r:.3f}" for r in pre.alignment_residuals)
         print(f"  shape space: m={pre.eigenvalues.size}, {len(pre.example_names)} examples, "
               f"alignment residuals [{residuals}]")
+    if pre.has_local_examples:
+        for region in pre.local.regions:
+            residuals = ", ".join(f"{r:.3f}" for r in region.alignment_residuals)
+            print(f"  region {region.name}: {region.vertices.size} vertices, "
+                  f"m={region.m}, examples {[int(k) + 1 for k in region.examples]}, "
+                  f"alignment residuals [{residuals}]")
     total = sum(pre.stage_seconds.values())
     print("  stage times (s): " + ", ".join(
         f"{name} {seconds:.2f}" for name, seconds in pre.stage_seconds.items())

@@ -29,7 +29,8 @@ def run(args) -> int:
     scene = load_scene(args.scene)
     pre = precompute(scene, progress=not args.json)
     out = args.out or Path("results") / "runs" / f"{scene.name}-{args.method}"
-    result = simulate(scene, pre, method=args.method, steps=args.steps, out=out)
+    result = simulate(scene, pre, method=args.method, steps=args.steps, out=out,
+                      influence=True)
     if args.json:
         print_json(result.stats)
     else:
@@ -37,6 +38,11 @@ def run(args) -> int:
         print(f"simulate {s['scene']} [{s['method']}]: {s['steps']} steps of {s['dt']} s, "
               f"t_interp {s['t_interp_ms']:.3f} ms, t_total {s['t_total_ms']:.3f} ms per step, "
               f"max displacement {s['max_displacement']:.4g} m -> {out}")
+        if "example_influence" in s:
+            final, peak = (("undefined" if s[k] is None else f"{s[k]:.3f}")
+                           for k in ("example_influence", "example_influence_max"))
+            print(f"simulate {s['scene']}: example influence {final} (max over time {peak}) "
+                  f"against the same scene without examples")
     if result.message:
         print(f"error: simulation stopped: {result.message}", file=sys.stderr)
         return 3

@@ -30,6 +30,11 @@ the step (explicit in the target, implicit in u — as the reduced method does):
 In the stepper the example force is split into a spring ``k_ex M_ff x`` (part of the
 position-dependent force, tangent ``k_ex M_ff``, potential ``½ k_ex xᵀ M_ff x``) and
 the pull ``k_ex (M u*)_free``, constant during the step, applied as an external load.
+**Local examples** (:class:`~lbshape.shapespace.local_examples.FullSpaceLocalForce`):
+per region R the same steps on the region's own eigenfunctions and elements; the
+spring uses ``S = Σ_R M^(R)`` (mass of the covered elements) instead of M and the
+pull is ``k_ex Σ_R M^(R) E_R L_R c*_R``.
+
 The two nearly cancel close to the target, so keeping the pull among the loads
 lets the Newton convergence test measure the residual against the size of the
 example force rather than against their (vanishing) difference. With ``k_ex = 0``
@@ -61,6 +66,7 @@ from lbshape.errors import LbshapeError, SolverError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
+from lbshape.shapespace.local_examples import FullSpaceLocalForce
 
 log = logging.getLogger(__name__)
 
@@ -104,6 +110,8 @@ class FullSpaceSimulator:
         loads: external loads (patterns (3n,) N with time profiles).
         examples: shape-space arrays and k_ex; ``None`` (or k_ex = 0, or no
             example) means no example force.
+        local_examples: ``(force, k_ex)``: the local example force (regions) and
+            its stiffness in 1/s², instead of ``examples``.
         initial_displacement: (n, 3) m, zero on fixed vertices (default 0).
         initial_velocity: (n, 3) m/s, zero on fixed vertices (default 0).
         target_tolerance: relative gradient tolerance of the target solve.
@@ -135,6 +143,7 @@ class FullSpaceSimulator:
         beta: float = 0.0,
         loads: Sequence[TimedLoad] = (),
         examples: FullSpaceExamples | None = None,
+        local_examples: tuple[FullSpaceLocalForce, float] | None = None,
         initial_displacement: np.ndarray | None = None,
         initial_velocity: np.ndarray | None = None,
         target_tolerance: float = 1e-6,
@@ -163,6 +172,13 @@ class FullSpaceSimulator:
 
         self._load_patterns, self._load_profiles = self._check_loads(loads)
         self._setup_examples(examples, tolerance=target_tolerance)
+        self._local = None
+        if local_examples is not None and local_examples[1] > 0:
+            if self._k_ex:
+                raise LbshapeError("give global or local examples, not both")
+            self._local, self._k_ex = local_examples[0], float(local_examples[1])
+            self._spring_ff = _submatrix(self._local.mass, self.free_dofs)
+            self._kM_ff = self._k_ex * self._spring_ff
 
         x0 = self._initial(initial_displacement, "initial_displacement")
         v0 = self._initial(initial_velocity, "initial_velocity")
@@ -203,6 +219,7 @@ class FullSpaceSimulator:
 
     def _setup_examples(self, examples: FullSpaceExamples | None, *, tolerance: float) -> None:
         self._k_ex = 0.0
+        self._spring_ff = self._mass_ff
         self._b = np.zeros(self.free_dofs.size)
         self.target_coefficients: np.ndarray | None = None
         self.weights: np.ndarray | None = None
@@ -282,14 +299,14 @@ class FullSpaceSimulator:
         f, K = self.elastic.force_and_tangent(self.full_displacement(x).reshape(-1))
         f, K = f[self.free_dofs], self._restrict(K)
         if self._k_ex:
-            f = f + self._k_ex * (self._mass_ff @ x)
+            f = f + self._k_ex * (self._spring_ff @ x)
             K = K + self._kM_ff
         return f, K
 
     def _potential(self, x: np.ndarray) -> float:
         energy = self.elastic.energy(self.full_displacement(x).reshape(-1))
         if self._k_ex:
-            energy += 0.5 * self._k_ex * float(x @ (self._mass_ff @ x))
+            energy += 0.5 * self._k_ex * float(x @ (self._spring_ff @ x))
         return energy
 
     def _external(self, t: float) -> np.ndarray:
@@ -300,6 +317,11 @@ class FullSpaceSimulator:
     def _update_target(self) -> None:
         """Weights and target from the current state; sets the example force."""
         x = self.stepper.x
+        if self._local is not None:
+            pull = self._local.pull(self.full_displacement(x))
+            self.weights = np.concatenate(list(self._local.weights.values()))
+            self._b = self._k_ex * pull[self.free_dofs]
+            return
         weights = simplex_weights(self._example_descriptors, self._descriptor @ x)
         c_star = self._target_solver.solve(weights).z
         self.weights = weights

@@ -73,7 +73,12 @@ class ReducedSimulation:
         integrator: ``"newmark"`` or ``"backward-euler"``.
         alpha, beta: Rayleigh coefficients (1/s, s).
         loads: reduced loads (patterns ``Uᵀ f`` (r,)).
-        driver: the example driver, or ``None`` (no example machinery at all).
+        driver: the example driver, or ``None`` (no example machinery at all). A
+            driver with a ``spring`` attribute (r, r) (local examples,
+            :class:`~lbshape.shapespace.local_examples.LocalExampleDriver`) uses it in
+            place of the identity in the spring ``k_ex S q``. A driver without the
+            in-place methods (``weights_into``, ``target_from_weights_into``) is called
+            through ``target(q)``.
         k_ex: example stiffness (1/s²); 0 disables the example force.
         newton_iterations: Newton updates per step, or ``None`` to iterate to ``rtol``.
         rtol: relative Newton tolerance (``None`` mode).
@@ -122,6 +127,10 @@ class ReducedSimulation:
         self.energy_factor = energy_factor
         ca, kv, ka, cv, jv = _SCHEMES[integrator]
         self._coefficients = np.array([ca / h**2, kv / h, ka, cv / h, jv, self.k_ex])
+        spring = getattr(self.driver, "spring", None)
+        self._spring = np.eye(r) if spring is None else np.array(spring, dtype=float)
+        self._in_place = hasattr(self.driver, "weights_into") and hasattr(
+            self.driver, "target_from_weights_into")
         _, K0 = elastic.force_and_tangent(np.zeros(r))
         self.damping = alpha * np.eye(r) + beta * np.asarray(K0)
         self._base = (ca / h**2) * np.eye(r) + (cv / h) * self.damping
@@ -177,7 +186,7 @@ class ReducedSimulation:
     def _potential(self, q: np.ndarray) -> float:
         energy = float(self.elastic.energy(q))
         if self.k_ex:
-            energy += 0.5 * self.k_ex * float(q @ q)
+            energy += 0.5 * self.k_ex * float(q @ (self._spring @ q))
         return energy
 
     # ----------------------------------------------------------------- step
@@ -191,10 +200,14 @@ class ReducedSimulation:
         marks[0] = clock()
         index = self.steps_taken + 1
         t1 = self.time + self.dt
-        if self.driver is not None:
+        if self._in_place:
             self.driver.weights_into(self.x)
             marks[1] = clock()
             self.driver.target_from_weights_into(self.q_target)
+            marks[2] = clock()
+        elif self.driver is not None:  # e.g. local examples: one call, allocating
+            marks[1] = marks[0]
+            self.q_target[:] = self.driver.target(self.x).q_target
             marks[2] = clock()
         else:
             marks[1] = marks[2] = marks[0]
@@ -214,7 +227,8 @@ class ReducedSimulation:
             forces += middle - started
             if fixed is None:
                 _residual(self._dx, self.x, self.v, self.a, self._x1, self._f, self._fext,
-                          self.damping, coefficients, self._v1, self._a1, self._R, norms)
+                          self.damping, self._spring, coefficients, self._v1, self._a1,
+                          self._R, norms)
                 if updates == 0:
                     scale = max(norms[0], norms[2], norms[3], self._f_norm, _norm(self.a))
                 if not norms[0] <= norms[0] or not np.isfinite(norms[0]):
@@ -229,8 +243,10 @@ class ReducedSimulation:
                         f"(rtol {self.rtol:g})")
             else:
                 _residual(self._dx, self.x, self.v, self.a, self._x1, self._f, self._fext,
-                          self.damping, coefficients, self._v1, self._a1, self._R, norms)
-            if not _newton_update(self._base, self._K, coefficients, self._R, self._J, self._dx):
+                          self.damping, self._spring, coefficients, self._v1, self._a1,
+                          self._R, norms)
+            if not _newton_update(self._base, self._K, self._spring, coefficients, self._R,
+                                  self._J, self._dx):
                 self._dense_update(index, t1)
             updates += 1
             solves += clock() - middle
@@ -246,7 +262,7 @@ class ReducedSimulation:
 
     def _dense_update(self, index: int, t1: float) -> None:
         """Newton update with a symmetric indefinite solve (Cholesky failed)."""
-        J = self._base + self._K + self.k_ex * np.eye(self.r)
+        J = self._base + self._K + self.k_ex * self._spring
         try:
             delta = sla.solve(J, self._R, assume_a="sym", check_finite=False)
         except (sla.LinAlgError, ValueError) as exc:
@@ -348,8 +364,8 @@ def _kinematics(dx, x, v, a, c, x1, v1, a1):
 
 
 @njit
-def _residual(dx, x, v, a, x1, f, fext, D, c, v1, a1, R, norms):
-    """R = a₁ + D v₁ + f + k_ex x₁ − f_ext (M = I) and its norms.
+def _residual(dx, x, v, a, x1, f, fext, D, S, c, v1, a1, R, norms):
+    """R = a₁ + D v₁ + f + k_ex S x₁ − f_ext (M = I, S the example spring) and its norms.
 
     norms: [‖R‖, round-off level of R, ‖f_ext‖, ‖f‖].
     """
@@ -360,9 +376,11 @@ def _residual(dx, x, v, a, x1, f, fext, D, c, v1, a1, R, norms):
     r2 = noise = fe2 = f2 = 0.0
     for i in range(n):
         damping = 0.0
+        pull = 0.0
         for j in range(n):
             damping += D[i, j] * v1[j]
-        spring = f[i] + c[5] * x1[i]
+            pull += S[i, j] * x1[j]
+        spring = f[i] + c[5] * pull
         value = a1[i] + damping + spring - fext[i]
         R[i] = value
         r2 += value * value
@@ -376,13 +394,12 @@ def _residual(dx, x, v, a, x1, f, fext, D, c, v1, a1, R, norms):
 
 
 @njit
-def _newton_update(base, K, c, R, J, dx):
-    """dx −= (base + K + k_ex I)⁻¹ R by Cholesky in J; False if J is not positive definite."""
+def _newton_update(base, K, S, c, R, J, dx):
+    """dx −= (base + K + k_ex S)⁻¹ R by Cholesky in J; False if J is not positive definite."""
     n = R.shape[0]
     for i in range(n):
         for j in range(i + 1):
-            J[i, j] = base[i, j] + 0.5 * (K[i, j] + K[j, i])
-        J[i, i] += c[5]
+            J[i, j] = base[i, j] + 0.5 * (K[i, j] + K[j, i]) + 0.5 * c[5] * (S[i, j] + S[j, i])
     for j in range(n):  # lower Cholesky factor in place
         d = J[j, j]
         for k in range(j):
@@ -396,7 +413,7 @@ def _newton_update(base, K, c, R, J, dx):
             for k in range(j):
                 value -= J[i, k] * J[j, k]
             J[i, j] = value / d
-    # solve L y = R, Lᵀ δ = y; δ kept in the upper triangle's first row? use R in place
+    # solve L y = R, then Lᵀ δ = y, both in place in R
     for i in range(n):
         value = R[i]
         for k in range(i):

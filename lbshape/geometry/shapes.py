@@ -88,7 +88,7 @@ SHAPES: dict[str, ShapeSpec] = {
         "teddy.py", 0.07, "procedural sitting teddy with limb regions and its back",
         591, 1755, _TEDDY_GROUPS),
     "teddy-example": ShapeSpec(
-        "teddy.py", 0.019, "the teddy, finer (example of the teddy scenes)",
+        "teddy.py", 0.0188, "the teddy, finer (example of the teddy scenes)",
         11193, None, _TEDDY_GROUPS),
     "demo-bar": ShapeSpec(
         "bar_cuboid.py", 0.15, "the cuboid bar, coarse (object of the demo)",

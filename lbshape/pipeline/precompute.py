@@ -19,6 +19,12 @@ Stages (only those the scene needs; paper pre-computation steps 1–6):
    ``lb`` interpolation route), trained on the example's rest shape along the path of
    exact targets between the examples                         — scenes with examples.
 
+Scenes with ``[[regions]]`` (local examples) replace stages 7–9 by
+``regions``: per-region spectra, example parts embedded per region and the small
+region matrices (:mod:`lbshape.shapespace.local_examples`); stage 6 still
+computes the whole object's spectrum (eigenfunction pictures, and the measured
+comparison of the two local-example variants).
+
 Everything is cached under a key derived from :meth:`Scene.precompute_key_fields`,
 the gmsh scripts or mesh files behind the meshes, and the package versions, so
 changing dt, steps, loads, damping or k_ex never redoes the precompute, while
@@ -61,6 +67,13 @@ from lbshape.io.cache import cache_key, file_digest, load_artifact, save_artifac
 from lbshape.pipeline.meshes import build_mesh, posed_example, selected_vertices
 from lbshape.scene.schema import MeshSource, Scene
 from lbshape.shapespace.frames import body_frame
+from lbshape.shapespace.local_examples import (
+    LocalShapeSpace,
+    RegionSpec,
+    build_local_space,
+    region_cells,
+    submesh,
+)
 from lbshape.shapespace.projections import direct_projection, embed_example, make_shape_space
 from lbshape.shapespace.target_table import (
     TargetTable,
@@ -78,7 +91,7 @@ CUBATURE_TRAINING_POSES = 120
 #: seed of every random choice of the precompute (training poses, candidates)
 PRECOMPUTE_SEED = 20170401
 #: bumped whenever the artifact's content or meaning changes (part of the cache key)
-PIPELINE_VERSION = 5
+PIPELINE_VERSION = 7
 #: arrays every artifact holds, and those of scenes with examples
 _REQUIRED = ("points", "tets", "fixed", "U", "omega2", "cub_elements", "cub_weights")
 _REQUIRED_EXAMPLES = ("eigenvalues", "eigenvectors", "example_coefficients", "projection",
@@ -119,6 +132,7 @@ class Precomputed:
             (k, s) one row per example (padded with element -1, weight 0);
             ``lb_cubature_errors`` (largest over the examples).
         example_names: (k,) labels.
+        local: the local-example shape space (scenes with regions), or None.
         stage_seconds: wall time per stage (s) of the run that built the artifact.
         from_cache: True when loaded from the cache.
     """
@@ -145,6 +159,7 @@ class Precomputed:
     target_table: object | None = None
     target_boundary: str = "free"
     example_names: tuple[str, ...] = ()
+    local: LocalShapeSpace | None = None
     stage_seconds: dict = field(default_factory=dict)
     from_cache: bool = False
 
@@ -154,7 +169,13 @@ class Precomputed:
 
     @property
     def has_examples(self) -> bool:
+        """Global examples (the whole object's shape space)."""
         return self.example_coefficients is not None
+
+    @property
+    def has_local_examples(self) -> bool:
+        """Local examples by region (:attr:`local`)."""
+        return self.local is not None
 
     # --- shape-space maps in the elastic reduced coordinates (see module docstring)
     @property
@@ -248,7 +269,9 @@ class _Stages:
 def stage_names(scene: Scene) -> list[str]:
     """The stages this scene needs, in order."""
     names = ["mesh", "modes", "derivatives", "basis", "cubature"]
-    if scene.has_examples:
+    if scene.has_local_examples:
+        names += ["lb", "regions"]
+    elif scene.has_examples:
         names += ["lb", "examples", "projections", "target-table", "lb-cubature"]
     return names
 
@@ -258,6 +281,9 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False) -> 
     key = scene_cache_key(scene)
     if not force:
         required = _REQUIRED + (_REQUIRED_EXAMPLES if scene.has_examples else ())
+        if scene.has_local_examples:
+            required = _REQUIRED + ("eigenvalues", "eigenvectors") \
+                + LocalShapeSpace.required_arrays(len(scene.regions))
         cached = load_artifact(scene.name, key, required=required)
         if cached is not None:
             return _from_arrays(scene, key, *cached)
@@ -292,6 +318,7 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
             n_train=CUBATURE_TRAINING_POSES, n_holdout=CUBATURE_TRAINING_POSES // 2,
         )
     arrays = {
+        **_group_arrays(mesh),
         "points": mesh.points, "tets": mesh.tets, "fixed": fixed, "U": U,
         "omega2": np.asarray(modes.omega2), "cub_elements": cubature.elements,
         "cub_weights": cubature.weights,
@@ -299,10 +326,46 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
     meta = {"scene": scene.name, "cubature_errors": {
         "train": cubature.train_error, "holdout": cubature.holdout_error,
         "tolerance": cubature.tol, "reached_tolerance": bool(cubature.reached_tol)}}
-    if scene.has_examples:
+    if scene.has_local_examples:
+        local, eigen = _local_space(scene, mesh, U, fixed, stages)
+        arrays.update(local.arrays())
+        arrays.update(eigen)
+        meta["example_names"] = [_example_label(p) for p in scene.examples.poses]
+        meta["local_regions"] = [reg.name for reg in scene.regions]
+        meta["local_representation_errors"] = local.representation_errors
+    elif scene.has_examples:
         arrays.update(_shape_space_arrays(scene, mesh, U, fixed, stages))
         meta["example_names"] = [_example_label(p) for p in scene.examples.poses]
     return arrays, meta
+
+
+def _local_space(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.ndarray,
+                 stages: _Stages):
+    """The ``lb`` and ``regions`` stages of a scene with local examples."""
+
+    m = scene.reduced.m
+    with stages.stage("lb"):
+        spectrum = lb_spectrum(mesh, m)
+    rests: dict[MeshSource, TetMesh] = {}  # examples often share one mesh
+    poses = scene.examples.poses
+
+    def example_part(k: int, spec: RegionSpec):
+        source = poses[k].source
+        if source not in rests:
+            rests[source] = build_mesh(source)
+        what = f"region '{spec.name}' on example {k + 1} ({_example_label(poses[k])})"
+        cells = region_cells(rests[source], group=spec.group, region=spec.region, what=what)
+        part, _ = submesh(rests[source], cells, what=what)
+        return part, posed_example(poses[k], part).points
+
+    specs = [RegionSpec(reg.name, reg.selection.group, reg.selection.region, reg.examples)
+             for reg in scene.regions]
+    with stages.stage("regions"):
+        local = build_local_space(
+            mesh, scene.material, U, specs, example_part, m=m,
+            object_pose=lambda k, part: posed_example(poses[k], part).points,
+            global_eigenvectors=spectrum.eigenvectors, fixed_vertices=fixed)
+    return local, {"eigenvalues": spectrum.eigenvalues, "eigenvectors": spectrum.eigenvectors}
 
 
 def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.ndarray,
@@ -393,6 +456,23 @@ def _example_label(pose) -> str:
     return f"{source}:{pose.pose}" if pose.pose else str(source)
 
 
+def _group_arrays(mesh: TetMesh) -> dict[str, np.ndarray]:
+    """The mesh's physical groups as artifact arrays (loads may name them at run time)."""
+    out = {f"cgroup__{name}": np.asarray(v, dtype=np.int64) for name, v in mesh.cell_groups.items()}
+    out.update({f"vgroup__{name}": np.asarray(v, dtype=np.int64)
+                for name, v in mesh.vertex_groups.items()})
+    return out
+
+
+def _groups_from_arrays(arrays: dict) -> tuple[dict, dict]:
+    """Inverse of :func:`_group_arrays`: (cell groups, vertex groups)."""
+    cells = {k[len("cgroup__"):]: np.asarray(v, dtype=np.int64) for k, v in arrays.items()
+             if k.startswith("cgroup__")}
+    vertices = {k[len("vgroup__"):]: np.asarray(v, dtype=np.int64) for k, v in arrays.items()
+                if k.startswith("vgroup__")}
+    return cells, vertices
+
+
 def _check_sizes(scene: Scene, mesh: TetMesh, fixed: np.ndarray) -> None:
     free_dofs = 3 * (mesh.n_vertices - fixed.size) - (0 if fixed.size else 6)
     r, s, m = scene.reduced.r, scene.reduced.s, scene.reduced.m
@@ -406,7 +486,8 @@ def _check_sizes(scene: Scene, mesh: TetMesh, fixed: np.ndarray) -> None:
 
 def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
                  from_cache: bool = True) -> Precomputed:
-    mesh = TetMesh(np.asarray(arrays["points"]), np.asarray(arrays["tets"]))
+    mesh = TetMesh(np.asarray(arrays["points"]), np.asarray(arrays["tets"]),
+                   *_groups_from_arrays(arrays))
     has_examples = "example_coefficients" in arrays
     return Precomputed(
         scene=scene.name, key=key, mesh=mesh, material=scene.material,
@@ -415,8 +496,8 @@ def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
         cubature_elements=np.asarray(arrays["cub_elements"], dtype=np.int64),
         cubature_weights=np.asarray(arrays["cub_weights"]),
         cubature_errors=meta.get("cubature_errors", {}),
-        eigenvalues=arrays.get("eigenvalues") if has_examples else None,
-        eigenvectors=arrays.get("eigenvectors") if has_examples else None,
+        eigenvalues=arrays.get("eigenvalues"),
+        eigenvectors=arrays.get("eigenvectors"),
         example_coefficients=arrays.get("example_coefficients") if has_examples else None,
         projection=arrays.get("projection") if has_examples else None,
         alignment_residuals=arrays.get("alignment_residuals") if has_examples else None,
@@ -431,6 +512,9 @@ def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
         target_boundary=("clamped" if has_examples and int(np.asarray(
             arrays.get("target_clamped", [0]))[0]) else "free"),
         example_names=tuple(meta.get("example_names", ())),
+        local=(LocalShapeSpace.from_arrays(meta["local_regions"], arrays,
+                                           meta.get("local_representation_errors", {}))
+               if "local_regions" in meta else None),
         stage_seconds=dict(meta.get("stage_seconds", {})),
         from_cache=from_cache,
     )

@@ -46,11 +46,22 @@ from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic, write_npz_atomic
 from lbshape.io.trajectory import TrajectoryWriter
+from lbshape.pipeline.influence import (
+    Influence,
+    compare_runs,
+    has_example_force,
+    without_examples,
+)
 from lbshape.pipeline.meshes import selected_vertices
 from lbshape.pipeline.precompute import Precomputed
 from lbshape.pipeline.routes import example_driver
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.interpolation import BASELINE_ROUTE, resolve_route
+from lbshape.shapespace.local_examples import (
+    FullSpaceLocalForce,
+    local_example_driver,
+    local_route,
+)
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +121,8 @@ def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[TimedLoad]:
 def example_stiffness(scene: Scene, pre: Precomputed) -> float:
     """k_ex in 1/s² when the example force is active (examples precomputed, k_ex > 0), else 0."""
     k_ex = scene.examples.stiffness if scene.examples is not None else 0.0
-    return float(k_ex) if pre.has_examples and k_ex > 0 else 0.0
+    active = pre.has_examples or pre.has_local_examples
+    return float(k_ex) if active and k_ex > 0 else 0.0
 
 
 def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced",
@@ -136,7 +148,11 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
     if k_ex > 0:
         route = (resolve_route(scene.reduced.interpolation, scene.material.model)
                  if method == "reduced" else BASELINE_ROUTE)
+    if k_ex > 0 and pre.has_examples:
         driver = example_driver(pre, route=route)
+    elif k_ex > 0:  # local examples
+        driver = local_example_driver(pre.mesh, pre.material, pre.local,
+                                      route=local_route(route, pre.material))
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
@@ -147,23 +163,24 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
 def full_simulation(scene: Scene, pre: Precomputed) -> FullSpaceSimulator:
     """The :class:`~lbshape.dynamics.full.FullSpaceSimulator` of a scene (the ``full`` method).
 
-    Contact planes are not modelled by the full-space method and local regions are
-    treated as global examples; both are logged as warnings.
+    Contact planes are not modelled by the full-space method (logged as a warning);
+    local examples use :class:`~lbshape.shapespace.local_examples.FullSpaceLocalForce`.
     """
     if scene.planes:
         log.warning("scene %s: contact planes are not modelled by the full-space method",
                     scene.name)
-    if scene.regions:
-        log.warning("scene %s: local example regions are treated as global examples by the "
-                    "full-space method", scene.name)
     loads = load_patterns(scene, pre, mass_matrix(pre.mesh, pre.material.density))
     k_ex = example_stiffness(scene, pre)
-    examples = (FullSpaceExamples(pre.eigenvalues, pre.eigenvectors, pre.example_coefficients,
-                                  k_ex) if k_ex > 0 else None)
+    examples, local = None, None
+    if k_ex > 0 and pre.has_examples:
+        examples = FullSpaceExamples(pre.eigenvalues, pre.eigenvectors,
+                                     pre.example_coefficients, k_ex)
+    elif k_ex > 0:  # local examples (example_stiffness is 0 without any examples)
+        local = (FullSpaceLocalForce(pre.mesh, pre.material, pre.local), k_ex)
     return FullSpaceSimulator(
         pre.mesh, pre.material, dt=scene.simulation.dt, fixed_vertices=pre.fixed_vertices,
         integrator=scene.simulation.integrator, alpha=scene.damping.alpha,
-        beta=scene.damping.beta, loads=loads, examples=examples,
+        beta=scene.damping.beta, loads=loads, examples=examples, local_examples=local,
     )
 
 
@@ -188,8 +205,14 @@ def run_method(scene: Scene, pre: Precomputed, *, method: str, steps: int,
 
 
 def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
-             steps: int | None = None, out: Path | None = None) -> SimulationOutput:
-    """Run ``scene`` with ``method`` for ``steps`` (default: the scene's) steps."""
+             steps: int | None = None, out: Path | None = None,
+             influence: bool = False) -> SimulationOutput:
+    """Run ``scene`` with ``method`` for ``steps`` (default: the scene's) steps.
+
+    With ``influence`` and a scene whose examples act (``k_ex > 0``), the same
+    scene is also run without examples and the stats gain the example influence
+    keys (:data:`lbshape.pipeline.influence.STATS_KEYS`).
+    """
     if method not in METHODS:
         raise LbshapeError(f"method must be one of {METHODS}, got {method!r}")
     steps = scene.simulation.steps if steps is None else int(steps)
@@ -224,9 +247,34 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "stable": bool(record.stable), "max_displacement": max_disp,
     }
     output = SimulationOutput(stats, record.times, frames, record.message, phase_ms)
+    if influence and record.stable and has_example_force(scene, pre):
+        stats.update(example_influence(scene, pre, output, method=method, steps=steps)[0].stats())
     if out is not None:
         write_outputs(Path(out), pre, output)
     return output
+
+
+def example_influence(scene: Scene, pre: Precomputed, output: SimulationOutput, *,
+                      method: str, steps: int | None = None
+                      ) -> tuple[Influence, SimulationOutput]:
+    """Run ``scene`` without examples and compare with ``output``, its run with examples.
+
+    See :mod:`lbshape.pipeline.influence`. The reference uses the same method,
+    steps and precompute with ``k_ex = 0``.
+
+    Returns:
+        ``(influence, the run without examples)``.
+
+    Raises:
+        LbshapeError: no example force in the scene, or a run that stopped early.
+    """
+    if not has_example_force(scene, pre):
+        raise LbshapeError(f"scene {scene.name} has no example force to measure")
+    reference = simulate(without_examples(scene), pre, method=method, steps=steps)
+    if output.message or reference.message:
+        raise LbshapeError(f"example influence of {scene.name} ({method}): a run stopped: "
+                           f"{output.message or reference.message}")
+    return compare_runs(pre, output, reference), reference
 
 
 def write_outputs(out: Path, pre: Precomputed, output: SimulationOutput) -> None:

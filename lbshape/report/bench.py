@@ -27,9 +27,10 @@ import numpy as np
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.paths import RESULTS_DIR
+from lbshape.pipeline.influence import has_example_force
 from lbshape.pipeline.meshes import build_mesh
 from lbshape.pipeline.precompute import precompute
-from lbshape.pipeline.simulate import METHODS, WARMUP_STEPS, simulate
+from lbshape.pipeline.simulate import METHODS, WARMUP_STEPS, example_influence, simulate
 
 log = logging.getLogger(__name__)
 
@@ -172,6 +173,10 @@ class SceneBenchmark:
         rows: one dict per method with exactly the keys :data:`ROW_KEYS`
             (times: medians over repeats; ``error_vs_full`` None when undefined).
         timings: the spread of the times, one per method (same order as ``rows``).
+        influence: ``(method, stats)`` pairs: the example influence keys
+            (:data:`lbshape.pipeline.influence.STATS_KEYS`) of the ``reduced`` and
+            ``full`` runs against the same scene without examples (empty without
+            examples).
     """
 
     scene: str
@@ -181,6 +186,7 @@ class SceneBenchmark:
     warmup: int
     rows: tuple[dict, ...]
     timings: tuple[MethodTiming, ...]
+    influence: tuple[tuple[str, dict], ...] = ()
 
     def row(self, method: str) -> dict | None:
         """The row of ``method`` (None if it was not run)."""
@@ -224,6 +230,7 @@ def bench_scene(
     repeats: int = 3,
     pre=None,
     progress: bool = False,
+    influence: bool = True,
 ) -> SceneBenchmark:
     """Run the methods side by side on one scene (see the module docstring).
 
@@ -235,6 +242,8 @@ def bench_scene(
         pre: the scene's :class:`~lbshape.pipeline.precompute.Precomputed` (default: built or
             loaded from the cache).
         progress: show the precompute's progress bars on stderr.
+        influence: with examples, also run ``reduced`` and ``full`` once without
+            examples and record the example influence.
 
     Returns:
         The :class:`SceneBenchmark`. A run that stops on a solver failure is kept
@@ -254,8 +263,27 @@ def bench_scene(
              error=_error_vs_full(outputs[timing.method], outputs.get("full"), mass))
         for timing in timings
     )
+    effects = _influence(scene, pre, outputs, steps=steps) if influence else ()
     return SceneBenchmark(scene.name, float(scene.simulation.dt), steps, repeats, WARMUP_STEPS,
-                          rows, timings)
+                          rows, timings, effects)
+
+
+def _influence(scene, pre, outputs: dict, *, steps: int) -> tuple[tuple[str, dict], ...]:
+    """Example influence of the finished ``reduced`` and ``full`` runs (stable ones only)."""
+    if not has_example_force(scene, pre):
+        return ()
+    effects = []
+    for method in ("reduced", "full"):
+        output = outputs.get(method)
+        if output is None or not output.stats["stable"]:
+            continue
+        try:
+            effect, _ = example_influence(scene, pre, output, method=method, steps=steps)
+        except LbshapeError as exc:
+            log.error("bench %s: no example influence for %s: %s", scene.name, method, exc)
+            continue
+        effects.append((method, effect.stats()))
+    return tuple(effects)
 
 
 def _run_interleaved(scene, pre, methods: tuple[str, ...], *, steps: int, repeats: int):

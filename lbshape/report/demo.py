@@ -5,10 +5,23 @@ summary to ``results/demo/`` (atomically):
 
 1. precompute (cached): LB shape space with different-topology examples (a cuboid
    bar guided by twisted cylinders), nonlinear modal basis, cubature;
-2. simulate with the paper's reduced method and with the full-space reference;
-3. error of the reduced trajectory against the full one, per-step times;
-4. pictures: the bar at a few instants (reduced and full), the examples, and the
-   interior LB eigenfunctions of the teddy (the paper's Figure 2).
+2. simulate the bar under its twisting load three ways: the reduced method with
+   **no examples** (``k_ex = 0``), the reduced method **with the examples** (the
+   paper's method) and the **full-space reference** with the examples; plus the
+   full space without examples, for the reference's own example influence;
+3. numbers: error of the reduced run against the full one, per-step times, the
+   example influence (:mod:`lbshape.pipeline.influence`), the eq. 5 residual and
+   the twist of the bar's free end in each run;
+4. pictures: ``demo_comparison.png`` (rest | no examples | examples, reduced |
+   full reference, final frames; ``demo_end_view.png`` the same seen from below
+   the free end, where the twist shows best), ``demo.gif`` (the three runs animated side by
+   side), ``examples_on_object.png`` / ``examples_raw.png`` (the examples as the
+   method sees them on the object, and as given), ``demo_reduced.png`` /
+   ``demo_full.png`` (frames over time) and the interior LB eigenfunctions of the
+   teddy (the paper's Figure 2).
+
+The summary's ``headline`` states speed, error versus full and influence in one
+line; :data:`SUMMARY_KEYS` are the keys of its ``simulation`` part.
 """
 
 from __future__ import annotations
@@ -22,10 +35,16 @@ from lbshape.errors import LbshapeError
 from lbshape.geometry.shapes import build_shape
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import RESULTS_DIR
+from lbshape.pipeline.influence import compare_runs, end_twist_degrees, without_examples
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
 from lbshape.report.bench import trajectory_error
-from lbshape.report.figures import examples_figures, simulation_figure
+from lbshape.report.figures import (
+    comparison_animation,
+    comparison_figure,
+    examples_figures,
+    simulation_figure,
+)
 from lbshape.report.render import render_eigenfunctions
 from lbshape.scene import load_scene
 from lbshape.spectral.spectrum import lb_spectrum
@@ -34,6 +53,19 @@ log = logging.getLogger(__name__)
 
 #: repository-relative default output folder
 DEFAULT_OUT = RESULTS_DIR / "demo"
+#: keys of the ``simulation`` part of ``summary.json``
+SUMMARY_KEYS: tuple[str, ...] = (
+    "scene", "headline", "precompute_seconds", "precompute_from_cache", "stage_seconds",
+    "alignment_residuals", "cubature_errors", "reduced", "reduced_no_examples", "full",
+    "full_no_examples", "error_vs_full", "speedup_t_total", "example_influence",
+    "example_influence_max", "example_influence_full", "example_residual",
+    "example_residual_none", "end_twist_deg", "example_twist_deg", "simulation_seconds",
+    "pictures",
+)
+#: frames of the GIF
+ANIMATION_FRAMES = 40
+#: camera direction of ``demo_end_view.png``: below the free end, looking up the bar
+END_VIEW = (0.0, -0.25, -1.0)
 
 
 def spectra_figure(out: Path, *, m: int = 6) -> dict:
@@ -59,32 +91,88 @@ def spectra_figure(out: Path, *, m: int = 6) -> dict:
     return summary
 
 
+def headline(summary: dict) -> str:
+    """The one-line statement of speed, error versus full and example influence."""
+    reduced, full = summary["reduced"], summary["full"]
+    twist = summary["end_twist_deg"]
+    influence = summary["example_influence"]
+    influence_text = "undefined" if influence is None else f"{influence:.2f}"
+    return (
+        f"reduced {reduced['t_total_ms']:.2f} ms/step vs full {full['t_total_ms']:.2f} ms/step "
+        f"({summary['speedup_t_total']:.1f}x); error vs full {summary['error_vs_full']:.1%}; "
+        f"example influence {influence_text} (end twist {twist['reduced']:.0f} deg with "
+        f"examples, {twist['reduced_no_examples']:.0f} deg without; full reference "
+        f"{twist['full']:.0f} deg)"
+    )
+
+
 def simulation_figures(out: Path) -> dict:
-    """Precompute and simulate the demo scene (reduced and full); pictures and numbers."""
+    """Precompute and simulate the demo scene (see the module docstring); pictures and numbers."""
     scene = load_scene("demo")
+    if scene.examples is None or scene.examples.stiffness <= 0:
+        raise LbshapeError("the demo scene must have examples with k_ex > 0")
     started = time.perf_counter()
     pre = precompute(scene, progress=True)
     precompute_seconds = time.perf_counter() - started
-    runs = {method: simulate(scene, pre, method=method, out=out / "runs" / method)
-            for method in ("reduced", "full")}
+    plain = without_examples(scene)
+    started = time.perf_counter()
+    runs = {
+        "reduced": simulate(scene, pre, method="reduced", out=out / "runs" / "reduced"),
+        "reduced_no_examples": simulate(plain, pre, method="reduced",
+                                        out=out / "runs" / "reduced_no_examples"),
+        "full": simulate(scene, pre, method="full", out=out / "runs" / "full"),
+        "full_no_examples": simulate(plain, pre, method="full"),
+    }
+    simulation_seconds = time.perf_counter() - started
+    failed = {name: run.message for name, run in runs.items() if run.message}
+    if failed:
+        raise LbshapeError(f"demo runs stopped: {failed}")
     mass = mass_matrix(pre.mesh, scene.material.density)
     error = trajectory_error(runs["reduced"].displacements, runs["full"].displacements, mass,
                              times=runs["reduced"].times, times_full=runs["full"].times)
-    for method, run in runs.items():
-        simulation_figure(pre, run, out / f"demo_{method}.png")
-    examples_figures(scene, pre, out)
-    return {
+    influence = compare_runs(pre, runs["reduced"], runs["reduced_no_examples"], mass)
+    influence_full = compare_runs(pre, runs["full"], runs["full_no_examples"], mass)
+    twist = {name: end_twist_degrees(pre.mesh.points, run.displacements[-1])
+             for name, run in runs.items()}
+    rest = pre.mesh.points
+    example_twist = [end_twist_degrees(rest, pre.example_rest_points(k) - rest)
+                     for k in range(len(pre.example_names))]
+
+    compared = [("no examples (reduced)", runs["reduced_no_examples"]),
+                ("examples (reduced)", runs["reduced"]),
+                ("examples (full reference)", runs["full"])]
+    pictures = [
+        comparison_figure(pre, compared, out / "demo_comparison.png", twist=True),
+        comparison_figure(pre, compared, out / "demo_end_view.png", twist=True,
+                          view_vector=END_VIEW, view_up=(0.0, 1.0, 0.0), zoom=1.5),
+        comparison_animation(pre, compared, out / "demo.gif", frames=ANIMATION_FRAMES,
+                             twist=True),
+        *examples_figures(scene, pre, out),
+        simulation_figure(pre, runs["reduced"], out / "demo_reduced.png"),
+        simulation_figure(pre, runs["full"], out / "demo_full.png"),
+    ]
+    summary = {
         "scene": scene.name,
         "precompute_seconds": precompute_seconds,
         "precompute_from_cache": pre.from_cache,
         "stage_seconds": pre.stage_seconds,
         "alignment_residuals": [float(r) for r in pre.alignment_residuals],
         "cubature_errors": pre.cubature_errors,
-        "reduced": runs["reduced"].stats,
-        "full": runs["full"].stats,
+        **{name: run.stats for name, run in runs.items()},
         "error_vs_full": error,
         "speedup_t_total": runs["full"].stats["t_total_ms"] / runs["reduced"].stats["t_total_ms"],
+        "example_influence": influence.final,
+        "example_influence_max": influence.maximum,
+        "example_influence_full": influence_full.final,
+        "example_residual": influence.residual,
+        "example_residual_none": influence.residual_none,
+        "end_twist_deg": twist,
+        "example_twist_deg": example_twist,
+        "simulation_seconds": simulation_seconds,
+        "pictures": [p.name for p in pictures],
     }
+    summary["headline"] = headline(summary)
+    return {key: summary[key] for key in SUMMARY_KEYS}
 
 
 def run_demo(out: Path | None = None) -> Path:

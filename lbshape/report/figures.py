@@ -5,9 +5,15 @@
 * :func:`examples_figures` — the examples reconstructed on the object's mesh (what
   the method sees) and the raw example meshes posed (what the user gave);
 * :func:`eigenfunctions_figure` — the object's LB eigenfunctions on its interior;
+* :func:`local_examples_figures` — scenes with local examples (the paper's Figures
+  6 and 7): the regions, each example as the regions it guides see it, and the
+  final frame without and with the examples;
 * :func:`figure3` — the paper's Figure 3: rest; no examples, same-topology examples
   and other-topology examples in full space; other-topology examples reduced — the
-  final frame of each;
+  final frame of each, with the end twist and the examples' influence;
+* :func:`comparison_figure` / :func:`comparison_animation` — several runs of one
+  scene side by side (e.g. no examples, examples reduced, full reference): the
+  final frames as a PNG, the whole runs as a GIF, with the end twist in the captions;
 * :func:`render_scene` — all of the above that a scene supports, into one folder.
 
 Numbers behind each composite picture go to a JSON file next to it. Nothing here
@@ -18,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,10 +34,12 @@ from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import RESULTS_DIR
+from lbshape.pipeline.influence import compare_runs, end_twist_degrees
 from lbshape.pipeline.meshes import example_mesh
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
-from lbshape.report.render import render_eigenfunctions, render_shapes
+from lbshape.report.render import render_animation, render_eigenfunctions, render_shapes
+from lbshape.shapespace.local_examples import anchor_fit, region_example_distance
 from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
@@ -154,6 +163,119 @@ def examples_figures(scene, pre, out_dir: str | Path) -> tuple[Path, Path]:
     return on_object, raw_path
 
 
+def _region_labels(pre) -> np.ndarray:
+    """(n,) region number per vertex (1, 2, …; 0 outside every region)."""
+    labels = np.zeros(pre.mesh.n_vertices)
+    for number, region in enumerate(pre.local.regions, start=1):
+        labels[region.vertices] = number
+    return labels
+
+
+def _local_example_shape(pre, index: int) -> np.ndarray | None:
+    """(n, 3) the object with every region that example ``index`` guides in that
+    example's region shape, attached at the region's anchor as the runtime attaches
+    its targets (the rest state's rigid fit); None if no region uses it."""
+    mesh = pre.mesh
+    u, count = np.zeros((mesh.n_vertices, 3)), np.zeros(mesh.n_vertices)
+    for region in pre.local.regions:
+        hits = np.flatnonzero(region.examples == index)
+        if hits.size == 0:
+            continue
+        shape = region.displacement(region.example_coefficients[hits[0]]).reshape(-1)
+        part = region.submesh(mesh)
+        Q, F, rows = anchor_fit(part.points, mass_matrix(part, 1.0), region.anchor)
+        u[region.vertices] += (shape - Q @ (F @ shape[rows])).reshape(-1, 3)
+        count[region.vertices] += 1
+    if not count.any():
+        return None
+    return u / np.maximum(count, 1)[:, None]
+
+
+def _view_vector(mesh) -> tuple[float, float, float]:
+    """A camera direction: mostly along the thin axis of a flat object, else oblique."""
+    extent = np.ptp(mesh.points, axis=0)
+    thin = int(np.argmin(extent))
+    if extent[thin] >= 0.3 * extent.max():
+        return (1.0, -1.0, 0.5)
+    view = np.array([0.35, -0.6, 0.35])
+    view[thin] = 1.0
+    return tuple(float(v) for v in view)
+
+
+def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Path, ...]:
+    """``local_regions.png``, ``local_examples.png``, ``local_result.png`` and
+    ``local_examples.json``.
+
+    The regions picture colours the object at rest by region; the examples picture
+    shows the rest shape and each example as the regions it guides see it
+    (reconstructed on the object's mesh from the region's m coefficients), coloured
+    by the example's displacement; the result picture the rest shape, the final
+    frame of the same run without examples (k_ex = 0) and ``output``'s final frame,
+    coloured by |u|. The JSON holds the example influence ``‖u_ex − u_none‖_M / ‖u_none‖_M``
+    and, per region, the distance to its examples (eq. 5's residual, relative to
+    the largest example) and weights, without and with the examples.
+    """
+    if not pre.has_local_examples:
+        raise LbshapeError(f"scene {scene.name} has no local examples to draw")
+    out_dir = Path(out_dir)
+    labels = _region_labels(pre)
+    names = ", ".join(f"{i}={reg.name}" for i, reg in enumerate(pre.local.regions, start=1))
+    shapes, captions = [], []
+    for index, pose in enumerate(scene.examples.poses):
+        u = _local_example_shape(pre, index)
+        if u is not None:
+            users = [reg.name for reg in pre.local.regions if index in reg.examples]
+            shapes.append(u)
+            captions.append(f"{example_caption(index, pose)} -> {', '.join(users)}")
+    view = _view_vector(pre.mesh)
+    regions_png = render_shapes(
+        [pre.mesh], [f"{scene.name}: regions ({names}; 0 = none)"],
+        out_dir / "local_regions.png", scalars=[labels], scalar_name="region",
+        window_size=(900, 640), view_vector=view, clim=(0.0, float(labels.max())))
+    examples_png = render_shapes(
+        [pre.mesh, *(_deformed(pre, u) for u in shapes)],
+        ["rest", *captions], out_dir / "local_examples.png",
+        scalars=[None, *(np.linalg.norm(u, axis=1) for u in shapes)],
+        scalar_name="|x_k - X| (m)", window_size=(480 * (len(shapes) + 1), 560),
+        view_vector=view)
+    method = output.stats.get("method", "reduced")
+    none_scene = dataclasses.replace(
+        scene, examples=dataclasses.replace(scene.examples, stiffness=0.0))
+    none = simulate(none_scene, pre, method=method, steps=output.stats["steps"])
+    u_none, u_ex = none.displacements[-1], output.displacements[-1]
+    mass = mass_matrix(pre.mesh, pre.material.density)
+    diff, ref = (u_ex - u_none).reshape(-1), u_none.reshape(-1)
+    influence = float(np.sqrt(diff @ (mass @ diff)) / np.sqrt(ref @ (mass @ ref)))
+    t = output.times[-1]
+    result_png = render_shapes(
+        [pre.mesh, _deformed(pre, u_none), _deformed(pre, u_ex)],
+        ["rest", f"no examples ({method}) t={t:.2f} s",
+         f"local examples ({method}) t={t:.2f} s, influence {influence:.2f}"],
+        out_dir / "local_result.png",
+        scalars=[None, np.linalg.norm(u_none, axis=1), np.linalg.norm(u_ex, axis=1)],
+        window_size=(1500, 640), view_vector=view)
+    regions = {}
+    for region in pre.local.regions:
+        d_none, w_none = region_example_distance(pre.mesh, region, u_none,
+                                                 density=pre.material.density)
+        d_ex, w_ex = region_example_distance(pre.mesh, region, u_ex,
+                                             density=pre.material.density)
+        regions[region.name] = {
+            "examples": [int(k) for k in region.examples],
+            "distance_to_examples": {"no_examples": d_none, "examples": d_ex},
+            "weights": {"no_examples": w_none.tolist(), "examples": w_ex.tolist()},
+            "moves_toward_examples": bool(d_ex < d_none),
+            "alignment_residuals": region.alignment_residuals.tolist(),
+        }
+    summary = write_json_atomic(out_dir / "local_examples.json", {
+        "scene": scene.name, "method": method, "steps": output.stats["steps"],
+        "time_s": float(t), "example_influence": influence, "regions": regions,
+        "covered_volume_fraction": pre.local.covered,
+        "representation_errors": pre.local.representation_errors,
+    })
+    return regions_png, examples_png, result_png, summary
+
+
 def eigenfunctions_figure(scene, pre, path: str | Path, *, count: int = 4) -> Path:
     """The object's first ``count`` LB eigenfunctions on a cut through its interior.
 
@@ -214,31 +336,103 @@ def figure3(same_topology, other_topology, path: str | Path, *,
         (f"{other_label} examples (full)", other_topology, pre_other, "full"),
         (f"{other_label} examples (reduced)", other_topology, pre_other, "reduced"),
     ]
-    finals, labels = [], ["rest"]
+    outputs, labels = [], ["rest"]
     for label, scene, pre, method in runs:
         output = simulate(scene, pre, method=method, steps=steps)
         if output.message:
             raise LbshapeError(f"Figure 3 run '{label}' stopped: {output.message}")
-        finals.append(output.displacements[-1])
-        labels.append(f"{label} t={output.times[-1]:.2f} s")
+        outputs.append(output)
         log.info("figure 3: %s done", label)
+    finals = [output.displacements[-1] for output in outputs]
+    twists = [end_twist_degrees(a.points, u) for u in finals]
+    for (label, *_), output, twist in zip(runs, outputs, twists, strict=True):
+        labels.append(f"{label}\nt={output.times[-1]:.2f} s, end twist {twist:.0f} deg")
     mass = mass_matrix(a, pre_same.material.density)
+    # the examples' effect on the full-space runs, against the run without examples
+    influences = [compare_runs(pre, output, outputs[0], mass).stats() for pre, output in
+                  ((pre_same, outputs[1]), (pre_other, outputs[2]))]
     flat_full, flat_reduced = finals[2].reshape(-1), finals[3].reshape(-1)
     diff = flat_reduced - flat_full
     reference = float(np.sqrt(flat_full @ (mass @ flat_full)))
     relative = float(np.sqrt(diff @ (mass @ diff))) / reference if reference > 0 else float("nan")
     meshes = [a, *(_deformed(pre_same, u) for u in finals)]
     scalars = [None, *(np.linalg.norm(u, axis=1) for u in finals)]
-    png = render_shapes(meshes, labels, path, scalars=scalars)
+    png = render_shapes(meshes, labels, path, scalars=scalars, ghost=a,
+                        scalar_name="displacement (m)")
     maxima = (0.0, *(float(np.linalg.norm(u, axis=1).max()) for u in finals))
     result = Figure3(png, tuple(labels), maxima, relative, int(steps))
     write_json_atomic(Path(path).with_suffix(".json"), {
         "scenes": [same_topology.name, other_topology.name], "steps": int(steps),
         "dt": same_topology.simulation.dt, "panels": list(labels),
         "final_max_displacement_m": list(maxima),
+        "end_twist_deg": [0.0, *twists],
+        "example_influence_full": {same_topology.name: influences[0],
+                                   other_topology.name: influences[1]},
         "reduced_vs_full_final_relative_m_norm": relative,
     })
     return result
+
+
+def _twist_caption(pre, u: np.ndarray) -> str:
+    """`twist X deg` of the bar's free end for bar-like objects, '' otherwise."""
+    try:
+        return f"end twist {end_twist_degrees(pre.mesh.points, u):.0f} deg"
+    except LbshapeError:
+        return ""
+
+
+def comparison_figure(pre, runs: Sequence[tuple[str, object]], path: str | Path, *,
+                      frame: int = -1, twist: bool = False,
+                      view_vector: tuple[float, float, float] = (1.0, -1.0, 0.5),
+                      view_up: tuple[float, float, float] | None = None,
+                      zoom: float = 1.0) -> Path:
+    """One frame of several runs of a scene side by side, after the rest shape.
+
+    Args:
+        pre: the scene's precompute (rest mesh).
+        runs: ``(caption, SimulationOutput)`` pairs sampled at the same times.
+        path: output PNG.
+        frame: which sample (default: the last).
+        twist: add the twist of the end section (for a bar along z) to the captions.
+        view_vector: direction from the object to the camera; ``view_up`` its up
+            direction and ``zoom`` a zoom factor.
+
+    Each panel shows the rest shape as a faint wireframe and is coloured by |u| on
+    one shared scale; its caption gives the time (and the twist).
+    """
+    if not runs:
+        raise LbshapeError("no runs to compare")
+    finals = [np.asarray(output.displacements[frame]) for _, output in runs]
+    labels = ["rest"]
+    for (caption, output), u in zip(runs, finals, strict=True):
+        words = _twist_caption(pre, u) if twist else ""
+        labels.append(f"{caption}\nt = {output.times[frame]:.2f} s" + (f", {words}" if words
+                                                                         else ""))
+    meshes = [pre.mesh, *(_deformed(pre, u) for u in finals)]
+    scalars = [None, *(np.linalg.norm(u, axis=1) for u in finals)]
+    return render_shapes(meshes, labels, path, scalars=scalars, ghost=pre.mesh,
+                         scalar_name="displacement (m)", window_size=(330 * len(meshes), 560),
+                         view_vector=view_vector, view_up=view_up, zoom=zoom)
+
+
+def comparison_animation(pre, runs: Sequence[tuple[str, object]], path: str | Path, *,
+                         frames: int = 40, fps: float = 12.0, twist: bool = False) -> Path:
+    """A GIF of several runs of a scene side by side (same sample times), ``frames`` frames;
+    with ``twist`` each panel's caption follows the twist of a bar's end section."""
+    if not runs:
+        raise LbshapeError("no runs to animate")
+    times = np.asarray(runs[0][1].times)
+    for caption, output in runs:
+        if len(output.times) != len(times) or not np.allclose(output.times, times):
+            raise LbshapeError(f"run '{caption}' is sampled at other times than the first run")
+    picks = np.unique(np.linspace(0, len(times) - 1, max(2, frames)).round().astype(int))
+    displacements = [np.asarray(output.displacements)[picks] for _, output in runs]
+    notes = None
+    if twist:
+        notes = [[_twist_caption(pre, u[f]) for u in displacements] for f in range(picks.size)]
+    return render_animation(pre.mesh, displacements, [caption for caption, _ in runs], path,
+                            times=times[picks], scalar_name="displacement (m)", fps=fps,
+                            notes=notes, window_size=(280 * len(runs), 470))
 
 
 def render_scene(scene, out: str | Path, *, steps: int | None = None, method: str = "reduced",
@@ -246,8 +440,9 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
     """Every picture of one scene into ``out`` (see the module docstring).
 
     Writes ``simulation.png`` (``method``'s run), ``eigenfunctions.png`` and, with
-    examples, ``examples_on_object.png`` and ``examples_raw.png``; plus
-    ``summary.json`` (the run's stats and the files).
+    examples, ``examples_on_object.png`` and ``examples_raw.png`` (with local
+    examples: ``local_regions.png``, ``local_examples.png``, ``local_result.png``
+    and ``local_examples.json``); plus ``summary.json`` (the run's stats and the files).
 
     Args:
         scene: the scene.
@@ -266,6 +461,8 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
     paths.append(eigenfunctions_figure(scene, pre, out / "eigenfunctions.png"))
     if pre.has_examples:
         paths.extend(examples_figures(scene, pre, out))
+    if pre.has_local_examples:
+        paths.extend(local_examples_figures(scene, pre, output, out)[:3])
     summary = write_json_atomic(out / "summary.json", {
         "scene": scene.name, "simulation": output.stats, "message": output.message,
         "pictures": [p.name for p in paths],

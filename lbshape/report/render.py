@@ -108,6 +108,9 @@ def render_shapes(
     window_size: tuple[int, int] | None = None,
     view_vector: tuple[float, float, float] = (1.0, -1.0, 0.5),
     clim: tuple[float, float] | None = None,
+    ghost: TetMesh | None = None,
+    view_up: tuple[float, float, float] | None = None,
+    zoom: float = 1.0,
 ) -> Path:
     """Several solids side by side (one panel each), sharing one camera direction.
 
@@ -117,6 +120,9 @@ def render_shapes(
         path: output PNG.
         scalars: optional per-vertex (n,) values per panel (e.g. displacement norm).
         clim: colour range shared by all panels (default: the max over panels).
+        ghost: a shape drawn as a faint wireframe in every panel (e.g. the rest shape).
+        view_up: the camera's up direction (default: pyvista's).
+        zoom: camera zoom factor after framing the shape.
     """
     pv = _pyvista()
     k = len(meshes)
@@ -143,7 +149,97 @@ def render_shapes(
         else:
             plotter.add_mesh(surface, color="#c8d2e0", show_edges=True, edge_color="#333333",
                              line_width=0.3)
+        if ghost is not None and mesh is not ghost:
+            plotter.add_mesh(to_grid(ghost).extract_surface(algorithm="dataset_surface"),
+                             style="wireframe", color="#888888", opacity=0.25, line_width=0.5)
         plotter.add_text(label, font_size=10)
-        plotter.view_vector(view_vector)
+        plotter.view_vector(view_vector, viewup=view_up)
+        if zoom != 1.0:
+            plotter.camera.zoom(zoom)
     plotter.link_views()
     return _save(plotter, Path(path))
+
+
+def render_animation(
+    rest: TetMesh,
+    displacements: Sequence[np.ndarray],
+    labels: Sequence[str],
+    path: str | Path,
+    *,
+    times: np.ndarray,
+    scalar_name: str = "|u| (m)",
+    clim: tuple[float, float] | None = None,
+    fps: float = 12.0,
+    window_size: tuple[int, int] | None = None,
+    view_vector: tuple[float, float, float] = (1.0, -1.0, 0.5),
+    ghost: bool = True,
+    notes: Sequence[Sequence[str]] | None = None,
+) -> Path:
+    """An animated GIF of several runs of one mesh side by side (one panel per run).
+
+    Args:
+        rest: the rest mesh (n vertices) all runs displace.
+        displacements: one (f, n, 3) array per panel (m), the same f frames each.
+        labels: one caption per panel.
+        path: output GIF (Pillow writes it; looped).
+        times: (f,) frame times (s), printed on the first panel.
+        scalar_name: name of the colour field, |u| of each vertex.
+        clim: shared colour range (default: 0 to the largest |u| of any frame).
+        fps: frames per second of the GIF.
+        ghost: draw the rest shape as a faint wireframe in every panel.
+        notes: optional (f, panels) second caption lines, one per frame and panel.
+    """
+    from PIL import Image
+
+    pv = _pyvista()
+    runs = [np.asarray(u, dtype=float).reshape(len(u), -1, 3) for u in displacements]
+    k, count = len(runs), len(times)
+    if k == 0 or len(labels) != k or any(u.shape != (count, rest.n_vertices, 3) for u in runs):
+        raise ValueError("one label and one (f, n, 3) displacement array per panel, f = len(times)")
+    norms = [np.linalg.norm(u, axis=2) for u in runs]
+    if clim is None:
+        clim = (0.0, float(max(v.max() for v in norms)) or 1.0)
+    window_size = window_size or (330 * k, 520)
+    plotter = pv.Plotter(off_screen=True, shape=(1, k), window_size=window_size, border=False)
+    base = to_grid(rest).extract_surface(algorithm="dataset_surface")
+    ids = np.asarray(base.point_data["vtkOriginalPointIds"])
+    widest = [int(np.argmax(v.max(axis=1))) for v in norms]
+    surfaces = []
+    for panel in range(k):
+        plotter.subplot(0, panel)
+        surface = base.copy()
+        surface.points = rest.points[ids] + runs[panel][widest[panel]][ids]
+        surface.point_data[scalar_name] = norms[panel][widest[panel]][ids]
+        plotter.add_mesh(surface, scalars=scalar_name, cmap="viridis", clim=clim, show_edges=True,
+                         edge_color="#333333", line_width=0.3, show_scalar_bar=False)
+        if ghost:
+            plotter.add_mesh(base.copy(), style="wireframe", color="#888888", opacity=0.25,
+                             line_width=0.5)
+        plotter.view_vector(view_vector)  # frames the widest frame; the camera then stays
+        surfaces.append(surface)
+    plotter.link_views()
+    plotter.subplot(0, k - 1)
+    plotter.add_text(f"colour: {scalar_name} {clim[0]:.3g} (dark) to {clim[1]:.3g} (yellow)",
+                     position="lower_right", font_size=8)
+    images = []
+    try:
+        for frame in range(count):
+            for panel, surface in enumerate(surfaces):
+                surface.points = rest.points[ids] + runs[panel][frame][ids]
+                surface.point_data[scalar_name] = norms[panel][frame][ids]
+                surface.Modified()
+                plotter.subplot(0, panel)
+                caption = labels[panel] if notes is None else \
+                    f"{labels[panel]}\n{notes[frame][panel]}"
+                plotter.add_text(caption, font_size=10, name="caption")
+            plotter.subplot(0, 0)
+            plotter.add_text(f"t = {times[frame]:.3f} s", position="lower_left", font_size=10,
+                             name="time")
+            plotter.render()
+            images.append(Image.fromarray(np.asarray(plotter.screenshot(return_img=True))))
+    finally:
+        plotter.close()
+    palette = [image.convert("P", palette=Image.ADAPTIVE, colors=255) for image in images]
+    duration = max(1, int(round(1000.0 / fps)))
+    return write_atomic(path, lambda tmp: palette[0].save(
+        tmp, format="GIF", save_all=True, append_images=palette[1:], duration=duration, loop=0))

@@ -40,6 +40,13 @@ _INTRO = (
     "of each method against it, `max_t ‖u(t) − u_full(t)‖_M / max_t ‖u_full(t)‖_M` "
     "(M the consistent elastic mass)."
 )
+_INFLUENCE_INTRO = (
+    "Each scene with examples is run again without them (same method, steps and "
+    "precompute): influence `‖u_ex(T) − u_none(T)‖_M / ‖u_none(T)‖_M` at the last step "
+    "and `max_t ‖u_ex − u_none‖_M / max_t ‖u_none‖_M`; the eq. 5 residual is the "
+    "distance of the final shape's LB descriptor to the convex hull of the example "
+    "descriptors, over the largest example descriptor (0: on the example manifold)."
+)
 _COLUMNS = (
     "| model | DOFs | tets | ex. | m | r | s | euclidean t_interp | euclidean t_total "
     "| reduced t_interp | reduced t_total | speed-up interp | speed-up total "
@@ -130,6 +137,16 @@ def _targets(result: SceneBenchmark) -> list[str]:
     return [f"- {result.scene}: " + "; ".join(checks) + "."]
 
 
+def _influence_rows(result: SceneBenchmark) -> list[str]:
+    """The example influence of each method with its eq. 5 residuals."""
+    return [
+        f"| {result.scene} | {method} | {_fmt(stats['example_influence'])} "
+        f"| {_fmt(stats['example_influence_max'])} | {_fmt(stats['example_residual'])} "
+        f"| {_fmt(stats['example_residual_none'])} |"
+        for method, stats in result.influence
+    ]
+
+
 def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
     """The Markdown of ``table2.md`` (see :func:`write_table2`).
 
@@ -144,6 +161,12 @@ def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
               "| model | method | repeats | t_interp | t_total | stable |",
               "|---|---|---|---|---|---|"]
     lines += [row for result in results for row in _spread_rows(result)]
+    if any(result.influence for result in results):
+        lines += ["", "## Example influence", "", _INFLUENCE_INTRO, "",
+                  "| model | method | influence at T | influence max over t "
+                  "| eq. 5 residual, examples | eq. 5 residual, no examples |",
+                  "|---|---|---|---|---|---|"]
+        lines += [row for result in results for row in _influence_rows(result)]
     lines += ["", "## Conditions", "", *_conditions(results, machine)]
     lines += ["", "## Targets (reported, not enforced)", ""]
     lines += [line for result in results for line in _targets(result)]
@@ -165,6 +188,10 @@ def table2_payload(results: Sequence[SceneBenchmark], machine: dict) -> dict:
             {"scene": result.scene, "dt": result.dt, "steps": result.steps,
              "repeats": result.repeats, "warmup_steps": result.warmup}
             for result in results
+        ],
+        "influence": [
+            {"scene": result.scene, "method": method, **stats}
+            for result in results for method, stats in result.influence
         ],
         "machine": machine,
     }

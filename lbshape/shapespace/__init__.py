@@ -6,6 +6,7 @@ __all__ = [
     "example_driver",
     "frames",
     "interpolation",
+    "local_examples",
     "polynomial_energy",
     "projections",
 ]

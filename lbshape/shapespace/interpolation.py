@@ -342,7 +342,9 @@ class TargetSolver:
             slope = g @ step
             t = 1.0
             f_new, g_new, H_new = self._evaluate(z + step, weights)
-            while not f_new <= f + 1e-4 * t * slope and t > 1e-6:
+            # round-off slack: at the minimum a Newton step cannot lower F measurably
+            slack = 1e-12 * abs(f)
+            while not f_new <= f + 1e-4 * t * slope + slack and t > 1e-6:
                 t *= 0.5
                 f_new, g_new, H_new = self._evaluate(z + t * step, weights)
             if not np.isfinite(f_new):

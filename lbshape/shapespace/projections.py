@@ -48,7 +48,13 @@ from lbshape.shapespace.alignment import (
     BasisAlignment,
     align_bases,
 )
-from lbshape.shapespace.frames import AlignedShape, BodyFrame, align_to_object, body_frame
+from lbshape.shapespace.frames import (
+    MAX_RELATIVE_RMS,
+    AlignedShape,
+    BodyFrame,
+    align_to_object,
+    body_frame,
+)
 from lbshape.spectral.spectrum import LBSpectrum, lb_spectrum
 
 
@@ -182,6 +188,7 @@ def embed_example(
     landmarks: np.ndarray | None = None,
     max_residual: float = MAX_RESIDUAL,
     name: str | None = None,
+    max_frame_rms: float | None = MAX_RELATIVE_RMS,
 ) -> EmbeddedExample:
     """Frame alignment, example spectrum, basis alignment and coefficients in one go.
 
@@ -198,16 +205,18 @@ def embed_example(
         name: how the frame alignment's refusal names the example (e.g.
             ``"example 2 (cube)"``); callers that prefix their own label to every
             error, as the precompute pipeline does, leave it out.
+        max_frame_rms: largest accepted relative RMS residual of the frame alignment.
 
     Raises:
         LbshapeError: the example's shape does not match the object's (frame
-            alignment residual above :data:`lbshape.shapespace.frames.MAX_RELATIVE_RMS`)
+            alignment residual above ``max_frame_rms``)
             or its LB basis cannot be aligned (residual above ``max_residual``).
     """
     m = object_spectrum.eigenvalues.shape[0]
     frame = body_frame(object_mesh) if object_frame is None else object_frame
     aligned = align_to_object(example_rest.points, example_rest.tets, frame,
-                              reference_points=object_mesh.points, name=name)
+                              reference_points=object_mesh.points, name=name,
+                              max_relative_rms=max_frame_rms)
     spectrum = offered_spectrum(example_rest.with_points(aligned.points), m)
     alignment = align_bases(object_spectrum, object_mesh, spectrum, aligned.points,
                             landmarks=landmarks, max_residual=max_residual)

@@ -1,0 +1,220 @@
+"""How much a scene's examples change its motion: the example influence and the eq. 5 residual.
+
+Whenever a scene has examples (and ``k_ex > 0``), the same scene run **without**
+examples (``k_ex = 0``, same method, same steps, same precompute; run by
+:func:`lbshape.pipeline.simulate.example_influence`) is the reference for their
+effect. With M the consistent elastic mass (kg) and
+``u_ex(t)``, ``u_none(t)`` (n, 3) the sampled displacements (m):
+
+* ``example_influence = ‖u_ex(T) − u_none(T)‖_M / ‖u_none(T)‖_M`` at the last
+  sample T;
+* ``example_influence_max = max_t ‖u_ex(t) − u_none(t)‖_M / max_t ‖u_none(t)‖_M``
+  (normalised like the trajectory error of the benchmarks, so that the first
+  steps, where ``u_none`` is still tiny, do not dominate);
+* ``example_residual`` / ``example_residual_none``: the eq. 5 residual of the
+  final shape with and without examples — the distance of its LB descriptor
+  ``d = λ ⊙ (Φᵀ M₁ u)`` (3m,) to the convex hull of the example descriptors,
+  ``min_{w ∈ simplex} ‖Σ_k w_k e_k − d‖``, divided by ``max_k ‖e_k‖`` (how far
+  the examples themselves are from the rest shape), so 0 means "on the example
+  manifold" and 1 "as far from it as the examples are from rest". With local
+  examples: the largest of the regions' residuals, each on its own descriptors.
+
+A measure is ``None`` when it is undefined: the reference never moves (division
+by zero) while the example run does. Two trajectories that agree to round-off
+(:data:`ROUNDOFF` of the object's size) have influence 0, also when neither moves.
+
+Examples equal to the rest shape are not "no examples": the example force
+``k_ex (q* − q)`` with ``q* = 0`` is a spring towards rest, so under loads their
+influence is ``k_ex / (ω² + k_ex)`` for a mode of angular frequency ω (a stiffer
+object); without loads they leave the object at rest (influence 0).
+
+The twist of a bar's end (:func:`end_twist_degrees`) is the number a reader of
+the paper's Figure 3 looks for; it is reported next to the influence by the
+pictures and the demo.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.errors import LbshapeError
+from lbshape.pipeline.precompute import Precomputed
+from lbshape.scene.schema import Scene
+from lbshape.shapespace.interpolation import simplex_weights
+from lbshape.shapespace.local_examples import region_example_distance
+
+#: M-norm differences below ROUNDOFF × sqrt(mass) × bounding-box diagonal count as none
+ROUNDOFF = 1e-12
+#: the stats keys this module adds to a run's ``stats.json``
+STATS_KEYS: tuple[str, ...] = (
+    "example_influence", "example_influence_max", "example_residual", "example_residual_none",
+)
+
+
+@dataclass(frozen=True)
+class Influence:
+    """The effect of a scene's examples on one method's run.
+
+    Attributes:
+        final: ``‖u_ex(T) − u_none(T)‖_M / ‖u_none(T)‖_M`` (None if undefined).
+        maximum: ``max_t ‖u_ex − u_none‖_M / max_t ‖u_none‖_M`` (None if undefined).
+        residual: eq. 5 residual of the final shape with examples (relative, see
+            the module docstring; None without examples).
+        residual_none: the same for the run without examples.
+    """
+
+    final: float | None
+    maximum: float | None
+    residual: float | None = None
+    residual_none: float | None = None
+
+    def stats(self) -> dict:
+        """The :data:`STATS_KEYS` entries of ``stats.json``."""
+        return dict(zip(STATS_KEYS, (self.final, self.maximum, self.residual,
+                                     self.residual_none), strict=True))
+
+
+def mass_norms(u: np.ndarray, mass) -> np.ndarray:
+    """(k,) ``sqrt(u(t)ᵀ M u(t))`` of displacements u (k, n, 3) or (k, 3n) (m), M (3n, 3n) kg."""
+    flat = np.asarray(u, dtype=float).reshape(len(u), -1)
+    if flat.shape[1] != mass.shape[0]:
+        raise LbshapeError(f"displacements have {flat.shape[1]} components per sample, the "
+                           f"mass matrix {mass.shape[0]} rows")
+    squares = np.einsum("ti,ti->t", flat, np.asarray((mass @ flat.T).T))
+    return np.sqrt(np.maximum(squares, 0.0))
+
+
+def _ratio(numerator: float, denominator: float, atol: float) -> float | None:
+    if numerator <= atol:
+        return 0.0
+    return numerator / denominator if denominator > 0.0 else None
+
+
+def trajectory_influence(u_ex: np.ndarray, u_none: np.ndarray, mass, *, atol: float = 0.0
+                         ) -> tuple[float | None, float | None]:
+    """``(final, maximum)`` influence of two trajectories sampled at the same times.
+
+    Args:
+        u_ex: (k, n, 3) displacements with examples (m).
+        u_none: (k, n, 3) displacements without examples (m).
+        mass: (3n, 3n) consistent mass (kg).
+        atol: M-norm differences (m·kg^½) up to ``atol`` count as none (influence 0).
+    """
+    u_ex, u_none = np.asarray(u_ex, dtype=float), np.asarray(u_none, dtype=float)
+    if u_ex.shape != u_none.shape or u_ex.shape[0] == 0:
+        raise LbshapeError(f"trajectories must have the same non-empty shape, got {u_ex.shape} "
+                           f"and {u_none.shape}")
+    difference = mass_norms(u_ex - u_none, mass)
+    reference = mass_norms(u_none, mass)
+    return (_ratio(float(difference[-1]), float(reference[-1]), atol),
+            _ratio(float(difference.max()), float(reference.max()), atol))
+
+
+def descriptor(pre: Precomputed, u: np.ndarray) -> np.ndarray:
+    """(3m,) LB descriptor ``λ ⊙ (Φᵀ M₁ u)`` of a displacement u (n, 3) in m (row-major, 3i + c)."""
+    volume_mass = mass_matrix(pre.mesh, 1.0)[0::3, 0::3]  # M₁ (n, n), m³
+    coefficients = np.asarray(pre.eigenvectors.T @ (volume_mass @ np.asarray(u).reshape(-1, 3)))
+    return coefficients.reshape(-1) * np.repeat(pre.eigenvalues, 3)
+
+
+def manifold_residual(pre: Precomputed, u: np.ndarray) -> float:
+    """Relative eq. 5 residual of displacement u (n, 3): distance of its descriptor to the
+    convex hull of the example descriptors over ``max_k ‖e_k‖`` (see the module docstring)."""
+    if not pre.has_examples:
+        raise LbshapeError(f"scene {pre.scene!r} has no examples: no example manifold")
+    examples = pre.example_descriptors
+    d = descriptor(pre, u)
+    w = simplex_weights(examples, d)
+    scale = float(np.linalg.norm(examples, axis=1).max())
+    distance = float(np.linalg.norm(w @ examples - d))
+    return distance / scale if scale > 0.0 else distance
+
+
+def local_residual(pre: Precomputed, u: np.ndarray) -> float:
+    """Local examples: the largest region's relative eq. 5 residual of u (n, 3), each on
+    the region's own descriptors
+    (:func:`lbshape.shapespace.local_examples.region_example_distance`)."""
+    return max(region_example_distance(pre.mesh, region, u, density=pre.material.density)[0]
+               for region in pre.local.regions)
+
+
+def has_example_force(scene: Scene, pre: Precomputed) -> bool:
+    """True when the scene's examples act on its motion (examples and ``k_ex > 0``)."""
+    active = pre.has_examples or pre.has_local_examples
+    return bool(active and scene.examples is not None and scene.examples.stiffness > 0)
+
+
+def without_examples(scene: Scene) -> Scene:
+    """The same scene with the example force switched off (``k_ex = 0``, same precompute)."""
+    if scene.examples is None:
+        return scene
+    return dataclasses.replace(scene, examples=dataclasses.replace(scene.examples, stiffness=0.0))
+
+
+def with_stiffness(scene: Scene, stiffness: float) -> Scene:
+    """The same scene with example stiffness ``k_ex`` = ``stiffness`` (1/s²)."""
+    if scene.examples is None:
+        raise LbshapeError(f"scene {scene.name} has no examples")
+    if not (math.isfinite(stiffness) and stiffness >= 0.0):
+        raise LbshapeError(f"example stiffness must be finite and >= 0, got {stiffness}")
+    return dataclasses.replace(scene, examples=dataclasses.replace(scene.examples,
+                                                                   stiffness=float(stiffness)))
+
+
+def compare_runs(pre: Precomputed, with_ex, without, mass=None) -> Influence:
+    """The :class:`Influence` of two finished runs (``SimulationOutput``) of one scene."""
+    if with_ex.displacements.shape != without.displacements.shape or not np.allclose(
+            with_ex.times, without.times):
+        raise LbshapeError("the runs with and without examples are sampled differently "
+                           "(a run stopped early?)")
+    mass = mass_matrix(pre.mesh, pre.material.density) if mass is None else mass
+    points = pre.mesh.points
+    size = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    atol = ROUNDOFF * size * math.sqrt(float(mass.sum()) / 3.0)
+    final, maximum = trajectory_influence(with_ex.displacements, without.displacements, mass,
+                                          atol=atol)
+    residual = residual_none = None
+    if pre.has_examples:
+        residual = manifold_residual(pre, with_ex.displacements[-1])
+        residual_none = manifold_residual(pre, without.displacements[-1])
+    elif pre.has_local_examples:
+        residual = local_residual(pre, with_ex.displacements[-1])
+        residual_none = local_residual(pre, without.displacements[-1])
+    return Influence(final, maximum, residual, residual_none)
+
+
+def end_twist_degrees(points: np.ndarray, u: np.ndarray, *, axis: int = 2,
+                      end: str = "min", tolerance: float = 1e-3) -> float:
+    """Mean rotation (degrees, right-handed about ``+axis``) of a bar's end section.
+
+    Args:
+        points: (n, 3) rest positions (m).
+        u: (n, 3) displacement (m).
+        axis: the bar's axis (0, 1, 2).
+        end: ``"min"`` or ``"max"``: which end section (vertices within
+            ``tolerance`` of the extreme axial coordinate).
+        tolerance: thickness of the end section (m).
+
+    Each vertex of the section beyond 30 % of its largest radius contributes the
+    angle between its arm from the section's centroid at rest and deformed.
+    """
+    points, u = np.asarray(points, dtype=float), np.asarray(u, dtype=float).reshape(-1, 3)
+    z = points[:, axis]
+    extreme = z.min() if end == "min" else z.max()
+    section = np.flatnonzero(np.abs(z - extreme) <= tolerance)
+    if section.size < 2:
+        raise LbshapeError("the bar's end section has fewer than two vertices")
+    i, j = (axis + 1) % 3, (axis + 2) % 3
+    rest = points[section] - points[section].mean(axis=0)
+    moved = points[section] + u[section]
+    moved = moved - moved.mean(axis=0)
+    a, b = rest[:, [i, j]], moved[:, [i, j]]
+    angles = np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], np.einsum("ij,ij->i", a, b))
+    radius = np.linalg.norm(a, axis=1)
+    keep = radius > 0.3 * radius.max()
+    return float(np.degrees(np.mean(angles[keep])))
