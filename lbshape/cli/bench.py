@@ -1,7 +1,10 @@
-"""``lbshape bench [SCENE…] [--json] [--steps N] [--repeats K] [--out-dir DIR] [--sweep]``.
+"""``lbshape bench [SCENE…] [--json] [--steps N] [--repeats K] [--out-dir DIR] [-j N] [--sweep]``.
 
-Runs ``full``, ``euclidean`` and ``reduced`` side by side in one process (default
-scenes: bar-cuboid, bar-cylinder) and writes ``table2.md`` and ``table2.json``.
+Runs ``full``, ``euclidean`` and ``reduced`` side by side in one process per scene
+(default scenes: bar-cuboid, bar-cylinder; names, TOML paths or globs) and writes
+``table2.md`` and ``table2.json``. Several scenes run in ``-j`` worker processes and
+end with a summary table (on stderr with ``--json``); a failed scene is listed and
+does not stop the others (exit code non-zero at the end).
 With ``--sweep`` it sweeps r, s and m of the reduced method per scene instead
 (:mod:`lbshape.report.pareto`) and writes ``pareto.md``, ``pareto.json`` and
 ``pareto.png``.
@@ -9,11 +12,13 @@ With ``--sweep`` it sweeps r, s and m of the reduced method per scene instead
 
 from __future__ import annotations
 
+import functools
 import sys
 from pathlib import Path
 
 from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
+from lbshape.pipeline.batch import expand_scenes, run_jobs, summary_table
 from lbshape.pipeline.simulate import WARMUP_STEPS
 from lbshape.report import pareto
 from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene
@@ -25,7 +30,7 @@ def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "bench", help="the methods side by side: per-step times and error vs full (Table 2)")
     parser.add_argument("scenes", nargs="*", metavar="SCENE",
-                        help="built-in scene names or TOML paths (default: bar-cuboid "
+                        help="built-in scene names, TOML paths or globs (default: bar-cuboid "
                              "bar-cylinder)")
     parser.add_argument("--json", action="store_true", help='print {"rows": [...]} as JSON')
     parser.add_argument("--steps", type=int, default=None,
@@ -33,6 +38,9 @@ def register(subparsers) -> None:
     parser.add_argument("--repeats", type=int, default=3, help="runs per method (default 3)")
     parser.add_argument("--out-dir", type=Path, default=None,
                         help="folder of table2.md and table2.json (default: results)")
+    parser.add_argument("-j", "--jobs", type=int, default=1,
+                        help="worker processes for several scenes (default 1; concurrent "
+                             "jobs share the machine's cores, which their timings include)")
     parser.add_argument("--sweep", action="store_true",
                         help="instead: sweep r, s and m per scene (default: bar-cuboid "
                              "bar-cylinder demo) and write pareto.md/.json/.png")
@@ -45,11 +53,23 @@ def run(args) -> int:
                            f"got {args.steps}")
     if args.repeats < 1:
         raise LbshapeError(f"--repeats must be >= 1, got {args.repeats}")
+    if args.jobs < 1:
+        raise LbshapeError(f"-j/--jobs must be >= 1, got {args.jobs}")
     if args.sweep:
         return _sweep(args)
-    scenes = [load_scene(name) for name in (args.scenes or DEFAULT_SCENES)]
-    results = [bench_scene(scene, steps=args.steps, repeats=args.repeats,
-                           progress=not args.json) for scene in scenes]
+    names, unmatched = expand_scenes(args.scenes or DEFAULT_SCENES)
+    if len(names) == 1 and not unmatched:  # one scene: errors as a one-line error
+        jobs = []
+        results = [bench_one(names[0], steps=args.steps, repeats=args.repeats,
+                             progress=not args.json)]
+    else:
+        jobs = unmatched + run_jobs(
+            functools.partial(bench_one, steps=args.steps, repeats=args.repeats),
+            names, jobs=args.jobs, progress=not args.json, desc="bench")
+        results = [job.value for job in jobs if job.ok]
+    if not results:
+        _print_summary(jobs, file=sys.stderr)
+        raise LbshapeError(f"no scene could be benchmarked ({len(jobs)} failed)")
     md, js = write_table2(results, args.out_dir or DEFAULT_OUT)
     rows = [row for result in results for row in result.rows]
     if args.json:
@@ -61,12 +81,39 @@ def run(args) -> int:
                   f"t_total {row['t_total_ms']:.3f} ms per step, error vs full "
                   f"{'—' if error is None else f'{error:.2%}'}")
         print(f"bench: {md} and {js}")
+    if jobs:
+        _print_summary(jobs, file=sys.stderr if args.json else sys.stdout)
     failed = [f"{r.scene} {t.method}: {t.message}" for r in results for t in r.timings
               if not t.stable]
+    errors = [job for job in jobs if not job.ok]
+    if errors:
+        print(f"error: {len(errors)} of {len(jobs)} scenes failed: "
+              f"{', '.join(job.scene for job in errors)}", file=sys.stderr)
     if failed:
         print(f"error: simulation stopped: {'; '.join(failed)}", file=sys.stderr)
         return 3
-    return 0
+    return max((job.exit_code for job in errors), default=0)
+
+
+def bench_one(name: str, *, steps: int | None, repeats: int, progress: bool = False):
+    """:func:`~lbshape.report.bench.bench_scene` of one scene argument (a batch job)."""
+    return bench_scene(load_scene(name), steps=steps, repeats=repeats, progress=progress)
+
+
+def _print_summary(jobs, *, file) -> None:
+    def cells(result):
+        reduced = result.row("reduced") or {}
+        error = reduced.get("error_vs_full")
+        stable = all(t.stable for t in result.timings)
+        return (str(len(result.rows)), _ms(reduced.get("t_total_ms")),
+                "—" if error is None else f"{error:.2%}", "yes" if stable else "no")
+
+    print(summary_table(jobs, ("methods", "reduced t_total (ms)", "reduced error", "stable"),
+                        cells), file=file)
+
+
+def _ms(value) -> str:
+    return "—" if value is None else f"{value:.3f}"
 
 
 def _sweep(args) -> int:

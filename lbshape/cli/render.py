@@ -1,4 +1,9 @@
-"""``lbshape render SCENE [--out DIR] [--steps N] [--method M]``: off-screen PNGs of a scene."""
+"""``lbshape render SCENE [--out DIR] [--steps N] [--method M] [--movie [--fps F]]``.
+
+Off-screen PNGs of a scene; ``--movie`` adds ``simulation.gif`` (and ``simulation.mp4``
+where the encoder is installed): the method and the ``full`` reference side by side,
+frames read from the trajectories written to ``OUT/runs/METHOD``.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,7 @@ from pathlib import Path
 
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.simulate import METHODS
+from lbshape.report.animation import simulation_movie
 from lbshape.report.figures import DEFAULT_OUT, FIGURE3_SCENES, FIGURE3_STEPS, figure3, render_scene
 from lbshape.scene import load_scene
 
@@ -22,12 +28,18 @@ def register(subparsers) -> None:
                              "at most 400)")
     parser.add_argument("--method", choices=METHODS, default="reduced",
                         help="method of the simulation frames (default: reduced)")
+    parser.add_argument("--movie", action="store_true",
+                        help="also a GIF (and MP4) of the run beside the full reference")
+    parser.add_argument("--fps", type=float, default=20.0,
+                        help="frames per second of the movie (default 20)")
     parser.set_defaults(func=run)
 
 
 def run(args) -> int:
     if args.steps is not None and args.steps < 1:
         raise LbshapeError(f"--steps must be >= 1, got {args.steps}")
+    if not args.fps > 0:
+        raise LbshapeError(f"--fps must be > 0, got {args.fps}")
     scene = load_scene(args.scene)
     out = args.out or DEFAULT_OUT / scene.name
     created = not out.exists()
@@ -45,11 +57,18 @@ def run(args) -> int:
             result = figure3(same, other, out / "figure3.png", steps=steps, progress=True)
             print(f"render {scene.name}: {result.path} (reduced vs full final frame: "
                   f"{result.reduced_vs_full_final:.2%})")
+        if args.movie:
+            movie = simulation_movie(scene, out, method=args.method, steps=args.steps,
+                                     fps=args.fps, progress=True)
+            for file in movie.movies:
+                print(f"render {scene.name}: {file.path} ({file.frames} frames, "
+                      f"{file.size[1]}x{file.size[0]} px, {' | '.join(movie.methods)})")
     except LbshapeError:
         if created and out.is_dir() and not any(out.iterdir()):
             out.rmdir()  # leave nothing behind on bad input
         raise
-    if rendered.message:
-        print(f"error: simulation stopped: {rendered.message}", file=sys.stderr)
+    message = "; ".join(filter(None, [rendered.message, movie.message if args.movie else ""]))
+    if message:
+        print(f"error: simulation stopped: {message}", file=sys.stderr)
         return 3
     return 0

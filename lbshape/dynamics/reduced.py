@@ -127,10 +127,7 @@ class ReducedSimulation:
         self.energy_factor = energy_factor
         ca, kv, ka, cv, jv = _SCHEMES[integrator]
         self._coefficients = np.array([ca / h**2, kv / h, ka, cv / h, jv, self.k_ex])
-        spring = getattr(self.driver, "spring", None)
-        self._spring = np.eye(r) if spring is None else np.array(spring, dtype=float)
-        self._in_place = hasattr(self.driver, "weights_into") and hasattr(
-            self.driver, "target_from_weights_into")
+
         _, K0 = elastic.force_and_tangent(np.zeros(r))
         self.damping = alpha * np.eye(r) + beta * np.asarray(K0)
         self._base = (ca / h**2) * np.eye(r) + (cv / h) * self.damping
@@ -157,6 +154,20 @@ class ReducedSimulation:
         self._work = 0.0
         self._initial_energy = 0.0
         self._f_norm = 0.0
+
+    @property
+    def driver(self):
+        """The example driver (None: no example force); assigning one re-reads its spring
+        and whether it has the in-place methods."""
+        return self._driver
+
+    @driver.setter
+    def driver(self, driver) -> None:
+        self._driver = driver
+        spring = getattr(driver, "spring", None)
+        self._spring = np.eye(self.r) if spring is None else np.array(spring, dtype=float)
+        self._in_place = hasattr(driver, "weights_into") and hasattr(
+            driver, "target_from_weights_into")
 
     @property
     def stepper(self) -> ReducedSimulation:

@@ -4,5 +4,6 @@ __all__ = [
     "atomic",
     "cache",
     "paths",
+    "toml_writer",
     "trajectory",
 ]

@@ -8,21 +8,31 @@ in the same folder, then rename). Loading validates the file: unreadable, wrong
 key, missing arrays or non-finite values -> the artifact is reported stale
 (``None``) with a logged reason, and the caller recomputes.
 
+Concurrent jobs (processes) share the cache: :func:`artifact_lock` is an exclusive
+``fcntl`` lock on ``<name>-<key[:16]>.lock`` beside the artifact, held while one job
+checks for the artifact and computes it, so a second job on the same artifact waits
+and then loads it instead of computing it again. The lock is advisory and released by
+the kernel when its process ends; lock files are left in place (removing them would
+race with a waiting job).
+
 The root is ``$LBSHAPE_CACHE`` if set, else ``~/.cache/lbshape``.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import json
 import logging
 import os
 import zipfile
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
 
+from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_npz_atomic
 
 log = logging.getLogger(__name__)
@@ -71,6 +81,31 @@ def file_digest(path: str | Path) -> str:
 
 def artifact_path(name: str, key: str, root: Path | None = None) -> Path:
     return (root or cache_root()) / f"{name}-{key[:16]}.npz"
+
+
+@contextlib.contextmanager
+def artifact_lock(name: str, key: str, *, root: Path | None = None) -> Iterator[Path]:
+    """Hold the exclusive inter-process lock of one artifact for the block.
+
+    Blocks until no other process holds it. Yields the lock file's path
+    (``<root>/<name>-<key[:16]>.lock``, created with its folder if needed).
+
+    Raises:
+        LbshapeError: the cache folder cannot be created or written.
+    """
+    path = artifact_path(name, key, root).with_suffix(".lock")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle = open(path, "a+b")  # noqa: SIM115 -- closed by the with block below
+    except OSError as exc:
+        raise LbshapeError(f"cannot use the cache folder {path.parent}: "
+                           f"{exc.strerror or exc}") from None
+    with handle:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
+        try:
+            yield path
+        finally:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
 
 
 def save_artifact(

@@ -63,7 +63,13 @@ from lbshape.elastic.modes import linear_modes
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.shapes import MESHES_DIR, get_shape
-from lbshape.io.cache import cache_key, file_digest, load_artifact, save_artifact
+from lbshape.io.cache import (
+    artifact_lock,
+    cache_key,
+    file_digest,
+    load_artifact,
+    save_artifact,
+)
 from lbshape.pipeline.meshes import build_mesh, posed_example, selected_vertices
 from lbshape.scene.schema import MeshSource, Scene
 from lbshape.shapespace.frames import body_frame
@@ -279,18 +285,19 @@ def stage_names(scene: Scene) -> list[str]:
 def precompute(scene: Scene, *, force: bool = False, progress: bool = False) -> Precomputed:
     """Build or reuse the scene's precompute (see the module docstring)."""
     key = scene_cache_key(scene)
-    if not force:
-        required = _REQUIRED + (_REQUIRED_EXAMPLES if scene.has_examples else ())
-        if scene.has_local_examples:
-            required = _REQUIRED + ("eigenvalues", "eigenvectors") \
-                + LocalShapeSpace.required_arrays(len(scene.regions))
-        cached = load_artifact(scene.name, key, required=required)
-        if cached is not None:
-            return _from_arrays(scene, key, *cached)
-    stages = _Stages(stage_names(scene), show=progress)
-    arrays, meta = _compute(scene, stages)
-    meta["stage_seconds"] = stages.seconds
-    save_artifact(scene.name, key, arrays, meta)
+    with artifact_lock(scene.name, key):  # concurrent jobs on one scene compute it once
+        if not force:
+            required = _REQUIRED + (_REQUIRED_EXAMPLES if scene.has_examples else ())
+            if scene.has_local_examples:
+                required = _REQUIRED + ("eigenvalues", "eigenvectors") \
+                    + LocalShapeSpace.required_arrays(len(scene.regions))
+            cached = load_artifact(scene.name, key, required=required)
+            if cached is not None:
+                return _from_arrays(scene, key, *cached)
+        stages = _Stages(stage_names(scene), show=progress)
+        arrays, meta = _compute(scene, stages)
+        meta["stage_seconds"] = stages.seconds
+        save_artifact(scene.name, key, arrays, meta)
     return _from_arrays(scene, key, arrays, meta, from_cache=False)
 
 

@@ -6,13 +6,16 @@ VTK falls back from X to an off-screen context (a harmless X warning may appear)
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.io.atomic import write_atomic
+from lbshape.report.movie import write_gif
 
 _VTK_TETRA = 10
 
@@ -160,6 +163,108 @@ def render_shapes(
     return _save(plotter, Path(path))
 
 
+def animation_frames(
+    rest: TetMesh,
+    displacements: Sequence[np.ndarray],
+    labels: Sequence[str],
+    times: np.ndarray,
+    *,
+    scalar_name: str = "|u| (m)",
+    clim: tuple[float, float] | None = None,
+    window_size: tuple[int, int] | None = None,
+    view_vector: tuple[float, float, float] = (1.0, -1.0, 0.5),
+    ghost: bool = False,
+    notes: Sequence[Sequence[str]] | None = None,
+    progress: bool = False,
+) -> np.ndarray:
+    """Frames of deforming copies of one mesh side by side (one panel per run), for a movie.
+
+    Each panel shows the surface of ``rest`` moved by its run's displacements,
+    coloured by |u| on one range shared by all panels and frames; the camera is fixed
+    and frames the union of every frame's bounding box. Write the frames with
+    :mod:`lbshape.report.movie`.
+
+    Args:
+        rest: the rest mesh (n vertices) all runs displace.
+        displacements: one (f, n, 3) array per panel (m), the same f frames each.
+        labels: one caption per panel.
+        times: (f,) frame times (s), printed on the first panel.
+        scalar_name: name of the colour field, |u| of each vertex.
+        clim: shared colour range (default: 0 to the largest |u| of any frame).
+        window_size: (width, height) in pixels (default: 360 per panel × 420).
+        ghost: draw the rest shape as a faint wireframe in every panel.
+        notes: optional (f, panels) second caption lines, one per frame and panel.
+        progress: a progress bar over the frames on stderr.
+
+    Returns:
+        (f, height, width, 3) uint8 RGB frames.
+
+    Raises:
+        LbshapeError: not one label and one (f, n, 3) array per panel.
+    """
+    from tqdm import tqdm
+
+    runs = [np.asarray(u, dtype=float) for u in displacements]
+    k, count = len(runs), len(times)
+    if k == 0 or len(labels) != k:
+        raise LbshapeError(f"give one label per panel: {k} panels, {len(labels)} labels")
+    expected = (count, rest.n_vertices, 3)
+    if count == 0 or any(u.shape != expected for u in runs):
+        raise LbshapeError(f"each panel needs displacements of shape {expected}, got "
+                           f"{[u.shape for u in runs]}")
+    if notes is not None and (len(notes) != count or any(len(n) != k for n in notes)):
+        raise LbshapeError(f"notes must be {count} frames x {k} panels of captions")
+    norms = [np.linalg.norm(u, axis=2) for u in runs]
+    if clim is None:
+        clim = (0.0, float(max(v.max() for v in norms)) or 1.0)
+    moved = np.vstack([rest.points, *((rest.points[None] + u).reshape(-1, 3) for u in runs)])
+    low, high = moved.min(axis=0), moved.max(axis=0)
+    bounds = (low[0], high[0], low[1], high[1], low[2], high[2])
+    width, height = window_size or (360 * k, 420)
+    pv = _pyvista()
+    plotter = pv.Plotter(off_screen=True, shape=(1, k), window_size=(width, height),
+                         border=False)
+    base = to_grid(rest).extract_surface(algorithm="dataset_surface")
+    ids = np.asarray(base.point_data["vtkOriginalPointIds"])
+    surfaces = []
+    for panel in range(k):
+        plotter.subplot(0, panel)
+        surface = base.copy()
+        surface.point_data[scalar_name] = norms[panel][0][ids]
+        plotter.add_mesh(surface, scalars=scalar_name, cmap="viridis", clim=clim, show_edges=True,
+                         edge_color="#333333", line_width=0.3, show_scalar_bar=False)
+        if ghost:
+            plotter.add_mesh(base.copy(), style="wireframe", color="#888888", opacity=0.25,
+                             line_width=0.5)
+        plotter.view_vector(view_vector)
+        plotter.reset_camera(bounds=bounds)  # every frame in view; the camera then stays
+        surfaces.append(surface)
+    plotter.link_views()
+    plotter.subplot(0, k - 1)
+    plotter.add_text(f"colour: {scalar_name} {clim[0]:.3g} (dark) to {clim[1]:.3g} (yellow)",
+                     position="lower_right", font_size=8)
+    out = np.empty((count, height, width, 3), dtype=np.uint8)
+    try:
+        for frame in tqdm(range(count), desc="frames", disable=not progress, file=sys.stderr):
+            for panel, surface in enumerate(surfaces):
+                surface.points = rest.points[ids] + runs[panel][frame][ids]
+                surface.point_data[scalar_name] = norms[panel][frame][ids]
+                surface.Modified()
+                plotter.subplot(0, panel)
+                caption = labels[panel] if notes is None else \
+                    f"{labels[panel]}\n{notes[frame][panel]}"
+                plotter.add_text(caption, font_size=10, name="caption")
+            plotter.subplot(0, 0)
+            plotter.add_text(f"t = {times[frame]:.3f} s", position="lower_left", font_size=10,
+                             name="time")
+            plotter.render()
+            image = np.asarray(plotter.screenshot(return_img=True))[..., :3]
+            out[frame] = image[:height, :width]
+    finally:
+        plotter.close()
+    return out
+
+
 def render_animation(
     rest: TetMesh,
     displacements: Sequence[np.ndarray],
@@ -177,69 +282,10 @@ def render_animation(
 ) -> Path:
     """An animated GIF of several runs of one mesh side by side (one panel per run).
 
-    Args:
-        rest: the rest mesh (n vertices) all runs displace.
-        displacements: one (f, n, 3) array per panel (m), the same f frames each.
-        labels: one caption per panel.
-        path: output GIF (Pillow writes it; looped).
-        times: (f,) frame times (s), printed on the first panel.
-        scalar_name: name of the colour field, |u| of each vertex.
-        clim: shared colour range (default: 0 to the largest |u| of any frame).
-        fps: frames per second of the GIF.
-        ghost: draw the rest shape as a faint wireframe in every panel.
-        notes: optional (f, panels) second caption lines, one per frame and panel.
+    The frames of :func:`animation_frames` (same arguments; default window 330 per
+    panel × 520) written by :func:`lbshape.report.movie.write_gif` (looped, at ``fps``).
     """
-    from PIL import Image
-
-    pv = _pyvista()
-    runs = [np.asarray(u, dtype=float).reshape(len(u), -1, 3) for u in displacements]
-    k, count = len(runs), len(times)
-    if k == 0 or len(labels) != k or any(u.shape != (count, rest.n_vertices, 3) for u in runs):
-        raise ValueError("one label and one (f, n, 3) displacement array per panel, f = len(times)")
-    norms = [np.linalg.norm(u, axis=2) for u in runs]
-    if clim is None:
-        clim = (0.0, float(max(v.max() for v in norms)) or 1.0)
-    window_size = window_size or (330 * k, 520)
-    plotter = pv.Plotter(off_screen=True, shape=(1, k), window_size=window_size, border=False)
-    base = to_grid(rest).extract_surface(algorithm="dataset_surface")
-    ids = np.asarray(base.point_data["vtkOriginalPointIds"])
-    widest = [int(np.argmax(v.max(axis=1))) for v in norms]
-    surfaces = []
-    for panel in range(k):
-        plotter.subplot(0, panel)
-        surface = base.copy()
-        surface.points = rest.points[ids] + runs[panel][widest[panel]][ids]
-        surface.point_data[scalar_name] = norms[panel][widest[panel]][ids]
-        plotter.add_mesh(surface, scalars=scalar_name, cmap="viridis", clim=clim, show_edges=True,
-                         edge_color="#333333", line_width=0.3, show_scalar_bar=False)
-        if ghost:
-            plotter.add_mesh(base.copy(), style="wireframe", color="#888888", opacity=0.25,
-                             line_width=0.5)
-        plotter.view_vector(view_vector)  # frames the widest frame; the camera then stays
-        surfaces.append(surface)
-    plotter.link_views()
-    plotter.subplot(0, k - 1)
-    plotter.add_text(f"colour: {scalar_name} {clim[0]:.3g} (dark) to {clim[1]:.3g} (yellow)",
-                     position="lower_right", font_size=8)
-    images = []
-    try:
-        for frame in range(count):
-            for panel, surface in enumerate(surfaces):
-                surface.points = rest.points[ids] + runs[panel][frame][ids]
-                surface.point_data[scalar_name] = norms[panel][frame][ids]
-                surface.Modified()
-                plotter.subplot(0, panel)
-                caption = labels[panel] if notes is None else \
-                    f"{labels[panel]}\n{notes[frame][panel]}"
-                plotter.add_text(caption, font_size=10, name="caption")
-            plotter.subplot(0, 0)
-            plotter.add_text(f"t = {times[frame]:.3f} s", position="lower_left", font_size=10,
-                             name="time")
-            plotter.render()
-            images.append(Image.fromarray(np.asarray(plotter.screenshot(return_img=True))))
-    finally:
-        plotter.close()
-    palette = [image.convert("P", palette=Image.ADAPTIVE, colors=255) for image in images]
-    duration = max(1, int(round(1000.0 / fps)))
-    return write_atomic(path, lambda tmp: palette[0].save(
-        tmp, format="GIF", save_all=True, append_images=palette[1:], duration=duration, loop=0))
+    frames = animation_frames(rest, displacements, labels, times, scalar_name=scalar_name,
+                              clim=clim, window_size=window_size or (330 * len(labels), 520),
+                              view_vector=view_vector, ghost=ghost, notes=notes)
+    return write_gif(frames, path, fps=fps).path
