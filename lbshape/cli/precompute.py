@@ -3,7 +3,8 @@
 One scene: progress bars per stage and a summary of the artifact. Several scenes
 (names, TOML paths or globs): one job per scene in ``-j`` worker processes, then one
 summary table; a failed scene is listed and does not stop the others (exit code
-non-zero at the end).
+non-zero at the end). Under ``mpirun`` (one scene) every rank computes; only rank 0
+prints and writes the cache.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import functools
 import sys
 
+from lbshape.cli._mpi import errors_on_rank_zero, require_one_rank, world_rank_size
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.batch import expand_scenes, run_jobs, summary_table
 from lbshape.pipeline.precompute import precompute
@@ -34,6 +36,7 @@ def run(args) -> int:
     scenes, unmatched = expand_scenes(args.scenes)
     if len(scenes) == 1 and not unmatched:
         return run_one(scenes[0], force=args.force)
+    require_one_rank("precompute of several scenes")
     results = unmatched + run_jobs(functools.partial(precompute_summary, force=args.force),
                                    scenes, jobs=args.jobs, progress=True, desc="precompute")
     print(summary_table(results, ("origin", "vertices", "tets", "m", "r", "s", "stages (s)"),
@@ -60,8 +63,12 @@ def precompute_summary(name: str, *, force: bool = False) -> dict:
 
 
 def run_one(name: str, *, force: bool = False) -> int:
-    scene = load_scene(name)
-    pre = precompute(scene, force=force, progress=True)
+    rank, _ = world_rank_size()
+    with errors_on_rank_zero():
+        scene = load_scene(name)
+        pre = precompute(scene, force=force, progress=rank == 0, save=rank == 0)
+    if rank != 0:
+        return 0
     origin = "cache" if pre.from_cache else "computed"
     print(f"precompute {scene.name} ({origin}, key {pre.key[:16]}): n={pre.mesh.n_vertices} "
           f"vertices, {pre.mesh.n_tets} tets, r={pre.r}, s={pre.cubature_elements.size}, "

@@ -1,10 +1,15 @@
-"""``lbshape simulate SCENE [--method reduced|euclidean|full] [--steps N] [--out DIR] [--json]``."""
+"""``lbshape simulate SCENE [--method reduced|euclidean|full] [--steps N] [--out DIR] [--json]``.
+
+Runs on one process: under ``mpirun`` with several ranks it refuses with one error
+line (printed by rank 0) before reading the scene or writing anything.
+"""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
+from lbshape.cli._mpi import require_one_rank
 from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import precompute
@@ -24,6 +29,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    require_one_rank("simulate")
     if args.steps is not None and args.steps < 1:
         raise LbshapeError(f"--steps must be >= 1, got {args.steps}")
     scene = load_scene(args.scene)

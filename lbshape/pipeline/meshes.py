@@ -2,7 +2,9 @@
 
 The scene (:mod:`lbshape.scene.schema`) only says where meshes come from and which
 vertices a region or group names; this module does the work: it runs the gmsh
-script of a built-in shape or loads a mesh file, applies an analytic pose
+script of a built-in shape or reads a mesh file (any format of
+:func:`lbshape.geometry.mesh_files.read_mesh_file`, surfaces tetrahedralised at the
+source's size), applies an analytic pose
 (:mod:`lbshape.geometry.poses`) and evaluates a selection on a mesh.
 """
 
@@ -11,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from lbshape.errors import LbshapeError
-from lbshape.geometry.mesh import TetMesh, load_mesh
+from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.mesh_files import is_surface_file, posed_surface_pair, read_mesh_file
 from lbshape.geometry.poses import apply_pose
 from lbshape.geometry.regions import region_vertices
 from lbshape.geometry.shapes import build_shape
@@ -19,10 +22,11 @@ from lbshape.scene.schema import ExamplePose, MeshSource, Selection
 
 
 def build_mesh(source: MeshSource) -> TetMesh:
-    """The mesh of a source: the built-in shape's gmsh script run, or the file loaded."""
+    """The mesh of a source: the built-in shape's gmsh script run, or the file read
+    (a surface file tetrahedralised at ``source.size``)."""
     if source.shape is not None:
         return build_shape(source.shape, size=source.size)
-    return load_mesh(source.mesh_file)
+    return read_mesh_file(source.mesh_file, size=source.size)
 
 
 def posed_example(pose: ExamplePose, rest: TetMesh) -> TetMesh:
@@ -30,6 +34,53 @@ def posed_example(pose: ExamplePose, rest: TetMesh) -> TetMesh:
     if pose.pose is None:
         return rest
     return apply_pose(rest, pose.pose, **dict(pose.parameters))
+
+
+def posed_file_meshes(pose: ExamplePose, object_mesh: TetMesh) -> tuple[TetMesh, TetMesh]:
+    """(posed, rest) meshes, with one connectivity, of an example given as a posed file
+    (a mesh file without analytic pose; a built-in shape without pose is at rest).
+
+    The vertex correspondence between a posed mesh and its rest is what makes its
+    displacement well defined, so it is required:
+
+    * with ``rest``: the two files must share their connectivity: volume meshes
+      with the same tetrahedra, or surfaces with the same triangles (a modelling
+      tool's export keeps them, and an STL file its facet order), which are
+      tetrahedralised together (:func:`lbshape.geometry.mesh_files.posed_surface_pair`);
+    * without ``rest``: the posed file is a posed copy of the object (same
+      tetrahedra), whose rest is the object's mesh.
+
+    Raises:
+        LbshapeError: no correspondence (the message says which files to give).
+    """
+    name = pose.source.mesh_file.name
+    if pose.rest is None:
+        posed = build_mesh(pose.source)
+        if not _same_connectivity(posed, object_mesh):
+            raise LbshapeError(
+                f"posed example {name} has no vertex correspondence with the object "
+                f"({posed.n_vertices} vs {object_mesh.n_vertices} vertices, or other tets): "
+                "give its un-posed mesh as 'rest' (same mesh before posing)")
+        return posed, object_mesh
+    rest_file = pose.rest.mesh_file
+    if is_surface_file(pose.source.mesh_file) and is_surface_file(rest_file):
+        pair = posed_surface_pair(rest_file, pose.source.mesh_file, size=pose.source.size)
+        if pair is None:
+            raise LbshapeError(
+                f"posed example {name} and its rest {rest_file.name} have different "
+                "triangles; export both from the same surface so that vertices correspond")
+        return pair[1], pair[0]
+    posed, rest = build_mesh(pose.source), build_mesh(pose.rest)
+    if not _same_connectivity(posed, rest):
+        raise LbshapeError(
+            f"posed example {name} and its rest {rest_file.name} have different meshes "
+            f"({posed.n_vertices} vs {rest.n_vertices} vertices, or other tets); both must "
+            "be the same mesh, or surfaces with the same triangles")
+    return posed, rest
+
+
+def _same_connectivity(a: TetMesh, b: TetMesh) -> bool:
+    return a.n_vertices == b.n_vertices and np.array_equal(a.tets, b.tets)
 
 
 def example_mesh(pose: ExamplePose) -> TetMesh:

@@ -70,7 +70,12 @@ from lbshape.io.cache import (
     load_artifact,
     save_artifact,
 )
-from lbshape.pipeline.meshes import build_mesh, posed_example, selected_vertices
+from lbshape.pipeline.meshes import (
+    build_mesh,
+    posed_example,
+    posed_file_meshes,
+    selected_vertices,
+)
 from lbshape.scene.schema import MeshSource, Scene
 from lbshape.shapespace.frames import body_frame
 from lbshape.shapespace.local_examples import (
@@ -282,10 +287,15 @@ def stage_names(scene: Scene) -> list[str]:
     return names
 
 
-def precompute(scene: Scene, *, force: bool = False, progress: bool = False) -> Precomputed:
-    """Build or reuse the scene's precompute (see the module docstring)."""
+def precompute(scene: Scene, *, force: bool = False, progress: bool = False,
+               save: bool = True) -> Precomputed:
+    """Build or reuse the scene's precompute (see the module docstring); ``save=False``
+    leaves the cache untouched (e.g. on MPI ranks other than 0)."""
     key = scene_cache_key(scene)
-    with artifact_lock(scene.name, key):  # concurrent jobs on one scene compute it once
+    # concurrent jobs on one scene compute it once; a caller that does not save (an
+    # MPI rank other than 0, in step with rank 0's solvers) neither waits nor locks
+    lock = artifact_lock(scene.name, key) if save else contextlib.nullcontext()
+    with lock:
         if not force:
             required = _REQUIRED + (_REQUIRED_EXAMPLES if scene.has_examples else ())
             if scene.has_local_examples:
@@ -297,7 +307,8 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False) -> 
         stages = _Stages(stage_names(scene), show=progress)
         arrays, meta = _compute(scene, stages)
         meta["stage_seconds"] = stages.seconds
-        save_artifact(scene.name, key, arrays, meta)
+        if save:
+            save_artifact(scene.name, key, arrays, meta)
     return _from_arrays(scene, key, arrays, meta, from_cache=False)
 
 
@@ -385,13 +396,19 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.nd
         coefficients, alignments = [], []
         for index, pose in enumerate(scene.examples.poses):
             label = f"example {index + 1} ({_example_label(pose)})"
-            rest = build_mesh(pose.source)
+            if pose.pose is None and pose.source.mesh_file is not None:  # a posed file
+                try:
+                    posed, rest = posed_file_meshes(pose, mesh)
+                except LbshapeError as exc:
+                    raise LbshapeError(f"{label}: {exc}") from None
+            else:
+                rest = build_mesh(pose.source)
+                posed = posed_example(pose, rest)
             if rest.n_vertices <= m + 1:
                 raise LbshapeError(
                     f"{label}: m={m} is too large for an example mesh with "
                     f"{rest.n_vertices} vertices"
                 )
-            posed = posed_example(pose, rest)
             landmarks = np.asarray(pose.landmarks, dtype=np.int64) if pose.landmarks else None
             try:
                 embedded = embed_example(mesh, spectrum, rest, [posed.points],

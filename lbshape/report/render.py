@@ -1,13 +1,15 @@
 """Off-screen pictures with pyvista (the only module of lbshape that imports it).
 
 All functions write a PNG atomically and return its path. Rendering is headless:
-VTK falls back from X to an off-screen context (a harmless X warning may appear).
+VTK falls back from X to an off-screen context; its harmless "bad X server
+connection" warning is silenced while a plotter is made and used (:func:`quiet_vtk`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +29,29 @@ def _pyvista():
     return pv
 
 
+@contextlib.contextmanager
+def quiet_vtk() -> Iterator[None]:
+    """VTK's log to stderr at errors only inside the block (restored after it).
+
+    Headless, VTK's X render window logs a warning before it falls back to an
+    off-screen context; errors still show.
+    """
+    from vtkmodules.vtkCommonCore import vtkLogger
+
+    previous = vtkLogger.GetCurrentVerbosityCutoff()
+    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
+    try:
+        yield
+    finally:
+        vtkLogger.SetStderrVerbosity(previous)
+
+
+def _plotter(pv, **options):
+    """An off-screen ``pyvista.Plotter`` made without the X warning."""
+    with quiet_vtk():
+        return pv.Plotter(off_screen=True, **options)
+
+
 def to_grid(mesh: TetMesh, point_data: dict[str, np.ndarray] | None = None):
     """A ``pyvista.UnstructuredGrid`` of the tetrahedra with optional point data (n,) or (n,3)."""
     pv = _pyvista()
@@ -41,7 +66,8 @@ def to_grid(mesh: TetMesh, point_data: dict[str, np.ndarray] | None = None):
 def _save(plotter, path: Path) -> Path:
     """Screenshot ``plotter`` to the PNG ``path`` atomically, then close it."""
     try:
-        return write_atomic(path, lambda tmp: plotter.screenshot(str(tmp)))
+        with quiet_vtk():
+            return write_atomic(path, lambda tmp: plotter.screenshot(str(tmp)))
     finally:
         plotter.close()
 
@@ -73,9 +99,7 @@ def render_eigenfunctions(
     pv = _pyvista()
     grid = to_grid(mesh)
     centre = mesh.points.mean(axis=0)
-    plotter = pv.Plotter(
-        off_screen=True, shape=(1, len(indices)), window_size=window_size, border=False
-    )
+    plotter = _plotter(pv, shape=(1, len(indices)), window_size=window_size, border=False)
     for panel, i in enumerate(indices):
         plotter.subplot(0, panel)
         field = eigenvectors[:, i]
@@ -130,7 +154,7 @@ def render_shapes(
     pv = _pyvista()
     k = len(meshes)
     window_size = window_size or (380 * k, 520)
-    plotter = pv.Plotter(off_screen=True, shape=(1, k), window_size=window_size, border=False)
+    plotter = _plotter(pv, shape=(1, k), window_size=window_size, border=False)
     scalars = list(scalars) if scalars is not None else [None] * k
     finite = [np.max(s) for s in scalars if s is not None and len(s)]
     if clim is None and finite:
@@ -222,8 +246,7 @@ def animation_frames(
     bounds = (low[0], high[0], low[1], high[1], low[2], high[2])
     width, height = window_size or (360 * k, 420)
     pv = _pyvista()
-    plotter = pv.Plotter(off_screen=True, shape=(1, k), window_size=(width, height),
-                         border=False)
+    plotter = _plotter(pv, shape=(1, k), window_size=(width, height), border=False)
     base = to_grid(rest).extract_surface(algorithm="dataset_surface")
     ids = np.asarray(base.point_data["vtkOriginalPointIds"])
     surfaces = []
@@ -257,8 +280,9 @@ def animation_frames(
             plotter.subplot(0, 0)
             plotter.add_text(f"t = {times[frame]:.3f} s", position="lower_left", font_size=10,
                              name="time")
-            plotter.render()
-            image = np.asarray(plotter.screenshot(return_img=True))[..., :3]
+            with quiet_vtk():
+                plotter.render()
+                image = np.asarray(plotter.screenshot(return_img=True))[..., :3]
             out[frame] = image[:height, :width]
     finally:
         plotter.close()

@@ -28,6 +28,7 @@ from lbshape.dynamics.integrators import INTEGRATORS
 from lbshape.dynamics.loads import PROFILES, TimeProfile
 from lbshape.elastic.materials import MODELS, Material
 from lbshape.errors import LbshapeError
+from lbshape.geometry.mesh_files import SURFACE_FORMATS, is_surface_file
 from lbshape.geometry.poses import POSE_CHOICES, POSE_PARAMETERS, POSES
 from lbshape.geometry.regions import parse_region
 from lbshape.geometry.shapes import SHAPES
@@ -143,7 +144,7 @@ def scene_from_dict(
 # ------------------------------------------------------------------ tables
 _TOP_KEYS = ("name", "description", "object", "material", "damping", "reduced", "examples",
              "fixed", "loads", "planes", "regions", "simulation")
-_POSE_KEYS = ("shape", "mesh", "size", "pose", "parameters", "landmarks")
+_POSE_KEYS = ("shape", "mesh", "size", "pose", "parameters", "landmarks", "rest")
 _LOAD_KEYS = ("type", "vector", "region", "group", "profile", "start", "duration")
 _PLANE_KEYS = ("point", "normal", "stiffness")
 _REGION_KEYS = ("name", "region", "group", "examples")
@@ -232,14 +233,24 @@ def _mesh_source(t: _Table, ctx: _Context) -> MeshSource:
             )
         size = t.number("size", None, low=0.0, open_low=True, unit="m")
         return MeshSource(shape=shape, size=size)
-    if "size" in t.data:
-        raise ctx.error(f"'{t.key('size')}' applies to built-in shapes only, not to 'mesh'")
-    raw = t.string("mesh")
-    path = Path(raw).expanduser()
+    path = _mesh_path(t, "mesh", ctx)
+    size = t.number("size", None, low=0.0, open_low=True, unit="m")
+    if size is not None and not is_surface_file(path) and not _rest_is_surface(t, ctx):
+        raise ctx.error(f"'{t.key('size')}' applies to built-in shapes and surface files "
+                        f"({', '.join(SURFACE_FORMATS)}), not to the volume mesh {path.name}")
+    return MeshSource(mesh_file=path, size=size if is_surface_file(path) else None)
+
+
+def _mesh_path(t: _Table, key: str, ctx: _Context) -> Path:
+    path = Path(t.string(key)).expanduser()
     path = path if path.is_absolute() else ctx.base_dir / path
     if not path.is_file():
-        raise ctx.error(f"'{t.key('mesh')}': mesh file not found: {path}")
-    return MeshSource(mesh_file=path.resolve())
+        raise ctx.error(f"'{t.key(key)}': mesh file not found: {path}")
+    return path.resolve()
+
+
+def _rest_is_surface(t: _Table, ctx: _Context) -> bool:
+    return "rest" in t.data and is_surface_file(_mesh_path(t, "rest", ctx))
 
 
 def _example_pose(t: _Table, ctx: _Context) -> ExamplePose:
@@ -259,7 +270,15 @@ def _example_pose(t: _Table, ctx: _Context) -> ExamplePose:
         raise ctx.error(f"'{t.key('parameters')}' is required for pose '{pose}' "
                         f"(needs '{POSE_PARAMETERS[pose][0]}')")
     landmarks = t.int_pairs("landmarks")
-    return ExamplePose(source, pose, MappingProxyType(parameters), landmarks)
+    rest = None
+    if "rest" in t.data:
+        if source.mesh_file is None or pose is not None:
+            raise ctx.error(f"'{t.key('rest')}' is the rest shape of a posed mesh file: it "
+                            "needs 'mesh' and no 'pose'")
+        path = _mesh_path(t, "rest", ctx)
+        size = t.number("size", None) if is_surface_file(path) else None
+        rest = MeshSource(mesh_file=path, size=size)
+    return ExamplePose(source, pose, MappingProxyType(parameters), landmarks, rest)
 
 
 def _selection(t: _Table, ctx: _Context, *, required: bool) -> Selection | None:

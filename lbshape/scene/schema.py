@@ -11,8 +11,11 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
 
     [object]                   # required; exactly one of shape / mesh
     shape = "bar-cuboid"       # built-in shape name (lbshape.geometry.shapes.SHAPES)
-    mesh = "part.msh"          # gmsh .msh file, relative to the TOML file's folder
-    size = 0.07                # m, > 0; gmsh size override, shape only (shape default)
+    mesh = "part.msh"          # mesh file, relative to the TOML file's folder: .msh, a
+                               # meshio volume (.vtu .vtk .mesh …) or a closed surface
+                               # (.stl .obj .ply .off) tetrahedralised by gmsh
+    size = 0.07                # m, > 0; gmsh size: shape override (shape default) or the
+                               # surface's remeshing size (surface kept as given)
 
     [material]                 # lbshape.elastic.materials.Material
     model = "stvk"             # "stvk" | "neohookean" ("stvk")
@@ -39,9 +42,12 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
                                # in mass-normalised reduced coordinates
     [[examples.pose]]          # one table per example, at least one
     shape = "bar-cylinder"     # built-in shape, OR
-    mesh = "example.msh"       # a mesh file (relative to the TOML file)
-    size = 0.05                # m, > 0, shape only
+    mesh = "example.msh"       # a mesh file (relative to the TOML file), any format above
+    size = 0.05                # m, > 0, shape or surface file (also used for 'rest')
     pose = "twist"             # a key of lbshape.geometry.poses.POSES; omit if the mesh is posed
+    rest = "example-rest.stl"  # posed mesh file only: the same example un-posed (any
+                               # format, any resolution); without it the posed shape
+                               # is compared with the object's rest shape
     parameters = { angle = 1.57 }  # pose parameters (poses.POSE_PARAMETERS); pose only
     landmarks = [[0, 12]]      # optional (object vertex, example vertex) int pairs >= 0
 
@@ -129,8 +135,10 @@ class MeshSource:
 
     Attributes:
         shape: built-in shape name, or ``None``.
-        mesh_file: absolute path of a ``.msh`` file, or ``None``.
-        size: gmsh size override (m) for a shape, or ``None`` for its default.
+        mesh_file: absolute path of a mesh file (any format of
+            :func:`lbshape.geometry.mesh_files.read_mesh_file`), or ``None``.
+        size: gmsh size (m): a shape's override, or a surface file's remeshing
+            size; ``None`` for the shape's default or the surface as given.
     """
 
     shape: str | None = None
@@ -143,7 +151,8 @@ class MeshSource:
             return {"shape": self.shape, "size": self.size}
         if not self.mesh_file.is_file():
             raise LbshapeError(f"mesh file not found: {self.mesh_file}")
-        return {"mesh_sha256": file_digest(self.mesh_file)}
+        key = {"mesh_sha256": file_digest(self.mesh_file)}
+        return key if self.size is None else {**key, "size": self.size}
 
 
 @dataclass(frozen=True)
@@ -198,10 +207,18 @@ class Reduced:
 class ExamplePose:
     """One example: a mesh and an optional analytic pose applied to it.
 
+    An example given as a mesh file without a pose is a posed shape (a built-in
+    shape without a pose is the shape at rest). With ``rest`` (its un-posed
+    shape, any mesh or topology) its displacement is the posed shape's LB
+    coefficients minus the rest's, each in its own basis mapped to the object's;
+    without ``rest`` the object's rest coefficients are subtracted instead
+    (:mod:`lbshape.shapespace.projections`).
+
     Attributes:
         source: the example's mesh.
         pose: a key of :data:`lbshape.geometry.poses.POSES`, or ``None`` if the mesh
             is already posed.
+        rest: the un-posed example mesh of a posed one, or ``None``.
         parameters: pose parameters (read-only mapping; see
             :data:`lbshape.geometry.poses.POSE_PARAMETERS`).
         landmarks: (object vertex, example vertex) correspondences.
@@ -211,9 +228,12 @@ class ExamplePose:
     pose: str | None = None
     parameters: Mapping[str, PoseValue] = field(default_factory=lambda: MappingProxyType({}))
     landmarks: tuple[tuple[int, int], ...] = ()
+    rest: MeshSource | None = None
 
     def key(self) -> dict:
+        key = {} if self.rest is None else {"rest": self.rest.key()}
         return {
+            **key,
             "source": self.source.key(),
             "pose": self.pose,
             "parameters": dict(self.parameters),
