@@ -9,6 +9,9 @@ Writes (atomically, via :mod:`lbshape.report.tables`):
 * ``table2.md`` and ``table2.json``: ``full``, ``euclidean`` and ``reduced`` side by
   side on each scene (default: bar-cuboid, bar-cylinder) — per-step times (median
   and range over repeats, warm-up excluded), speed-ups, error vs ``full``;
+* ``step_breakdown.md`` and ``.json``: the reduced method with 1, 2 and converged
+  Newton updates per step (error vs full, difference to converged, time and the
+  parts of a step);
 * ``speed_vs_error.csv`` and ``.png``: the reduced method's per-step time against
   its error vs ``full`` on the sweep scene (default bar-cuboid) for r × s (and m).
 """
@@ -25,7 +28,11 @@ import argparse
 import logging
 from pathlib import Path
 
+from lbshape.io.atomic import write_json_atomic, write_text_atomic
+from lbshape.pipeline.precompute import precompute
 from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene, speed_error_sweep
+from lbshape.report.machine import machine_description
+from lbshape.report.realtime import newton_study, newton_study_markdown, newton_study_payload
 from lbshape.report.tables import write_sweep, write_table2
 from lbshape.scene import load_scene
 
@@ -51,6 +58,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--sweep-steps", type=int, default=SWEEP_STEPS)
     parser.add_argument("--sweep-repeats", type=int, default=3)
     parser.add_argument("--no-sweep", action="store_true")
+    parser.add_argument("--newton-steps", type=int, default=None,
+                        help="steps of the Newton-updates study (default: --steps)")
+    parser.add_argument("--no-newton", action="store_true",
+                        help="skip the Newton-updates study (step_breakdown.md)")
     parser.add_argument("--out-dir", type=Path, default=DEFAULT_OUT)
     return parser.parse_args(argv)
 
@@ -64,6 +75,20 @@ def main(argv: list[str] | None = None) -> list[Path]:
         log.info("table 2: %s", name)
         results.append(bench_scene(scene, steps=args.steps, repeats=args.repeats))
     paths = list(write_table2(results, args.out_dir))
+    if not args.no_newton:
+        studies = {}
+        for name in args.scenes:
+            scene = load_scene(name)
+            steps = args.newton_steps or args.steps or scene.simulation.steps
+            log.info("Newton updates per step: %s", name)
+            studies[scene.name] = newton_study(scene, precompute(scene), steps=steps,
+                                               repeats=args.repeats)
+        paths.append(write_text_atomic(
+            args.out_dir / "step_breakdown.md",
+            newton_study_markdown(studies, steps=steps, repeats=args.repeats,
+                                  machine=machine_description())))
+        paths.append(write_json_atomic(args.out_dir / "step_breakdown.json",
+                                       newton_study_payload(studies)))
     if not args.no_sweep:
         scene = load_scene(args.sweep_scene)
         log.info("sweep: %s", scene.name)

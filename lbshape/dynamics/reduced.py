@@ -13,6 +13,24 @@ as external work and Newton does not fight two cancelling large terms near the
 target. The step itself only
 touches r-, m- and s-sized arrays; full-space displacements ``U q`` are formed
 only for output frames, outside the timed step.
+
+**The step path** (:meth:`ReducedSimulation.step`) is allocation-free: every array
+it writes is preallocated, the weights and the tabulated target are written in place
+(:meth:`~lbshape.shapespace.example_driver.ExampleDriver.target_into`), the elastic
+force and tangent come from the compiled element kernel
+(:meth:`~lbshape.elastic.reduced_forces.ReducedForceModel.force_and_tangent_into`), and
+one compiled kernel forms the Newmark (or backward Euler) residual and Newton matrix
+and solves it by Cholesky. ``newton_iterations`` fixes the number of Newton updates per
+step (1: a linearly implicit step, the real-time default
+:data:`REALTIME_NEWTON_ITERATIONS`) or, when ``None``, iterates to the relative
+residual ``rtol``. Each step's wall time is split into :data:`PHASES`
+(:attr:`ReducedSimulation.phase_seconds`).
+
+**Divergence.** A non-finite state, a Newton matrix that is not positive definite and
+cannot be solved, a converged-mode Newton that does not converge, or a kinetic plus
+elastic energy above ``energy_factor`` times the energy made available (initial energy
+plus the accumulated work of the loads and the example pull) raise
+:class:`~lbshape.errors.SolverError`; the state stays at the last good step.
 """
 
 from __future__ import annotations
@@ -22,25 +40,37 @@ import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
+import scipy.linalg as sla
 
+from lbshape._jit import njit
 from lbshape.dynamics.contact import PlaneContact
-from lbshape.dynamics.integrators import make_stepper
+from lbshape.dynamics.integrators import INTEGRATORS
 from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord, RunRecorder
-from lbshape.errors import SolverError
+from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
 
 log = logging.getLogger(__name__)
 
 #: the frame of a fixed object: world = object frame
 _ORIGIN, _IDENTITY3 = np.zeros(3), np.eye(3)
+#: Newton updates per real-time step: 1 keeps the error vs full unchanged on the bars
+#: (measured against converged Newton, ``results/step_breakdown.md``)
+REALTIME_NEWTON_ITERATIONS = 1
+#: the parts of a step timed in :attr:`ReducedSimulation.phase_seconds`
+PHASES: tuple[str, ...] = ("weights", "target", "example_force", "internal_force_tangent",
+                           "solve", "overhead")
+#: (c_a h², k_v h, k_a, c_v h, j_v) of the schemes: a₁ = c_a Δx − k_v v − k_a a,
+#: v₁ = c_v Δx − j_v v (Δx the step's displacement increment)
+_SCHEMES = {"newmark": (4.0, 4.0, 1.0, 2.0, 1.0), "backward-euler": (1.0, 1.0, 0.0, 1.0, 0.0)}
 
 
 class ReducedSimulation:
-    """Implicit reduced dynamics with optional example forces.
+    """Implicit reduced dynamics with optional example forces (see the module docstring).
 
     Args:
-        elastic: reduced internal force model (``force_and_tangent(q)``).
+        elastic: reduced internal force model (``force_and_tangent(q)`` and, for the
+            compiled path, ``force_and_tangent_into(q, f, K)``; ``energy(q)``).
         r: reduced dimension.
         dt: time step (s).
         integrator: ``"newmark"`` or ``"backward-euler"``.
@@ -49,10 +79,22 @@ class ReducedSimulation:
         driver: the example driver, or ``None`` (no example machinery at all). A
             driver with a ``spring`` attribute (r, r) (local examples,
             :class:`~lbshape.shapespace.local_examples.LocalExampleDriver`) uses it in
-            place of the identity in the spring ``k_ex S q``.
+            place of the identity in the spring ``k_ex S q``. A driver without the
+            in-place methods (``weights_into``, ``target_from_weights_into``) is called
+            through ``target(q)``.
         k_ex: example stiffness (1/s²); 0 disables the example force.
         contact: penalty contact with planes (:class:`~lbshape.dynamics.contact.PlaneContact`
             built on the rest positions, ``x = X + U q``), implicit in q; or ``None``.
+        newton_iterations: Newton updates per step, or ``None`` to iterate to ``rtol``.
+        rtol: relative Newton tolerance (``None`` mode).
+        max_iterations: Newton iterations before giving up (``None`` mode).
+        energy_factor: blow-up factor of the energy monitor; ``None`` disables it.
+
+    Attributes:
+        x, v, a: (r,) state at :attr:`time`.
+        q_target: (r,) the last target ``q*``.
+        phase_seconds: (steps, len(PHASES)) wall time of each part of each step of the
+            last :meth:`run` (s).
     """
 
     def __init__(
@@ -68,40 +110,101 @@ class ReducedSimulation:
         driver: ExampleDriver | None = None,
         k_ex: float = 0.0,
         contact: PlaneContact | None = None,
+        newton_iterations: int | None = None,
+        rtol: float = 1e-8,
+        max_iterations: int = 20,
+        energy_factor: float | None = 1e3,
     ):
+        if integrator not in _SCHEMES:
+            raise LbshapeError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+        if not (np.isfinite(dt) and dt > 0):
+            raise LbshapeError(f"time step dt must be > 0 s, got {dt}")
+        if newton_iterations is not None and int(newton_iterations) < 1:
+            raise LbshapeError(f"newton_iterations must be >= 1 or None, got {newton_iterations}")
         self.elastic = elastic
         self.contact = contact
-        self.r = int(r)
+        self.r = r = int(r)
+        self.dt = h = float(dt)
+        self.integrator = integrator
         self.loads = list(loads)
         self.driver = driver if (driver is not None and k_ex > 0.0) else None
         self.k_ex = float(k_ex) if self.driver is not None else 0.0
-        self.q_target = np.zeros(self.r)
-        spring = getattr(self.driver, "spring", None)
-        self._spring = np.eye(self.r) if spring is None else np.asarray(spring, dtype=float)
-        _, K0 = elastic.force_and_tangent(np.zeros(self.r))
-        self.stepper = make_stepper(
-            integrator,
-            np.eye(self.r),
-            self._force_and_tangent,
-            dt=dt,
-            external=self._external if (self.loads or self.driver is not None) else None,
-            alpha=alpha,
-            beta=beta,
-            damping_stiffness=K0,
-            potential=self._potential,
-        )
+        self.newton_iterations = None if newton_iterations is None else int(newton_iterations)
+        self.rtol, self.max_iterations = float(rtol), int(max_iterations)
+        self.energy_factor = energy_factor
+        ca, kv, ka, cv, jv = _SCHEMES[integrator]
+        self._coefficients = np.array([ca / h**2, kv / h, ka, cv / h, jv, self.k_ex])
 
-    def _force_and_tangent(self, q: np.ndarray):
-        f, K = self.elastic.force_and_tangent(q)
+        _, K0 = elastic.force_and_tangent(np.zeros(r))
+        self.damping = alpha * np.eye(r) + beta * np.asarray(K0)
+        self._base = (ca / h**2) * np.eye(r) + (cv / h) * self.damping
+        self._patterns = [np.ascontiguousarray(load.pattern, dtype=float) for load in self.loads]
+        self._profiles = [load.profile for load in self.loads]
+        self._into = hasattr(elastic, "force_and_tangent_into")
+        # state and work arrays (the step allocates nothing)
+        self.x, self.v, self.a = np.zeros(r), np.zeros(r), np.zeros(r)
+        self.q_target = np.zeros(r)
+        self._fext, self._fext_old = np.zeros(r), np.zeros(r)
+        self._dx, self._x1, self._v1, self._a1 = (np.zeros(r) for _ in range(4))
+        self._f, self._K = np.zeros(r), np.zeros((r, r))
+        self._R, self._J = np.zeros(r), np.zeros((r, r))
+        self._norms = np.zeros(4)
+        self.time = 0.0
+        self.steps_taken = 0
+        self.phase_seconds = np.zeros((0, len(PHASES)))
+        self._clock = time.perf_counter
+        self._marks = np.zeros(len(PHASES) + 1)
+        # initial acceleration (M = I): a0 = f_ext(0) − D v0 − f(x0) (x0 = v0 = 0)
+        self._external_into(0.0, self._fext)
+        self.a[:] = self._fext
+        self._fext_old[:] = self._fext
+        self._work = 0.0
+        self._initial_energy = 0.0
+        self._f_norm = 0.0
+
+    @property
+    def driver(self):
+        """The example driver (None: no example force); assigning one re-reads its spring
+        and whether it has the in-place methods."""
+        return self._driver
+
+    @driver.setter
+    def driver(self, driver) -> None:
+        self._driver = driver
+        spring = getattr(driver, "spring", None)
+        self._spring = np.eye(self.r) if spring is None else np.array(spring, dtype=float)
+        self._in_place = hasattr(driver, "weights_into") and hasattr(
+            driver, "target_from_weights_into")
+
+    @property
+    def stepper(self) -> ReducedSimulation:
+        """The simulation itself (it is its own stepper: ``x``, ``time``, ``rtol`` …)."""
+        return self
+
+    # --------------------------------------------------------------- pieces
+    def _external_into(self, t: float, out: np.ndarray) -> None:
+        """Loads at time t plus the example pull ``k_ex q*`` (r,), written into ``out``."""
         if self.k_ex:
-            f = f + self.k_ex * (self._spring @ q)
-            K = K + self.k_ex * self._spring
-        if self.contact is not None:
+            np.multiply(self.q_target, self.k_ex, out=out)
+        else:
+            out[:] = 0.0
+        for pattern, profile in zip(self._patterns, self._profiles, strict=True):
+            scale = profile(t)
+            if scale:
+                _axpy(scale, pattern, out)
+
+    def _force_and_tangent(self, q: np.ndarray) -> None:
+        if self._into:
+            self.elastic.force_and_tangent_into(q, self._f, self._K)
+        else:
+            f, K = self.elastic.force_and_tangent(q)
+            self._f[:] = f
+            self._K[:] = K
+        if self.contact is not None:  # contact may touch surface vertices (n-sized)
             res = self.contact.evaluate(_ORIGIN, _IDENTITY3, q, rigid=False)
             if res.active:
-                f = f - res.generalized
-                K = K + res.stiffness_q
-        return f, K
+                self._f -= res.generalized
+                self._K += res.stiffness_q
 
     def _potential(self, q: np.ndarray) -> float:
         energy = float(self.elastic.energy(q))
@@ -111,14 +214,111 @@ class ReducedSimulation:
             energy += self.contact.evaluate(_ORIGIN, _IDENTITY3, q, rigid=False).energy
         return energy
 
-    def _external(self, t: float) -> np.ndarray:
-        total = self.k_ex * self.q_target if self.k_ex else np.zeros(self.r)
-        for load in self.loads:
-            scale = load.profile(t)
-            if scale:
-                total += scale * load.pattern
-        return total
+    # ----------------------------------------------------------------- step
+    def step(self) -> int:
+        """Advance one time step; return the Newton updates used.
 
+        Raises:
+            SolverError: see the module docstring; the state stays at the last step.
+        """
+        clock, marks = self._clock, self._marks
+        marks[0] = clock()
+        index = self.steps_taken + 1
+        t1 = self.time + self.dt
+        if self._in_place:
+            self.driver.weights_into(self.x)
+            marks[1] = clock()
+            self.driver.target_from_weights_into(self.q_target)
+            marks[2] = clock()
+        elif self.driver is not None:  # e.g. local examples: one call, allocating
+            marks[1] = marks[0]
+            self.q_target[:] = self.driver.target(self.x).q_target
+            marks[2] = clock()
+        else:
+            marks[1] = marks[2] = marks[0]
+        self._external_into(t1, self._fext)
+        marks[3] = clock()
+        coefficients, norms = self._coefficients, self._norms
+        _predict(self.x, self.v, self.a, self.dt, self._dx, coefficients)
+        forces = solves = 0.0
+        fixed = self.newton_iterations
+        limit = fixed if fixed is not None else self.max_iterations
+        updates, scale = 0, 0.0
+        while True:
+            started = clock()
+            np.add(self.x, self._dx, out=self._x1)
+            self._force_and_tangent(self._x1)
+            middle = clock()
+            forces += middle - started
+            if fixed is None:
+                _residual(self._dx, self.x, self.v, self.a, self._x1, self._f, self._fext,
+                          self.damping, self._spring, coefficients, self._v1, self._a1,
+                          self._R, norms)
+                if updates == 0:
+                    scale = max(norms[0], norms[2], norms[3], self._f_norm, _norm(self.a))
+                if not norms[0] <= norms[0] or not np.isfinite(norms[0]):
+                    raise SolverError(f"non-finite residual at step {index} (t = {t1:.6g} s)")
+                if norms[0] <= max(self.rtol * scale, norms[1]):
+                    solves += clock() - middle
+                    break
+                if updates == limit:
+                    raise SolverError(
+                        f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
+                        f"residual {norms[0] / scale:.3e} after {updates} iterations "
+                        f"(rtol {self.rtol:g})")
+            else:
+                _residual(self._dx, self.x, self.v, self.a, self._x1, self._f, self._fext,
+                          self.damping, self._spring, coefficients, self._v1, self._a1,
+                          self._R, norms)
+            if not _newton_update(self._base, self._K, self._spring, coefficients, self._R,
+                                  self._J, self._dx):
+                self._dense_update(index, t1)
+            updates += 1
+            solves += clock() - middle
+            if fixed is not None and updates == fixed:
+                _kinematics(self._dx, self.x, self.v, self.a, coefficients, self._x1, self._v1,
+                            self._a1)
+                break
+        marks[4] = marks[3] + forces
+        marks[5] = marks[4] + solves
+        self._finish(index, t1)
+        marks[6] = clock()
+        return updates
+
+    def _dense_update(self, index: int, t1: float) -> None:
+        """Newton update with a symmetric indefinite solve (Cholesky failed)."""
+        J = self._base + self._K + self.k_ex * self._spring
+        try:
+            delta = sla.solve(J, self._R, assume_a="sym", check_finite=False)
+        except (sla.LinAlgError, ValueError) as exc:
+            raise SolverError(f"singular Newton matrix at step {index} (t = {t1:.6g} s): "
+                              f"{exc}") from None
+        self._dx -= delta
+
+    def _finish(self, index: int, t1: float) -> None:
+        """Checks, energy monitor and the swap to the new state (no allocation)."""
+        if not _all_finite(self._x1, self._v1, self._a1):
+            raise SolverError(f"non-finite state at step {index} (t = {t1:.6g} s)")
+        work = self._work + abs(0.5 * _dot_sum(self._fext_old, self._fext, self._dx))
+        if self.energy_factor is not None:
+            budget = self._initial_energy + work
+            kinetic = 0.5 * _dot_sum(self._v1, None, self._v1)
+            if budget > 0 and kinetic > self.energy_factor * budget:
+                energy = kinetic + self._potential(self._x1)
+                if energy > self.energy_factor * budget:
+                    raise SolverError(
+                        f"energy blew up at step {index} (t = {t1:.6g} s): {energy:.3e} J "
+                        f"exceeds {self.energy_factor:g} x budget {budget:.3e} J")
+        self.x, self._x1 = self._x1, self.x
+        self.v, self._v1 = self._v1, self.v
+        self.a, self._a1 = self._a1, self.a
+        self._fext_old, self._fext = self._fext, self._fext_old
+        self._work = work
+        self.time = t1
+        self.steps_taken = index
+        self._f_norm = _norm(self._f)
+
+    # ------------------------------------------------------------------ run
     def run(
         self,
         steps: int,
@@ -135,23 +335,145 @@ class ReducedSimulation:
 
         Returns:
             The :class:`~lbshape.dynamics.record.RunRecord`; its states are the
-            reduced coordinates q (r,).
+            reduced coordinates q (r,). The split of each step's time into
+            :data:`PHASES` is kept in :attr:`phase_seconds`.
         """
         recorder = RunRecorder(stride=stride)
-        recorder.start(self.stepper.time, self.stepper.x)
+        recorder.start(self.time, self.x)
+        phases = np.zeros((steps, len(PHASES)))
+        self.phase_seconds = phases[:0]
+        marks = self._marks
         for index in range(steps):
-            started = time.perf_counter()
             try:
-                if self.driver is not None:
-                    self.q_target = self.driver.target(self.stepper.x).q_target
-                interpolated = time.perf_counter()
-                info = self.stepper.step()
+                iterations = self.step()
             except SolverError as exc:
                 log.error("reduced simulation stopped: %s", exc)
                 return recorder.record(stable=False, message=str(exc))
-            finished = time.perf_counter()
-            recorder.step(self.stepper.time, self.stepper.x, interp_seconds=interpolated - started,
-                          total_seconds=finished - started, iterations=info.iterations)
+            row = phases[index]
+            row[:5] = np.diff(marks[:6])
+            row[5] = (marks[6] - marks[0]) - row[:5].sum()
+            self.phase_seconds = phases[:index + 1]
+            recorder.step(self.time, self.x, interp_seconds=marks[2] - marks[0],
+                          total_seconds=marks[6] - marks[0], iterations=iterations)
             if on_step is not None:
-                on_step(index, self.stepper.time, self.stepper.x)
+                on_step(index, self.time, self.x)
         return recorder.record()
+
+
+# ---------------------------------------------------------------- compiled kernels
+def _axpy(scale: float, x: np.ndarray, out: np.ndarray) -> None:
+    """out += scale · x without a temporary."""
+    _axpy_kernel(float(scale), x, out)
+
+
+@njit
+def _axpy_kernel(scale, x, out):
+    for i in range(out.shape[0]):
+        out[i] += scale * x[i]
+
+
+@njit
+def _predict(x, v, a, h, dx, c):
+    """The scheme's predictor Δx: h v + ½h² a (Newmark, k_a = 1) or h v (backward Euler)."""
+    half = 0.5 * h * h * c[2]
+    for i in range(dx.shape[0]):
+        dx[i] = h * v[i] + half * a[i]
+
+
+@njit
+def _kinematics(dx, x, v, a, c, x1, v1, a1):
+    for i in range(dx.shape[0]):
+        x1[i] = x[i] + dx[i]
+        a1[i] = c[0] * dx[i] - c[1] * v[i] - c[2] * a[i]
+        v1[i] = c[3] * dx[i] - c[4] * v[i]
+
+
+@njit
+def _residual(dx, x, v, a, x1, f, fext, D, S, c, v1, a1, R, norms):
+    """R = a₁ + D v₁ + f + k_ex S x₁ − f_ext (M = I, S the example spring) and its norms.
+
+    norms: [‖R‖, round-off level of R, ‖f_ext‖, ‖f‖].
+    """
+    n = dx.shape[0]
+    for i in range(n):
+        a1[i] = c[0] * dx[i] - c[1] * v[i] - c[2] * a[i]
+        v1[i] = c[3] * dx[i] - c[4] * v[i]
+    r2 = noise = fe2 = f2 = 0.0
+    for i in range(n):
+        damping = 0.0
+        pull = 0.0
+        for j in range(n):
+            damping += D[i, j] * v1[j]
+            pull += S[i, j] * x1[j]
+        spring = f[i] + c[5] * pull
+        value = a1[i] + damping + spring - fext[i]
+        R[i] = value
+        r2 += value * value
+        noise += abs(a1[i]) + abs(damping) + abs(spring) + abs(fext[i])
+        fe2 += fext[i] * fext[i]
+        f2 += f[i] * f[i]
+    norms[0] = np.sqrt(r2)
+    norms[1] = 64.0 * 2.220446049250313e-16 * noise
+    norms[2] = np.sqrt(fe2)
+    norms[3] = np.sqrt(f2)
+
+
+@njit
+def _newton_update(base, K, S, c, R, J, dx):
+    """dx −= (base + K + k_ex S)⁻¹ R by Cholesky in J; False if J is not positive definite."""
+    n = R.shape[0]
+    for i in range(n):
+        for j in range(i + 1):
+            J[i, j] = base[i, j] + 0.5 * (K[i, j] + K[j, i]) + 0.5 * c[5] * (S[i, j] + S[j, i])
+    for j in range(n):  # lower Cholesky factor in place
+        d = J[j, j]
+        for k in range(j):
+            d -= J[j, k] * J[j, k]
+        if not d > 0.0:
+            return False
+        d = np.sqrt(d)
+        J[j, j] = d
+        for i in range(j + 1, n):
+            value = J[i, j]
+            for k in range(j):
+                value -= J[i, k] * J[j, k]
+            J[i, j] = value / d
+    # solve L y = R, then Lᵀ δ = y, both in place in R
+    for i in range(n):
+        value = R[i]
+        for k in range(i):
+            value -= J[i, k] * R[k]
+        R[i] = value / J[i, i]
+    for i in range(n - 1, -1, -1):
+        value = R[i]
+        for k in range(i + 1, n):
+            value -= J[k, i] * R[k]
+        R[i] = value / J[i, i]
+    for i in range(n):
+        dx[i] -= R[i]
+    return True
+
+
+@njit
+def _all_finite(x, v, a):
+    for i in range(x.shape[0]):
+        if not (np.isfinite(x[i]) and np.isfinite(v[i]) and np.isfinite(a[i])):
+            return False
+    return True
+
+
+def _dot_sum(a: np.ndarray, b: np.ndarray | None, c: np.ndarray) -> float:
+    """(a + b) · c (b may be None)."""
+    return float(_dot_sum_kernel(a, a if b is None else b, c, b is not None))
+
+
+@njit
+def _dot_sum_kernel(a, b, c, both):
+    total = 0.0
+    for i in range(c.shape[0]):
+        total += (a[i] + b[i] if both else a[i]) * c[i]
+    return total
+
+
+def _norm(vector: np.ndarray) -> float:
+    return float(np.sqrt(vector @ vector))

@@ -243,16 +243,76 @@ def train_cubature(
     poses = training_poses(
         U, scales, count=n_train + n_holdout, magnitude=magnitude, object_size=size, rng=rng
     )
-    model = ReducedForceModel(
-        mesh.points, mesh.tets, material, U, np.arange(n_tets), np.ones(n_tets)
+    return train_cubature_on_poses(
+        mesh.points, mesh.tets, material, U, train=poses[:n_train], holdout=poses[n_train:],
+        rng=rng, max_elements=max_elements, tol=tol, candidates_per_iter=candidates_per_iter,
+        max_bytes=max_bytes, progress=progress, peak_strain=magnitude,
     )
-    _check_deforms(model, poses, magnitude=magnitude, size=size)
+
+
+def train_cubature_on_poses(
+    rest_points: np.ndarray,
+    tets: np.ndarray,
+    material: Material,
+    U: np.ndarray,
+    *,
+    train: np.ndarray,
+    holdout: np.ndarray,
+    rng: np.random.Generator,
+    max_elements: int = 60,
+    tol: float = 0.01,
+    candidates_per_iter: int = 100,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    progress: bool = False,
+    peak_strain: float | None = None,
+) -> Cubature:
+    """Greedy + NNLS cubature fitted to given training poses on a given rest shape.
+
+    The core of :func:`train_cubature`, for callers that know which poses matter: e.g.
+    the LB route's per-example cubature, trained on example k's rest shape X_k
+    (reconstructed on the object's mesh) with poses along the path between the
+    examples' targets plus small perturbations.
+
+    Args:
+        rest_points: (n, 3) rest shape in metres (the object's mesh points or X_k).
+        tets: (t, 4) the mesh's tetrahedra.
+        material: the hyperelastic material.
+        U: (3n, k) basis, node-major rows, mapping coordinates to metres.
+        train: (P, k) training poses (coordinates relative to the rest shape).
+        holdout: (P', k) held-out poses (reported error only).
+        rng: generator of the candidate batches.
+        max_elements, tol, candidates_per_iter, max_bytes, progress: as in
+            :func:`train_cubature`.
+        peak_strain: the poses' largest expected strain, for the rigid-pose check
+            (default: measured on the poses).
+
+    Returns:
+        The :class:`Cubature` (``n_train``/``n_holdout`` the pose counts).
+    """
+    rest_points = np.asarray(rest_points, dtype=np.float64)
+    tets = np.asarray(tets)
+    U = _check_basis(U, n_vertices=rest_points.shape[0])
+    n_tets = tets.shape[0]
+    _check_int("max_elements", max_elements, minimum=1)
+    if max_elements > n_tets:
+        raise LbshapeError(
+            f"max_elements (s = {max_elements}) exceeds the number of tetrahedra ({n_tets})"
+        )
+    train = np.atleast_2d(np.asarray(train, dtype=np.float64))
+    holdout = np.atleast_2d(np.asarray(holdout, dtype=np.float64))
+    for name, poses in (("train", train), ("holdout", holdout)):
+        if poses.ndim != 2 or poses.shape[1] != U.shape[1] or poses.shape[0] < 1:
+            raise LbshapeError(f"{name} poses must have shape (P >= 1, {U.shape[1]}), "
+                               f"got {poses.shape}")
+    model = ReducedForceModel(rest_points, tets, material, U, np.arange(n_tets), np.ones(n_tets))
+    all_poses = np.concatenate([train, holdout])
+    if peak_strain is None:
+        peak_strain = float(model.max_strain(all_poses.T).max())
+    _check_deforms(model, all_poses, magnitude=peak_strain, size=1.0)
     r = U.shape[1]
-    A, b = _normalised_system(
-        force_contribution_matrix(model, poses[:n_train], max_bytes=max_bytes), r
-    )
+    A, b = _normalised_system(force_contribution_matrix(model, train, max_bytes=max_bytes), r)
     A_hold, b_hold = _normalised_system(
-        force_contribution_matrix(model, poses[n_train:], max_bytes=max_bytes), r
+        force_contribution_matrix(model, holdout, max_bytes=max_bytes), r
     )
     elements, weights, history = _greedy_nnls(
         A, b, A_hold, b_hold, s=max_elements, tol=float(tol),
@@ -275,9 +335,79 @@ def train_cubature(
         errors_by_size=history,
         tol=float(tol),
         reached_tol=bool(reached),
-        n_train=int(n_train),
-        n_holdout=int(n_holdout),
+        n_train=int(train.shape[0]),
+        n_holdout=int(holdout.shape[0]),
     )
+
+
+def train_example_cubatures(
+    rest_points: list[np.ndarray],
+    tets: np.ndarray,
+    material: Material,
+    basis: np.ndarray,
+    offsets: np.ndarray,
+    path: np.ndarray,
+    *,
+    rng: np.random.Generator,
+    scales: np.ndarray | None = None,
+    perturbation: float = 0.01,
+    copies: int = 4,
+    max_elements: int = 60,
+    tol: float = 0.01,
+) -> list[Cubature]:
+    """One cubature per example, trained where the target search evaluates it.
+
+    The target energy of example k is evaluated on its own rest shape X_k (n, 3) at
+    ``y = z − z_k`` for targets z between the examples. Training on the object's rest
+    shape with random poses (:func:`train_cubature`) fits the wrong integrand; here
+    example k's cubature is fitted on X_k to the poses ``y = z_j − z_k`` for the path
+    targets z_j (exact targets at weights spread over the simplex) plus ``copies``
+    random perturbations of each, of RMS size ``perturbation × separation``
+    (separation ``max_ij ‖z_i − z_j‖``) with per-coordinate ``scales``. Every other
+    path pose and its perturbations are held out.
+
+    Args:
+        rest_points: k arrays (n, 3), the examples' rest shapes on the object's mesh.
+        tets: (t, 4) tetrahedra.
+        material: the hyperelastic material.
+        basis: (3n, p) the coordinates' basis B (node-major rows).
+        offsets: (k, p) the examples' own coordinates z_k.
+        path: (P, p) exact targets along the example path (P >= 4).
+        rng: generator of the perturbations and candidate batches.
+        scales: (p,) per-coordinate perturbation scales (default all 1).
+        perturbation: RMS perturbation size as a share of the separation (on the cuboid
+            bar, 1 % with 4 copies gave the lb route 1.7 % of the separation at worst along
+            the example path, 10 % with 2 copies 3 %).
+        copies: perturbations per path pose.
+        max_elements, tol: as in :func:`train_cubature`.
+
+    Returns:
+        k :class:`Cubature` rules (element indices into ``tets``).
+    """
+    offsets = np.atleast_2d(np.asarray(offsets, dtype=np.float64))
+    path = np.atleast_2d(np.asarray(path, dtype=np.float64))
+    k, p = offsets.shape
+    if len(rest_points) != k or path.shape[1] != p or path.shape[0] < 4:
+        raise LbshapeError(f"need {k} rest shapes and a path of >= 4 targets with {p} "
+                           f"coordinates, got {len(rest_points)} and {path.shape}")
+    spread = max((float(np.linalg.norm(offsets[i] - offsets[j]))
+                  for i in range(k) for j in range(i + 1, k)), default=0.0)
+    spread = spread or float(np.linalg.norm(offsets, axis=1).max()) or 1.0
+    scales = np.ones(p) if scales is None else np.asarray(scales, dtype=np.float64)
+    unit = scales / np.sqrt(np.mean(scales**2) * p)  # E|δ|² = 1 for δ = unit ⊙ N(0, I)
+    rules = []
+    for index in range(k):
+        base = path - offsets[index]
+        noise = rng.standard_normal((copies * base.shape[0], p)) * unit * (perturbation * spread)
+        poses = np.concatenate([base, np.repeat(base, copies, axis=0) + noise])
+        owner = np.concatenate([np.arange(base.shape[0]),
+                                np.repeat(np.arange(base.shape[0]), copies)])
+        moving = np.linalg.norm(poses, axis=1) > 1e-12 * spread  # drop the rest pose
+        held = (owner % 2 == 1) & moving
+        rules.append(train_cubature_on_poses(
+            rest_points[index], tets, material, basis, train=poses[~held & moving],
+            holdout=poses[held], rng=rng, max_elements=max_elements, tol=tol))
+    return rules
 
 
 # -- internals ---------------------------------------------------------------------------

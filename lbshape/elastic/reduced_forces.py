@@ -27,6 +27,7 @@ import numpy as np
 
 from lbshape.elastic.element_kernels import ElementKernel
 from lbshape.elastic.energy_densities import density_model
+from lbshape.elastic.jit_densities import density_parameters, stress_and_tangent
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
 
@@ -124,7 +125,7 @@ class ReducedForceModel:
             (wv[:, None, None] * BU).transpose(1, 0, 2).reshape(9 * s, r).T
         )  # (r, 9s)
         # tangent: K = WBU_eᵀ @ (A_e BU_e) stacked element-major (9s, r)
-        self._bu_e = BU  # (s, 9, r)
+        self._bu_e = np.ascontiguousarray(BU)  # (s, 9, r)
         self._wbu_e_t = np.ascontiguousarray((wv[:, None, None] * BU).reshape(s * 9, r).T)
         # unweighted V (BU)ᵀ, (s, r, 9), for per-element contributions (training)
         self._vbu_t = np.ascontiguousarray((volumes[:, None, None] * BU).transpose(0, 2, 1))
@@ -132,6 +133,13 @@ class ReducedForceModel:
         # work arrays of the tangent
         self._a_work = np.empty((s, 9, 9))
         self._t_work = np.empty((s, 9, r))
+        self._h_work = np.empty(9 * s)
+        self._p_work = np.empty((9, s))
+        self._jit = density_parameters(material)
+        # views made once: the run-time path creates no array objects
+        self._h_view = self._h_work.reshape(9, s)
+        self._p_flat = self._p_work.reshape(-1)
+        self._t_view = self._t_work.reshape(9 * s, r)
 
     # -- helpers ---------------------------------------------------------------------
     def _gradients(self, q: np.ndarray) -> np.ndarray:
@@ -176,6 +184,17 @@ class ReducedForceModel:
         T = np.matmul(A, self._bu_e, out=self._t_work)
         K = self._wbu_e_t @ T.reshape(9 * s, self.n_coordinates)
         return f, K
+
+    def force_and_tangent_into(self, q: np.ndarray, f: np.ndarray, K: np.ndarray) -> None:
+        """The run-time path of :meth:`force_and_tangent`: writes the force (r,) into ``f``
+        and the tangent (r, r) into ``K``; compiled element kernel
+        (:mod:`lbshape.elastic.jit_densities`), preallocated work arrays, no checks."""
+        np.dot(self._bu_k, q, out=self._h_work)
+        stress_and_tangent(self._jit[0], self._jit[1], self._h_view, self._p_work,
+                           self._a_work)
+        np.dot(self._wbu_k_t, self._p_flat, out=f)
+        np.matmul(self._a_work, self._bu_e, out=self._t_work)
+        np.dot(self._wbu_e_t, self._t_view, out=K)
 
     def min_jacobian(self, q: np.ndarray) -> float:
         """The smallest det F over the cubature elements at q (r,); ≤ 0: inverted."""

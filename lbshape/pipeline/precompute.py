@@ -10,11 +10,15 @@ Stages (only those the scene needs; paper pre-computation steps 1–6):
 6. ``lb``: the object's LB spectrum (m pairs)                — scenes with examples;
 7. ``examples``: example meshes, poses, frame and basis alignment, displacement
    coefficients                                              — scenes with examples;
-8. ``projections``: direct projections T                      — scenes with examples;
-9. ``lb-cubature``: a cubature for the LB displacement subspace (the ``lb``
-   interpolation route), trained on poses as large as the examples
-                                                              — scenes with examples;
-10. ``frame``: the rigid frame's reduced inertia and fictitious-force tensors
+8. ``projections``: direct projections T (also for the clamped LB basis, faded to
+   zero at the fixed vertices)                       — scenes with examples;
+9. ``target-table``: the exact interpolation target tabulated over the weight
+   simplex (1–3 examples), checked against the exact target at held-out weights
+   (:mod:`lbshape.shapespace.target_table`)                     — scenes with examples;
+10. ``lb-cubature``: one cubature per example for the LB displacement subspace (the
+   ``lb`` interpolation route), trained on the example's rest shape along the path of
+   exact targets between the examples                         — scenes with examples;
+11. ``frame``: the rigid frame's reduced inertia and fictitious-force tensors
     (:mod:`lbshape.dynamics.fictitious`)                      — free bodies.
 
 Scenes with ``[[regions]]`` (local examples) replace stages 7–9 by
@@ -50,7 +54,11 @@ import numpy as np
 from lbshape import __version__
 from lbshape.dynamics.fictitious import FrameTensors, frame_tensors
 from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
-from lbshape.elastic.cubature import inverse_frequency_scales, train_cubature
+from lbshape.elastic.cubature import (
+    inverse_frequency_scales,
+    train_cubature,
+    train_example_cubatures,
+)
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.modal_derivatives import modal_derivatives
@@ -80,7 +88,14 @@ from lbshape.shapespace.local_examples import (
     region_cells,
     submesh,
 )
-from lbshape.shapespace.projections import block_eigenfunctions, embed_example, make_shape_space
+from lbshape.shapespace.projections import direct_projection, embed_example, make_shape_space
+from lbshape.shapespace.target_table import (
+    TargetTable,
+    block_basis,
+    clamp_is_safe,
+    clamped_eigenvectors,
+    tabulate_examples,
+)
 from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
@@ -90,7 +105,7 @@ CUBATURE_TRAINING_POSES = 120
 #: seed of every random choice of the precompute (training poses, candidates)
 PRECOMPUTE_SEED = 20170401
 #: bumped whenever the artifact's content or meaning changes (part of the cache key)
-PIPELINE_VERSION = 6
+PIPELINE_VERSION = 8
 #: FrameTensors fields stored as ``frame_<field>`` arrays (free bodies)
 _FRAME_FIELDS = ("mass", "center", "Y0", "G", "C", "H", "S", "translation")
 #: arrays every artifact holds, and those of scenes with examples
@@ -119,9 +134,20 @@ class Precomputed:
         eigenvectors: (n, m) object's LB eigenvectors (M₃-orthonormal) or None.
         example_coefficients: (k, m, 3) example LB displacement coefficients or None.
         projection: (r, 3m) ``P = (√ρ U)ᵀ M₃ L`` or None.
+        projection_clamped: (r, 3m) the same for the clamped basis ``L_F`` (faded to
+            zero at the fixed vertices), or None.
+        target_table: the :class:`~lbshape.shapespace.target_table.TargetTable` of the
+            exact target in the :attr:`target_boundary` LB basis, or None (no examples,
+            more than 3, or refused by its check).
+        target_boundary: ``"clamped"`` when the target routes use the LB basis faded to
+            zero at the fixed vertices (the default when it keeps the examples'
+            elements healthy, :func:`~lbshape.shapespace.target_table.clamp_is_safe`),
+            else ``"free"``; the table and the per-example LB cubature use it.
         alignment_residuals: (k,) basis alignment residuals or None.
         lb_cubature_elements, lb_cubature_weights: cubature of the LB displacement
-            subspace (basis :meth:`lb_basis`), or None; ``lb_cubature_errors``.
+            subspace (basis :meth:`lb_basis`), or None: (s,) shared by the examples or
+            (k, s) one row per example (padded with element -1, weight 0);
+            ``lb_cubature_errors`` (largest over the examples).
         example_names: (k,) labels.
         local: the local-example shape space (scenes with regions), or None.
         frame: reduced rigid-frame tensors of a free body, or None (fixed object).
@@ -147,6 +173,9 @@ class Precomputed:
     lb_cubature_elements: np.ndarray | None = None
     lb_cubature_weights: np.ndarray | None = None
     lb_cubature_errors: dict = field(default_factory=dict)
+    projection_clamped: np.ndarray | None = None
+    target_table: object | None = None
+    target_boundary: str = "free"
     example_names: tuple[str, ...] = ()
     local: LocalShapeSpace | None = None
     frame: FrameTensors | None = None
@@ -185,17 +214,27 @@ class Precomputed:
         k = self.example_coefficients.shape[0]
         return self.example_coefficients.reshape(k, -1) * np.repeat(self.eigenvalues, 3)
 
-    def example_rest_points(self, index: int) -> np.ndarray:
-        """(n, 3) example ``index`` reconstructed on the object's mesh (its rest shape)."""
-        return self.mesh.points + self.eigenvectors @ self.example_coefficients[index]
+    def example_rest_points(self, index: int, *, clamped: bool = False) -> np.ndarray:
+        """(n, 3) example ``index`` reconstructed on the object's mesh (its rest shape);
+        ``clamped``: with the clamped basis (no displacement at the fixed vertices)."""
+        return self.mesh.points + self.target_eigenvectors(clamped) @ \
+            self.example_coefficients[index]
 
-    def lb_basis(self) -> np.ndarray:
-        """(3n, 3m) dense ``L = Φ ⊗ I₃`` (node-major rows, column 3i+k)."""
-        n, m = self.eigenvectors.shape
-        L = np.zeros((n, 3, m, 3))
-        for k in range(3):
-            L[:, k, :, k] = self.eigenvectors
-        return L.reshape(3 * n, 3 * m)
+    def target_eigenvectors(self, clamped: bool = False) -> np.ndarray:
+        """(n, m) Φ, or Φ_F faded to zero at the fixed vertices when ``clamped``."""
+        if not clamped or self.fixed_vertices.size == 0:
+            return self.eigenvectors
+        return clamped_eigenvectors(self.eigenvectors, self.fixed_vertices, self.mesh.points)
+
+    def lb_basis(self, *, clamped: bool = False) -> np.ndarray:
+        """(3n, 3m) dense ``L = Φ ⊗ I₃`` (node-major rows, column 3i+k); ``clamped``: L_F."""
+        return block_basis(self.target_eigenvectors(clamped))
+
+    def lb_to_reduced_for(self, *, clamped: bool) -> np.ndarray:
+        """(r, 3m) the map of LB coefficients to reduced coordinates for L or L_F."""
+        if clamped and self.projection_clamped is not None:
+            return math.sqrt(self.material.density) * self.projection_clamped
+        return self.lb_to_reduced
 
 
 def _source_digest(source: MeshSource) -> dict:
@@ -252,7 +291,7 @@ def stage_names(scene: Scene) -> list[str]:
     if scene.has_local_examples:
         names += ["lb", "regions"]
     elif scene.has_examples:
-        names += ["lb", "examples", "projections", "lb-cubature"]
+        names += ["lb", "examples", "projections", "target-table", "lb-cubature"]
     if scene.is_free:
         names.append("frame")
     return names
@@ -325,7 +364,7 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
         meta["local_regions"] = [reg.name for reg in scene.regions]
         meta["local_representation_errors"] = local.representation_errors
     elif scene.has_examples:
-        arrays.update(_shape_space_arrays(scene, mesh, U, stages))
+        arrays.update(_shape_space_arrays(scene, mesh, U, fixed, stages))
         meta["example_names"] = [_example_label(p) for p in scene.examples.poses]
     if scene.is_free:
         with stages.stage("frame"):
@@ -364,7 +403,8 @@ def _local_space(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.ndarray,
     return local, {"eigenvalues": spectrum.eigenvalues, "eigenvectors": spectrum.eigenvectors}
 
 
-def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Stages) -> dict:
+def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.ndarray,
+                        stages: _Stages) -> dict:
     m = scene.reduced.m
     with stages.stage("lb"):
         spectrum = lb_spectrum(mesh, m)
@@ -401,30 +441,55 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, stages: _Sta
             math.sqrt(scene.material.density) * U, coefficients, alignments,
             [_example_label(p) for p in scene.examples.poses],
         )
+        phi_clamped = clamped_eigenvectors(spectrum.eigenvectors, fixed, mesh.points)
+        projection_clamped = direct_projection(math.sqrt(scene.material.density) * U,
+                                               phi_clamped, spectrum.mass)
+    with stages.stage("target-table"):
+        clamped = fixed.size > 0 and clamp_is_safe(
+            mesh.points, mesh.tets, spectrum.eigenvectors, phi_clamped, space.example_coefficients)
+        if fixed.size and not clamped:
+            log.warning("the clamped LB basis would flatten elements of the examples' rest "
+                        "shapes: the target routes keep the free basis")
+        phi_target = phi_clamped if clamped else spectrum.eigenvectors
+        table, path, _ = tabulate_examples(mesh.points, mesh.tets, scene.material, phi_target,
+                                           space.example_coefficients, mass=spectrum.mass)
     with stages.stage("lb-cubature"):
-        lb_cubature = _train_lb_cubature(scene, mesh, spectrum, space.example_coefficients)
+        lb_arrays = _train_lb_cubatures(scene, mesh, phi_target, spectrum.eigenvalues,
+                                        space.example_coefficients, path)
     return {
-        "lb_cub_elements": lb_cubature.elements, "lb_cub_weights": lb_cubature.weights,
-        "lb_cub_errors": np.array([lb_cubature.train_error, lb_cubature.holdout_error]),
+        **lb_arrays, **({} if table is None else table.to_arrays()),
+        "projection_clamped": projection_clamped,
+        "target_clamped": np.array([int(clamped)], dtype=np.int64),
         "eigenvalues": space.eigenvalues, "eigenvectors": spectrum.eigenvectors,
         "example_coefficients": space.example_coefficients, "projection": space.projection,
         "alignment_residuals": space.alignment_residuals,
     }
 
 
-def _train_lb_cubature(scene: Scene, mesh: TetMesh, spectrum, example_coefficients):
-    """Cubature for the basis ``L = Φ ⊗ I₃``, training poses as large as the examples."""
-    L = block_eigenfunctions(spectrum.eigenvectors).toarray()
-    size = float(np.ptp(mesh.points, axis=0).max())
+def _train_lb_cubatures(scene: Scene, mesh: TetMesh, eigenvectors, eigenvalues,
+                        example_coefficients, path) -> dict:
+    """One cubature per example for the LB basis ``Φ ⊗ I₃`` (the one of the target
+    routes), trained on the example's rest shape along the path (P, 3m) of exact
+    targets between the examples (:func:`lbshape.elastic.cubature.train_example_cubatures`);
+    arrays (k, s) padded."""
     k = example_coefficients.shape[0]
-    largest = max(float(np.abs(L @ c).max()) for c in example_coefficients.reshape(k, -1))
-    return train_cubature(
-        mesh, scene.material, L, rng=np.random.default_rng(PRECOMPUTE_SEED + 1),
-        scales=inverse_frequency_scales(np.repeat(spectrum.eigenvalues, 3)),
+    rests = [mesh.points + eigenvectors @ c for c in example_coefficients]
+    rules = train_example_cubatures(
+        rests, mesh.tets, scene.material, block_basis(eigenvectors),
+        example_coefficients.reshape(k, -1), path,
+        rng=np.random.default_rng(PRECOMPUTE_SEED + 1),
+        scales=inverse_frequency_scales(np.repeat(eigenvalues, 3)),
         max_elements=scene.reduced.s, tol=scene.reduced.cubature_tolerance,
-        n_train=CUBATURE_TRAINING_POSES, n_holdout=CUBATURE_TRAINING_POSES // 2,
-        magnitude=max(1.2 * largest / size, 0.05),
     )
+    width = max(rule.size for rule in rules)
+    elements = np.full((k, width), -1, dtype=np.int64)
+    weights = np.zeros((k, width))
+    for index, rule in enumerate(rules):
+        elements[index, :rule.size] = rule.elements
+        weights[index, :rule.size] = rule.weights
+    return {"lb_cub_elements": elements, "lb_cub_weights": weights,
+            "lb_cub_errors": np.array([max(r.train_error for r in rules),
+                                       max(r.holdout_error for r in rules)])}
 
 
 def _example_label(pose) -> str:
@@ -483,6 +548,10 @@ def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
         lb_cubature_errors=({"train": float(arrays["lb_cub_errors"][0]),
                              "holdout": float(arrays["lb_cub_errors"][1])}
                             if has_examples else {}),
+        projection_clamped=arrays.get("projection_clamped") if has_examples else None,
+        target_table=_table(arrays) if has_examples else None,
+        target_boundary=("clamped" if has_examples and int(np.asarray(
+            arrays.get("target_clamped", [0]))[0]) else "free"),
         example_names=tuple(meta.get("example_names", ())),
         local=(LocalShapeSpace.from_arrays(meta["local_regions"], arrays,
                                            meta.get("local_representation_errors", {}))
@@ -494,3 +563,7 @@ def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
         stage_seconds=dict(meta.get("stage_seconds", {})),
         from_cache=from_cache,
     )
+
+
+def _table(arrays):
+    return TargetTable.from_arrays(arrays)

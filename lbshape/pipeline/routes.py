@@ -19,10 +19,28 @@ routes differ in the coordinates z, the basis B that maps them to displacements
   target at a run-time cost of O((3m)⁴), independent of the mesh.
 * ``euclidean`` (Zhu et al. 2015 baseline): z = c, ``B = L``, **all** elements
   with unit weights (:class:`lbshape.shapespace.euclidean_energy.EuclideanExampleEnergy`).
+* ``lb-table`` (the default of the reduced method): the exact target (the
+  ``lb-exact`` one for StVK, the all-element one otherwise) tabulated over the
+  weight simplex at precompute (:mod:`lbshape.shapespace.target_table`, 1–3
+  examples, its error checked against the exact target at held-out weights); at run
+  time one spline evaluation in reduced coordinates. Without a table (more than 3
+  examples, or a table refused by its check) it follows the target of ``lb-exact``
+  (StVK) or ``lb`` (other materials) with :data:`FALLBACK_ITERATIONS` warm-started
+  Newton step(s) per time step.
 
-In every route example k's energy is that of its rest shape ``X_k = X + Φ c_k``
+In every route example k's energy is that of its rest shape ``X_k = X + B_Φ c_k``
 (the example reconstructed on the object's mesh, :meth:`Precomputed.example_rest_points`),
 so ``E_k(0) = 0`` and a single example is its own target.
+
+**Boundary.** The LB eigenfunctions are free at the object's fixed vertices while U is
+clamped there, so the examples' LB displacements ``Φ c_k`` keep a part at the fixed
+vertices that no reduced coordinate can represent. With ``boundary="clamped"`` (the
+default when the precompute found it safe, see
+:attr:`~lbshape.pipeline.precompute.Precomputed.target_boundary`) every route uses
+the clamped basis ``L_F = Φ_F ⊗ I₃`` (Φ faded to zero at the fixed vertices,
+:func:`lbshape.shapespace.target_table.clamped_eigenvectors`) for the examples' rest
+shapes, the target coordinates and the direct projection; ``boundary="free"`` keeps Φ
+(the paper's construction, for comparison).
 
 Set-up is per run from a :class:`~lbshape.pipeline.precompute.Precomputed` and cheap (the
 cubatures come from the precompute and its cache); nothing is cached here. The
@@ -45,8 +63,17 @@ from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_driver import ExampleDriver
 from lbshape.shapespace.interpolation import ROUTES, TargetSolver
 from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
+from lbshape.shapespace.target_table import TableSolver
 
 log = logging.getLogger(__name__)
+
+#: the boundary treatments of the LB basis (see the module docstring)
+BOUNDARIES = ("clamped", "free")
+#: Newton steps per call (per time step, warm-started) of the lb-table route's fallback
+#: when there is no table: measured on the cuboid bar with 4 twist examples along a
+#: 1000-step run, one step per time step stays within 0.66 % of the example separation
+#: of the converged target (2 steps: 0.08 %)
+FALLBACK_ITERATIONS = 1
 
 
 @dataclass(frozen=True)
@@ -113,15 +140,22 @@ def target_solver(
     *,
     tolerance: float = 1e-6,
     max_iterations: int = 20,
+    boundary: str | None = None,
+    tracking: bool = False,
 ) -> InterpolationRoute:
     """Set up the target solver of ``route`` from a precompute with examples.
 
     Args:
         pre: the scene's precompute (must have examples; the ``lb`` route also
             needs its LB-subspace cubature).
-        route: ``"modal"``, ``"lb"`` or ``"euclidean"`` (see the module docstring).
+        route: one of :data:`ROUTES` (see the module docstring).
         tolerance: Newton tolerance of the :class:`TargetSolver`.
         max_iterations: Newton iterations per target solve.
+        tracking: ``max_iterations`` warm-started Newton steps per call by design (see
+            :class:`~lbshape.shapespace.interpolation.TargetSolver`).
+        boundary: ``"clamped"`` or ``"free"`` LB basis; default: the precompute's
+            :attr:`~lbshape.pipeline.precompute.Precomputed.target_boundary` (``lb-table``:
+            that one only).
 
     Returns:
         The :class:`InterpolationRoute`.
@@ -132,31 +166,65 @@ def target_solver(
     """
     if route not in ROUTES:
         raise LbshapeError(f"unknown interpolation route {route!r} (routes: {', '.join(ROUTES)})")
+    boundary = pre.target_boundary if boundary is None else boundary
+    if boundary not in BOUNDARIES:
+        raise LbshapeError(f"boundary must be one of {BOUNDARIES}, got {boundary!r}")
     check_precomputed(pre)
+    clamped = boundary == "clamped"
+    if route == "lb-table":
+        if boundary != pre.target_boundary:
+            raise LbshapeError(f"the lb-table route is tabulated in the {pre.target_boundary} "
+                               "LB basis only")
+        if pre.target_table is None:
+            fallback = "lb-exact" if pre.material.model == "stvk" else "lb"
+            log.info("no target table in the precompute of %s: the lb-table route follows the "
+                     "%s target with %d warm-started Newton step(s) per time step", pre.scene,
+                     fallback, FALLBACK_ITERATIONS)
+            return target_solver(pre, fallback, tolerance=tolerance,
+                                 max_iterations=FALLBACK_ITERATIONS, boundary=boundary,
+                                 tracking=True)
     started = time.perf_counter()
     k = pre.example_coefficients.shape[0]
     coefficients = pre.example_coefficients.reshape(k, -1)
-    rests = [pre.example_rest_points(i) for i in range(k)]
+    rests = [pre.example_rest_points(i, clamped=clamped) for i in range(k)]
     tets, material = pre.mesh.tets, pre.material
+    lb_to_reduced = pre.lb_to_reduced_for(clamped=clamped)
+    if route == "lb-table":
+        table = pre.target_table
+        table.set_reduced_map(lb_to_reduced)
+        solver = TableSolver(table, [None] * k, coefficients)
+        check = table.check
+        seconds = time.perf_counter() - started
+        return InterpolationRoute(
+            route=route, solver=solver, to_reduced=lb_to_reduced,
+            basis=pre.lb_basis(clamped=clamped), elements=np.zeros(0, dtype=np.int64),
+            weights=np.zeros(0), seconds=seconds,
+            cubature_errors={} if check is None else {"table_max_error": check.max_error})
     if route in ("euclidean", "lb-exact"):
         energy = EuclideanExampleEnergy if route == "euclidean" else StVKPolynomialEnergy
-        basis = pre.lb_basis()
+        basis = pre.lb_basis(clamped=clamped)
         elements = np.arange(pre.mesh.n_tets, dtype=np.int64)
         weights = np.ones(pre.mesh.n_tets)
         models = [energy(x, tets, material, basis) for x in rests]
-        offsets, to_reduced, errors = coefficients, pre.lb_to_reduced, {}
+        offsets, to_reduced, errors = coefficients, lb_to_reduced, {}
     else:
         if route == "modal":
             basis, elements, weights = pre.U, pre.cubature_elements, pre.cubature_weights
-            offsets, to_reduced = coefficients @ pre.lb_to_reduced.T, None
+            offsets, to_reduced = coefficients @ lb_to_reduced.T, None
             errors = dict(pre.cubature_errors)
+            models = [ReducedForceModel(x, tets, material, basis, elements, weights)
+                      for x in rests]
         else:
-            elements, weights = _lb_cubature(pre)
-            basis = pre.lb_basis()
-            offsets, to_reduced = coefficients, pre.lb_to_reduced
+            rules = _lb_cubature(pre, k)
+            basis = pre.lb_basis(clamped=clamped)
+            offsets, to_reduced = coefficients, lb_to_reduced
             errors = dict(getattr(pre, "lb_cubature_errors", {}) or {})
-        models = [ReducedForceModel(x, tets, material, basis, elements, weights) for x in rests]
-    solver = TargetSolver(models, offsets, tolerance=tolerance, max_iterations=max_iterations)
+            models = [ReducedForceModel(x, tets, material, basis, e, w)
+                      for x, (e, w) in zip(rests, rules, strict=True)]
+            elements = np.unique(np.concatenate([e for e, _ in rules]))
+            weights = np.ones(elements.size)
+    solver = TargetSolver(models, offsets, tolerance=tolerance, max_iterations=max_iterations,
+                          tracking=tracking)
     seconds = time.perf_counter() - started
     log.info("interpolation route %s: p=%d coordinates, %d elements, set up in %.3f s",
              route, offsets.shape[1], np.size(elements), seconds)
@@ -178,6 +246,12 @@ def example_driver(pre: Precomputed, *, route: str, **options):
     setup = target_solver(pre, route, **options)
     return ExampleDriver(pre.descriptor_matrix, pre.example_descriptors, setup.solver,
                          to_reduced=setup.to_reduced)
+
+
+def exact_route(pre: Precomputed) -> str:
+    """The route whose target is exact for the precompute's material: ``lb-exact``
+    (StVK, a polynomial) or ``euclidean`` (all elements)."""
+    return "lb-exact" if pre.material.model == "stvk" else "euclidean"
 
 
 def check_precomputed(pre: Precomputed) -> None:
@@ -218,8 +292,9 @@ def check_precomputed(pre: Precomputed) -> None:
         )
 
 
-def _lb_cubature(pre: Precomputed) -> tuple[np.ndarray, np.ndarray]:
-    """The precompute's LB-subspace cubature (elements (s,), weights (s,))."""
+def _lb_cubature(pre: Precomputed, k: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The precompute's LB-subspace cubature per example: k pairs (elements (s_k,),
+    weights (s_k,)); a shared (s,) rule is repeated."""
     elements = getattr(pre, "lb_cubature_elements", None)
     weights = getattr(pre, "lb_cubature_weights", None)
     if elements is None or weights is None:
@@ -227,4 +302,11 @@ def _lb_cubature(pre: Precomputed) -> tuple[np.ndarray, np.ndarray]:
             f"the precompute of scene {pre.scene!r} has no LB-subspace cubature; "
             "re-run 'lbshape precompute --force' for the 'lb' interpolation route"
         )
-    return np.asarray(elements, dtype=np.int64), np.asarray(weights, dtype=float)
+    elements = np.asarray(elements, dtype=np.int64)
+    weights = np.asarray(weights, dtype=float)
+    if elements.ndim == 1:
+        return [(elements, weights)] * k
+    if elements.shape[0] != k or weights.shape != elements.shape:
+        raise LbshapeError(f"per-example LB cubature must have shape ({k}, s), got "
+                           f"{elements.shape} and {weights.shape}")
+    return [(e[e >= 0], w[e >= 0]) for e, w in zip(elements, weights, strict=True)]

@@ -44,7 +44,7 @@ from lbshape.dynamics.loads import (
     region_torque_pattern,
 )
 from lbshape.dynamics.record import RunRecord
-from lbshape.dynamics.reduced import ReducedSimulation
+from lbshape.dynamics.reduced import PHASES, REALTIME_NEWTON_ITERATIONS, ReducedSimulation
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
@@ -87,6 +87,9 @@ class SimulationOutput:
         message: solver failure message ('' if stable).
         breakdown: per-step mean cost (ms) of a free-body reduced step by part:
             ``interp``, ``rigid``, ``contact``, ``solve`` (empty otherwise).
+        phase_ms: reduced methods on fixed objects: the median time per step of each
+            part of the step (:data:`~lbshape.dynamics.reduced.PHASES`) after the
+            warm-up, in ms.
     """
 
     stats: dict
@@ -94,6 +97,7 @@ class SimulationOutput:
     displacements: np.ndarray
     message: str = ""
     breakdown: dict = field(default_factory=dict)
+    phase_ms: dict | None = None
 
 
 def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[TimedLoad]:
@@ -129,14 +133,17 @@ def example_stiffness(scene: Scene, pre: Precomputed) -> float:
     return float(k_ex) if active and k_ex > 0 else 0.0
 
 
-def reduced_simulation(scene: Scene, pre: Precomputed, *,
-                       method: str = "reduced") -> ReducedSimulation:
+def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced",
+                       newton_iterations: int | None | str = "realtime") -> ReducedSimulation:
     """The :class:`~lbshape.dynamics.reduced.ReducedSimulation` of a scene.
 
     ``method`` picks the example target's route: the scene's
     ``reduced.interpolation`` for ``reduced``, the all-element baseline for
-    ``euclidean``.
+    ``euclidean``. ``newton_iterations``: Newton updates per step, ``"realtime"`` for
+    :data:`~lbshape.dynamics.reduced.REALTIME_NEWTON_ITERATIONS`, ``None`` to converge.
     """
+    if newton_iterations == "realtime":
+        newton_iterations = REALTIME_NEWTON_ITERATIONS
     elastic = ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U,
                                 pre.cubature_elements, pre.cubature_weights)
     loads = []
@@ -159,7 +166,7 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *,
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
-        k_ex=k_ex, contact=_contact(scene, pre, None),
+        k_ex=k_ex, contact=_contact(scene, pre, None), newton_iterations=newton_iterations,
     )
 
 
@@ -262,7 +269,17 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
     if steps < 1:
         raise LbshapeError(f"steps must be >= 1, got {steps}")
     stride = max(1, math.ceil(steps / MAX_FRAMES))
-    record = run_method(scene, pre, method=method, steps=steps, stride=stride)
+    phase_ms = None
+    if method == "full":
+        record = run_method(scene, pre, method=method, steps=steps, stride=stride)
+    else:
+        sim = reduced_simulation(scene, pre, method=method)
+        record = sim.run(steps, stride=stride)
+        phases = getattr(sim, "phase_seconds", np.zeros((0, len(PHASES))))  # fixed objects
+        phases = phases[WARMUP_STEPS:] if len(phases) > WARMUP_STEPS else phases
+        if len(phases):
+            phase_ms = dict(zip(PHASES, (1e3 * np.median(phases, axis=0)).tolist(),
+                                strict=True))
     if method == "full":
         frames = record.displacements()
         r, s = 3 * (pre.mesh.n_vertices - pre.fixed_vertices.size), pre.mesh.n_tets
@@ -281,7 +298,8 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
     }
     breakdown = (record.breakdown(warmup=WARMUP_STEPS) if isinstance(record, FreeBodyRecord)
                  else {})
-    output = SimulationOutput(stats, record.times, frames, record.message, breakdown)
+    output = SimulationOutput(stats, record.times, frames, record.message,
+                              breakdown=breakdown, phase_ms=phase_ms)
     if influence and record.stable and has_example_force(scene, pre):
         stats.update(example_influence(scene, pre, output, method=method, steps=steps)[0].stats())
     if out is not None:

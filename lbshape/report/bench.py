@@ -135,6 +135,8 @@ class MethodTiming:
         t_total_ms: (repeats,) per-step mean total time of each run (ms).
         stable: False if a run stopped on a solver failure.
         message: the failure message ('' if stable).
+        phase_ms: reduced methods: per repeat, the median time per step of each part of
+            the step (ms, :data:`~lbshape.dynamics.reduced.PHASES`).
     """
 
     method: str
@@ -142,6 +144,14 @@ class MethodTiming:
     t_total_ms: tuple[float, ...]
     stable: bool
     message: str = ""
+    phase_ms: tuple[dict, ...] = ()
+
+    def phase_summary(self) -> dict | None:
+        """Per part of the step, the median over the repeats (ms); None without phases."""
+        if not self.phase_ms:
+            return None
+        return {name: float(np.median([p[name] for p in self.phase_ms]))
+                for name in self.phase_ms[0]}
 
     def summary(self, which: str) -> dict:
         """``{"median", "min", "max"}`` of ``t_interp_ms`` or ``t_total_ms`` (ms)."""
@@ -290,6 +300,7 @@ def _run_interleaved(scene, pre, methods: tuple[str, ...], *, steps: int, repeat
     outputs: dict[str, object] = {}
     interp: dict[str, list[float]] = {m: [] for m in methods}
     total: dict[str, list[float]] = {m: [] for m in methods}
+    phases: dict[str, list[dict]] = {m: [] for m in methods}
     for repeat in range(repeats):
         for method in methods:
             first = outputs.get(method)
@@ -300,12 +311,14 @@ def _run_interleaved(scene, pre, methods: tuple[str, ...], *, steps: int, repeat
                      method, repeat + 1, output.stats["t_interp_ms"], output.stats["t_total_ms"])
             interp[method].append(float(output.stats["t_interp_ms"]))
             total[method].append(float(output.stats["t_total_ms"]))
+            if output.phase_ms:
+                phases[method].append(output.phase_ms)
             outputs.setdefault(method, output)
             if output.message:
                 log.error("bench %s: method %s stopped: %s", scene.name, method, output.message)
     timings = tuple(
         MethodTiming(m, tuple(interp[m]), tuple(total[m]), bool(outputs[m].stats["stable"]),
-                     outputs[m].message)
+                     outputs[m].message, tuple(phases[m]))
         for m in methods
     )
     return outputs, timings

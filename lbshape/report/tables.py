@@ -28,6 +28,7 @@ from lbshape.report.bench import (
 )
 from lbshape.report.machine import load_text, machine_description, threads_text
 from lbshape.report.plots import speed_error_plot
+from lbshape.report.realtime import breakdown_lines
 
 _INTRO = (
     "Columns as in the paper's Table 2: DOFs (3 × vertices) and tetrahedra of the "
@@ -170,6 +171,7 @@ def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
     lines += ["", "## Conditions", "", *_conditions(results, machine)]
     lines += ["", "## Targets (reported, not enforced)", ""]
     lines += [line for result in results for line in _targets(result)]
+    lines += breakdown_lines(results)
     return "\n".join(lines) + "\n"
 
 
@@ -195,7 +197,7 @@ def table2_payload(results: Sequence[SceneBenchmark], machine: dict) -> dict:
         "timings": [
             {"scene": result.scene, "method": t.method, "repeats": len(t.t_total_ms),
              "t_interp_ms": t.summary("t_interp_ms"), "t_total_ms": t.summary("t_total_ms"),
-             "stable": t.stable, "message": t.message}
+             "stable": t.stable, "message": t.message, "phase_ms": t.phase_summary()}
             for result in results for t in result.timings
         ],
         "settings": [

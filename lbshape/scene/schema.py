@@ -33,9 +33,9 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
     s = 60                     # int >= 1: maximum cubature elements (60)
     linear_modes = 0           # int in [0, r]: linear modes in the basis, 0 = automatic (0)
     cubature_tolerance = 0.01  # (0, 1): relative cubature training error (0.01)
-    interpolation = "auto"     # "auto" | "lb-exact" | "lb" | "modal": target route of
-                               # the reduced method (lbshape.shapespace.interpolation
-                               # ROUTE_CHOICES); auto = lb-exact for StVK, else lb ("auto")
+    interpolation = "auto"     # "auto" | "lb-table" | "lb-exact" | "lb" | "modal": target
+                               # route of the reduced method (lbshape.shapespace.interpolation
+                               # ROUTE_CHOICES); auto = lb-table ("auto")
 
     [examples]                 # optional; no LB work without it
     stiffness = 200.0          # k_ex, 1/s^2, >= 0 (required): force k_ex (q* - q)
@@ -191,11 +191,12 @@ class Reduced:
         s: maximum number of cubature elements.
         linear_modes: linear modes in the basis (0: automatic).
         cubature_tolerance: relative training error at which cubature stops.
-        interpolation: target route of the ``reduced`` method: ``"lb-exact"``
-            (exact polynomial StVK energy in LB space), ``"lb"`` (cubature on the LB
-            displacement subspace), ``"modal"`` (the paper's: nonlinear modal basis
-            and direct projection), or ``"auto"`` (``lb-exact`` for StVK, else
-            ``lb``). Run time only.
+        interpolation: target route of the ``reduced`` method: ``"lb-table"`` (the
+            exact target tabulated over the weight simplex, with its own fallback),
+            ``"lb-exact"`` (exact polynomial StVK energy in LB space), ``"lb"``
+            (cubature on the LB displacement subspace), ``"modal"`` (the paper's:
+            nonlinear modal basis and direct projection), or ``"auto"``
+            (``lb-table``). Run time only.
     """
 
     m: int = 10

@@ -14,6 +14,11 @@ Per step, from the reduced coordinates q (r,):
 
 With several regions (local examples), each region has its own driver and the
 forces add up.
+
+Run-time path (:meth:`ExampleDriver.target_into`): the weights come from the
+precomputed :class:`~lbshape.shapespace.interpolation.SimplexWeights` and, when the
+solver is a tabulated target (:class:`~lbshape.shapespace.target_table.TableSolver`),
+``q*`` is one table evaluation written into the caller's array; nothing is allocated.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lbshape.errors import LbshapeError
-from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
+from lbshape.shapespace.interpolation import SimplexWeights, TargetSolver
 
 
 @dataclass(frozen=True)
@@ -80,15 +85,48 @@ class ExampleDriver:
             raise LbshapeError(f"to_reduced must have shape {expected}, got {self.R.shape}")
         if self.R is None and p != self.D.shape[1]:
             raise LbshapeError(f"target dimension {p} differs from r={self.D.shape[1]}")
+        self._weights = SimplexWeights(self.examples, self.D)
+        #: (k,) the weights of the last :meth:`target_into` call
+        self.w = np.zeros(self.examples.shape[0])
+        #: Newton iterations of the last :meth:`target_into` call
+        self.iterations = 0
+        self._table = getattr(solver, "table", None)
+
+    @property
+    def k(self) -> int:
+        """Number of examples."""
+        return int(self.examples.shape[0])
 
     def weights(self, q: np.ndarray) -> np.ndarray:
         """(k,) example weights for the current reduced coordinates q (r,)."""
-        return simplex_weights(self.examples, self.D @ q)
+        return self._weights(np.asarray(q, dtype=float), np.empty(self.k))
+
+    def weights_into(self, q: np.ndarray) -> np.ndarray:
+        """Weights for q (r,) written into :attr:`w` (returned)."""
+        return self._weights(q, self.w)
+
+    def target_from_weights_into(self, out: np.ndarray) -> None:
+        """``q*`` (r,) for the weights in :attr:`w`, written into ``out``."""
+        if self._table is not None:
+            self._table.reduced_into(self.w, out)
+            self.iterations = 0
+            return
+        result = self.solver.solve(self.w)
+        self.iterations = result.iterations
+        if self.R is None:
+            out[:] = result.z
+        else:
+            np.dot(self.R, result.z, out=out)
+
+    def target_into(self, q: np.ndarray, out: np.ndarray) -> None:
+        """Weights (into :attr:`w`) and ``q*`` (r,) into ``out`` for reduced coordinates q (r,)."""
+        self._weights(q, self.w)
+        self.target_from_weights_into(out)
 
     def target(self, q: np.ndarray) -> TargetInfo:
         """Weights, target and timing for the current reduced coordinates q (r,)."""
         started = time.perf_counter()
-        w = self.weights(q)
-        result = self.solver.solve(w)
-        q_target = result.z if self.R is None else self.R @ result.z
-        return TargetInfo(q_target, w, result.iterations, time.perf_counter() - started)
+        q_target = np.zeros(self.D.shape[1])
+        self.target_into(np.asarray(q, dtype=float), q_target)
+        return TargetInfo(q_target, self.w.copy(), self.iterations,
+                          time.perf_counter() - started)

@@ -34,13 +34,14 @@ from typing import Protocol
 import numpy as np
 import scipy.linalg
 
+from lbshape._jit import njit
 from lbshape.errors import LbshapeError, SolverError
 
 log = logging.getLogger(__name__)
 
 #: the target routes (basis and elements of the example energies; set up per run by
 #: :mod:`lbshape.pipeline.routes`)
-ROUTES: tuple[str, ...] = ("modal", "lb", "lb-exact", "euclidean")
+ROUTES: tuple[str, ...] = ("lb-table", "modal", "lb", "lb-exact", "euclidean")
 #: the all-element baseline route: the ``euclidean`` method's, never the reduced method's
 BASELINE_ROUTE = "euclidean"
 #: a scene's ``[reduced] interpolation`` choices: ``"auto"`` or a route of the reduced method
@@ -48,12 +49,13 @@ ROUTE_CHOICES: tuple[str, ...] = ("auto",) + tuple(r for r in ROUTES if r != BAS
 
 
 def resolve_route(choice: str, material_model: str) -> str:
-    """The route of a :data:`ROUTE_CHOICES` entry (``auto``: ``lb-exact`` for StVK, else ``lb``)."""
+    """The route of a :data:`ROUTE_CHOICES` entry (``auto``: ``lb-table``, the tabulated
+    exact target, which falls back by itself to ``lb-exact`` or ``lb``)."""
     if choice not in ROUTE_CHOICES:
         raise LbshapeError(f"interpolation must be one of {', '.join(ROUTE_CHOICES)}, "
                            f"got {choice!r}")
     if choice == "auto":
-        return "lb-exact" if material_model == "stvk" else "lb"
+        return "lb-table"
     return choice
 
 
@@ -112,6 +114,109 @@ def simplex_weights(examples: np.ndarray, current: np.ndarray) -> np.ndarray:
     return best_w
 
 
+class SimplexWeights:
+    """Paper eq. 5 for fixed examples, precomputed: the run-time weights in a few µs.
+
+    The same problem and answer as :func:`simplex_weights`, but everything that depends
+    only on the examples is done once: the Gram matrix ``G = E Eᵀ`` (k, k), the map
+    ``b = (E D) q`` (k, r) from reduced coordinates to the right-hand side, and for
+    each of the 2^k − 1 supports S the affine solution ``w_S = P_S b + a_S`` of the
+    equality-constrained problem (the minimum-norm solution of its KKT system). At run
+    time all supports are evaluated at once; the feasible one (``w ≥ 0``) with the
+    smallest objective ``½ wᵀGw − bᵀw`` wins. The call writes into preallocated arrays.
+
+    Args:
+        examples: (k, d) example descriptors (flattened), k <= 12.
+        descriptor_matrix: (d, r) ``D``: the current descriptor is ``D q``; ``None``
+            means the caller passes descriptors (r = d).
+    """
+
+    def __init__(self, examples: np.ndarray, descriptor_matrix: np.ndarray | None = None):
+        E = np.atleast_2d(np.asarray(examples, dtype=float))
+        k = E.shape[0]
+        if k == 0 or k > 12:
+            raise LbshapeError(f"1 to 12 examples per region are supported, got {k}")
+        D = np.eye(E.shape[1]) if descriptor_matrix is None else np.asarray(descriptor_matrix,
+                                                                            dtype=float)
+        if D.shape[0] != E.shape[1]:
+            raise LbshapeError(
+                f"example descriptors have dimension {E.shape[1]}, the descriptor matrix "
+                f"{D.shape[0]} rows")
+        self.k = k
+        self.G = E @ E.T
+        self.ED = np.ascontiguousarray(E @ D)  # (k, r)
+        scale = max(float(np.trace(self.G)) / k, 1e-300)
+        supports = [np.array(c) for size in range(1, k + 1)
+                    for c in itertools.combinations(range(k), size)]
+        n = len(supports)
+        P = np.zeros((n, k, k))
+        a = np.zeros((n, k))
+        for index, idx in enumerate(supports):
+            size = idx.size
+            kkt = np.zeros((size + 1, size + 1))
+            kkt[:size, :size] = self.G[np.ix_(idx, idx)] / scale
+            kkt[:size, size] = 1.0
+            kkt[size, :size] = 1.0
+            inverse = np.linalg.pinv(kkt, rcond=1e-12)
+            P[index, idx[:, None], idx[None, :]] = inverse[:size, :size] / scale
+            a[index, idx] = inverse[:size, size]
+        self._P = np.ascontiguousarray(P.reshape(n * k, k))
+        self._a = a
+        self._scale = scale
+        # work arrays
+        self.b = np.zeros(k)
+        self._W = np.zeros((n, k))
+
+    def __call__(self, q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """(k,) weights for reduced coordinates q (r,) (or a descriptor, see Args)."""
+        out = np.empty(self.k) if out is None else out
+        if self.k == 1:
+            out[0] = 1.0
+            return out
+        np.dot(self.ED, q, out=self.b)
+        return self.from_rhs(self.b, out)
+
+    def from_rhs(self, b: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """Weights (k,) from the right-hand side ``b = E c`` (k,), written into ``out``."""
+        _best_support(self._P, self._a, self.G, b, self._W, out)
+        return out
+
+
+@njit
+def _best_support(P, a, G, b, W, out):
+    """Evaluate every support's affine solution, keep the feasible one of least objective.
+
+    P (n·k, k), a (n, k), G (k, k), b (k,), W (n, k) work, out (k,) the weights.
+    """
+    n, k = a.shape
+    best, best_value = 0, np.inf
+    for s in range(n):
+        feasible = True
+        for i in range(k):
+            value = a[s, i]
+            for j in range(k):
+                value += P[s * k + i, j] * b[j]
+            W[s, i] = value
+            if value < -1e-12:
+                feasible = False
+        if not feasible:
+            continue
+        objective = 0.0
+        for i in range(k):
+            gw = 0.0
+            for j in range(k):
+                gw += G[i, j] * W[s, j]
+            objective += W[s, i] * (0.5 * gw - b[i])
+        if objective < best_value:
+            best, best_value = s, objective
+    total = 0.0
+    for i in range(k):
+        out[i] = max(W[best, i], 0.0)
+        total += out[i]
+    for i in range(k):
+        out[i] /= total
+
+
 def _equality_constrained(G: np.ndarray, b: np.ndarray, scale: float) -> np.ndarray | None:
     """min ½wᵀGw − bᵀw s.t. Σw = 1 (G PSD; minimum-norm solution when singular)."""
     s = G.shape[0]
@@ -155,6 +260,10 @@ class TargetSolver:
         offsets: (k, p) the examples' own coordinates z_k.
         tolerance: stop when the Newton step is below ``tolerance · max_k ‖z_k‖``.
         max_iterations: Newton iterations per call.
+        tracking: the caller deliberately takes ``max_iterations`` warm-started steps
+            per call (one per time step) and follows the target across calls: stopping
+            before the tolerance is then the plan, reported by ``converged`` only, not
+            logged as a warning.
     """
 
     def __init__(
@@ -164,6 +273,7 @@ class TargetSolver:
         *,
         tolerance: float = 1e-6,
         max_iterations: int = 20,
+        tracking: bool = False,
     ):
         offsets = np.atleast_2d(np.asarray(offsets, dtype=float))
         if len(models) != offsets.shape[0]:
@@ -175,7 +285,7 @@ class TargetSolver:
         self.tolerance = float(tolerance)
         self.max_iterations = int(max_iterations)
         self._last: np.ndarray | None = None
-        self._warned = False
+        self._warned = bool(tracking)
 
     @property
     def dimension(self) -> int:

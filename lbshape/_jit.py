@@ -1,0 +1,24 @@
+"""Optional numba JIT for the real-time kernels: ``njit`` compiles when numba is present.
+
+Without numba the decorated functions run as plain Python (same results, slower);
+:data:`HAVE_NUMBA` says which. Compiled kernels are cached on disk by numba.
+"""
+
+from __future__ import annotations
+
+try:  # numba is a Debian package (python3-numba); the venv sees it
+    import numba as _numba
+except ImportError:  # pragma: no cover - exercised only on machines without numba
+    _numba = None
+
+#: True when the kernels are compiled
+HAVE_NUMBA = _numba is not None
+
+__all__ = ["HAVE_NUMBA", "njit"]
+
+
+def njit(function):
+    """``numba.njit(cache=True, nogil=True)`` or the function itself without numba."""
+    if _numba is None:  # pragma: no cover
+        return function
+    return _numba.njit(cache=True, nogil=True)(function)
