@@ -22,6 +22,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from lbshape.errors import LbshapeError
+from lbshape.io.atomic import write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -297,3 +298,23 @@ def gmsh_model(name: str) -> Iterator:
             gmsh.clear()
             for key, value in saved.items():
                 gmsh.option.setNumber(key, value)
+
+
+def write_gmsh_model(gmsh, path: str | Path) -> Path:
+    """Write the current gmsh model to ``path`` (``.msh``) atomically.
+
+    Raises:
+        LbshapeError: gmsh wrote nothing, or the file cannot be written.
+    """
+    path = Path(path)
+
+    def write(tmp: Path) -> None:
+        gmsh.write(str(tmp))
+        if tmp.stat().st_size == 0:
+            raise LbshapeError(f"{path}: gmsh wrote nothing")
+
+    try:
+        write_atomic(path, write)
+    except OSError as exc:
+        raise LbshapeError(f"cannot write {path}: {exc.strerror or exc}") from None
+    return path

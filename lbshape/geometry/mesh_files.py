@@ -34,8 +34,14 @@ from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 
 from lbshape.errors import LbshapeError
-from lbshape.geometry.mesh import TetMesh, check_mesh, gmsh_model, load_mesh, mesh_from_gmsh_model
-from lbshape.io.atomic import write_atomic
+from lbshape.geometry.mesh import (
+    TetMesh,
+    check_mesh,
+    gmsh_model,
+    load_mesh,
+    mesh_from_gmsh_model,
+    write_gmsh_model,
+)
 
 __all__ = [
     "SURFACE_FORMATS",
@@ -419,14 +425,5 @@ def write_msh(mesh: TetMesh, path: str | Path) -> Path:
                                  mesh.points.ravel().tolist())
         gmsh.model.mesh.addElementsByType(volume, 4, [], (mesh.tets + 1).ravel().tolist())
         gmsh.option.setNumber("Mesh.SaveAll", 1)
-
-        def write(tmp: Path) -> None:
-            gmsh.write(str(tmp))
-            if tmp.stat().st_size == 0:
-                raise LbshapeError(f"{path}: gmsh wrote nothing")
-
-        try:
-            write_atomic(path, write)
-        except OSError as exc:
-            raise LbshapeError(f"cannot write {path}: {exc.strerror or exc}") from None
+        write_gmsh_model(gmsh, path)
     return path

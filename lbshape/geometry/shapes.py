@@ -25,8 +25,13 @@ from pathlib import Path
 from types import ModuleType
 
 from lbshape.errors import LbshapeError
-from lbshape.geometry.mesh import TetMesh, check_mesh, gmsh_model, mesh_from_gmsh_model
-from lbshape.io.atomic import write_atomic
+from lbshape.geometry.mesh import (
+    TetMesh,
+    check_mesh,
+    gmsh_model,
+    mesh_from_gmsh_model,
+    write_gmsh_model,
+)
 from lbshape.io.paths import MESHES_DIR
 
 log = logging.getLogger(__name__)
@@ -166,16 +171,7 @@ def write_shape(name: str, path: str | Path, *, size: float | None = None) -> Te
         gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
         gmsh.option.setNumber("Mesh.Binary", 0)
         gmsh.option.setNumber("Mesh.SaveAll", 0)  # the physical groups cover the body
-
-        def write(tmp: Path) -> None:
-            gmsh.write(str(tmp))
-            if tmp.stat().st_size == 0:
-                raise LbshapeError(f"{path}: gmsh wrote nothing")
-
-        try:
-            write_atomic(path, write)
-        except OSError as exc:
-            raise LbshapeError(f"cannot write {path}: {exc.strerror or exc}") from None
+        write_gmsh_model(gmsh, path)
     log.info("wrote %s (%d vertices, %d tets)", path, mesh.n_vertices, mesh.n_tets)
     return mesh
 
