@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lbshape.dynamics.contact import ContactPlane, PlaneContact
+from lbshape.dynamics.contact import PlaneContact
 from lbshape.dynamics.free_body import FreeBodyRecord, FreeBodySimulation, FreeLoad
 from lbshape.dynamics.full import (
     FullSpaceContact,
@@ -174,8 +174,8 @@ def _contact(scene: Scene, pre: Precomputed, center):
     """The scene's plane contact on the object's surface, or None without planes."""
     if not scene.planes:
         return None
-    planes = [ContactPlane(p.point, p.normal, p.stiffness) for p in scene.planes]
-    return PlaneContact.for_mesh(planes, pre.mesh.points, pre.mesh.tets, pre.U, center=center)
+    return PlaneContact.for_mesh(list(scene.planes), pre.mesh.points, pre.mesh.tets, pre.U,
+                                 center=center)
 
 
 def _free_body_simulation(scene: Scene, pre: Precomputed, elastic, driver, k_ex: float):
@@ -217,8 +217,7 @@ def full_simulation(scene: Scene, pre: Precomputed) -> FullSpaceSimulator:
         local = (FullSpaceLocalForce(pre.mesh, pre.material, pre.local), k_ex)
     contact = None
     if scene.planes:
-        contact = FullSpaceContact([ContactPlane(p.point, p.normal, p.stiffness)
-                                    for p in scene.planes], pre.mesh.points, pre.mesh.tets)
+        contact = FullSpaceContact(list(scene.planes), pre.mesh.points, pre.mesh.tets)
     velocity = None
     if pre.fixed_vertices.size == 0:  # a free body
         if scene.damping.alpha > 0:

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from lbshape.dynamics.contact import ContactPlane
 from lbshape.dynamics.integrators import INTEGRATORS
 from lbshape.dynamics.loads import PROFILES, TimeProfile
 from lbshape.elastic.materials import MODELS, Material
@@ -41,7 +42,6 @@ from lbshape.scene.schema import (
     Load,
     LocalRegion,
     MeshSource,
-    Plane,
     PoseValue,
     Reduced,
     Scene,
@@ -326,14 +326,14 @@ def _load(t: _Table, ctx: _Context) -> Load:
     return Load(kind, vector, selection, TimeProfile(profile_kind, start, duration))
 
 
-def _plane(t: _Table, ctx: _Context) -> Plane:
+def _plane(t: _Table, ctx: _Context) -> ContactPlane:
     point = t.vector3("point")
     normal = np.array(t.vector3("normal"))
     length = float(np.linalg.norm(normal))
     if length == 0.0:
         raise ctx.error(f"'{t.key('normal')}' must be a non-zero vector")
     stiffness = t.number("stiffness", low=0.0, open_low=True, unit="N/m")
-    return Plane(point, tuple(float(v) for v in normal / length), stiffness)
+    return ContactPlane(point, tuple(float(v) for v in normal / length), stiffness)
 
 
 def _local_region(t: _Table, ctx: _Context, n_examples: int) -> LocalRegion:

@@ -105,6 +105,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 
+from lbshape.dynamics.contact import ContactPlane
 from lbshape.dynamics.loads import TimeProfile
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
@@ -118,7 +119,6 @@ __all__ = [
     "Load",
     "LocalRegion",
     "MeshSource",
-    "Plane",
     "PoseValue",
     "Reduced",
     "Scene",
@@ -279,15 +279,6 @@ class Load:
 
 
 @dataclass(frozen=True)
-class Plane:
-    """A contact plane: a point (m), a unit normal, a penalty stiffness (N/m)."""
-
-    point: tuple[float, float, float]
-    normal: tuple[float, float, float]
-    stiffness: float
-
-
-@dataclass(frozen=True)
 class Initial:
     """Initial rigid motion of a free body (world frame): m/s and rad/s."""
 
@@ -342,7 +333,7 @@ class Scene:
     examples: Examples | None = None
     fixed: Selection | None = None
     loads: tuple[Load, ...] = ()
-    planes: tuple[Plane, ...] = ()
+    planes: tuple[ContactPlane, ...] = ()
     regions: tuple[LocalRegion, ...] = ()
     simulation: Simulation = field(default_factory=Simulation)
     description: str = ""
