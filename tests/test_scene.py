@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
 
@@ -222,8 +220,6 @@ def test_unknown_scene_names_and_paths(tmp_path):
 
 
 def test_unknown_shape_names_are_rejected(write_scene):
-    if importlib.util.find_spec("lbshape.geometry.shapes") is None:
-        pytest.skip("lbshape.geometry.shapes is not available yet")
     message = load_error(write_scene(('mesh = "bar.msh"', 'shape = "banana"')))
     assert "'object.shape'" in message and "banana" in message, message
 
@@ -285,8 +281,6 @@ def test_precompute_key_depends_on_exactly_the_precompute_fields(write_scene, tm
 
 def test_demo_scene_on_its_real_meshes():
     """Regions select the top/bottom groups; the example poses keep the top in place."""
-    if importlib.util.find_spec("lbshape.geometry.shapes") is None:
-        pytest.skip("lbshape.geometry.shapes is not available yet")
     poses = pytest.importorskip("lbshape.geometry.poses")
     scene = load_scene("demo")
     mesh = build_mesh(scene.object)
