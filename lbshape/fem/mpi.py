@@ -1,9 +1,12 @@
-"""MPI helpers: compute on rank 0 and share the result (or its user error) with every rank."""
+"""MPI helpers: compute on rank 0 and share the result (or its user error) with every
+rank; split a loop of ``count`` items across ranks and sum the parts."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from typing import Any
+
+import numpy as np
 
 from lbshape.errors import LbshapeError
 
@@ -45,3 +48,30 @@ def run_collectively(comm, read_inputs: Callable[[], Any], solve: Callable[[Any]
         if comm.rank == 0:
             raise
         raise SystemExit(exc.exit_code) from None
+
+
+def rank_share(comm, count: int) -> range:
+    """This rank's contiguous block of ``range(count)`` (all of it without ``comm``).
+
+    Blocks differ in length by at most one and are ordered by rank, so concatenating
+    every rank's results in rank order gives the serial order.
+    """
+    if comm is None or comm.size == 1:
+        return range(count)
+    base, extra = divmod(count, comm.size)
+    start = comm.rank * base + min(comm.rank, extra)
+    return range(start, start + base + (comm.rank < extra))
+
+
+def sum_over_ranks(comm, value):
+    """The sum of ``value`` (a number or ndarray, same shape on every rank) over all
+    ranks, on every rank; ``value`` itself without ``comm`` or on one rank."""
+    if comm is None or comm.size == 1:
+        return value
+    from mpi4py import MPI
+
+    if isinstance(value, np.ndarray):
+        total = np.empty_like(value)
+        comm.Allreduce(np.ascontiguousarray(value), total, op=MPI.SUM)
+        return total
+    return comm.allreduce(value, op=MPI.SUM)
