@@ -5,7 +5,9 @@ Stages (only those the scene needs; paper pre-computation steps 1–6):
 1. ``mesh``: the object's rest mesh and its fixed vertices;
 2. ``modes``: linear elastic modes (fixed vertices from the scene);
 3. ``derivatives``: modal derivatives (Barbič & James);
-4. ``basis``: mass-PCA nonlinear basis U (3n, r), ``UᵀMU = I``;
+4. ``basis``: mass-PCA nonlinear basis U (3n, r), ``UᵀMU = I``: the linear modes, the
+   static responses to the scene's loads and example pulls
+   (:mod:`lbshape.pipeline.responses`), then the modal derivatives' principal components;
 5. ``cubature``: optimized cubature for the reduced elastic force;
 6. ``lb``: the object's LB spectrum (m pairs)                — scenes with examples;
 7. ``examples``: example meshes, poses, frame and basis alignment, displacement
@@ -72,7 +74,7 @@ from lbshape.elastic.cubature import (
     train_cubature,
     train_example_cubatures,
 )
-from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.modal_derivatives import modal_derivatives
 from lbshape.elastic.modes import linear_modes
@@ -93,6 +95,7 @@ from lbshape.pipeline.meshes import (
     posed_file_meshes,
     selected_vertices,
 )
+from lbshape.pipeline.responses import basis_responses
 from lbshape.scene.schema import MeshSource, Scene
 from lbshape.shapespace.frames import body_frame
 from lbshape.shapespace.local_examples import (
@@ -119,7 +122,7 @@ CUBATURE_TRAINING_POSES = 120
 #: seed of every random choice of the precompute (training poses, candidates)
 PRECOMPUTE_SEED = 20170401
 #: bumped whenever the artifact's content or meaning changes (part of the cache key)
-PIPELINE_VERSION = 10
+PIPELINE_VERSION = 11
 #: target routes in the LB basis faded to zero at the fixed vertices (when safe). Off: the
 #: full-space reference interpolates in the free basis, and the clamped targets moved the
 #: coarse demo bar 28.7 % away from it (3.3 % free) while gaining 3.8 % -> 3.1 % on the bars;
@@ -470,7 +473,11 @@ def _compute(scene: Scene, stages: _Stages, comm: MPI.Comm) -> tuple[dict | None
 
     def basis_stage():
         mass = mass_matrix(mesh, material.density)
-        return mass, nonlinear_basis(modes, derivatives, mass, reduced.r)
+        stiffness = modes.stiffness
+        if stiffness is None:
+            stiffness = FullSpaceElasticity(mesh, material).tangent(np.zeros(3 * mesh.n_vertices))
+        responses = basis_responses(scene, mesh, stiffness, mass, fixed)
+        return mass, nonlinear_basis(modes, derivatives, mass, reduced.r, responses=responses)
 
     mass, basis = ranks.on_root("basis", basis_stage) or (None, None)
     cubature = ranks.on_root("cubature", lambda: train_cubature(

@@ -37,12 +37,7 @@ from lbshape.dynamics.full import (
     FullSpaceSimulator,
     rigid_velocity,
 )
-from lbshape.dynamics.loads import (
-    TimedLoad,
-    gravity_pattern,
-    region_force_pattern,
-    region_torque_pattern,
-)
+from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord
 from lbshape.dynamics.reduced import PHASES, REALTIME_NEWTON_ITERATIONS, ReducedSimulation
 from lbshape.elastic.element_kernels import mass_matrix
@@ -56,8 +51,8 @@ from lbshape.pipeline.influence import (
     has_example_force,
     without_examples,
 )
-from lbshape.pipeline.meshes import selected_vertices
 from lbshape.pipeline.precompute import Precomputed
+from lbshape.pipeline.responses import mesh_load_patterns
 from lbshape.pipeline.routes import example_driver
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.interpolation import BASELINE_ROUTE, resolve_route
@@ -108,22 +103,7 @@ def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[TimedLoad]:
         pre: its precompute (the mesh the regions are selected on).
         mass: (3n, 3n) node-major consistent mass in kg.
     """
-    mesh = pre.mesh
-    patterns = []
-    for index, load in enumerate(scene.loads):
-        what = f"loads[{index}] region"
-        if load.type == "gravity":
-            pattern = gravity_pattern(mass, load.vector)
-        elif load.type == "region_force":
-            pattern = region_force_pattern(mass, selected_vertices(load.selection, mesh, what=what),
-                                           load.vector)
-        elif load.type == "region_torque":
-            pattern = region_torque_pattern(
-                mass, mesh.points, selected_vertices(load.selection, mesh, what=what), load.vector)
-        else:  # the scene schema only admits the types above
-            raise LbshapeError(f"unsupported load type {load.type!r}")
-        patterns.append(TimedLoad(pattern, load.profile))
-    return patterns
+    return mesh_load_patterns(scene, pre.mesh, mass)
 
 
 def example_stiffness(scene: Scene, pre: Precomputed) -> float:
@@ -134,18 +114,25 @@ def example_stiffness(scene: Scene, pre: Precomputed) -> float:
 
 
 def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced",
-                       newton_iterations: int | None | str = "realtime") -> ReducedSimulation:
+                       newton_iterations: int | None | str = "realtime",
+                       exact_forces: bool = False) -> ReducedSimulation:
     """The :class:`~lbshape.dynamics.reduced.ReducedSimulation` of a scene.
 
     ``method`` picks the example target's route: the scene's
     ``reduced.interpolation`` for ``reduced``, the all-element baseline for
     ``euclidean``. ``newton_iterations``: Newton updates per step, ``"realtime"`` for
     :data:`~lbshape.dynamics.reduced.REALTIME_NEWTON_ITERATIONS`, ``None`` to converge.
+    ``exact_forces``: the reduced elastic force summed over every element with weight 1
+    instead of the cubature (for measuring the cubature's share of the error; slow).
     """
     if newton_iterations == "realtime":
         newton_iterations = REALTIME_NEWTON_ITERATIONS
+    elements, weights = pre.cubature_elements, pre.cubature_weights
+    if exact_forces:
+        elements = np.arange(pre.mesh.n_tets, dtype=np.int64)
+        weights = np.ones(pre.mesh.n_tets)
     elastic = ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U,
-                                pre.cubature_elements, pre.cubature_weights)
+                                elements, weights)
     loads = []
     if scene.loads:
         mass = mass_matrix(pre.mesh, pre.material.density)

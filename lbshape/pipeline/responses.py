@@ -1,0 +1,137 @@
+"""What a scene drives its object with: load patterns and example pulls, and the
+object's static responses to them, which the basis keeps (:mod:`lbshape.elastic.basis`).
+
+* **Load patterns** (:func:`mesh_load_patterns`): the scene's ``[[loads]]`` as
+  full-space force patterns (3n,) in N with their time profiles — the same patterns
+  every method is driven by (:func:`lbshape.pipeline.simulate.load_patterns`).
+* **Example pulls** (:func:`example_pulls`): each example's pose applied to the
+  object's own rest mesh (global examples) or to the object's region it guides
+  (local examples), as a displacement d_k (3n,) in m, with the mass S it pulls with
+  (M for global examples, ``Σ_R M^(R)`` for local ones). The pose is the example's
+  analytic pose evaluated on the object's points (no inversion check: it is a
+  direction, not a rest shape); an example without an analytic pose (a posed mesh
+  file) adds no direction.
+* **Responses** (:func:`basis_responses`): ``K⁻¹ f`` per load pattern (fixed objects;
+  a free body's loads move it rigidly) and ``(K + k_ex S)⁻¹ k_ex S d_k`` per example
+  pull, the linear static shapes the full reference settles into under each; for a
+  free body their rigid part is removed (U holds deformation only).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from lbshape.dynamics.loads import (
+    TimedLoad,
+    gravity_pattern,
+    region_force_pattern,
+    region_torque_pattern,
+)
+from lbshape.elastic.basis import static_responses
+from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.elastic.modes import rigid_body_modes
+from lbshape.errors import LbshapeError
+from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.poses import POSES
+from lbshape.pipeline.meshes import selected_vertices
+from lbshape.scene.schema import Scene
+from lbshape.shapespace.local_examples import region_cells, submesh
+
+
+def mesh_load_patterns(scene: Scene, mesh: TetMesh, mass) -> list[TimedLoad]:
+    """The scene's loads as full-space patterns (3n,) in N with their time profiles.
+
+    Args:
+        scene: the scene (its ``loads``).
+        mesh: the object's rest mesh (regions are selected on it).
+        mass: (3n, 3n) node-major consistent mass in kg.
+    """
+    patterns = []
+    for index, load in enumerate(scene.loads):
+        what = f"loads[{index}] region"
+        if load.type == "gravity":
+            pattern = gravity_pattern(mass, load.vector)
+        elif load.type == "region_force":
+            pattern = region_force_pattern(mass, selected_vertices(load.selection, mesh, what=what),
+                                           load.vector)
+        elif load.type == "region_torque":
+            pattern = region_torque_pattern(
+                mass, mesh.points, selected_vertices(load.selection, mesh, what=what), load.vector)
+        else:  # the scene schema only admits the types above
+            raise LbshapeError(f"unsupported load type {load.type!r}")
+        patterns.append(TimedLoad(pattern, load.profile))
+    return patterns
+
+
+def example_pulls(scene: Scene, mesh: TetMesh, mass) -> tuple[np.ndarray, sp.csr_matrix]:
+    """The examples' pose displacements on the object and the mass they pull with.
+
+    Returns:
+        ``(D, S)``: D (3n, c) displacements in m, one per (region, example) or per
+        example with an analytic pose; S (3n, 3n) kg (M, or ``Σ_R M^(R)`` over the
+        regions). D has no column for a scene without examples.
+    """
+    n = mesh.n_vertices
+    if scene.examples is None or not scene.examples.poses:
+        return np.zeros((3 * n, 0)), sp.csr_matrix(mass)
+    poses = scene.examples.poses
+    columns = []
+    if not scene.has_local_examples:
+        for pose in poses:
+            if pose.pose is not None:
+                posed = POSES[pose.pose](mesh.points, **dict(pose.parameters))
+                columns.append((posed - mesh.points).ravel())
+        return _stack(columns, n), sp.csr_matrix(mass)
+    rho = float(scene.material.density)
+    spring = sp.csr_matrix((3 * n, 3 * n))
+    for region in scene.regions:
+        cells = region_cells(mesh, group=region.selection.group, region=region.selection.region,
+                             what=f"region '{region.name}'")
+        part, vertices = submesh(mesh, cells, what=f"region '{region.name}'")
+        rows = (3 * vertices[:, None] + np.arange(3)).ravel()
+        place = sp.csr_matrix((np.ones(rows.size), (rows, np.arange(rows.size))),
+                              shape=(3 * n, rows.size))
+        spring = spring + place @ mass_matrix(part, rho) @ place.T
+        for k in region.examples:
+            if poses[k].pose is None:
+                continue
+            posed = POSES[poses[k].pose](part.points, **dict(poses[k].parameters))
+            field = np.zeros((n, 3))
+            field[vertices] = posed - part.points
+            columns.append(field.ravel())
+    return _stack(columns, n), spring.tocsr()
+
+
+def basis_responses(scene: Scene, mesh: TetMesh, stiffness, mass,
+                    fixed_vertices: np.ndarray) -> np.ndarray:
+    """(3n, c) static responses (m) to the scene's loads and example pulls.
+
+    Args:
+        scene: the scene (loads, examples, regions, k_ex).
+        mesh: the object's rest mesh.
+        stiffness: (3n, 3n) K at rest, N/m, unconstrained.
+        mass: (3n, 3n) consistent mass, kg.
+        fixed_vertices: (f,) clamped vertices; none means a free body.
+    """
+    free_body = np.size(fixed_vertices) == 0
+    columns = []
+    if scene.loads and not free_body:
+        forces = np.column_stack([load.pattern for load in mesh_load_patterns(scene, mesh, mass)])
+        columns.append(static_responses(stiffness, forces, fixed_vertices=fixed_vertices))
+    k_ex = scene.examples.stiffness if scene.examples is not None else 0.0
+    if k_ex > 0:
+        D, spring = example_pulls(scene, mesh, mass)
+        if D.shape[1]:
+            columns.append(static_responses(stiffness, k_ex * (spring @ D),
+                                            fixed_vertices=fixed_vertices, spring=spring,
+                                            shift=k_ex))
+    X = np.hstack(columns) if columns else np.zeros((3 * mesh.n_vertices, 0))
+    if free_body and X.shape[1]:
+        rigid = rigid_body_modes(mesh.points, mass)
+        X = X - rigid @ (rigid.T @ (mass @ X))
+    return X
+
+
+def _stack(columns: list[np.ndarray], n: int) -> np.ndarray:
+    return np.column_stack(columns) if columns else np.zeros((3 * n, 0))

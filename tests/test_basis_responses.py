@@ -1,0 +1,136 @@
+"""Static-response vectors in the basis: they solve their systems, U keeps them exactly
+after the linear modes, a load's linear static solution then lies in span U (it does not
+without them), and a scene's responses are what its loads and example pulls ask for."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg
+import scipy.sparse as sp
+
+from lbshape.elastic.basis import nonlinear_basis, static_responses
+from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.elastic.materials import Material
+from lbshape.elastic.modal_derivatives import modal_derivatives
+from lbshape.elastic.modes import linear_modes
+from lbshape.errors import LbshapeError
+from lbshape.geometry.primitives import structured_box
+from lbshape.pipeline.meshes import build_mesh, selected_vertices
+from lbshape.pipeline.responses import basis_responses, example_pulls, mesh_load_patterns
+from lbshape.scene import load_scene
+
+MATERIAL = Material(young=2.0e5, poisson=0.3, density=1100.0)
+K_MODES = 4
+
+
+@pytest.fixture(scope="module")
+def clamped():
+    mesh = structured_box((0.1, 0.1, 0.6), (2, 2, 10))
+    fixed = np.flatnonzero(mesh.points[:, 2] < 1e-12)
+    modes = linear_modes(mesh, MATERIAL, K_MODES, fixed_vertices=fixed)
+    return mesh, fixed, modes, modal_derivatives(mesh, MATERIAL, modes)
+
+
+def tip_loads(mesh) -> np.ndarray:
+    """(3n, 2): a sideways pull on one tip corner and a twisting couple on the tip."""
+    n = mesh.n_vertices
+    tip = np.flatnonzero(mesh.points[:, 2] > mesh.points[:, 2].max() - 1e-12)
+    F = np.zeros((n, 3, 2))
+    F[tip[0], 0, 0] = 1.0
+    centre = mesh.points[tip].mean(axis=0)
+    for v in tip:
+        F[v, :, 1] = np.cross([0.0, 0.0, 1.0], mesh.points[v] - centre)
+    return F.reshape(3 * n, 2)
+
+
+def m_angles(A, B, M) -> np.ndarray:
+    L = np.linalg.cholesky(M.toarray())
+    return scipy.linalg.subspace_angles(L.T @ A, L.T @ B)
+
+
+def test_static_responses_solve_their_systems(clamped):
+    mesh, fixed, modes, _ = clamped
+    K, M = modes.stiffness, modes.mass
+    F = tip_loads(mesh)
+    free = np.setdiff1d(np.arange(3 * mesh.n_vertices), (3 * fixed[:, None] + np.arange(3)))
+    for shift in (0.0, 500.0):
+        X = static_responses(K, F, fixed_vertices=fixed, spring=M, shift=shift)
+        residual = ((K + shift * M) @ X - F)[free]
+        assert np.abs(residual).max() < 1e-9 * np.abs(F).max()
+        assert np.abs(X.reshape(-1, 3, 2)[fixed]).max() == 0.0
+    with pytest.raises(LbshapeError, match="free body need shift > 0"):
+        static_responses(K, F)
+    with pytest.raises(LbshapeError, match="shift must be"):
+        static_responses(K, F, fixed_vertices=fixed, spring=M, shift=-1.0)
+
+
+def test_responses_are_kept_exactly_after_the_linear_modes(clamped):
+    mesh, fixed, modes, derivatives = clamped
+    M = modes.mass
+    X = static_responses(modes.stiffness, tip_loads(mesh), fixed_vertices=fixed)
+    r = 10
+    basis = nonlinear_basis(modes, derivatives, M, r, responses=X)
+    assert basis.n_responses == 2 and basis.U.shape[1] == r
+    assert np.abs(basis.U.T @ (M @ basis.U) - np.eye(r)).max() < 1e-10
+    head = basis.U[:, : K_MODES + 2]
+    assert m_angles(head, np.hstack([modes.vectors, X]), M).max() < 1e-8
+    assert m_angles(basis.U[:, :K_MODES], modes.vectors, M).max() < 1e-8
+    # a response inside the modes' span adds nothing; r ≤ k keeps the lowest modes
+    again = nonlinear_basis(modes, derivatives, M, r, responses=modes.vectors[:, :2])
+    assert again.n_responses == 0
+    small = nonlinear_basis(modes, derivatives, M, 3, responses=X)
+    assert small.n_responses == 0 and np.abs(small.U - modes.vectors[:, :3]).max() < 1e-12
+    with pytest.raises(LbshapeError, match="responses must be a finite"):
+        nonlinear_basis(modes, derivatives, M, r, responses=X[:-1])
+    with pytest.raises(LbshapeError, match="keep_linear=True"):
+        nonlinear_basis(modes, derivatives, M, r, responses=X, keep_linear=False)
+
+
+def test_a_load_static_solution_lies_in_span_u_only_with_responses(clamped):
+    mesh, fixed, modes, derivatives = clamped
+    M = modes.mass
+    F = tip_loads(mesh)
+    X = static_responses(modes.stiffness, F, fixed_vertices=fixed)
+    u = X @ np.array([1.0, 0.3])  # the linear static solution of a combined load
+
+    def outside(U):
+        rest = u - U @ (U.T @ (M @ u))
+        return float(np.sqrt(rest @ (M @ rest) / (u @ (M @ u))))
+
+    plain = nonlinear_basis(modes, derivatives, M, 8).U
+    enriched = nonlinear_basis(modes, derivatives, M, 8, responses=X).U
+    assert outside(enriched) < 1e-8
+    assert outside(plain) > 1e-3, "the test needs a load the plain basis misses"
+
+
+@pytest.mark.parametrize("name", ["teddy-local", "demo"])
+def test_scene_responses_answer_its_loads_and_example_pulls(name):
+    scene = load_scene(name)
+    mesh = build_mesh(scene.object)
+    fixed = selected_vertices(scene.fixed, mesh)
+    M = mass_matrix(mesh, scene.material.density)
+    modes = linear_modes(mesh, scene.material, 1, fixed_vertices=fixed)
+    K = modes.stiffness
+    X = basis_responses(scene, mesh, K, M, fixed)
+    loads = np.column_stack([load.pattern for load in mesh_load_patterns(scene, mesh, M)])
+    D, S = example_pulls(scene, mesh, M)
+    k_ex = scene.examples.stiffness
+    expected = len(scene.loads) + (sum(len(reg.examples) for reg in scene.regions)
+                                   if scene.has_local_examples else len(scene.examples.poses))
+    assert X.shape == (3 * mesh.n_vertices, expected) == (X.shape[0], loads.shape[1] + D.shape[1])
+    free = np.ones(3 * mesh.n_vertices, dtype=bool)
+    free[(3 * fixed[:, None] + np.arange(3)).ravel()] = False
+    c = loads.shape[1]
+    load_residual = (K @ X[:, :c] - loads)[free]
+    pull = k_ex * (S @ D)
+    pull_residual = ((K + k_ex * S) @ X[:, c:] - pull)[free]
+    assert np.abs(load_residual).max() < 1e-8 * np.abs(loads).max()
+    assert np.abs(pull_residual).max() < 1e-8 * np.abs(pull).max()
+    if scene.has_local_examples:  # S is the mass of the regions' tetrahedra only
+        assert sp.issparse(S) and S.shape == M.shape and 0 < S.sum() < M.sum()
+        for column in D.T:  # each region's pose moves only that region's vertices
+            moved = np.flatnonzero(np.abs(column.reshape(-1, 3)).max(axis=1) > 0)
+            assert 0 < moved.size < mesh.n_vertices
+    else:
+        assert abs(S.sum() - M.sum()) < 1e-12 * M.sum()
