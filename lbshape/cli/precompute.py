@@ -114,6 +114,10 @@ def run_one(name: str, *, force: bool = False, as_json: bool = False) -> int:
     print("  stage times (s): " + ", ".join(
         f"{name} {seconds:.2f}" for name, seconds in pre.stage_seconds.items())
         + f"; total {total:.2f}" + (" (when computed)" if pre.from_cache else ""))
+    if pre.stage_peak_mb:
+        print("  stage peak memory (MB): " + ", ".join(
+            f"{name} {mb:.0f}" for name, mb in pre.stage_peak_mb.items())
+            + f"; peak {max(pre.stage_peak_mb.values()):.0f}")
     print("  " + stage_ranks_text(pre.stage_ranks))
     return 0
 

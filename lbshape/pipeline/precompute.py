@@ -54,7 +54,9 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+import os
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -117,7 +119,7 @@ CUBATURE_TRAINING_POSES = 120
 #: seed of every random choice of the precompute (training poses, candidates)
 PRECOMPUTE_SEED = 20170401
 #: bumped whenever the artifact's content or meaning changes (part of the cache key)
-PIPELINE_VERSION = 9
+PIPELINE_VERSION = 10
 #: target routes in the LB basis faded to zero at the fixed vertices (when safe). Off: the
 #: full-space reference interpolates in the free basis, and the clamped targets moved the
 #: coarse demo bar 28.7 % away from it (3.3 % free) while gaining 3.8 % -> 3.1 % on the bars;
@@ -170,6 +172,8 @@ class Precomputed:
         local: the local-example shape space (scenes with regions), or None.
         frame: reduced rigid-frame tensors of a free body, or None (fixed object).
         stage_seconds: wall time per stage (s) of the run that built the artifact.
+        stage_peak_mb: largest resident memory (MB) of the process during each stage of
+            that run.
         stage_ranks: the number of MPI ranks each stage of that run was distributed
             over (1: rank 0 alone, or a serial run).
         from_cache: True when loaded from the cache.
@@ -200,6 +204,7 @@ class Precomputed:
     local: LocalShapeSpace | None = None
     frame: FrameTensors | None = None
     stage_seconds: dict = field(default_factory=dict)
+    stage_peak_mb: dict = field(default_factory=dict)
     stage_ranks: dict = field(default_factory=dict)
     from_cache: bool = False
 
@@ -283,12 +288,19 @@ def scene_cache_key(scene: Scene) -> str:
 
 
 class _Stages:
-    """A progress bar per stage (stderr) and the time spent in each."""
+    """A progress bar per stage (stderr), the time spent in each and its peak memory.
+
+    Peak memory: the largest resident set size (MB) of the process while the stage
+    ran, sampled every :data:`RSS_INTERVAL` seconds by a thread (and at the stage's
+    start and end), so a stage that frees what it used shows its own peak, not the
+    process's largest so far.
+    """
 
     def __init__(self, names: list[str], *, show: bool):
         self.names = names
         self.show = show
         self.seconds: dict[str, float] = {}
+        self.peak_mb: dict[str, float] = {}
 
     @contextlib.contextmanager
     def stage(self, name: str):
@@ -297,13 +309,60 @@ class _Stages:
         index = self.names.index(name) + 1
         bar = tqdm(total=1, desc=f"[{index}/{len(self.names)}] {name:<12}", disable=not self.show,
                    file=sys.stderr, leave=True, bar_format="{desc} {bar:20} {elapsed}")
+        sampler = _PeakMemory()
         started = time.perf_counter()
         try:
-            yield
+            with sampler:
+                yield
         finally:
             self.seconds[name] = time.perf_counter() - started
+            self.peak_mb[name] = sampler.peak_mb
             bar.update(1)
             bar.close()
+
+
+#: seconds between two samples of the resident set size
+RSS_INTERVAL = 0.02
+
+
+class _PeakMemory:
+    """Context manager: the largest resident set size (MB) seen while it is open."""
+
+    def __init__(self):
+        self.peak_mb = 0.0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+
+    def __enter__(self):
+        self._record()
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        self._record()
+        return False
+
+    def _sample(self) -> None:
+        while not self._stop.wait(RSS_INTERVAL):
+            self._record()
+
+    def _record(self) -> None:
+        self.peak_mb = max(self.peak_mb, resident_mb())
+
+
+def resident_mb() -> float:
+    """The process's resident set size in MB (the peak so far where the current
+    size cannot be read)."""
+    try:
+        with open("/proc/self/statm", encoding="ascii") as statm:
+            pages = int(statm.read().split()[1])
+        return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):  # not Linux: ru_maxrss (KB on Linux/BSD)
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def stage_names(scene: Scene) -> list[str]:
@@ -351,6 +410,7 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False,
         if not root:
             return None
         meta["stage_seconds"] = stages.seconds
+        meta["stage_peak_mb"] = stages.peak_mb
         if save:
             save_artifact(scene.name, key, arrays, meta)
     return _from_arrays(scene, key, arrays, meta, from_cache=False)
@@ -667,6 +727,7 @@ def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
                                for name in _FRAME_FIELDS})
                if "frame_G" in arrays else None),
         stage_seconds=dict(meta.get("stage_seconds", {})),
+        stage_peak_mb=dict(meta.get("stage_peak_mb", {})),
         stage_ranks=dict(meta.get("stage_ranks", {})),
         from_cache=from_cache,
     )
