@@ -38,10 +38,11 @@ MUMPS), ``derivatives`` (parallel assembly, one MUMPS factorisation), and the el
 passes of ``cubature`` and ``lb-cubature`` (split with
 :func:`lbshape.fem.mpi.rank_share`; their inputs broadcast from rank 0). The other
 stages run on rank 0 only (:func:`lbshape.fem.mpi.compute_on_root`: the other ranks
-sleep, and a user error on rank 0 is raised on every rank). Rank 0 alone reads and writes the cache and
-gets the :class:`Precomputed`; the others get ``None``. ``stage_ranks`` in the
-artifact's metadata says over how many ranks each stage ran. The result equals the
-serial one to solver tolerance.
+sleep, and a user error on rank 0 is raised on every rank). Rank 0 alone reads and
+writes the cache and gets the :class:`Precomputed`; the others get ``None``.
+``stage_ranks`` in the artifact's metadata says over how many ranks each stage ran
+(``stage_peak_mb`` is summed over the ranks). The result equals the serial one to
+solver tolerance.
 
 **Basis scaling.** U is orthonormal in the elastic mass ``M = ρ M₃``; the shape
 space (:mod:`lbshape.shapespace.projections`) works with the volume mass M₃. Its projection
@@ -174,7 +175,7 @@ class Precomputed:
         frame: reduced rigid-frame tensors of a free body, or None (fixed object).
         stage_seconds: wall time per stage (s) of the run that built the artifact.
         stage_peak_mb: largest resident memory (MB) of the process during each stage of
-            that run.
+            that run; under MPI the sum of every rank's peak (the job's memory).
         stage_ranks: the number of MPI ranks each stage of that run was distributed
             over (1: rank 0 alone, or a serial run).
         from_cache: True when loaded from the cache.
@@ -408,10 +409,12 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False,
             return _from_arrays(scene, key, *cached) if root else None
         stages = _Stages(stage_names(scene), show=progress and root)
         arrays, meta = _compute(scene, stages, comm)
+        peaks = comm.gather(stages.peak_mb, root=0)
         if not root:
             return None
         meta["stage_seconds"] = stages.seconds
-        meta["stage_peak_mb"] = stages.peak_mb
+        meta["stage_peak_mb"] = {name: float(sum(peak.get(name, 0.0) for peak in peaks))
+                                 for name in stages.peak_mb}
         if save:
             save_artifact(scene.name, key, arrays, meta)
     return _from_arrays(scene, key, arrays, meta, from_cache=False)
