@@ -338,8 +338,9 @@ def free_body_step_markdown(payload: dict) -> str:
     repeats = sorted({row["repeats"] for row in rows})
     lines += ["", "## Conditions", "",
               f"- dt = 1 ms, the scenes' own (m, r, s); {', '.join(map(str, repeats))} "
-              "repeats per method, interleaved with the full-space reference; one process; "
-              f"threads: {threads_text(machine)}; {machine['cpu']}, {machine['cores']} cores.",
+              "runs of `reduced` per scene for the times, the error from a run against "
+              f"`full`; one process; threads: {threads_text(machine)}; {machine['cpu']}, "
+              f"{machine['cores']} cores.",
               f"- Load average (1, 5, 15 min) when written: {load_text(machine)} — other "
               "processes shared the cores.", ""]
     return "\n".join(lines)
