@@ -322,12 +322,15 @@ class FreeBodySimulation:
         self._work33, self._work6 = np.zeros((8, 3, 3)), np.zeros((4, 6))
         self._work66 = np.zeros((4, 6, 6))
         self._contact_zero6 = np.zeros((6, 6))
-        self._norms = np.zeros(2)  # [‖f‖, max(‖f_elastic‖, ‖contact force‖)] of the last evaluation
+        #: [‖f‖, max(‖f_elastic‖, ‖contact force‖)] of the last evaluation
+        self._norms = np.zeros(2)
         self._seconds = np.zeros(2)  # [internal force, contact] seconds of a step's evaluations
         self._energies = np.zeros(3)
         self._marks = np.zeros(len(PHASES) + 1)
         self._clock = time.perf_counter
         self._predictor = np.array([0.0, 0.0, 1.0 if self.scheme == "newmark" else 0.0])
+        self._scheme_code = 0 if self.scheme == "newmark" else 1
+        self._frame_arrays = self.frame.kernel_arrays
 
     # ------------------------------------------------------------ quantities
     @property
@@ -392,7 +395,7 @@ class FreeBodySimulation:
         if contact is not None:
             active = contact.evaluate_into(self._c1, self._R1, self._q1, True) > 0
         after = clock()
-        frame_arrays = self.frame.kernel_arrays
+        frame_arrays = self._frame_arrays
         out = self._rigid_out
         norm = _deformation_residual(
             self._q1, self._dqt, self.qd, self.qa, self.dt, self._scheme_code, self.k_ex,
@@ -409,10 +412,6 @@ class FreeBodySimulation:
             raise SolverError(f"non-finite deformation residual at step {index} "
                               f"(t = {t1:.6g} s)")
         return norm
-
-    @property
-    def _scheme_code(self) -> int:
-        return 0 if self.scheme == "newmark" else 1
 
     # ------------------------------------------------------------------ step
     def step(self, index: int | None = None) -> int:
@@ -451,7 +450,7 @@ class FreeBodySimulation:
         K6 = contact.stiffness_rigid if contact is not None else self._contact_zero6
         cforce = contact.force if contact is not None else self._force
         ctorque = contact.torque if contact is not None else self._torque
-        arrays = frame.kernel_arrays
+        arrays = self._frame_arrays
         state = _rigid_update(
             dt, frame.mass, self.q, self.qd, self.qa, self._c, self._p, self._R, self._L,
             self._force, self._torque, active, cforce, ctorque, K6, arrays[0], arrays[1],
