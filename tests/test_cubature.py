@@ -6,9 +6,12 @@ import csv
 
 import numpy as np
 import pytest
+from scipy.optimize import nnls
 
 from lbshape.elastic.cubature import (
     Cubature,
+    element_chunks,
+    exact_pose_forces,
     force_contribution_matrix,
     inverse_frequency_scales,
     train_cubature,
@@ -202,3 +205,111 @@ def test_benchmark_script_smoke(bench, tmp_path):
     assert "| stvk | 30 | 60 |" in timing and "Target" in timing
     assert not list(tmp_path.glob("tmp*")), "temporary files left behind"
 
+
+
+# -- streaming over element chunks and ranks ---------------------------------------------------
+class _ThreadComm:
+    """A communicator of ``size`` threads (the calls the element loops make)."""
+
+    def __init__(self, rank: int, size: int, shared: dict, barrier):
+        self.rank, self.size = rank, size
+        self._shared, self._barrier = shared, barrier
+
+    def allgather(self, value):
+        self._barrier.wait()
+        self._shared[self.rank] = value
+        self._barrier.wait()
+        gathered = [self._shared[k] for k in range(self.size)]
+        self._barrier.wait()
+        return gathered
+
+    def allreduce(self, value, op=None):
+        return sum(self.allgather(value))
+
+    def Allreduce(self, send, receive, op=None):
+        receive[...] = sum(np.array(v) for v in self.allgather(np.array(send)))
+
+
+def on_ranks(size: int, work):
+    """``work(comm)`` on ``size`` threads with a :class:`_ThreadComm` each; the results."""
+    import threading
+
+    shared, barrier = {}, threading.Barrier(size)
+    results, errors = [None] * size, []
+
+    def run(rank):
+        try:
+            results[rank] = work(_ThreadComm(rank, size, shared, barrier))
+        except Exception as exc:  # pragma: no cover - reported below
+            errors.append(exc)
+            barrier.abort()
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(size)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    if errors:
+        raise errors[0]
+    return results
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_streamed_exact_forces_are_the_full_space_forces(bar, model):
+    mesh, U = bar
+    full = FullSpaceElasticity(mesh, material(model))
+    Q = training_poses(U, np.ones(R), count=5, magnitude=0.1, object_size=1.0,
+                       rng=np.random.default_rng(2))
+    exact = np.stack([U.T @ full.force(U @ q) for q in Q])
+    reduced = ReducedForceModel(mesh.points, mesh.tets, material(model), U,
+                                np.arange(mesh.n_tets), np.ones(mesh.n_tets))
+    chunks = element_chunks(mesh.n_tets, 1, 40)
+    assert len(chunks) == -(-mesh.n_tets // 40) and chunks[-1].stop == mesh.n_tets
+    for max_bytes in (1, 10**9):  # one element per chunk, one chunk
+        forces, strains = exact_pose_forces(mesh.points, mesh.tets, material(model), U, Q,
+                                            max_bytes=max_bytes)
+        error = np.linalg.norm(forces - exact) / np.linalg.norm(exact)
+        assert error < 1e-10, f"max_bytes={max_bytes}: relative error {error:.2e}"
+        np.testing.assert_allclose(strains, reduced.max_strain(Q.T), rtol=1e-12)
+    # two ranks, each its share of the chunks: the same totals on both
+    parts = on_ranks(2, lambda comm: exact_pose_forces(
+        mesh.points, mesh.tets, material(model), U, Q, max_bytes=20_000, comm=comm))
+    for forces, strains in parts:
+        np.testing.assert_allclose(forces, exact, rtol=0, atol=1e-10 * np.abs(exact).max())
+        np.testing.assert_allclose(strains, reduced.max_strain(Q.T), rtol=1e-12)
+
+
+@pytest.mark.parametrize("candidates", [50, 2])
+def test_streamed_training_equals_one_chunk_and_the_dense_system(bar, candidates):
+    """A byte bound of one element per chunk (many chunks; with 2 candidates per step the
+    whole-mesh scan runs too) gives the rule of one chunk, and its weights are the NNLS
+    optimum of the dense system ``A (P·r, E)`` on the selected columns."""
+    mesh, U = bar
+    one = train(bar, candidates_per_iter=candidates, tol=1e-3)
+    many = train(bar, candidates_per_iter=candidates, tol=1e-3, max_bytes=1)
+    np.testing.assert_array_equal(many.elements, one.elements)
+    np.testing.assert_allclose(many.weights, one.weights, rtol=1e-9)
+    np.testing.assert_allclose(many.errors_by_size, one.errors_by_size, rtol=1e-9, atol=1e-14)
+    # the dense system, as before streaming: the same training poses (same seed)
+    rng = np.random.default_rng(0)
+    size = float(np.ptp(mesh.points, axis=0).max())
+    poses = training_poses(U, np.ones(R), count=80, magnitude=0.1, object_size=size, rng=rng)
+    reduced = ReducedForceModel(mesh.points, mesh.tets, material("stvk"), U,
+                                np.arange(mesh.n_tets), np.ones(mesh.n_tets))
+    A = force_contribution_matrix(reduced, poses[:40])
+    b = A.sum(axis=1)
+    scale = np.repeat(1.0 / np.linalg.norm(b.reshape(-1, R), axis=1), R)
+    A, b = A * scale[:, None], b * scale
+    weights, _ = nnls(A[:, many.elements], b)
+    np.testing.assert_allclose(many.weights, weights, rtol=1e-8)
+    error = np.linalg.norm(A[:, many.elements] @ many.weights - b) / np.linalg.norm(b)
+    assert error == pytest.approx(many.train_error, rel=1e-9)
+
+
+def test_training_split_across_ranks_equals_serial(bar):
+    serial = train(bar, candidates_per_iter=2, tol=1e-3)
+    ranked = on_ranks(2, lambda comm: train(bar, candidates_per_iter=2, tol=1e-3,
+                                            max_bytes=20_000, comm=comm))
+    for rule in ranked:
+        np.testing.assert_array_equal(rule.elements, serial.elements)
+        np.testing.assert_allclose(rule.weights, serial.weights, rtol=1e-9)

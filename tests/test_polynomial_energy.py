@@ -44,3 +44,47 @@ def test_only_for_stvk(setup):
         StVKPolynomialEnergy(rest, mesh.tets, Material("neohookean"), B)
     with pytest.raises(LbshapeError, match="basis"):
         StVKPolynomialEnergy(rest, mesh.tets, MATERIAL, B[:-1])
+
+
+def _tensors(model):
+    return model.K, model._C_first, model._D_cubic
+
+
+@pytest.mark.parametrize("poisson", [0.3, -0.2])  # λ > 0 and λ < 0 (weights of both signs)
+def test_streamed_chunks_and_the_lb_basis_path_give_the_same_tensors(setup, poisson):
+    """Many element chunks (byte bound of one element) equal one chunk; for ``B = Φ ⊗ I₃``
+    the m-sized path equals the general one; both match the all-element energy."""
+    from lbshape.shapespace.target_table import block_basis
+
+    mesh, rest, _ = setup
+    material = Material("stvk", young=1e5, poisson=poisson, density=1000.0)
+    phi = np.random.default_rng(3).normal(size=(mesh.n_vertices, 4)) * 0.05
+    B = block_basis(phi)
+    one = StVKPolynomialEnergy(rest, mesh.tets, material, B, structured=False)
+    many = StVKPolynomialEnergy(rest, mesh.tets, material, B, structured=False, max_bytes=1)
+    fast = StVKPolynomialEnergy(rest, mesh.tets, material, B, max_bytes=1)
+    for model in (many, fast):
+        for mine, reference in zip(_tensors(model), _tensors(one), strict=True):
+            np.testing.assert_allclose(mine, reference, rtol=0,
+                                       atol=1e-12 * np.abs(reference).max())
+    full = FullSpaceElasticity(mesh.with_points(rest), material)
+    y = np.random.default_rng(4).normal(size=B.shape[1]) * 0.3
+    energy, g, H = fast.energy_force_and_tangent(y)
+    u = B @ y
+    np.testing.assert_allclose(energy, full.energy(u), rtol=1e-11)
+    np.testing.assert_allclose(g, B.T @ full.force(u), rtol=1e-11, atol=1e-12 * np.abs(g).max())
+    np.testing.assert_allclose(H, B.T @ (full.tangent(u) @ B), rtol=1e-11,
+                               atol=1e-12 * np.abs(H).max())
+
+
+def test_element_chunks_split_across_ranks(setup):
+    from test_cubature import on_ranks
+
+    mesh, rest, B = setup
+    serial = StVKPolynomialEnergy(rest, mesh.tets, MATERIAL, B)
+    ranked = on_ranks(2, lambda comm: StVKPolynomialEnergy(rest, mesh.tets, MATERIAL, B,
+                                                           max_bytes=1, comm=comm))
+    for model in ranked:
+        for mine, reference in zip(_tensors(model), _tensors(serial), strict=True):
+            np.testing.assert_allclose(mine, reference, rtol=0,
+                                       atol=1e-12 * np.abs(reference).max())

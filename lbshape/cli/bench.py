@@ -1,4 +1,5 @@
-"""``lbshape bench [SCENE…] [--json] [--steps N] [--repeats K] [--out-dir DIR] [-j N] [--sweep]``.
+"""``lbshape bench [SCENE…] [--json] [--steps N] [--repeats K] [--out-dir DIR] [-j N] [--sweep]
+[--scaling [--sizes H…] [--ranks N]]``.
 
 Runs ``full``, ``euclidean`` and ``reduced`` side by side in one process per scene
 (default scenes: bar-cuboid, bar-cylinder; names, TOML paths or globs) and writes
@@ -8,6 +9,11 @@ does not stop the others (exit code non-zero at the end).
 With ``--sweep`` it sweeps r, s and m of the reduced method per scene instead
 (:mod:`lbshape.report.pareto`) and writes ``pareto.md``, ``pareto.json`` and
 ``pareto.png``.
+With ``--scaling`` it measures the cost growth with mesh size instead
+(:mod:`lbshape.report.scaling`): one built-in scene (default bar-cylinder) at several
+object sizes, each precomputed from scratch in a fresh process (``--ranks N``: under
+``mpirun -n N``), then the reduced per-step time of all sizes interleaved; writes
+``scaling.csv``, ``scaling.md`` and ``scaling.png``.
 """
 
 from __future__ import annotations
@@ -16,11 +22,13 @@ import functools
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.batch import expand_scenes, run_jobs, summary_table
 from lbshape.pipeline.simulate import WARMUP_STEPS
-from lbshape.report import pareto
+from lbshape.report import pareto, scaling
 from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene
 from lbshape.report.tables import write_table2
 from lbshape.scene import load_scene
@@ -44,6 +52,16 @@ def register(subparsers) -> None:
     parser.add_argument("--sweep", action="store_true",
                         help="instead: sweep r, s and m per scene (default: bar-cuboid "
                              "bar-cylinder demo) and write pareto.md/.json/.png")
+    parser.add_argument("--scaling", action="store_true",
+                        help="instead: precompute and per-step cost against mesh size of one "
+                             "built-in scene (default bar-cylinder) at several object sizes; "
+                             "write scaling.csv/.md/.png")
+    parser.add_argument("--sizes", type=float, nargs="+", default=None, metavar="H",
+                        help="object sizes h in m for --scaling (default: "
+                             f"{' '.join(f'{h:g}' for h in scaling.DEFAULT_SIZES)})")
+    parser.add_argument("--ranks", type=int, default=1,
+                        help="MPI processes of each --scaling precompute (default 1: serial; "
+                             "N > 1 runs it under mpirun -n N)")
     parser.set_defaults(func=run)
 
 
@@ -55,8 +73,14 @@ def run(args) -> int:
         raise LbshapeError(f"--repeats must be >= 1, got {args.repeats}")
     if args.jobs < 1:
         raise LbshapeError(f"-j/--jobs must be >= 1, got {args.jobs}")
+    if args.sweep and args.scaling:
+        raise LbshapeError("--sweep and --scaling are different benchmarks: give one")
+    if (args.sizes is not None or args.ranks != 1) and not args.scaling:
+        raise LbshapeError("--sizes and --ranks belong to --scaling")
     if args.sweep:
         return _sweep(args)
+    if args.scaling:
+        return _scaling(args)
     names, unmatched = expand_scenes(args.scenes or DEFAULT_SCENES)
     if len(names) == 1 and not unmatched:  # one scene: errors as a one-line error
         jobs = []
@@ -136,4 +160,29 @@ def _sweep(args) -> int:
             print(f"bench --sweep {sweep.scene}: {len(sweep.points)} settings, "
                   f"{len(front)} on the Pareto front; {pareto.verdict(sweep)}")
         print(f"bench --sweep: {', '.join(str(p) for p in paths)}")
+    return 0
+
+
+def _scaling(args) -> int:
+    if len(args.scenes) > 1:
+        raise LbshapeError(f"--scaling takes one built-in scene, got {len(args.scenes)}")
+    if args.ranks < 1:
+        raise LbshapeError(f"--ranks must be >= 1, got {args.ranks}")
+    points = scaling.run_scaling(
+        args.sizes or scaling.DEFAULT_SIZES,
+        scene=args.scenes[0] if args.scenes else scaling.DEFAULT_SCENE, ranks=args.ranks,
+        steps=args.steps or scaling.DEFAULT_STEPS,
+        repeats=args.repeats,
+        progress=not args.json)
+    paths = scaling.write_scaling(points, args.out_dir or DEFAULT_OUT)
+    if args.json:
+        print_json({"points": [scaling.point_payload(p) for p in points]})
+    else:
+        for p in points:
+            print(f"bench --scaling: {p.n_vertices} vertices: precompute {p.wall_seconds:.1f} s, "
+                  f"peak {p.peak_mb:.0f} MB, reduced t_total "
+                  f"{float(np.median(p.t_total_ms)):.3f} ms")
+        for line in scaling.verdicts(points):
+            print(f"bench --scaling: {line}")
+        print(f"bench --scaling: {', '.join(str(p) for p in paths)}")
     return 0

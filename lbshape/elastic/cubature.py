@@ -11,18 +11,25 @@ on random training poses:
    — and one global factor so that the largest vertex displacement over all poses
    is ``magnitude × object size`` (object size: the largest edge of the rest
    bounding box).
-2. **Exact reduced forces** (:func:`force_contribution_matrix`): ``A (P·r, E)``
-   with column e the stacked reduced forces of element e over the P poses; the exact
-   reduced forces are ``b = A @ 1``. Each pose block of A and b is divided by that
-   pose's exact force norm (per-pose normalisation), so that every pose counts
-   equally whatever its amplitude.
+2. **Exact reduced forces** (:func:`exact_pose_forces`): ``b (P·r,)``, the stacked
+   exact reduced forces ``Uᵀ f(U q_p)``, summed over **chunks of elements** whose
+   temporary arrays stay below ``max_bytes`` (and, with an MPI communicator, over
+   each rank's share of the chunks, then summed over the ranks). The matrix
+   ``A (P·r, E)`` whose column e stacks element e's reduced forces
+   (:func:`force_contribution_matrix`, ``b = A @ 1``) is never held: its columns are
+   computed when needed. Each pose block of A and b is divided by that pose's exact
+   force norm (per-pose normalisation), so that every pose counts equally whatever
+   its amplitude.
 3. **Greedy selection + NNLS** (:func:`train_cubature`): at each step draw a random
-   batch of candidate elements, add the one whose column is best aligned with the
-   current residual (largest ``A_eᵀ res / ‖A_e‖``), solve the non-negative least
-   squares problem on the selected columns, drop elements whose weight became
-   zero, and stop when the relative training error ``‖A w − b‖ / ‖b‖`` reaches
-   ``tol`` or s elements are selected. Each NNLS solve is optimal on its set, so the
-   error never increases.
+   batch of candidate elements, compute their columns, add the one whose column is
+   best aligned with the current residual (largest ``A_eᵀ res / ‖A_e‖``), solve the
+   non-negative least squares problem on the selected columns, drop elements whose
+   weight became zero, and stop when the relative training error
+   ``‖A w − b‖ / ‖b‖`` reaches ``tol`` or s elements are selected. Each NNLS solve
+   is optimal on its set, so the error never increases. Only when no candidate of a
+   batch helps are all elements scanned (again in chunks). The greedy steps are the
+   same on every rank (same seed, same draws); memory is O(P·r·(s + batch)) besides
+   one chunk.
 
 The training works for **any basis matrix** U (3n, k): the nonlinear elastic basis,
 or the displacement subspace of Laplace-Beltrami eigenfunctions used by the shape
@@ -41,11 +48,12 @@ from scipy.optimize import nnls
 from lbshape.elastic.materials import Material
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError, SolverError
+from lbshape.fem.mpi import rank_share, sum_over_ranks
 from lbshape.geometry.mesh import TetMesh
 
 log = logging.getLogger(__name__)
 
-#: default bound (bytes) on the temporary arrays of one chunk of training poses
+#: default bound (bytes) on the temporary arrays of one chunk of elements or poses
 DEFAULT_MAX_BYTES = 512 * 2**20
 
 
@@ -179,6 +187,73 @@ def force_contribution_matrix(
     return A
 
 
+def element_chunks(count: int, per_element_bytes: int, max_bytes: int) -> list[range]:
+    """Consecutive blocks of ``range(count)`` whose temporaries stay below ``max_bytes``.
+
+    Args:
+        count: number of elements.
+        per_element_bytes: temporary bytes one element needs (> 0).
+        max_bytes: the bound (bytes); at least one element per block whatever it is.
+
+    Returns:
+        The blocks in order (their concatenation is ``range(count)``).
+    """
+    size = int(max(1, max_bytes // max(1, per_element_bytes)))
+    return [range(start, min(count, start + size)) for start in range(0, count, size)]
+
+
+def exact_pose_forces(
+    rest_points: np.ndarray,
+    tets: np.ndarray,
+    material: Material,
+    U: np.ndarray,
+    poses: np.ndarray,
+    *,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    comm=None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact reduced forces and largest strains of many poses, streamed over elements.
+
+    ``forces[p] = Uᵀ f(U q_p) = Σ_e U_eᵀ f_e(U_e q_p)`` over all tetrahedra, summed chunk
+    by chunk (:func:`element_chunks`, :meth:`ReducedForceModel.pose_forces`) so memory is
+    bounded by ``max_bytes`` whatever the mesh size. With ``comm`` (an MPI
+    communicator) each rank sums its share of the chunks
+    (:func:`lbshape.fem.mpi.rank_share`) and the parts are summed over the ranks; every
+    rank gets the totals.
+
+    Args:
+        rest_points: (n, 3) rest shape in metres.
+        tets: (t, 4) tetrahedra.
+        material: the hyperelastic material.
+        U: (3n, r) basis, node-major rows.
+        poses: (P, r) reduced coordinates.
+        max_bytes: bound on one chunk's arrays (bytes).
+        comm: MPI communicator, or None (serial).
+
+    Returns:
+        (forces (P, r) in N per unit of q, strains (P,) the largest ``‖F_e − I‖_F``
+        over the elements, dimensionless).
+    """
+    poses = np.atleast_2d(np.asarray(poses, dtype=np.float64))
+    r = U.shape[1]
+    if poses.ndim != 2 or poses.shape[1] != r:
+        raise LbshapeError(f"poses must have shape (P, {r}), got {poses.shape}")
+    n_poses = poses.shape[0]
+    # model (element rows, BU three times, kernel) + gradients, stresses, strains
+    per_element = 8 * (39 * r + 260 + 21 * n_poses)
+    chunks = element_chunks(tets.shape[0], per_element, max_bytes)
+    forces, strains = np.zeros((n_poses, r)), np.zeros(n_poses)
+    for index in rank_share(comm, len(chunks)):
+        chunk = chunks[index]
+        model = ReducedForceModel(rest_points, tets, material, U,
+                                  np.arange(chunk.start, chunk.stop), np.ones(len(chunk)),
+                                  tangent=False)
+        part, strain = model.pose_forces(poses.T)
+        forces += part
+        np.maximum(strains, strain, out=strains)
+    return sum_over_ranks(comm, forces), _max_over_ranks(comm, strains)
+
+
 def train_cubature(
     mesh: TetMesh,
     material: Material,
@@ -194,6 +269,7 @@ def train_cubature(
     magnitude: float = 0.1,
     max_bytes: int = DEFAULT_MAX_BYTES,
     progress: bool = False,
+    comm=None,
 ) -> Cubature:
     """Select cubature elements and weights for the reduced force of a basis U.
 
@@ -212,8 +288,11 @@ def train_cubature(
         candidates_per_iter: elements drawn per greedy step (>= 1).
         magnitude: largest training displacement as a fraction of the object size
             (largest edge of the bounding box), > 0.
-        max_bytes: memory bound for evaluating the exact forces in chunks.
+        max_bytes: bound (bytes) on the arrays of one chunk of elements (the exact
+            forces are summed chunk by chunk; same result for any bound).
         progress: show a progress bar.
+        comm: MPI communicator: the passes over all elements are split across its
+            ranks (every rank returns the same rule); None: serial.
 
     Returns:
         The :class:`Cubature`.
@@ -246,7 +325,7 @@ def train_cubature(
     return train_cubature_on_poses(
         mesh.points, mesh.tets, material, U, train=poses[:n_train], holdout=poses[n_train:],
         rng=rng, max_elements=max_elements, tol=tol, candidates_per_iter=candidates_per_iter,
-        max_bytes=max_bytes, progress=progress, peak_strain=magnitude,
+        max_bytes=max_bytes, progress=progress, peak_strain=magnitude, comm=comm,
     )
 
 
@@ -265,6 +344,7 @@ def train_cubature_on_poses(
     max_bytes: int = DEFAULT_MAX_BYTES,
     progress: bool = False,
     peak_strain: float | None = None,
+    comm=None,
 ) -> Cubature:
     """Greedy + NNLS cubature fitted to given training poses on a given rest shape.
 
@@ -281,7 +361,7 @@ def train_cubature_on_poses(
         train: (P, k) training poses (coordinates relative to the rest shape).
         holdout: (P', k) held-out poses (reported error only).
         rng: generator of the candidate batches.
-        max_elements, tol, candidates_per_iter, max_bytes, progress: as in
+        max_elements, tol, candidates_per_iter, max_bytes, progress, comm: as in
             :func:`train_cubature`.
         peak_strain: the poses' largest expected strain, for the rigid-pose check
             (default: measured on the poses).
@@ -304,19 +384,25 @@ def train_cubature_on_poses(
         if poses.ndim != 2 or poses.shape[1] != U.shape[1] or poses.shape[0] < 1:
             raise LbshapeError(f"{name} poses must have shape (P >= 1, {U.shape[1]}), "
                                f"got {poses.shape}")
-    model = ReducedForceModel(rest_points, tets, material, U, np.arange(n_tets), np.ones(n_tets))
     all_poses = np.concatenate([train, holdout])
+    forces, strains = exact_pose_forces(rest_points, tets, material, U, all_poses,
+                                        max_bytes=max_bytes, comm=comm)
     if peak_strain is None:
-        peak_strain = float(model.max_strain(all_poses.T).max())
-    _check_deforms(model, all_poses, magnitude=peak_strain, size=1.0)
-    r = U.shape[1]
-    A, b = _normalised_system(force_contribution_matrix(model, train, max_bytes=max_bytes), r)
-    A_hold, b_hold = _normalised_system(
-        force_contribution_matrix(model, holdout, max_bytes=max_bytes), r
-    )
+        peak_strain = float(strains.max())
+    if (strains <= 1e-9 * peak_strain).any():
+        raise LbshapeError(
+            "a training pose has no elastic force: the basis only translates the "
+            "mesh rigidly (or not at all) for some poses"
+        )
+    n_train = train.shape[0]
+    b, factor = _normalised_forces(forces[:n_train])
+    b_hold, factor_hold = _normalised_forces(forces[n_train:])
+    columns = _Columns(rest_points, tets, material, U, train, factor, max_bytes=max_bytes)
+    hold_columns = _Columns(rest_points, tets, material, U, holdout, factor_hold,
+                            max_bytes=max_bytes)
     elements, weights, history = _greedy_nnls(
-        A, b, A_hold, b_hold, s=max_elements, tol=float(tol),
-        candidates=candidates_per_iter, rng=rng, progress=progress,
+        columns, b, hold_columns, b_hold, n_elements=n_tets, s=max_elements, tol=float(tol),
+        candidates=candidates_per_iter, rng=rng, progress=progress, comm=comm,
     )
     train_error, holdout_error = (float(v) for v in history[-1, 1:])
     reached = train_error <= tol
@@ -354,6 +440,8 @@ def train_example_cubatures(
     copies: int = 4,
     max_elements: int = 60,
     tol: float = 0.01,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    comm=None,
 ) -> list[Cubature]:
     """One cubature per example, trained where the target search evaluates it.
 
@@ -379,7 +467,7 @@ def train_example_cubatures(
             bar, 1 % with 4 copies gave the lb route 1.7 % of the separation at worst along
             the example path, 10 % with 2 copies 3 %).
         copies: perturbations per path pose.
-        max_elements, tol: as in :func:`train_cubature`.
+        max_elements, tol, max_bytes, comm: as in :func:`train_cubature`.
 
     Returns:
         k :class:`Cubature` rules (element indices into ``tets``).
@@ -406,49 +494,58 @@ def train_example_cubatures(
         held = (owner % 2 == 1) & moving
         rules.append(train_cubature_on_poses(
             rest_points[index], tets, material, basis, train=poses[~held & moving],
-            holdout=poses[held], rng=rng, max_elements=max_elements, tol=tol))
+            holdout=poses[held], rng=rng, max_elements=max_elements, tol=tol,
+            max_bytes=max_bytes, comm=comm))
     return rules
 
 
 # -- internals ---------------------------------------------------------------------------
-def _normalised_system(A: np.ndarray, r: int) -> tuple[np.ndarray, np.ndarray]:
-    """Divide every pose block (r rows) of A (P·r, E) by its exact force norm.
-
-    Returns the scaled A (Fortran order) and the scaled exact forces ``b = A @ 1``.
-    """
-    b = A.sum(axis=1)
-    norms = np.linalg.norm(b.reshape(-1, r), axis=1)
+def _normalised_forces(forces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Stacked exact forces (P, r) divided per pose by their norm: (b (P·r,), factor (P·r,)),
+    the factor dividing every pose block of A and b."""
+    norms = np.linalg.norm(forces, axis=1)
     if not norms.max() > 0 or (norms <= 1e-12 * norms.max()).any():
         raise LbshapeError(
             "a training pose has no elastic force: the basis moves the mesh rigidly "
             "(or not at all) for some poses"
         )
-    factor = np.repeat(1.0 / norms, r)
-    A = np.asfortranarray(A)
-    A *= factor[:, None]  # in place: A is the largest array of the training
-    return A, b * factor
+    factor = np.repeat(1.0 / norms, forces.shape[1])
+    return forces.reshape(-1) * factor, factor
 
 
-def _check_deforms(model: ReducedForceModel, poses: np.ndarray, *, magnitude, size) -> None:
-    """Reject bases whose poses move the mesh rigidly (no elastic force to fit)."""
-    peak_strain = magnitude  # the largest displacement is magnitude × size
-    for start in range(0, poses.shape[0], 64):
-        strain = model.max_strain(poses[start : start + 64].T)
-        if (strain <= 1e-9 * peak_strain).any():
-            raise LbshapeError(
-                "a training pose has no elastic force: the basis only translates the "
-                "mesh rigidly (or not at all) for some poses"
-            )
+class _Columns:
+    """Normalised columns of A (P·r, E) computed on demand, in element chunks."""
+
+    def __init__(self, rest_points, tets, material, U, poses, factor, *, max_bytes):
+        self._args = (rest_points, tets, material, U)
+        self._poses = poses
+        self._factor = factor
+        r = U.shape[1]
+        self._per_element = 8 * (39 * r + 260 + poses.shape[0] * (2 * r + 9 * 12))
+        self._max_bytes = max_bytes
+
+    def __call__(self, elements: np.ndarray) -> np.ndarray:
+        """(P·r, k) columns of ``elements`` (k,), Fortran order (at most one chunk)."""
+        model = ReducedForceModel(*self._args, elements, np.ones(elements.size),
+                                  tangent=False)
+        A = force_contribution_matrix(model, self._poses, max_bytes=self._max_bytes)
+        A *= self._factor[:, None]
+        return A
+
+    def chunks(self, elements: np.ndarray) -> list[np.ndarray]:
+        """``elements`` split into blocks whose columns fit the memory bound."""
+        return [elements[block.start:block.stop] for block in
+                element_chunks(elements.size, self._per_element, self._max_bytes)]
 
 
-def _greedy_nnls(A, b, A_hold, b_hold, *, s, tol, candidates, rng, progress):
+def _greedy_nnls(columns, b, hold_columns, b_hold, *, n_elements, s, tol, candidates, rng,
+                 progress, comm):
     """Greedy candidate selection + NNLS; returns (elements, weights, history)."""
-    n_el = A.shape[1]
-    norms = np.linalg.norm(A, axis=0)
-    inv_norms = np.divide(1.0, norms, out=np.zeros_like(norms), where=norms > 0)
     b_norm, b_hold_norm = np.linalg.norm(b), np.linalg.norm(b_hold)
     selected = np.zeros(0, dtype=np.int64)
     weights = np.zeros(0)
+    chosen = np.zeros((b.size, 0), order="F")  # columns of the selected elements
+    chosen_hold = np.zeros((b_hold.size, 0), order="F")
     residual = b.copy()
     error = 1.0
     history = []
@@ -461,28 +558,33 @@ def _greedy_nnls(A, b, A_hold, b_hold, *, s, tol, candidates, rng, progress):
         for _ in range(10 * s):  # every step lowers the error; the cap is a safeguard
             if selected.size >= s or error <= tol:
                 break
-            pool = np.setdiff1d(np.arange(n_el), selected, assume_unique=True)
+            pool = np.setdiff1d(np.arange(n_elements), selected, assume_unique=True)
             if pool.size == 0:
                 break
             batch = rng.choice(pool, size=min(candidates, pool.size), replace=False)
-            best = _best_aligned(A, residual, inv_norms, batch)
-            if best is None:  # nothing in the batch helps: look at every element
-                best = _best_aligned(A, residual, inv_norms, pool)
-                if best is None:
+            column = _best_aligned(columns, residual, batch)
+            if column is None:  # nothing in the batch helps: look at every element
+                column = _best_aligned_everywhere(columns, residual, pool, comm)
+                if column is None:
                     log.info("cubature: no remaining element reduces the error %.3g", error)
                     break
+            best, A_best = column
             trial = np.append(selected, best)
+            A_trial = np.column_stack([chosen, A_best])
             try:
-                w, _ = nnls(A[:, trial], b)
+                w, _ = nnls(A_trial, b)
             except RuntimeError as exc:
                 raise SolverError(
                     f"cubature NNLS failed with {trial.size} elements: {exc}"
                 ) from None
             keep = w > 0
+            hold_trial = np.column_stack([chosen_hold, hold_columns(np.array([best]))])
             selected, weights = trial[keep], w[keep]
-            residual = b - A[:, selected] @ weights
+            chosen = np.asfortranarray(A_trial[:, keep])
+            chosen_hold = np.asfortranarray(hold_trial[:, keep])
+            residual = b - chosen @ weights
             error = float(np.linalg.norm(residual) / b_norm)
-            holdout = float(np.linalg.norm(A_hold[:, selected] @ weights - b_hold) / b_hold_norm)
+            holdout = float(np.linalg.norm(chosen_hold @ weights - b_hold) / b_hold_norm)
             history.append((selected.size, error, holdout))
             if bar is not None:
                 bar.n = selected.size
@@ -495,11 +597,44 @@ def _greedy_nnls(A, b, A_hold, b_hold, *, s, tol, candidates, rng, progress):
     return selected.astype(np.int64), weights.astype(np.float64), np.asarray(history, dtype=float)
 
 
-def _best_aligned(A, residual, inv_norms, candidates) -> int | None:
-    """The candidate whose column has the largest positive ``A_eᵀ res / ‖A_e‖``."""
-    scores = (residual @ A[:, candidates]) * inv_norms[candidates]
+def _scores(A: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    """``A_eᵀ res / ‖A_e‖`` per column (0 for a zero column)."""
+    norms = np.linalg.norm(A, axis=0)
+    inv = np.divide(1.0, norms, out=np.zeros_like(norms), where=norms > 0)
+    return (residual @ A) * inv
+
+
+def _best_aligned(columns, residual, candidates) -> tuple[int, np.ndarray] | None:
+    """(element, column) of the candidate with the largest positive score, or None."""
+    A = columns(candidates)
+    scores = _scores(A, residual)
     i = int(np.argmax(scores))
-    return int(candidates[i]) if scores[i] > 0 else None
+    return (int(candidates[i]), A[:, i].copy()) if scores[i] > 0 else None
+
+
+def _best_aligned_everywhere(columns, residual, pool, comm) -> tuple[int, np.ndarray] | None:
+    """:func:`_best_aligned` over every element of ``pool``, chunk by chunk (split across
+    the ranks of ``comm``); the first of equal best scores, as in one pass."""
+    blocks = columns.chunks(pool)
+    best_score, best_element = 0.0, -1
+    for index in rank_share(comm, len(blocks)):
+        scores = _scores(columns(blocks[index]), residual)
+        i = int(np.argmax(scores))
+        if scores[i] > best_score:
+            best_score, best_element = float(scores[i]), int(blocks[index][i])
+    if comm is not None and comm.size > 1:
+        ranked = comm.allgather((best_score, best_element))
+        best_score, best_element = max(ranked, key=lambda item: (item[0], -item[1]))
+    if not best_score > 0:
+        return None
+    return best_element, columns(np.array([best_element]))[:, 0].copy()
+
+
+def _max_over_ranks(comm, value: np.ndarray) -> np.ndarray:
+    """Elementwise maximum of ``value`` over the ranks (itself without ``comm``)."""
+    if comm is None or comm.size == 1:
+        return value
+    return np.max(comm.allgather(np.asarray(value)), axis=0)
 
 
 def _check_basis(U: np.ndarray, *, n_vertices: int | None = None) -> np.ndarray:

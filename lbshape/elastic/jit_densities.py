@@ -10,6 +10,8 @@ Layouts match :class:`~lbshape.elastic.reduced_forces.ReducedForceModel`'s fast 
 * output ``P9`` (9, s): first Piola-Kirchhoff stress in Pa, same layout;
 * output ``A`` (s, 9, 9): ``A[e, 3i + j, 3k + l] = ∂P_ij/∂F_kl`` in Pa.
 
+:func:`stress` fills only ``P9`` (the cubature training's passes over all elements).
+
 Written in H (not F) like the numpy densities, so small strains keep their digits.
 """
 
@@ -37,11 +39,21 @@ def stress_and_tangent(code, parameters, H9, P9, A):
     s = H9.shape[1]
     work = np.empty((6, 3, 3))
     for e in range(s):
-        _element(code, parameters, H9, P9, A, e, work)
+        _element(code, parameters, H9, P9, A, e, work, True)
 
 
 @njit
-def _element(code, parameters, H9, P9, A, e, work):
+def stress(code, parameters, H9, P9):
+    """Fill P9 (9, s) from H9 (9, s), without the stress derivative."""
+    s = H9.shape[1]
+    work = np.empty((6, 3, 3))
+    unused = np.empty((1, 9, 9))
+    for e in range(s):
+        _element(code, parameters, H9, P9, unused, e, work, False)
+
+
+@njit
+def _element(code, parameters, H9, P9, A, e, work, tangent):
     H = work[0]
     F = work[1]
     for i in range(3):
@@ -49,13 +61,13 @@ def _element(code, parameters, H9, P9, A, e, work):
             H[i, j] = H9[3 * i + j, e]
             F[i, j] = H[i, j] + (1.0 if i == j else 0.0)
     if code == 0:
-        _stvk(parameters[0], parameters[1], H, F, P9, A, e, work)
+        _stvk(parameters[0], parameters[1], H, F, P9, A, e, work, tangent)
     else:
-        _stable_nh(parameters[0], parameters[1], parameters[2], F, P9, A, e, work)
+        _stable_nh(parameters[0], parameters[1], parameters[2], F, P9, A, e, work, tangent)
 
 
 @njit
-def _stvk(mu, lam, H, F, P9, A, e, work):
+def _stvk(mu, lam, H, F, P9, A, e, work, tangent):
     # E = (H + Hᵀ + HᵀH)/2, S = 2μE + λ tr(E) I, P = F S
     E = work[2]
     for i in range(3):
@@ -79,6 +91,8 @@ def _stvk(mu, lam, H, F, P9, A, e, work):
                 pij += F[i, m] * S[m, j]
             B[i, j] = value
             P9[3 * i + j, e] = pij
+    if not tangent:
+        return
     # A_ijkl = δ_ik S_lj + μ F_il F_kj + μ B_ik δ_jl + λ F_ij F_kl
     for i in range(3):
         for j in range(3):
@@ -94,7 +108,7 @@ def _stvk(mu, lam, H, F, P9, A, e, work):
 
 
 @njit
-def _stable_nh(mu, lam, alpha, F, P9, A, e, work):
+def _stable_nh(mu, lam, alpha, F, P9, A, e, work, tangent):
     cof = work[2]
     for i in range(3):
         for j in range(3):
@@ -113,6 +127,8 @@ def _stable_nh(mu, lam, alpha, F, P9, A, e, work):
     for i in range(3):
         for j in range(3):
             P9[3 * i + j, e] = c1 * F[i, j] + cj * cof[i, j]
+    if not tangent:
+        return
     for i in range(3):
         for j in range(3):
             row = 3 * i + j

@@ -27,7 +27,7 @@ import numpy as np
 
 from lbshape.elastic.element_kernels import ElementKernel
 from lbshape.elastic.energy_densities import density_model
-from lbshape.elastic.jit_densities import density_parameters, stress_and_tangent
+from lbshape.elastic.jit_densities import density_parameters, stress, stress_and_tangent
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
 
@@ -48,6 +48,8 @@ class ReducedForceModel:
             or not).
         elements: (s,) indices into ``tets`` of the cubature elements.
         weights: (s,) non-negative cubature weights (dimensionless).
+        tangent: build the tangent's arrays (False: a model for forces only, e.g. the
+            cubature training's passes over element chunks; about half the memory).
 
     Attributes:
         kernel: the :class:`~lbshape.elastic.element_kernels.ElementKernel` of the s elements.
@@ -71,6 +73,8 @@ class ReducedForceModel:
         U: np.ndarray,
         elements: np.ndarray,
         weights: np.ndarray,
+        *,
+        tangent: bool = True,
     ):
         points = np.asarray(points, dtype=np.float64)
         tets = np.asarray(tets)
@@ -115,7 +119,7 @@ class ReducedForceModel:
         self.element_basis = np.ascontiguousarray(U[dofs])  # (s, 12, r)
         self._density = density_model(material)
 
-        BU = np.matmul(self.kernel.gradient_operator, self.element_basis)  # (s, 9, r)
+        BU = gradient_basis(self.kernel.gradients, self.element_basis)  # (s, 9, r)
         volumes = self.kernel.volumes
         wv = self.weights * volumes
         # component-major (9s, r): H = BU_k @ q is the element-last gradient (3, 3, s)
@@ -124,18 +128,19 @@ class ReducedForceModel:
         self._wbu_k_t = np.ascontiguousarray(
             (wv[:, None, None] * BU).transpose(1, 0, 2).reshape(9 * s, r).T
         )  # (r, 9s)
+        self._wv = wv
+        self._jit = density_parameters(material)
+        self.has_tangent = bool(tangent)
+        if not tangent:
+            return
         # tangent: K = WBU_eᵀ @ (A_e BU_e) stacked element-major (9s, r)
         self._bu_e = np.ascontiguousarray(BU)  # (s, 9, r)
         self._wbu_e_t = np.ascontiguousarray((wv[:, None, None] * BU).reshape(s * 9, r).T)
-        # unweighted V (BU)ᵀ, (s, r, 9), for per-element contributions (training)
-        self._vbu_t = np.ascontiguousarray((volumes[:, None, None] * BU).transpose(0, 2, 1))
-        self._wv = wv
         # work arrays of the tangent
         self._a_work = np.empty((s, 9, 9))
         self._t_work = np.empty((s, 9, r))
         self._h_work = np.empty(9 * s)
         self._p_work = np.empty((9, s))
-        self._jit = density_parameters(material)
         # views made once: the run-time path creates no array objects
         self._h_view = self._h_work.reshape(9, s)
         self._p_flat = self._p_work.reshape(-1)
@@ -176,6 +181,8 @@ class ReducedForceModel:
 
     def force_and_tangent(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(force (r,), tangent (r, r)) at q (r,), sharing the element work."""
+        if not self.has_tangent:
+            raise LbshapeError("this reduced force model was built without its tangent")
         s = self.n_elements
         Pt, At = self._density.stress_and_derivative_t(self._gradients(q))
         f = self._wbu_k_t @ Pt.reshape(-1)
@@ -233,5 +240,52 @@ class ReducedForceModel:
         # H[k, e, p] element-last over the combined (e, p) axis
         Ht = (self._bu_k @ Q).reshape(3, 3, s * n_poses)
         Pt = self._density.stress_t(Ht).reshape(9, s, n_poses)
-        out = np.matmul(self._vbu_t, Pt.transpose(1, 0, 2))  # (s, r, P)
+        BU = self._bu_k.reshape(9, s, r).transpose(1, 0, 2)  # (s, 9, r) view
+        vbu_t = (self.kernel.volumes[:, None, None] * BU).transpose(0, 2, 1)  # (s, r, 9)
+        out = np.matmul(vbu_t, Pt.transpose(1, 0, 2))  # (s, r, P)
         return out.transpose(2, 1, 0)
+
+    def pose_forces(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted reduced forces of many poses and their largest strain.
+
+        ``forces[p] = Σ_e w_e U_eᵀ f_e(U_e q_p)`` (the :meth:`force` of every pose; with
+        all elements and unit weights the exact ``Uᵀ f(U q_p)``), and
+        ``strains[p] = max_e ‖F_e − I‖_F`` (zero to round-off for a rigid pose). Two
+        matrix products and the compiled stress
+        (:func:`lbshape.elastic.jit_densities.stress`); temporary memory about
+        ``20 · s · P`` float64 values.
+
+        Args:
+            Q: (r, P) reduced coordinates of P poses (one per column).
+
+        Returns:
+            (forces (P, r), strains (P,)).
+        """
+        Q = np.asarray(Q, dtype=np.float64)
+        r, s = self.n_coordinates, self.n_elements
+        if Q.ndim != 2 or Q.shape[0] != r:
+            raise LbshapeError(f"poses must have shape ({r}, P), got {Q.shape}")
+        n_poses = Q.shape[1]
+        H = self._bu_k @ Q  # (9s, P): rows (component, element)
+        Hk = H.reshape(9, s, n_poses)
+        strains = np.sqrt(np.einsum("kep,kep->ep", Hk, Hk)).max(axis=0)
+        H9 = H.reshape(9, s * n_poses)
+        P9 = np.empty_like(H9)
+        stress(self._jit[0], self._jit[1], H9, P9)
+        return (self._wbu_k_t @ P9.reshape(9 * s, n_poses)).T, strains
+
+
+def gradient_basis(gradients: np.ndarray, element_basis: np.ndarray) -> np.ndarray:
+    """``(BU)_e`` (s, 9, r): displacement gradient of element e per reduced coordinate.
+
+    ``(BU)_e[3i + j] = Σ_a ∂_j N_a · U[3 v_a + i]`` (row-major ``H = F − I``), from the
+    shape-function gradients (s, 4, 3) in 1/m and the element rows ``U_e`` (s, 12, r)
+    (node-major); four broadcast products instead of a (9 × 12)·(12 × r) product with
+    the mostly-zero gradient operator.
+    """
+    s, r = element_basis.shape[0], element_basis.shape[2]
+    rows = element_basis.reshape(s, 4, 3, r)
+    BU = np.zeros((s, 3, 3, r))
+    for a in range(4):
+        BU += gradients[:, a, None, :, None] * rows[:, a, :, None, :]
+    return BU.reshape(s, 9, r)

@@ -1,0 +1,327 @@
+"""Cost growth with mesh size (``lbshape bench --scaling``).
+
+One base scene (default ``bar-cylinder``: the cuboid bar, twisted cylinder examples of
+their own resolution) at several object sizes ``[object] size`` (the gmsh size h in
+metres; the examples, m, r and s stay), from about 300 to more than 100k object
+vertices:
+
+* **precompute** — each size from scratch (``lbshape precompute SCENE --force``) in a
+  fresh subprocess, so the peak memory is that size's own: wall time, the peak resident
+  memory of the process (``wait4``'s ``ru_maxrss``; under MPI the largest rank), and the
+  per-stage seconds and peak memory the precompute records
+  (:attr:`~lbshape.pipeline.precompute.Precomputed.stage_seconds`, ``stage_peak_mb``,
+  rank 0's). With ``ranks > 1`` the subprocess is
+  ``mpirun --allow-run-as-root -n ranks``.
+* **per-step time** — the reduced simulation of every size in this process (threads as
+  set by the caller; 1 for the published numbers), sizes interleaved within each repeat
+  so that load from other processes spreads over all sizes; per size the median over
+  repeats of the mean ``t_total`` / ``t_interp`` after the warm-up steps.
+
+Writes ``scaling.csv`` (one row per size), ``scaling.md`` (tables, machine, the ≥100k
+verdicts) and ``scaling.png`` (log-log precompute time and peak memory per stage, and
+per-step time, against vertices).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import tomllib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from lbshape.errors import LbshapeError
+from lbshape.io.atomic import write_text_atomic
+from lbshape.io.toml_writer import dumps
+from lbshape.pipeline.precompute import precompute, stage_names
+from lbshape.pipeline.simulate import WARMUP_STEPS, reduced_simulation
+from lbshape.report.machine import load_text, machine_description, machine_text
+from lbshape.report.plots import pyplot, save_figure
+from lbshape.scene import load_scene
+from lbshape.scene.reader import builtin_scene_names
+
+#: the scene whose object is refined
+DEFAULT_SCENE = "bar-cylinder"
+#: object sizes h (m) of the default sweep: about 330, 1.9k, 9k, 25k, 56k and 103k vertices
+DEFAULT_SIZES: tuple[float, ...] = (0.0665, 0.035, 0.0185, 0.0125, 0.0092, 0.0068)
+#: steps per timed reduced run, and repeats
+DEFAULT_STEPS = 300
+DEFAULT_REPEATS = 3
+#: the targets of a ≥ 100k-vertex object (reported, never asserted)
+TARGET_VERTICES = 100_000
+TARGET_SECONDS = 300.0
+TARGET_PEAK_MB = 8 * 1024.0
+TARGET_STEP_RATIO = 1.2
+#: CSV columns before the per-stage ones
+_COLUMNS = ("size_m", "n_vertices", "n_tets", "ranks", "wall_s", "stages_s", "peak_mb",
+            "t_total_ms", "t_total_min_ms", "t_total_max_ms", "t_interp_ms")
+
+
+@dataclass
+class ScalingPoint:
+    """One object size: its precompute and per-step time.
+
+    Attributes:
+        size: the object's gmsh size h (m).
+        n_vertices, n_tets: the object mesh.
+        ranks: MPI processes of the precompute (1: serial).
+        wall_seconds: the precompute subprocess's wall time (s), start-up included.
+        peak_mb: its peak resident memory (MB; under MPI the largest process).
+        stage_seconds: seconds per stage (rank 0).
+        stage_peak_mb: peak resident memory per stage (MB, rank 0).
+        t_total_ms: per repeat, the mean reduced step time after warm-up (ms).
+        t_interp_ms: per repeat, the mean time of the example target (ms).
+    """
+
+    size: float
+    n_vertices: int
+    n_tets: int
+    ranks: int
+    wall_seconds: float
+    peak_mb: float
+    stage_seconds: dict
+    stage_peak_mb: dict
+    t_total_ms: list = field(default_factory=list)
+    t_interp_ms: list = field(default_factory=list)
+
+    @property
+    def stages_seconds(self) -> float:
+        """The sum of the stage times (s)."""
+        return float(sum(self.stage_seconds.values()))
+
+
+def scaled_scene(base: str, size: float, folder: Path) -> Path:
+    """Write the scene ``base`` (a built-in name) with ``[object] size = size`` to
+    ``folder`` and return the TOML path (named ``<base>-h<size>``)."""
+    if base not in builtin_scene_names():
+        raise LbshapeError(f"--scaling needs a built-in scene, got {base!r}; valid names: "
+                           f"{', '.join(builtin_scene_names())}")
+    if not (isinstance(size, int | float) and 0 < size < np.inf):
+        raise LbshapeError(f"object sizes must be finite and > 0, got {size!r}")
+    path = Path(load_scene(base).source)
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    if "shape" not in data.get("object", {}):
+        raise LbshapeError(f"scene {base!r}: its object is not a built-in shape with a size")
+    data["name"] = f"{base}-h{size:g}"
+    data["object"]["size"] = float(size)
+    target = folder / f"{data['name']}.toml"
+    target.write_text(dumps(data), encoding="utf-8")
+    return target
+
+
+def precompute_subprocess(scene_path: Path, *, ranks: int = 1) -> tuple[float, float]:
+    """``lbshape precompute SCENE --force`` in a fresh process (under ``mpirun -n ranks``
+    when ranks > 1): (wall seconds, peak resident MB of the largest process)."""
+    command = [sys.executable, "-m", "lbshape.cli", "precompute", str(scene_path), "--force"]
+    if ranks > 1:
+        mpirun = shutil.which("mpirun")
+        if mpirun is None:
+            raise LbshapeError("--ranks > 1 needs mpirun on the PATH")
+        command = [mpirun, "--allow-run-as-root", "--oversubscribe", "-n", str(ranks),
+                   *command]
+    started = time.perf_counter()
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                               env=os.environ.copy())
+    output = process.stdout.read()
+    _, status, usage = os.wait4(process.pid, 0)
+    process.returncode = os.waitstatus_to_exitcode(status)
+    seconds = time.perf_counter() - started
+    if process.returncode != 0:
+        tail = output.decode(errors="replace").strip().splitlines()[-3:]
+        raise LbshapeError(f"precompute of {scene_path.name} failed (exit "
+                           f"{process.returncode}): {' | '.join(tail)}")
+    return seconds, usage.ru_maxrss / 1024.0  # KB on Linux
+
+
+def run_scaling(sizes: Sequence[float] = DEFAULT_SIZES, *, scene: str = DEFAULT_SCENE,
+                ranks: int = 1, steps: int = DEFAULT_STEPS, repeats: int = DEFAULT_REPEATS,
+                progress: bool = False) -> list[ScalingPoint]:
+    """Precompute ``scene`` at every object size in a subprocess, then time the reduced
+    step of all sizes interleaved (see the module docstring)."""
+    if ranks < 1 or steps <= WARMUP_STEPS or repeats < 1 or not sizes:
+        raise LbshapeError(f"need ranks >= 1, steps > {WARMUP_STEPS}, repeats >= 1 and at "
+                           f"least one size; got {ranks}, {steps}, {repeats}, {list(sizes)}")
+    points, runs = [], []
+    with tempfile.TemporaryDirectory(prefix="lbshape-scaling-") as folder:
+        for size in sizes:
+            path = scaled_scene(scene, float(size), Path(folder))
+            wall, peak = precompute_subprocess(path, ranks=ranks)
+            loaded = load_scene(path)
+            pre = precompute(loaded)  # from the cache the subprocess wrote
+            point = ScalingPoint(
+                size=float(size), n_vertices=pre.mesh.n_vertices, n_tets=pre.mesh.n_tets,
+                ranks=ranks, wall_seconds=wall, peak_mb=peak,
+                stage_seconds=dict(pre.stage_seconds), stage_peak_mb=dict(pre.stage_peak_mb))
+            points.append(point)
+            runs.append((loaded, pre))
+            if progress:
+                print(f"scaling: h={size:g} m, {point.n_vertices} vertices: precompute "
+                      f"{wall:.1f} s, peak {peak:.0f} MB", file=sys.stderr)
+        for _ in range(repeats):
+            for point, (loaded, pre) in zip(points, runs, strict=True):
+                record = reduced_simulation(loaded, pre).run(steps, stride=steps)
+                if not record.stable:
+                    raise LbshapeError(f"the reduced run of {loaded.name} stopped: "
+                                       f"{record.message}")
+                t_interp, t_total = record.mean_ms(warmup=WARMUP_STEPS)
+                point.t_total_ms.append(t_total)
+                point.t_interp_ms.append(t_interp)
+    return points
+
+
+# ------------------------------------------------------------------------------ output
+def point_payload(point: ScalingPoint) -> dict:
+    """One point as plain JSON data."""
+    return {"size_m": point.size, "n_vertices": point.n_vertices, "n_tets": point.n_tets,
+            "ranks": point.ranks, "wall_s": point.wall_seconds, "peak_mb": point.peak_mb,
+            "stage_seconds": point.stage_seconds, "stage_peak_mb": point.stage_peak_mb,
+            "t_total_ms": list(point.t_total_ms), "t_interp_ms": list(point.t_interp_ms)}
+
+
+def write_scaling(points: Sequence[ScalingPoint], out: Path, *,
+                  machine: dict | None = None) -> list[Path]:
+    """Write ``scaling.csv``, ``scaling.md`` and ``scaling.png`` into ``out``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    machine = machine_description() if machine is None else machine
+    names = _stage_order(points)
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow([*_COLUMNS, *(f"{n}_s" for n in names), *(f"{n}_peak_mb" for n in names)])
+    for p in points:
+        writer.writerow([f"{p.size:g}", p.n_vertices, p.n_tets, p.ranks, f"{p.wall_seconds:.2f}",
+                         f"{p.stages_seconds:.2f}", f"{p.peak_mb:.0f}",
+                         f"{np.median(p.t_total_ms):.4f}", f"{min(p.t_total_ms):.4f}",
+                         f"{max(p.t_total_ms):.4f}", f"{np.median(p.t_interp_ms):.4f}",
+                         *(_cell(p.stage_seconds.get(n), ".2f") for n in names),
+                         *(_cell(p.stage_peak_mb.get(n), ".0f") for n in names)])
+    paths = [write_text_atomic(out / "scaling.csv", buffer.getvalue()),
+             write_text_atomic(out / "scaling.md", scaling_markdown(points, machine)),
+             scaling_plot(points, out / "scaling.png")]
+    return paths
+
+
+def verdicts(points: Sequence[ScalingPoint]) -> list[str]:
+    """The targets of the largest object with ≥ 100k vertices, measured (one line each)."""
+    large = [p for p in points if p.n_vertices >= TARGET_VERTICES]
+    if not large:
+        return [f"no object with >= {TARGET_VERTICES} vertices in this run"]
+    big = max(large, key=lambda p: p.n_vertices)
+    small = min(points, key=lambda p: p.n_vertices)
+    ratio = np.median(big.t_total_ms) / np.median(small.t_total_ms)
+    return [
+        _verdict(f"precompute of {big.n_vertices} vertices (-n {big.ranks})",
+                 big.wall_seconds, TARGET_SECONDS, "s"),
+        _verdict("its peak memory", big.peak_mb, TARGET_PEAK_MB, "MB"),
+        _verdict(f"reduced t_total at {big.n_vertices} / {small.n_vertices} vertices",
+                 ratio, TARGET_STEP_RATIO, "x"),
+    ]
+
+
+def scaling_markdown(points: Sequence[ScalingPoint], machine: dict) -> str:
+    """The Markdown report of a sweep."""
+    names = _stage_order(points)
+    ranks = sorted({p.ranks for p in points})
+    lines = [
+        "# Cost growth with mesh size",
+        "",
+        f"Scene: the built-in bar-cylinder with `[object] size` = h (its examples, m, r, s "
+        f"unchanged); precompute from scratch in a fresh process per size "
+        f"({'serial' if ranks == [1] else 'mpirun -n ' + '/'.join(map(str, ranks))}); "
+        f"per-step times: the reduced method, sizes interleaved in one process, median of "
+        f"{len(points[0].t_total_ms)} repeats of the mean after {WARMUP_STEPS} warm-up steps.",
+        f"Machine: {machine_text(machine)}; load average {load_text(machine)} at the end.",
+        "",
+        "| h (m) | vertices | tets | ranks | precompute wall (s) | stages (s) | peak (MB) "
+        "| t_total (ms) [range] | t_interp (ms) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for p in points:
+        lines.append(
+            f"| {p.size:g} | {p.n_vertices} | {p.n_tets} | {p.ranks} | {p.wall_seconds:.1f} "
+            f"| {p.stages_seconds:.1f} | {p.peak_mb:.0f} | {np.median(p.t_total_ms):.3f} "
+            f"[{min(p.t_total_ms):.3f}–{max(p.t_total_ms):.3f}] "
+            f"| {np.median(p.t_interp_ms):.3f} |")
+    for title, key, fmt in (("Seconds per stage", "stage_seconds", ".2f"),
+                            ("Peak resident memory per stage (MB)", "stage_peak_mb", ".0f")):
+        lines += ["", f"## {title}", "", "| vertices | " + " | ".join(names) + " |",
+                  "|---|" + "---|" * len(names)]
+        for p in points:
+            values = getattr(p, key)
+            lines.append(f"| {p.n_vertices} | "
+                         + " | ".join(_cell(values.get(n), fmt) for n in names) + " |")
+    lines += ["", "## Targets at >= 100k vertices", ""]
+    lines += [f"- {line}" for line in verdicts(points)]
+    return "\n".join(lines) + "\n"
+
+
+def scaling_plot(points: Sequence[ScalingPoint], path: Path) -> Path:
+    """Log-log precompute time and peak memory (total and per stage) and the per-step
+    time against vertices."""
+    plt = pyplot()
+    names = _stage_order(points)
+    n = [p.n_vertices for p in points]
+    fig, axes = plt.subplots(1, 3, figsize=(15.0, 4.4), dpi=110)
+    ax = axes[0]
+    ax.loglog(n, [p.wall_seconds for p in points], "k-o", lw=2, label="precompute (wall)")
+    for name in names:
+        values = [p.stage_seconds.get(name) for p in points]
+        if any(v for v in values):
+            ax.loglog(n, [v or np.nan for v in values], "-", marker=".", label=name)
+    ax.axhline(TARGET_SECONDS, color="0.5", ls="--", lw=0.8, label="5 min")
+    ax.set_title("precompute time", fontsize=10)
+    ax.set_ylabel("s")
+    ax = axes[1]
+    ax.loglog(n, [p.peak_mb / 1024 for p in points], "k-o", lw=2, label="process peak")
+    for name in names:
+        values = [p.stage_peak_mb.get(name) for p in points]
+        if any(v for v in values):
+            ax.loglog(n, [(v or np.nan) / 1024 for v in values], "-", marker=".", label=name)
+    ax.axhline(TARGET_PEAK_MB / 1024, color="0.5", ls="--", lw=0.8, label="8 GB")
+    ax.set_title("peak resident memory", fontsize=10)
+    ax.set_ylabel("GB")
+    ax = axes[2]
+    total = np.array([np.median(p.t_total_ms) for p in points])
+    low = total - np.array([min(p.t_total_ms) for p in points])
+    high = np.array([max(p.t_total_ms) for p in points]) - total
+    ax.errorbar(n, total, yerr=[low, high], fmt="k-o", label="reduced t_total")
+    ax.plot(n, [np.median(p.t_interp_ms) for p in points], "-s", label="t_interp")
+    ax.fill_between([min(n), max(n)], total[0], total[0] * TARGET_STEP_RATIO, color="0.9",
+                    label="smallest + 20 %")
+    ax.set_xscale("log")
+    ax.set_ylim(bottom=0)
+    ax.set_title("reduced step (same m, r, s)", fontsize=10)
+    ax.set_ylabel("ms per step")
+    for ax in axes:
+        ax.set_xlabel("object vertices")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def _stage_order(points: Sequence[ScalingPoint]) -> list[str]:
+    """Stage names in pipeline order (those any point recorded)."""
+    seen = {name for p in points for name in p.stage_seconds}
+    order = stage_names(load_scene(DEFAULT_SCENE))
+    return [n for n in order if n in seen] + sorted(seen - set(order))
+
+
+def _cell(value, fmt: str) -> str:
+    return "" if value is None else format(value, fmt)
+
+
+def _verdict(what: str, value: float, target: float, unit: str) -> str:
+    ok = value <= target
+    miss = "" if ok else f", missed by {value / target - 1:.0%}"
+    return (f"{what}: {value:.3g} {unit} (target <= {target:g} {unit}: "
+            f"{'met' if ok else 'not met'}{miss})")

@@ -1,0 +1,70 @@
+"""The cost-growth benchmark: scaled scenes, the report files, the CLI's checks."""
+
+from __future__ import annotations
+
+import csv
+
+import pytest
+
+from lbshape.cli.main import main
+from lbshape.errors import LbshapeError
+from lbshape.report import scaling
+from lbshape.scene import load_scene
+
+
+def point(size, vertices, wall, peak, t_total, ranks=1):
+    return scaling.ScalingPoint(
+        size=size, n_vertices=vertices, n_tets=5 * vertices, ranks=ranks, wall_seconds=wall,
+        peak_mb=peak, stage_seconds={"mesh": 0.1 * wall, "cubature": 0.5 * wall},
+        stage_peak_mb={"mesh": 0.5 * peak, "cubature": peak},
+        t_total_ms=[t_total, 1.1 * t_total, 0.9 * t_total], t_interp_ms=[0.1, 0.1, 0.1])
+
+
+def test_scaled_scene_changes_only_the_object_size(tmp_path):
+    path = scaling.scaled_scene("bar-cylinder", 0.02, tmp_path)
+    scaled, base = load_scene(path), load_scene("bar-cylinder")
+    assert scaled.object.size == 0.02 and scaled.object.shape == base.object.shape
+    assert scaled.name == "bar-cylinder-h0.02"
+    assert (scaled.examples, scaled.reduced, scaled.material, scaled.loads, scaled.fixed) == \
+        (base.examples, base.reduced, base.material, base.loads, base.fixed)
+    with pytest.raises(LbshapeError, match="built-in scene"):
+        scaling.scaled_scene("no-such-scene", 0.02, tmp_path)
+    with pytest.raises(LbshapeError, match="sizes"):
+        scaling.scaled_scene("bar-cylinder", -1.0, tmp_path)
+
+
+def test_report_files_and_verdicts(tmp_path):
+    points = [point(0.0665, 330, 3.0, 400.0, 0.12), point(0.0068, 103_000, 290.0, 9000.0, 0.15)]
+    paths = scaling.write_scaling(points, tmp_path)
+    assert [p.name for p in paths] == ["scaling.csv", "scaling.md", "scaling.png"]
+    rows = list(csv.DictReader((tmp_path / "scaling.csv").open()))
+    assert [int(r["n_vertices"]) for r in rows] == [330, 103_000]
+    assert float(rows[1]["cubature_s"]) == pytest.approx(145.0)
+    assert float(rows[1]["cubature_peak_mb"]) == pytest.approx(9000.0)
+    lines = scaling.verdicts(points)
+    assert "290 s (target <= 300 s: met)" in lines[0]
+    assert "not met, missed by 10%" in lines[1]  # 9000 MB against 8192 MB
+    assert "1.25 x" in lines[2] and "missed by 4%" in lines[2]  # 0.15 / 0.12 against 1.2
+    text = (tmp_path / "scaling.md").read_text()
+    assert "| 103000 |" in text and "not met" in text
+    assert "no object with" in scaling.verdicts(points[:1])[0]
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--scaling", "--sweep"], "different benchmarks"),
+    (["--sizes", "0.1"], "belong to --scaling"),
+    (["--scaling", "--ranks", "0"], "--ranks"),
+    (["--scaling", "bar-cuboid", "bar-cylinder"], "one built-in scene"),
+])
+def test_cli_rejects_bad_scaling_arguments(arguments, message, capsys):
+    assert main(["bench", *arguments]) != 0
+    assert message in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_two_coarse_sizes_end_to_end(tmp_path):
+    points = scaling.run_scaling([0.15, 0.1], scene="demo", steps=20, repeats=1)
+    assert [p.n_vertices for p in points] == sorted(p.n_vertices for p in points)
+    for p in points:
+        assert p.wall_seconds > p.stages_seconds > 0 and p.peak_mb > 50
+        assert set(p.stage_peak_mb) == set(p.stage_seconds) and len(p.t_total_ms) == 1
