@@ -139,3 +139,11 @@ def test_scene_responses_answer_its_loads_and_example_pulls(name):
             assert 0 < moved.size < mesh.n_vertices
     else:
         assert abs(S.sum() - M.sum()) < 1e-12 * M.sum()
+
+
+def test_a_free_body_gets_no_responses():
+    mesh = structured_box((0.3, 0.1, 0.1), (3, 1, 1))
+    scene = load_scene("car")
+    M = mass_matrix(mesh, scene.material.density)
+    X = basis_responses(scene, mesh, sp.identity(3 * mesh.n_vertices), M, np.zeros(0, int))
+    assert X.shape == (3 * mesh.n_vertices, 0)
