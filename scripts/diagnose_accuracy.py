@@ -218,6 +218,8 @@ def markdown(payload: dict) -> str:
         "",
     ]
     for label, variant in payload.get("variants", {}).items():
+        if "scenes" not in variant:
+            continue
         lines += [f"## Code variant: {label}", "", variant.get("note", ""), "",
                   "| scene | examples | subspace | reduced | converged | exact forces | "
                   "cubature vs exact |", "|---|---|---|---|---|---|---|"]
@@ -254,6 +256,20 @@ def markdown(payload: dict) -> str:
                           f"velocity full {np.round(row['final_centre_velocity_full'], 2)}, "
                           f"reduced {np.round(row['final_centre_velocity_reduced'], 2)} m/s.",
                           ""]
+    variants = payload.get("variants", {})
+    if "before" in variants and "after" in variants:
+        lines += ["## Before → after (error of the real-time reduced run against full, with "
+                  "examples; in parentheses the subspace error)", "",
+                  "| scene | before | after |", "|---|---|---|"]
+        for name, res in variants["after"]["scenes"].items():
+            old = variants["before"]["scenes"].get(name)
+            if old is None or "examples" not in res:
+                continue
+            lines.append(f"| {name} | {_pct(old['examples']['reduced'])} "
+                         f"({_pct(old['examples']['subspace'])}) | "
+                         f"{_pct(res['examples']['reduced'])} "
+                         f"({_pct(res['examples']['subspace'])}) |")
+        lines.append("")
     lines += payload.get("conclusions", [])
     return "\n".join(lines) + "\n"
 

@@ -120,7 +120,6 @@ def test_scene_responses_answer_its_loads_and_example_pulls(name):
     X = basis_responses(scene, mesh, K, M, fixed)
     loads = np.column_stack([load.pattern for load in mesh_load_patterns(scene, mesh, M)])
     D, S = example_pulls(scene, mesh, M)
-    k_ex = scene.examples.stiffness
     expected = len(scene.loads) + (sum(len(reg.examples) for reg in scene.regions)
                                    if scene.has_local_examples else len(scene.examples.poses))
     assert X.shape == (3 * mesh.n_vertices, expected) == (X.shape[0], loads.shape[1] + D.shape[1])
@@ -128,8 +127,8 @@ def test_scene_responses_answer_its_loads_and_example_pulls(name):
     free[(3 * fixed[:, None] + np.arange(3)).ravel()] = False
     c = loads.shape[1]
     load_residual = (K @ X[:, :c] - loads)[free]
-    pull = k_ex * (S @ D)
-    pull_residual = ((K + k_ex * S) @ X[:, c:] - pull)[free]
+    pull = S @ D
+    pull_residual = (K @ X[:, c:] - pull)[free]
     assert np.abs(load_residual).max() < 1e-8 * np.abs(loads).max()
     assert np.abs(pull_residual).max() < 1e-8 * np.abs(pull).max()
     if scene.has_local_examples:  # S is the mass of the regions' tetrahedra only
@@ -147,3 +146,26 @@ def test_a_free_body_gets_no_responses():
     M = mass_matrix(mesh, scene.material.density)
     X = basis_responses(scene, mesh, sp.identity(3 * mesh.n_vertices), M, np.zeros(0, int))
     assert X.shape == (3 * mesh.n_vertices, 0)
+
+
+def test_cache_key_follows_what_the_responses_depend_on():
+    import dataclasses
+
+    from lbshape.pipeline.precompute import scene_cache_key
+
+    scene = load_scene("demo")
+    key = scene_cache_key(scene)
+    load = scene.loads[0]
+
+    def with_vector(vector):
+        return dataclasses.replace(scene, loads=(dataclasses.replace(load, vector=vector),))
+
+    # a load's size and k_ex's value are runtime: same basis, same key
+    assert scene_cache_key(with_vector(tuple(2.5 * np.asarray(load.vector)))) == key
+    assert scene_cache_key(dataclasses.replace(
+        scene, examples=dataclasses.replace(scene.examples, stiffness=1.0))) == key
+    # its direction, its presence and whether the examples pull are not
+    assert scene_cache_key(with_vector((100.0, 0.0, 0.0))) != key
+    assert scene_cache_key(dataclasses.replace(scene, loads=())) != key
+    assert scene_cache_key(dataclasses.replace(
+        scene, examples=dataclasses.replace(scene.examples, stiffness=0.0))) != key

@@ -32,7 +32,7 @@ k = 10 (10 modes + 55 derivatives = 65 vectors); r = 10 gives k = 5 (20 vectors)
 
 **Response vectors** (keyword ``responses``, :func:`static_responses`): the linear
 static responses of the object to what drives it — each load pattern (``K x = f``)
-and each example's pull (``(K + k_ex S) x = k_ex S d_k``, d_k the example pose's
+and each example's pull (``K x = S d_k``, d_k the example pose's
 displacement, S the mass its pull acts with). Linear modes and their derivatives
 hold the object's low-frequency shapes; a load or an example that pulls one limb
 excites a shape that is a mix of many higher modes (a leg curled about its hip while
@@ -229,7 +229,7 @@ def static_responses(
         fixed_vertices: (f,) clamped vertices; the system is solved on the other dofs.
         spring: (3n, 3n) S in kg (the mass an example pulls with), needed when
             ``shift`` > 0.
-        shift: k_ex in 1/s², ≥ 0. Without fixed vertices ``shift`` must be > 0 (K alone
+        shift: a spring stiffness in 1/s², ≥ 0 (e.g. k_ex). Without fixed vertices ``shift`` must be > 0 (K alone
             is singular for a free body).
 
     Returns:

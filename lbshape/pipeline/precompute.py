@@ -30,9 +30,12 @@ computes the whole object's spectrum (eigenfunction pictures, and the measured
 comparison of the two local-example variants).
 
 Everything is cached under a key derived from :meth:`Scene.precompute_key_fields`,
-the gmsh scripts or mesh files behind the meshes, and the package versions, so
-changing dt, steps, loads, damping or k_ex never redoes the precompute, while
-changing any mesh byte, material value, m, r, s or example does.
+the gmsh scripts or mesh files behind the meshes, the package versions, and what
+the basis's static responses depend on (:func:`lbshape.pipeline.responses.response_key`:
+each load's type, region and direction, and whether k_ex > 0), so changing dt, steps,
+a load's size or profile, damping or the value of k_ex never redoes the precompute,
+while changing any mesh byte, material value, m, r, s, example, or where and along
+what a load acts does.
 
 **MPI.** ``precompute(scene, comm=MPI.COMM_WORLD)`` on every rank distributes the
 n-sized stages over the ranks: ``modes`` and ``lb`` (DOLFINx assembly, SLEPc with
@@ -97,7 +100,7 @@ from lbshape.pipeline.meshes import (
     posed_file_meshes,
     selected_vertices,
 )
-from lbshape.pipeline.responses import basis_responses
+from lbshape.pipeline.responses import basis_responses, response_key
 from lbshape.scene.schema import MeshSource, Scene
 from lbshape.shapespace.frames import body_frame
 from lbshape.shapespace.local_examples import (
@@ -286,7 +289,7 @@ def scene_cache_key(scene: Scene) -> str:
     if scene.examples is not None:
         sources += [_source_digest(p.source) for p in scene.examples.poses]
     return cache_key(
-        "precompute", scene.precompute_key_fields(), sources,
+        "precompute", scene.precompute_key_fields(), response_key(scene), sources,
         {"lbshape": __version__, "dolfinx": dolfinx.__version__, "numpy": np.__version__},
         CUBATURE_TRAINING_POSES, PRECOMPUTE_SEED, PIPELINE_VERSION,
     )

@@ -12,8 +12,10 @@ object's static responses to them, which the basis keeps (:mod:`lbshape.elastic.
   direction, not a rest shape); an example without an analytic pose (a posed mesh
   file) adds no direction.
 * **Responses** (:func:`basis_responses`): ``K⁻¹ f`` per load pattern and
-  ``(K + k_ex S)⁻¹ k_ex S d_k`` per example pull, the linear static shapes the full
-  reference settles into under each. Fixed objects only: a free body's loads move it
+  ``K⁻¹ S d_k`` per example pull, the linear static shapes the object takes under
+  each. Neither depends on a load's size or profile nor on k_ex (only on whether it
+  is > 0), so runtime changes keep the precompute; a load's type, region and direction
+  are part of the cache key (:func:`response_key`). Fixed objects only: a free body's loads move it
   rigidly, and on the car the full trajectory's deformation lies 1.4 % outside the
   plain basis while its error against full (37 %) comes from the free-body dynamics;
   the one example response above the threshold (the S-bend, 12 % outside) took a
@@ -126,10 +128,24 @@ def basis_responses(scene: Scene, mesh: TetMesh, stiffness, mass,
     if k_ex > 0:
         D, spring = example_pulls(scene, mesh, mass)
         if D.shape[1]:
-            columns.append(static_responses(stiffness, k_ex * (spring @ D),
-                                            fixed_vertices=fixed_vertices, spring=spring,
-                                            shift=k_ex))
+            columns.append(static_responses(stiffness, spring @ D,
+                                            fixed_vertices=fixed_vertices))
     return np.hstack(columns) if columns else np.zeros((3 * mesh.n_vertices, 0))
+
+
+def response_key(scene: Scene) -> dict:
+    """What the responses depend on beyond the precompute's own fields: each load's
+    type, selection and direction (unit vector), and whether the examples pull."""
+    loads = []
+    for load in scene.loads:
+        vector = np.asarray(load.vector, dtype=float)
+        norm = float(np.linalg.norm(vector))
+        direction = (vector / norm if norm > 0 else vector).round(12).tolist()
+        loads.append({"type": load.type, "group": load.selection.group if load.selection
+                      else None, "region": load.selection.region if load.selection else None,
+                      "direction": direction})
+    pulls = scene.examples is not None and scene.examples.stiffness > 0
+    return {"loads": loads, "example_pulls": bool(pulls), "free": scene.is_free}
 
 
 def _stack(columns: list[np.ndarray], n: int) -> np.ndarray:
