@@ -229,8 +229,8 @@ def static_responses(
         fixed_vertices: (f,) clamped vertices; the system is solved on the other dofs.
         spring: (3n, 3n) S in kg (the mass an example pulls with), needed when
             ``shift`` > 0.
-        shift: a spring stiffness in 1/s², ≥ 0 (e.g. k_ex). Without fixed vertices ``shift`` must be > 0 (K alone
-            is singular for a free body).
+        shift: a spring stiffness in 1/s², ≥ 0 (e.g. k_ex). Without fixed vertices
+            ``shift`` must be > 0 (K alone is singular for a free body).
 
     Returns:
         (3n, c) displacements in m.
