@@ -55,6 +55,9 @@ log = logging.getLogger(__name__)
 
 #: default bound (bytes) on the temporary arrays of one chunk of elements or poses
 DEFAULT_MAX_BYTES = 512 * 2**20
+#: path targets used by :func:`train_example_cubatures` at most (evenly spaced); a
+#: target table of N = 32 intervals has 33 nodes, finer tables are subsampled to it
+MAX_PATH_POSES = 33
 
 
 @dataclass(frozen=True)
@@ -442,6 +445,7 @@ def train_example_cubatures(
     tol: float = 0.01,
     max_bytes: int = DEFAULT_MAX_BYTES,
     comm=None,
+    max_path: int = MAX_PATH_POSES,
 ) -> list[Cubature]:
     """One cubature per example, trained where the target search evaluates it.
 
@@ -468,6 +472,10 @@ def train_example_cubatures(
             the example path, 10 % with 2 copies 3 %).
         copies: perturbations per path pose.
         max_elements, tol, max_bytes, comm: as in :func:`train_cubature`.
+        max_path: at most this many path targets are used, evenly spaced along the path
+            (first and last kept): every pose costs one pass over all elements, and a
+            table refined to N = 256 intervals (257 nodes) on a fine mesh would make
+            the training 8 times as long as the N = 32 nodes it then uses.
 
     Returns:
         k :class:`Cubature` rules (element indices into ``tets``).
@@ -478,6 +486,9 @@ def train_example_cubatures(
     if len(rest_points) != k or path.shape[1] != p or path.shape[0] < 4:
         raise LbshapeError(f"need {k} rest shapes and a path of >= 4 targets with {p} "
                            f"coordinates, got {len(rest_points)} and {path.shape}")
+    _check_int("max_path", max_path, minimum=4)
+    if path.shape[0] > max_path:
+        path = path[np.unique(np.round(np.linspace(0, path.shape[0] - 1, max_path)).astype(int))]
     spread = max((float(np.linalg.norm(offsets[i] - offsets[j]))
                   for i in range(k) for j in range(i + 1, k)), default=0.0)
     spread = spread or float(np.linalg.norm(offsets, axis=1).max()) or 1.0

@@ -41,6 +41,10 @@ log = logging.getLogger(__name__)
 TARGET_RTOL = 0.2
 #: refuse sizes whose estimated tetrahedron count exceeds this (protects memory)
 MAX_ESTIMATED_TETS = 2_000_000
+#: above this estimated tetrahedron count the volume is meshed by gmsh's HXT algorithm
+#: (``Mesh.Algorithm3D = 10``) instead of the default Delaunay: the 100k-vertex bar
+#: (h = 6.8 mm) takes 7.7 s instead of 30-56 s; every default size stays below it
+HXT_ESTIMATED_TETS = 500_000
 
 
 
@@ -242,6 +246,8 @@ def _generated(name: str, size: float | None) -> Iterator[tuple[ModuleType, str]
                 f"{source}: size too small, about {estimate:.3g} tetrahedra "
                 f"(limit {MAX_ESTIMATED_TETS:.3g})"
             )
+        if estimate > HXT_ESTIMATED_TETS:
+            gmsh.option.setNumber("Mesh.Algorithm3D", 10)
         try:
             gmsh.model.mesh.generate(3)
         except Exception as exc:  # gmsh raises a bare Exception with its message
