@@ -1,9 +1,10 @@
 """Sub-commands under ``mpirun``: which rank prints and writes.
 
-``eigen`` and ``modes`` distribute their solves. ``precompute`` runs on every rank
-(its solvers must meet in the same collective calls) but only rank 0 shows the
-progress, prints the summary and writes the cache; ``simulate`` refuses to run on
-more than one rank (:func:`require_one_rank`).
+``eigen`` and ``modes`` distribute their solves. ``precompute`` (one scene) runs on
+every rank: its solver stages are distributed, the rest runs on rank 0 while the
+other ranks wait; only rank 0 shows the progress, prints the summary and writes the
+cache. ``simulate`` refuses to run on more than one rank (:func:`require_one_rank`).
+A user error is printed once, by rank 0 (:func:`errors_on_rank_zero`).
 """
 
 from __future__ import annotations

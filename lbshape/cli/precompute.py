@@ -1,18 +1,24 @@
-"""``lbshape precompute SCENE… [--force] [-j N]``: build or reuse the cached precompute.
+"""``lbshape precompute SCENE… [--force] [-j N] [--json]``: build or reuse the cached
+precompute.
 
-One scene: progress bars per stage and a summary of the artifact. Several scenes
-(names, TOML paths or globs): one job per scene in ``-j`` worker processes, then one
-summary table; a failed scene is listed and does not stop the others (exit code
-non-zero at the end). Under ``mpirun`` (one scene) every rank computes; only rank 0
-prints and writes the cache.
+One scene: progress bars per stage and a summary of the artifact (``--json``: the
+summary as one JSON object on stdout, with the time and the number of ranks of each
+stage). Several scenes (names, TOML paths or globs): one job per scene in ``-j``
+worker processes, then one summary table; a failed scene is listed and does not stop
+the others (exit code non-zero at the end). Under ``mpirun`` (one scene) the solver
+stages are distributed over the ranks (:func:`lbshape.pipeline.precompute.precompute`
+with ``MPI.COMM_WORLD``); only rank 0 prints and writes the cache.
 """
 
 from __future__ import annotations
 
 import functools
+import json
 import sys
 
-from lbshape.cli._mpi import errors_on_rank_zero, require_one_rank, world_rank_size
+from mpi4py import MPI
+
+from lbshape.cli._mpi import errors_on_rank_zero, require_one_rank
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.batch import expand_scenes, run_jobs, summary_table
 from lbshape.pipeline.precompute import precompute
@@ -27,6 +33,8 @@ def register(subparsers) -> None:
     parser.add_argument("--force", action="store_true", help="recompute even if cached")
     parser.add_argument("-j", "--jobs", type=int, default=1,
                         help="worker processes for several scenes (default 1)")
+    parser.add_argument("--json", action="store_true",
+                        help="print the summary of one scene as JSON (stage times and ranks)")
     parser.set_defaults(func=run)
 
 
@@ -35,8 +43,10 @@ def run(args) -> int:
         raise LbshapeError(f"-j/--jobs must be >= 1, got {args.jobs}")
     scenes, unmatched = expand_scenes(args.scenes)
     if len(scenes) == 1 and not unmatched:
-        return run_one(scenes[0], force=args.force)
+        return run_one(scenes[0], force=args.force, as_json=args.json)
     require_one_rank("precompute of several scenes")
+    if args.json:
+        raise LbshapeError("--json summarises one scene: give exactly one")
     results = unmatched + run_jobs(functools.partial(precompute_summary, force=args.force),
                                    scenes, jobs=args.jobs, progress=True, desc="precompute")
     print(summary_table(results, ("origin", "vertices", "tets", "m", "r", "s", "stages (s)"),
@@ -62,12 +72,28 @@ def precompute_summary(name: str, *, force: bool = False) -> dict:
             "stage_seconds": float(sum(pre.stage_seconds.values()))}
 
 
-def run_one(name: str, *, force: bool = False) -> int:
-    rank, _ = world_rank_size()
+def precompute_record(pre) -> dict:
+    """The JSON summary of one precompute: sizes, cubature errors, and per stage the wall
+    time (s) and the number of MPI ranks it ran on (of the run that built the artifact)."""
+    return {"scene": pre.scene, "origin": "cache" if pre.from_cache else "computed",
+            "key": pre.key, "n_vertices": pre.mesh.n_vertices, "n_tets": pre.mesh.n_tets,
+            "m": None if pre.eigenvalues is None else int(pre.eigenvalues.size), "r": pre.r,
+            "s": int(pre.cubature_elements.size),
+            "cubature_errors": pre.cubature_errors,
+            "stage_seconds": dict(pre.stage_seconds),
+            "stage_ranks": dict(pre.stage_ranks),
+            "total_seconds": float(sum(pre.stage_seconds.values()))}
+
+
+def run_one(name: str, *, force: bool = False, as_json: bool = False) -> int:
+    comm = MPI.COMM_WORLD
     with errors_on_rank_zero():
         scene = load_scene(name)
-        pre = precompute(scene, force=force, progress=rank == 0, save=rank == 0)
-    if rank != 0:
+        pre = precompute(scene, force=force, progress=comm.rank == 0, comm=comm)
+    if comm.rank != 0:
+        return 0
+    if as_json:
+        print(json.dumps(precompute_record(pre), indent=2))
         return 0
     origin = "cache" if pre.from_cache else "computed"
     print(f"precompute {scene.name} ({origin}, key {pre.key[:16]}): n={pre.mesh.n_vertices} "
@@ -92,5 +118,16 @@ def run_one(name: str, *, force: bool = False) -> int:
         print("  stage peak memory (MB): " + ", ".join(
             f"{name} {mb:.0f}" for name, mb in pre.stage_peak_mb.items())
             + f"; peak {max(pre.stage_peak_mb.values()):.0f}")
+    print("  " + stage_ranks_text(pre.stage_ranks))
     return 0
 
+
+def stage_ranks_text(stage_ranks: dict) -> str:
+    """One line: which stages ran distributed over how many MPI ranks."""
+    size = max(stage_ranks.values(), default=1)
+    if size <= 1:
+        return "stages ran on one process"
+    shared = [name for name, count in stage_ranks.items() if count == size]
+    alone = [name for name, count in stage_ranks.items() if count < size]
+    return (f"distributed over {size} MPI ranks: {', '.join(shared)}; on rank 0: "
+            f"{', '.join(alone) or 'none'}")

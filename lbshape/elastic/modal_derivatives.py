@@ -30,7 +30,15 @@ MUMPS, options prefix ``md_``) serves every right-hand side.
 
 Every solution is checked: ``‖K x + h‖ ≤ RESIDUAL_RTOL ‖h‖`` over the free DOFs (all
 DOFs of a free body, so the equations of the pinned DOFs are checked too), else
-:class:`~lbshape.errors.SolverError`. Serial: the modes must hold their vectors.
+:class:`~lbshape.errors.SolverError`.
+
+**Distributed** (``comm`` with several ranks, e.g. under ``mpirun``): the mesh is
+distributed by DOLFINx, K and M are assembled in parallel (:func:`lbshape.elastic.modes.
+elastic_matrices`), each H(ψ_i, ψ_j) is assembled over each rank's cells, the
+projections and residuals use PETSc products and sums over the ranks, and MUMPS
+factors K once over all ranks. Only the modes' vectors (on rank 0) are sent to
+the ranks, each receiving the rows of its dofs; the derivatives are gathered to
+rank 0 (:mod:`lbshape.fem.petsc_gather`). One rank runs the same code.
 """
 
 from __future__ import annotations
@@ -41,18 +49,15 @@ import time
 
 import numpy as np
 import scipy.linalg
-import scipy.sparse as sp
+from mpi4py import MPI
 
 from lbshape.elastic.materials import Material, strain_energy_ufl
 from lbshape.elastic.modes import LinearModes, elastic_matrices, rigid_body_modes
 from lbshape.errors import LbshapeError, SolverError
-from lbshape.fem.dolfinx_bridge import (
-    input_order_to_dofs,
-    p1_dof_vertices,
-    petsc_vec_to_input_order,
-    to_dolfinx,
-)
+from lbshape.fem.dolfinx_bridge import dof_to_input_order, p1_dof_vertices, to_dolfinx
 from lbshape.fem.eigenproblem import check_residuals
+from lbshape.fem.mpi import compute_on_root, sum_over_ranks
+from lbshape.fem.petsc_gather import gather_rows, scatter_rows
 from lbshape.geometry.mesh import TetMesh
 
 log = logging.getLogger(__name__)
@@ -85,44 +90,67 @@ class ModalDerivatives:
 
 
 class ForceHessian:
-    """``H(a, b) = ∂³E/∂u³|₀ [a, b, ·]`` of the StVK energy on a mesh (serial).
+    """``H(a, b) = ∂³E/∂u³|₀ [a, b, ·]`` of the StVK energy on a mesh.
 
     The UFL form is compiled once; each call re-assembles it for new directions.
 
     Args:
-        mesh: the tetrahedral mesh (n vertices).
+        mesh: the tetrahedral mesh (n vertices); used only without ``space``.
         material: (E, ν) are used with the StVK model, whatever ``material.model``.
+        space: a DOLFINx vector P1 ``FunctionSpace`` (serial or distributed) to
+            assemble on; default a serial space on ``mesh``.
     """
 
-    def __init__(self, mesh: TetMesh, material: Material):
+    def __init__(self, mesh: TetMesh | None, material: Material, *, space=None):
         import dolfinx.fem
         import ufl
         from mpi4py import MPI
 
-        self.n_vertices = mesh.n_vertices
         self.material = stvk_material(material)
-        msh = to_dolfinx(mesh, MPI.COMM_SELF)
-        V = dolfinx.fem.VectorFunctionSpace(msh, ("Lagrange", 1))
-        u = dolfinx.fem.Function(V)  # zero: the rest state
-        self._a, self._b = dolfinx.fem.Function(V), dolfinx.fem.Function(V)
-        v = ufl.TestFunction(V)
+        if space is None:
+            space = dolfinx.fem.VectorFunctionSpace(to_dolfinx(mesh, MPI.COMM_SELF),
+                                                    ("Lagrange", 1))
+        self.space = space
+        u = dolfinx.fem.Function(space)  # zero: the rest state
+        self._a, self._b = dolfinx.fem.Function(space), dolfinx.fem.Function(space)
+        v = ufl.TestFunction(space)
         force = ufl.derivative(strain_energy_ufl(self.material, u), u, v)
         hessian = ufl.derivative(ufl.derivative(force, u, self._a), u, self._b)
         self._form = dolfinx.fem.form(hessian)
-        self._dof_vertices = p1_dof_vertices(V)
+        self._dof_vertices = p1_dof_vertices(space)
+        self.n_vertices = space.dofmap.index_map.size_global
+        #: (3 · local vertices,) input index of every local dof (owned, then ghosts)
+        self.local_dofs = dof_to_input_order(self._dof_vertices, 3)
+        self.n_owned = 3 * space.dofmap.index_map.size_local
+
+    def assemble(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """H(a, b) on the owned dofs (3 · owned vertices,) in DOLFINx order, in N/m², for
+        directions given at every local dof (:attr:`local_dofs` order, ghosts included)."""
+        import dolfinx.fem.petsc
+        from petsc4py import PETSc
+
+        self._a.x.array[:] = a
+        self._b.x.array[:] = b
+        vector = dolfinx.fem.petsc.assemble_vector(self._form)
+        try:
+            vector.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            return vector.getArray(readonly=True)[: self.n_owned].copy()
+        finally:
+            vector.destroy()
 
     def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """H(a, b) (3n,) in N/m² for node-major input-order displacements a, b (3n,) in m."""
-        import dolfinx.fem
-
-        for function, values in ((self._a, a), (self._b, b)):
-            values = np.asarray(values, dtype=np.float64)
-            if values.shape != (3 * self.n_vertices,):
+        """H(a, b) (3n,) in N/m² for node-major input-order displacements a, b (3n,) in m
+        (a serial space)."""
+        values = []
+        for direction in (a, b):
+            direction = np.asarray(direction, dtype=np.float64)
+            if direction.shape != (3 * self.n_vertices,):
                 raise LbshapeError(f"direction must have shape ({3 * self.n_vertices},), "
-                                   f"got {values.shape}")
-            function.x.array[:] = input_order_to_dofs(values, self._dof_vertices, 3)
-        assembled = dolfinx.fem.assemble_vector(self._form)
-        return petsc_vec_to_input_order(np.array(assembled.array), self._dof_vertices, 3)
+                                   f"got {direction.shape}")
+            values.append(direction[self.local_dofs])
+        out = np.empty(3 * self.n_vertices)
+        out[self.local_dofs[: self.n_owned]] = self.assemble(*values)
+        return out
 
 
 def stvk_material(material: Material) -> Material:
@@ -142,60 +170,79 @@ def modal_derivatives(
     modes: LinearModes,
     *,
     pairs: np.ndarray | None = None,
+    comm: MPI.Comm = MPI.COMM_SELF,
 ) -> ModalDerivatives:
-    """Modal derivatives of ``modes`` (serial; see the module docstring).
+    """Modal derivatives of ``modes`` (see the module docstring).
 
     Args:
-        mesh: the mesh the modes were computed on (n vertices).
+        mesh: the mesh the modes were computed on (n vertices; rank 0's copy is used).
         material: (E, ν, ρ) of the modes; the StVK energy is used for K and H.
-        modes: linear modes (k of them) with their fixed vertices.
+        modes: linear modes (k of them) with their fixed vertices; their vectors are
+            read on rank 0 only (where :func:`~lbshape.elastic.modes.linear_modes`
+            leaves them).
         pairs: (p, 2) 0-based mode index pairs; default every i ≤ j < k.
+        comm: the communicator (``MPI.COMM_WORLD`` to run distributed).
 
     Returns:
-        :class:`ModalDerivatives`.
+        :class:`ModalDerivatives`; in parallel ``vectors`` is on rank 0 only (``None``
+        elsewhere), ``residuals`` on every rank.
 
     Raises:
         LbshapeError: modes from another mesh, or bad pairs.
         SolverError: the factorisation failed or a residual is too large.
     """
     started = time.perf_counter()
+    n = compute_on_root(comm, lambda: _checked_size(mesh, modes))
+    pairs = _check_pairs(pairs, modes.count)
+    stvk = stvk_material(material)
+    fixed = np.asarray(modes.fixed_vertices, dtype=np.int64)
+    p = pairs.shape[0]
+    with elastic_matrices(mesh, stvk, fixed_vertices=fixed, comm=comm) as mats:
+        rows = mats.local_rows  # input DOF of each local row of K, M (free DOFs)
+        rigid = solve_rows = None
+        if not fixed.size:
+            full = compute_on_root(comm, lambda: rigid_body_modes(mesh.points, mats.mass),
+                                   share=False)
+            pinned = compute_on_root(comm, lambda: _pinned_dofs(full))
+            rigid = scatter_rows(full, rows, comm=comm)  # (l, 6) local rows of R
+            solve_rows = np.flatnonzero(~np.isin(rows, pinned))
+        hessian = ForceHessian(None, stvk, space=mats.space)
+        directions = scatter_rows(modes.vectors, hessian.local_dofs, comm=comm)
+        system = _DistributedSystem(mats, rigid, solve_rows)
+        vectors, rhs = np.zeros((rows.size, p)), np.zeros((rows.size, p))
+        with system:
+            for q, (i, j) in enumerate(pairs):
+                h = hessian.assemble(directions[:, i], directions[:, j])[mats.owned_free]
+                if rigid is not None:
+                    h -= system.mass_times(rigid @ sum_over_ranks(comm, rigid.T @ h))
+                rhs[:, q] = -h
+                if comm.allreduce(bool(np.any(h)), op=MPI.LOR):
+                    vectors[:, q] = system.solve(rhs[:, q])
+            if rigid is not None:
+                masses = np.column_stack([system.mass_times(x) for x in vectors.T])
+                vectors -= rigid @ sum_over_ranks(comm, rigid.T @ masses)
+            # residuals on every equation that must hold (all DOFs of a free body)
+            misfit = np.column_stack([system.stiffness_times(x) for x in vectors.T]) - rhs
+        misfit_norms = np.sqrt(sum_over_ranks(comm, np.sum(misfit**2, axis=0)))
+        norms = np.sqrt(sum_over_ranks(comm, np.sum(rhs**2, axis=0)))
+        residuals = np.divide(misfit_norms, norms, out=np.zeros(p), where=norms > 0)
+        check_residuals(residuals, RESIDUAL_RTOL, what="modal derivative solves",
+                        describe=lambda q: f"pair {tuple(pairs[q])}")
+        vectors = gather_rows(vectors, rows, comm=comm, size=3 * n)
+    seconds = time.perf_counter() - started
+    log.info("modal derivatives: n=%d pairs=%d free=%s ranks=%d max residual %.1e in %.2f s",
+             n, p, rigid is not None, comm.size, residuals.max(initial=0.0), seconds)
+    return ModalDerivatives(vectors=vectors, pairs=pairs, residuals=residuals, seconds=seconds)
+
+
+def _checked_size(mesh: TetMesh, modes: LinearModes) -> int:
+    """n, after checking that the modes' vectors belong to ``mesh`` (rank 0)."""
     n = mesh.n_vertices
     if modes.vectors is None or modes.vectors.shape[0] != 3 * n:
         shape = None if modes.vectors is None else modes.vectors.shape
         raise LbshapeError(f"the modes do not belong to this mesh: vectors {shape}, "
                            f"mesh has {n} vertices")
-    pairs = _check_pairs(pairs, modes.count)
-    stvk = stvk_material(material)
-    fixed = np.asarray(modes.fixed_vertices, dtype=np.int64)
-    with elastic_matrices(mesh, stvk, fixed_vertices=fixed, petsc=False) as mats:
-        K, M, free_dofs = mats.stiffness, mats.mass, mats.free_dofs
-    rigid = None if fixed.size else rigid_body_modes(mesh.points, M)
-    solve_dofs = free_dofs if rigid is None else _unpinned_dofs(rigid)
-    hessian = ForceHessian(mesh, stvk)
-
-    p = pairs.shape[0]
-    vectors, rhs = np.zeros((3 * n, p)), np.zeros((3 * n, p))
-    Ks = K[solve_dofs][:, solve_dofs].tocsr()
-    with _CholeskySolver(Ks) as solver:
-        for q, (i, j) in enumerate(pairs):
-            h = hessian(modes.vectors[:, i], modes.vectors[:, j])
-            if rigid is not None:
-                h -= M @ (rigid @ (rigid.T @ h))
-            rhs[:, q] = -h
-            if np.any(h[solve_dofs]):
-                vectors[solve_dofs, q] = solver.solve(rhs[solve_dofs, q])
-    if rigid is not None:
-        vectors -= rigid @ (rigid.T @ (M @ vectors))
-    # residuals on every equation that must hold (all DOFs of a free body)
-    norms = np.linalg.norm(rhs[free_dofs], axis=0)
-    misfit = np.linalg.norm((K @ vectors - rhs)[free_dofs], axis=0)
-    residuals = np.divide(misfit, norms, out=np.zeros(p), where=norms > 0)
-    check_residuals(residuals, RESIDUAL_RTOL, what="modal derivative solves",
-                    describe=lambda q: f"pair {tuple(pairs[q])}")
-    seconds = time.perf_counter() - started
-    log.info("modal derivatives: n=%d pairs=%d free=%s max residual %.1e in %.2f s",
-             n, pairs.shape[0], rigid is not None, residuals.max(initial=0.0), seconds)
-    return ModalDerivatives(vectors=vectors, pairs=pairs, residuals=residuals, seconds=seconds)
+    return n
 
 
 def _check_pairs(pairs, k: int) -> np.ndarray:
@@ -213,39 +260,94 @@ def _check_pairs(pairs, k: int) -> np.ndarray:
     return array.astype(np.int64)
 
 
-def _unpinned_dofs(rigid: np.ndarray) -> np.ndarray:
-    """All DOFs but the 6 that best determine a rigid motion (rows of R by pivoted QR)."""
+def _pinned_dofs(rigid: np.ndarray) -> np.ndarray:
+    """The 6 DOFs (input indices) that best determine a rigid motion (rows of R by
+    pivoted QR)."""
     _, r, pivots = scipy.linalg.qr(rigid.T, mode="economic", pivoting=True)
     k = rigid.shape[1]
-    pinned = pivots[:k]
     conditioning = abs(r[k - 1, k - 1] / r[0, 0])  # diagonal of the (k, 3n) factor
     if conditioning < 1e-8:  # pragma: no cover - needs a degenerate (collinear) body
         raise SolverError(f"cannot pin the rigid motions of this body (|r66/r11| = "
                           f"{conditioning:.1e})")
+    return np.sort(pivots[:k]).astype(np.int64)
+
+
+def _unpinned_dofs(rigid: np.ndarray) -> np.ndarray:
+    """All DOFs but the 6 of :func:`_pinned_dofs`."""
     keep = np.ones(rigid.shape[0], dtype=bool)
-    keep[pinned] = False
+    keep[_pinned_dofs(rigid)] = False
     return np.flatnonzero(keep)
 
 
-class _CholeskySolver:
-    """One MUMPS Cholesky factorisation of a symmetric positive definite CSR matrix."""
+class _DistributedSystem:
+    """K and M on the free DOFs (distributed PETSc matrices of an
+    :class:`~lbshape.elastic.modes.ElasticMatrices`) and one MUMPS Cholesky
+    factorisation of K restricted to the local rows ``solve_rows`` (all rows of a
+    clamped body; all but the pinned ones of a free body). Vectors are local-row
+    arrays (l,) in the order of ``mats.local_rows``."""
 
-    def __init__(self, A: sp.csr_matrix):
+    def __init__(self, mats, rigid: np.ndarray | None, solve_rows: np.ndarray | None):
         from petsc4py import PETSc
 
-        self._mat = PETSc.Mat().createAIJ(
-            size=A.shape, comm=PETSc.COMM_SELF,
-            csr=(A.indptr.astype(PETSc.IntType), A.indices.astype(PETSc.IntType), A.data))
-        self._mat.assemble()
-        self._ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+        self._K, self._M = mats.stiffness_petsc, mats.mass_petsc
+        self._x, self._y = self._K.createVecs()
+        self._sub = None
+        self._solve_rows = solve_rows
+        if solve_rows is not None:
+            start = self._K.getOwnershipRange()[0]
+            index_set = PETSc.IS().createGeneral((start + solve_rows).astype(PETSc.IntType),
+                                                 comm=mats.comm)
+            try:
+                self._sub = self._K.createSubMatrix(index_set, index_set)
+            finally:
+                index_set.destroy()
+        self._solver = _CholeskySolver(self._sub if self._sub is not None else self._K)
+
+    def _apply(self, A, x: np.ndarray) -> np.ndarray:
+        self._x.setArray(x)
+        A.mult(self._x, self._y)
+        return self._y.getArray(readonly=True).copy()
+
+    def stiffness_times(self, x: np.ndarray) -> np.ndarray:
+        return self._apply(self._K, x)
+
+    def mass_times(self, x: np.ndarray) -> np.ndarray:
+        return self._apply(self._M, x)
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """x (l,) with K x = rhs on the solve rows, zero on the pinned rows."""
+        if self._solve_rows is None:
+            return self._solver.solve(rhs)
+        x = np.zeros_like(rhs)
+        x[self._solve_rows] = self._solver.solve(rhs[self._solve_rows])
+        return x
+
+    def __enter__(self) -> _DistributedSystem:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._solver.destroy()
+        for item in (self._sub, self._x, self._y):
+            if item is not None:
+                item.destroy()
+
+
+class _CholeskySolver:
+    """One MUMPS Cholesky factorisation of a symmetric positive definite PETSc matrix
+    (serial or distributed; not owned)."""
+
+    def __init__(self, A):
+        from petsc4py import PETSc
+
+        self._ksp = PETSc.KSP().create(A.getComm())
         self._ksp.setOptionsPrefix(OPTIONS_PREFIX)
-        self._ksp.setOperators(self._mat)
+        self._ksp.setOperators(A)
         self._ksp.setType("preonly")
         pc = self._ksp.getPC()
         pc.setType("cholesky")
         pc.setFactorSolverType("mumps")
         self._ksp.setFromOptions()
-        self._b, self._x = self._mat.createVecs()
+        self._b, self._x = A.createVecs()
         try:
             self._ksp.setUp()
         except PETSc.Error as exc:
@@ -261,14 +363,8 @@ class _CholeskySolver:
         return self._x.getArray(readonly=True).copy()
 
     def destroy(self) -> None:
-        for obj in ("_ksp", "_mat", "_b", "_x"):
+        for obj in ("_ksp", "_b", "_x"):
             item = getattr(self, obj, None)
             if item is not None:
                 item.destroy()
                 setattr(self, obj, None)
-
-    def __enter__(self) -> _CholeskySolver:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.destroy()

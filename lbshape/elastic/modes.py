@@ -94,6 +94,10 @@ class ElasticMatrices:
             PETSc matrices.
         n_vertices: global number of vertices n.
         comm: the communicator.
+        space: the DOLFINx vector P1 ``FunctionSpace`` the matrices were assembled on
+            (its owned dofs, minus the fixed ones, are the local rows).
+        owned_free: (3 · owned vertices,) bool, which owned dof rows (DOLFINx order)
+            are free: ``local_rows`` are the input indices of those rows.
     """
 
     stiffness: sp.csr_matrix | None
@@ -105,6 +109,8 @@ class ElasticMatrices:
     local_rows: np.ndarray
     n_vertices: int
     comm: MPI.Comm
+    space: object | None = None
+    owned_free: np.ndarray | None = None
 
     def destroy(self) -> None:
         """Destroy the PETSc matrices (idempotent)."""
@@ -233,7 +239,7 @@ def elastic_matrices(
     return ElasticMatrices(
         stiffness=K_csr, mass=M_csr, fixed_vertices=fixed, free_dofs=free_dofs,
         stiffness_petsc=K_free, mass_petsc=M_free, local_rows=local_rows,
-        n_vertices=n, comm=comm,
+        n_vertices=n, comm=comm, space=V, owned_free=local_free,
     )
 
 

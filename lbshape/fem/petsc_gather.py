@@ -1,4 +1,4 @@
-"""Distributed PETSc data -> scipy/numpy in input order on rank 0.
+"""Distributed PETSc data -> scipy/numpy in input order on rank 0, and back.
 
 Each rank owns a contiguous block of rows of a PETSc matrix or vector; the caller
 says which *input* index (vertex, or node-major DOF) every locally owned row
@@ -61,3 +61,29 @@ def gather_rows(local: np.ndarray, local_rows: np.ndarray, *, comm: MPI.Comm,
     for rows, values in parts:
         out[rows] = values
     return out
+
+
+def scatter_rows(values: np.ndarray | None, rows: np.ndarray, *, comm: MPI.Comm) -> np.ndarray:
+    """The rows ``values[rows]`` each rank asks for, from rank 0's (size, k) array.
+
+    The inverse of :func:`gather_rows`: rank 0 holds the whole array in input order
+    (the other ranks pass ``None``); each rank receives only the rows it lists
+    (e.g. the input index of every local dof, ghosts included).
+
+    Args:
+        values: (size, k) or (size,) on rank 0, ``None`` (ignored) on the other ranks.
+        rows: (l,) int, the input indices this rank needs.
+        comm: the communicator.
+
+    Returns:
+        (l, k) or (l,) float64: ``values[rows]`` on every rank.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    if comm.size == 1:
+        return np.asarray(values, dtype=np.float64)[rows]
+    wanted = comm.gather(rows, root=0)
+    parts = None
+    if comm.rank == 0:
+        values = np.asarray(values, dtype=np.float64)
+        parts = [values[r] for r in wanted]
+    return comm.scatter(parts, root=0)

@@ -32,6 +32,16 @@ the gmsh scripts or mesh files behind the meshes, and the package versions, so
 changing dt, steps, loads, damping or k_ex never redoes the precompute, while
 changing any mesh byte, material value, m, r, s or example does.
 
+**MPI.** ``precompute(scene, comm=MPI.COMM_WORLD)`` on every rank distributes the
+n-sized solver stages over the ranks: ``modes`` and ``lb`` (DOLFINx assembly, SLEPc
+with MUMPS) and ``derivatives`` (parallel assembly, one MUMPS factorisation); the
+other stages are small dense work or per-example loops and run on rank 0 only
+(:func:`lbshape.fem.mpi.compute_on_root`: the other ranks sleep, and a user error
+on rank 0 is raised on every rank). Rank 0 alone reads and writes the cache and
+gets the :class:`Precomputed`; the others get ``None``. ``stage_ranks`` in the
+artifact's metadata says over how many ranks each stage ran. The result equals the
+serial one to solver tolerance.
+
 **Basis scaling.** U is orthonormal in the elastic mass ``M = ρ M₃``; the shape
 space (:mod:`lbshape.shapespace.projections`) works with the volume mass M₃. Its projection
 is computed for ``√ρ U`` (M₃-orthonormal), so with ``P`` that projection:
@@ -52,6 +62,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from mpi4py import MPI
 
 from lbshape import __version__
 from lbshape.dynamics.fictitious import FrameTensors, frame_tensors
@@ -66,6 +77,7 @@ from lbshape.elastic.materials import Material
 from lbshape.elastic.modal_derivatives import modal_derivatives
 from lbshape.elastic.modes import linear_modes
 from lbshape.errors import LbshapeError
+from lbshape.fem.mpi import compute_on_root
 from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.shapes import MESHES_DIR, get_shape
 from lbshape.io.cache import (
@@ -162,6 +174,8 @@ class Precomputed:
         stage_seconds: wall time per stage (s) of the run that built the artifact.
         stage_peak_mb: largest resident memory (MB) of the process during each stage of
             that run.
+        stage_ranks: the number of MPI ranks each stage of that run was distributed
+            over (1: rank 0 alone, or a serial run).
         from_cache: True when loaded from the cache.
     """
 
@@ -191,6 +205,7 @@ class Precomputed:
     frame: FrameTensors | None = None
     stage_seconds: dict = field(default_factory=dict)
     stage_peak_mb: dict = field(default_factory=dict)
+    stage_ranks: dict = field(default_factory=dict)
     from_cache: bool = False
 
     @property
@@ -363,26 +378,37 @@ def stage_names(scene: Scene) -> list[str]:
 
 
 def precompute(scene: Scene, *, force: bool = False, progress: bool = False,
-               save: bool = True) -> Precomputed:
-    """Build or reuse the scene's precompute (see the module docstring); ``save=False``
-    leaves the cache untouched (e.g. on MPI ranks other than 0)."""
+               save: bool = True, comm: MPI.Comm | None = None) -> Precomputed | None:
+    """Build or reuse the scene's precompute (see the module docstring).
+
+    Args:
+        scene: the scene.
+        force: recompute even if cached.
+        progress: progress bars per stage on stderr (rank 0 only).
+        save: write the artifact to the cache (rank 0 only); ``False`` leaves the
+            cache untouched.
+        comm: an MPI communicator to distribute the solver stages over (every rank of
+            it calls this function); ``None``: serial.
+
+    Returns:
+        :class:`Precomputed` on rank 0 (serial: always), ``None`` on the other ranks.
+    """
+    comm = MPI.COMM_SELF if comm is None else comm
+    root = comm.rank == 0
     key = scene_cache_key(scene)
-    # concurrent jobs on one scene compute it once; a caller that does not save (an
-    # MPI rank other than 0, in step with rank 0's solvers) neither waits nor locks
-    lock = artifact_lock(scene.name, key) if save else contextlib.nullcontext()
+    # concurrent jobs on one scene compute it once; only the rank that saves locks, the
+    # others stay in step with its collective solves
+    lock = artifact_lock(scene.name, key) if save and root else contextlib.nullcontext()
     with lock:
-        if not force:
-            required = _REQUIRED + (_REQUIRED_EXAMPLES if scene.has_examples else ())
-            if scene.has_local_examples:
-                required = _REQUIRED + ("eigenvalues", "eigenvectors") \
-                    + LocalShapeSpace.required_arrays(len(scene.regions))
-            if scene.is_free:
-                required = required + _REQUIRED_FRAME
-            cached = load_artifact(scene.name, key, required=required)
-            if cached is not None:
-                return _from_arrays(scene, key, *cached)
-        stages = _Stages(stage_names(scene), show=progress)
-        arrays, meta = _compute(scene, stages)
+        cached = None if force else compute_on_root(
+            comm, lambda: load_artifact(scene.name, key, required=_required_arrays(scene)),
+            share=False)
+        if comm.bcast(cached is not None, root=0):
+            return _from_arrays(scene, key, *cached) if root else None
+        stages = _Stages(stage_names(scene), show=progress and root)
+        arrays, meta = _compute(scene, stages, comm)
+        if not root:
+            return None
         meta["stage_seconds"] = stages.seconds
         meta["stage_peak_mb"] = stages.peak_mb
         if save:
@@ -390,29 +416,78 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False,
     return _from_arrays(scene, key, arrays, meta, from_cache=False)
 
 
-def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
+def _required_arrays(scene: Scene) -> tuple[str, ...]:
+    """The arrays a cached artifact of ``scene`` must hold."""
+    required = _REQUIRED + (_REQUIRED_EXAMPLES if scene.has_examples else ())
+    if scene.has_local_examples:
+        required = _REQUIRED + ("eigenvalues", "eigenvectors") \
+            + LocalShapeSpace.required_arrays(len(scene.regions))
+    if scene.is_free:
+        required = required + _REQUIRED_FRAME
+    return required
+
+
+class _Ranks:
+    """Which stages ran over all ranks of ``comm`` and which on rank 0 alone."""
+
+    def __init__(self, comm: MPI.Comm, stages: _Stages):
+        self.comm, self.stages = comm, stages
+        self.count: dict[str, int] = {}
+
+    def distributed(self, name: str, compute):
+        """``compute()`` on every rank (a collective solver stage)."""
+        with self.stages.stage(name):
+            value = compute()
+        self.count[name] = self.comm.size
+        return value
+
+    def on_root(self, name: str, compute, *, share: bool = False):
+        """``compute()`` on rank 0 only; ``None`` on the other ranks unless ``share``."""
+        with self.stages.stage(name):
+            value = compute_on_root(self.comm, compute, share=share)
+        self.count[name] = 1
+        return value
+
+
+def _compute(scene: Scene, stages: _Stages, comm: MPI.Comm) -> tuple[dict | None, dict | None]:
+    """Every stage; (arrays, meta) on rank 0, (None, None) on the other ranks."""
     material, reduced = scene.material, scene.reduced
-    with stages.stage("mesh"):
+    ranks = _Ranks(comm, stages)
+
+    def read_mesh():
         mesh = build_mesh(scene.object)
         fixed = (np.empty(0, dtype=np.int64) if scene.fixed is None
                  else selected_vertices(scene.fixed, mesh, what="fixed region"))
         _check_sizes(scene, mesh, fixed)
+        return mesh, fixed
+
+    mesh, fixed = ranks.on_root("mesh", read_mesh, share=True)
     count = reduced.linear_modes or default_linear_modes(reduced.r)
-    with stages.stage("modes"):
-        modes = linear_modes(mesh, material, count, fixed_vertices=fixed if fixed.size else None)
-    with stages.stage("derivatives"):
-        derivatives = modal_derivatives(mesh, material, modes)
-    with stages.stage("basis"):
+    modes = ranks.distributed("modes", lambda: linear_modes(
+        mesh, material, count, fixed_vertices=fixed if fixed.size else None, comm=comm))
+    derivatives = ranks.distributed("derivatives", lambda: modal_derivatives(
+        mesh, material, modes, comm=comm))
+
+    def basis_stage():
         mass = mass_matrix(mesh, material.density)
-        basis = nonlinear_basis(modes, derivatives, mass, reduced.r)
-        U = basis.U
-    with stages.stage("cubature"):
-        cubature = train_cubature(
-            mesh, material, U, rng=np.random.default_rng(PRECOMPUTE_SEED),
-            scales=inverse_frequency_scales(np.asarray(basis.omega2)),
-            max_elements=reduced.s, tol=reduced.cubature_tolerance,
-            n_train=CUBATURE_TRAINING_POSES, n_holdout=CUBATURE_TRAINING_POSES // 2,
-        )
+        return mass, nonlinear_basis(modes, derivatives, mass, reduced.r)
+
+    mass, basis = ranks.on_root("basis", basis_stage) or (None, None)
+    cubature = ranks.on_root("cubature", lambda: train_cubature(
+        mesh, material, basis.U, rng=np.random.default_rng(PRECOMPUTE_SEED),
+        scales=inverse_frequency_scales(np.asarray(basis.omega2)),
+        max_elements=reduced.s, tol=reduced.cubature_tolerance,
+        n_train=CUBATURE_TRAINING_POSES, n_holdout=CUBATURE_TRAINING_POSES // 2,
+    ))
+    U = None if basis is None else basis.U
+    if scene.has_local_examples:
+        local, eigen = _local_space(scene, mesh, U, fixed, ranks)
+    elif scene.has_examples:
+        shape_space = _shape_space_arrays(scene, mesh, U, fixed, ranks)
+    frame = (ranks.on_root("frame", lambda: frame_tensors(mesh.points, mesh.tets, mass, U))
+             if scene.is_free else None)
+    if comm.rank != 0:
+        return None, None
     arrays = {
         **_group_arrays(mesh),
         "points": mesh.points, "tets": mesh.tets, "fixed": fixed, "U": U,
@@ -421,32 +496,30 @@ def _compute(scene: Scene, stages: _Stages) -> tuple[dict, dict]:
     }
     meta = {"scene": scene.name, "cubature_errors": {
         "train": cubature.train_error, "holdout": cubature.holdout_error,
-        "tolerance": cubature.tol, "reached_tolerance": bool(cubature.reached_tol)}}
+        "tolerance": cubature.tol, "reached_tolerance": bool(cubature.reached_tol)},
+        "stage_ranks": ranks.count}
     if scene.has_local_examples:
-        local, eigen = _local_space(scene, mesh, U, fixed, stages)
         arrays.update(local.arrays())
         arrays.update(eigen)
         meta["example_names"] = [_example_label(p) for p in scene.examples.poses]
         meta["local_regions"] = [reg.name for reg in scene.regions]
         meta["local_representation_errors"] = local.representation_errors
     elif scene.has_examples:
-        arrays.update(_shape_space_arrays(scene, mesh, U, fixed, stages))
+        arrays.update(shape_space)
         meta["example_names"] = [_example_label(p) for p in scene.examples.poses]
-    if scene.is_free:
-        with stages.stage("frame"):
-            frame = frame_tensors(mesh.points, mesh.tets, mass, U)
+    if frame is not None:
         arrays.update({f"frame_{name}": np.asarray(getattr(frame, name))
                        for name in _FRAME_FIELDS})
     return arrays, meta
 
 
-def _local_space(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.ndarray,
-                 stages: _Stages):
-    """The ``lb`` and ``regions`` stages of a scene with local examples."""
+def _local_space(scene: Scene, mesh: TetMesh, U: np.ndarray | None, fixed: np.ndarray,
+                 ranks: _Ranks):
+    """The ``lb`` (distributed) and ``regions`` (rank 0) stages of a scene with local
+    examples; (None, None) on the other ranks."""
 
     m = scene.reduced.m
-    with stages.stage("lb"):
-        spectrum = lb_spectrum(mesh, m)
+    spectrum = ranks.distributed("lb", lambda: lb_spectrum(mesh, m, comm=ranks.comm))
     rests: dict[MeshSource, TetMesh] = {}  # examples often share one mesh
     poses = scene.examples.poses
 
@@ -461,75 +534,102 @@ def _local_space(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.ndarray,
 
     specs = [RegionSpec(reg.name, reg.selection.group, reg.selection.region, reg.examples)
              for reg in scene.regions]
-    with stages.stage("regions"):
-        local = build_local_space(
-            mesh, scene.material, U, specs, example_part, m=m,
-            object_pose=lambda k, part: posed_example(poses[k], part).points,
-            global_eigenvectors=spectrum.eigenvectors, fixed_vertices=fixed)
+    local = ranks.on_root("regions", lambda: build_local_space(
+        mesh, scene.material, U, specs, example_part, m=m,
+        object_pose=lambda k, part: posed_example(poses[k], part).points,
+        global_eigenvectors=spectrum.eigenvectors, fixed_vertices=fixed))
+    if local is None:
+        return None, None
     return local, {"eigenvalues": spectrum.eigenvalues, "eigenvectors": spectrum.eigenvectors}
 
 
-def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.ndarray,
-                        stages: _Stages) -> dict:
+def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray | None, fixed: np.ndarray,
+                        ranks: _Ranks) -> dict | None:
+    """The ``lb`` (distributed) to ``lb-cubature`` stages of a scene with examples; the
+    arrays on rank 0, ``None`` on the other ranks."""
     m = scene.reduced.m
-    with stages.stage("lb"):
-        spectrum = lb_spectrum(mesh, m)
-    with stages.stage("examples"):
-        frame = body_frame(mesh)
-        coefficients, alignments = [], []
-        for index, pose in enumerate(scene.examples.poses):
-            label = f"example {index + 1} ({_example_label(pose)})"
-            if pose.pose is None and pose.source.mesh_file is not None:  # a posed file
-                try:
-                    posed, rest = posed_file_meshes(pose, mesh)
-                except LbshapeError as exc:
-                    raise LbshapeError(f"{label}: {exc}") from None
-            else:
-                rest = build_mesh(pose.source)
-                posed = posed_example(pose, rest)
-            if rest.n_vertices <= m + 1:
-                raise LbshapeError(
-                    f"{label}: m={m} is too large for an example mesh with "
-                    f"{rest.n_vertices} vertices"
-                )
-            landmarks = np.asarray(pose.landmarks, dtype=np.int64) if pose.landmarks else None
-            try:
-                embedded = embed_example(mesh, spectrum, rest, [posed.points],
-                                         object_frame=frame, landmarks=landmarks)
-            except LbshapeError as exc:
-                raise LbshapeError(f"{label}: {exc}") from None
-            coefficients.append(embedded.coefficients[0])
-            alignments.append(embedded.alignment)
-            log.info("%s: alignment residual %.3g", label, embedded.alignment.residual)
-    with stages.stage("projections"):
-        space = make_shape_space(
-            spectrum.eigenvalues, spectrum.eigenvectors, spectrum.mass, mesh.points,
-            math.sqrt(scene.material.density) * U, coefficients, alignments,
-            [_example_label(p) for p in scene.examples.poses],
-        )
-        phi_clamped = clamped_eigenvectors(spectrum.eigenvectors, fixed, mesh.points)
-        projection_clamped = direct_projection(math.sqrt(scene.material.density) * U,
-                                               phi_clamped, spectrum.mass)
-    with stages.stage("target-table"):
-        clamped = CLAMPED_TARGETS and fixed.size > 0 and clamp_is_safe(
-            mesh.points, mesh.tets, spectrum.eigenvectors, phi_clamped, space.example_coefficients)
-        if CLAMPED_TARGETS and fixed.size and not clamped:
-            log.warning("the clamped LB basis would flatten elements of the examples' rest "
-                        "shapes: the target routes keep the free basis")
-        phi_target = phi_clamped if clamped else spectrum.eigenvectors
-        table, path, _ = tabulate_examples(mesh.points, mesh.tets, scene.material, phi_target,
-                                           space.example_coefficients, mass=spectrum.mass)
-    with stages.stage("lb-cubature"):
-        lb_arrays = _train_lb_cubatures(scene, mesh, phi_target, spectrum.eigenvalues,
-                                        space.example_coefficients, path)
+    spectrum = ranks.distributed("lb", lambda: lb_spectrum(mesh, m, comm=ranks.comm))
+    embedded = ranks.on_root("examples", lambda: _embed_examples(scene, mesh, spectrum))
+    projections = ranks.on_root("projections", lambda: _projections(
+        scene, mesh, U, fixed, spectrum, *embedded))
+    table = ranks.on_root("target-table", lambda: _target_table(
+        scene, mesh, fixed, spectrum, *projections))
+    lb_arrays = ranks.on_root("lb-cubature", lambda: _train_lb_cubatures(
+        scene, mesh, table[3], spectrum.eigenvalues, projections[0].example_coefficients,
+        table[1]))
+    if lb_arrays is None:
+        return None
+    space, _, projection_clamped = projections
+    target, _, clamped, _ = table
     return {
-        **lb_arrays, **({} if table is None else table.to_arrays()),
+        **lb_arrays, **({} if target is None else target.to_arrays()),
         "projection_clamped": projection_clamped,
         "target_clamped": np.array([int(clamped)], dtype=np.int64),
         "eigenvalues": space.eigenvalues, "eigenvectors": spectrum.eigenvectors,
         "example_coefficients": space.example_coefficients, "projection": space.projection,
         "alignment_residuals": space.alignment_residuals,
     }
+
+
+def _embed_examples(scene: Scene, mesh: TetMesh, spectrum) -> tuple[list, list]:
+    """The ``examples`` stage: (coefficients (m, 3) per example, alignments)."""
+    m = scene.reduced.m
+    frame = body_frame(mesh)
+    coefficients, alignments = [], []
+    for index, pose in enumerate(scene.examples.poses):
+        label = f"example {index + 1} ({_example_label(pose)})"
+        if pose.pose is None and pose.source.mesh_file is not None:  # a posed file
+            try:
+                posed, rest = posed_file_meshes(pose, mesh)
+            except LbshapeError as exc:
+                raise LbshapeError(f"{label}: {exc}") from None
+        else:
+            rest = build_mesh(pose.source)
+            posed = posed_example(pose, rest)
+        if rest.n_vertices <= m + 1:
+            raise LbshapeError(
+                f"{label}: m={m} is too large for an example mesh with "
+                f"{rest.n_vertices} vertices"
+            )
+        landmarks = np.asarray(pose.landmarks, dtype=np.int64) if pose.landmarks else None
+        try:
+            embedded = embed_example(mesh, spectrum, rest, [posed.points],
+                                     object_frame=frame, landmarks=landmarks)
+        except LbshapeError as exc:
+            raise LbshapeError(f"{label}: {exc}") from None
+        coefficients.append(embedded.coefficients[0])
+        alignments.append(embedded.alignment)
+        log.info("%s: alignment residual %.3g", label, embedded.alignment.residual)
+    return coefficients, alignments
+
+
+def _projections(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.ndarray, spectrum,
+                 coefficients: list, alignments: list):
+    """The ``projections`` stage: (shape space, clamped Φ_F (n, m), clamped projection)."""
+    space = make_shape_space(
+        spectrum.eigenvalues, spectrum.eigenvectors, spectrum.mass, mesh.points,
+        math.sqrt(scene.material.density) * U, coefficients, alignments,
+        [_example_label(p) for p in scene.examples.poses],
+    )
+    phi_clamped = clamped_eigenvectors(spectrum.eigenvectors, fixed, mesh.points)
+    projection_clamped = direct_projection(math.sqrt(scene.material.density) * U,
+                                           phi_clamped, spectrum.mass)
+    return space, phi_clamped, projection_clamped
+
+
+def _target_table(scene: Scene, mesh: TetMesh, fixed: np.ndarray, spectrum, space,
+                  phi_clamped: np.ndarray, _projection_clamped):
+    """The ``target-table`` stage: (table or None, path (P, 3m), clamped?, Φ of the
+    targets (n, m))."""
+    clamped = CLAMPED_TARGETS and fixed.size > 0 and clamp_is_safe(
+        mesh.points, mesh.tets, spectrum.eigenvectors, phi_clamped, space.example_coefficients)
+    if CLAMPED_TARGETS and fixed.size and not clamped:
+        log.warning("the clamped LB basis would flatten elements of the examples' rest "
+                    "shapes: the target routes keep the free basis")
+    phi_target = phi_clamped if clamped else spectrum.eigenvectors
+    table, path, _ = tabulate_examples(mesh.points, mesh.tets, scene.material, phi_target,
+                                       space.example_coefficients, mass=spectrum.mass)
+    return table, path, clamped, phi_target
 
 
 def _train_lb_cubatures(scene: Scene, mesh: TetMesh, eigenvectors, eigenvalues,
@@ -628,6 +728,7 @@ def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
                if "frame_G" in arrays else None),
         stage_seconds=dict(meta.get("stage_seconds", {})),
         stage_peak_mb=dict(meta.get("stage_peak_mb", {})),
+        stage_ranks=dict(meta.get("stage_ranks", {})),
         from_cache=from_cache,
     )
 
