@@ -15,6 +15,7 @@ from lbshape.elastic.cubature import (
     force_contribution_matrix,
     inverse_frequency_scales,
     train_cubature,
+    train_example_cubatures,
     training_poses,
 )
 from lbshape.elastic.element_kernels import FullSpaceElasticity
@@ -313,3 +314,28 @@ def test_training_split_across_ranks_equals_serial(bar):
     for rule in ranked:
         np.testing.assert_array_equal(rule.elements, serial.elements)
         np.testing.assert_allclose(rule.weights, serial.weights, rtol=1e-9)
+
+
+def test_example_cubatures_train_on_at_most_max_path_targets(bar):
+    """A long path is subsampled evenly (ends kept): the same rules as that subsample."""
+    mesh, U = bar
+    rng = np.random.default_rng(7)
+    offsets = np.stack([np.zeros(R), 0.02 * rng.standard_normal(R)])
+    t = np.linspace(0.0, 1.0, 17)[:, None]
+    path = (1 - t) * offsets[0] + t * offsets[1]  # 17 targets
+    rests = [mesh.points, mesh.points]
+
+    def rules(targets, **options):
+        return train_example_cubatures(rests, mesh.tets, material("stvk"), U, offsets, targets,
+                                       rng=np.random.default_rng(3), max_elements=20,
+                                       tol=1e-3, **options)
+
+    capped = rules(path, max_path=5)
+    explicit = rules(path[[0, 4, 8, 12, 16]])
+    for a, b in zip(capped, explicit, strict=True):
+        np.testing.assert_array_equal(a.elements, b.elements)
+        np.testing.assert_allclose(a.weights, b.weights, rtol=1e-12)
+    assert [c.n_train + c.n_holdout for c in rules(path)] != \
+        [c.n_train + c.n_holdout for c in capped]  # 17 <= MAX_PATH_POSES: all used
+    with pytest.raises(LbshapeError, match="max_path"):
+        rules(path, max_path=3)
