@@ -283,7 +283,7 @@ def test_streamed_exact_forces_are_the_full_space_forces(bar, model):
 @pytest.mark.parametrize("candidates", [50, 2])
 def test_streamed_training_equals_one_chunk_and_the_dense_system(bar, candidates):
     """A byte bound of one element per chunk (many chunks; with 2 candidates per step the
-    whole-mesh scan runs too) gives the rule of one chunk, and its weights are the NNLS
+    scan of every element runs too) gives the rule of one chunk, and its weights are the NNLS
     optimum of the dense system ``A (P·r, E)`` on the selected columns."""
     mesh, U = bar
     one = train(bar, candidates_per_iter=candidates, tol=1e-3)
@@ -339,3 +339,19 @@ def test_example_cubatures_train_on_at_most_max_path_targets(bar):
         [c.n_train + c.n_holdout for c in capped]  # 17 <= MAX_PATH_POSES: all used
     with pytest.raises(LbshapeError, match="max_path"):
         rules(path, max_path=3)
+
+
+def test_sampled_fallback_is_the_same_streamed_and_on_ranks(bar, monkeypatch):
+    """More elements than FALLBACK_ELEMENTS: the wider scan draws a sample (the same on
+    every rank and for every byte bound); the rules still meet the tolerance."""
+    import lbshape.elastic.cubature as cubature
+
+    monkeypatch.setattr(cubature, "FALLBACK_ELEMENTS", 40)
+    one = train(bar, candidates_per_iter=2, tol=1e-3)
+    many = train(bar, candidates_per_iter=2, tol=1e-3, max_bytes=1)
+    ranked = on_ranks(2, lambda comm: train(bar, candidates_per_iter=2, tol=1e-3,
+                                            max_bytes=20_000, comm=comm))
+    for rule in (many, *ranked):
+        np.testing.assert_array_equal(rule.elements, one.elements)
+        np.testing.assert_allclose(rule.weights, one.weights, rtol=1e-9)
+    assert one.train_error <= 1e-3 or one.size == 40

@@ -27,7 +27,9 @@ on random training poses:
    weight became zero, and stop when the relative training error
    ``‖A w − b‖ / ‖b‖`` reaches ``tol`` or s elements are selected. Each NNLS solve
    is optimal on its set, so the error never increases. Only when no candidate of a
-   batch helps are all elements scanned (again in chunks). The greedy steps are the
+   batch helps is a wider set scanned (in chunks): every element when at most
+   :data:`FALLBACK_ELEMENTS` remain (every built-in scene but the 100k-vertex one),
+   else that many drawn at random (one scan of 575k elements cost ~50 s). The greedy steps are the
    same on every rank (same seed, same draws); memory is O(P·r·(s + batch)) besides
    one chunk.
 
@@ -55,6 +57,9 @@ log = logging.getLogger(__name__)
 
 #: default bound (bytes) on the temporary arrays of one chunk of elements or poses
 DEFAULT_MAX_BYTES = 512 * 2**20
+#: elements scanned when no candidate of a batch helps: all of them up to this many,
+#: else this many drawn at random
+FALLBACK_ELEMENTS = 8192
 #: path targets used by :func:`train_example_cubatures` at most (evenly spaced); a
 #: target table of N = 32 intervals has 33 nodes, finer tables are subsampled to it
 MAX_PATH_POSES = 33
@@ -574,8 +579,10 @@ def _greedy_nnls(columns, b, hold_columns, b_hold, *, n_elements, s, tol, candid
                 break
             batch = rng.choice(pool, size=min(candidates, pool.size), replace=False)
             column = _best_aligned(columns, residual, batch)
-            if column is None:  # nothing in the batch helps: look at every element
-                column = _best_aligned_everywhere(columns, residual, pool, comm)
+            if column is None:  # nothing in the batch helps: look at (many) more elements
+                wider = pool if pool.size <= FALLBACK_ELEMENTS else np.sort(
+                    rng.choice(pool, size=FALLBACK_ELEMENTS, replace=False))
+                column = _best_aligned_in_chunks(columns, residual, wider, comm)
                 if column is None:
                     log.info("cubature: no remaining element reduces the error %.3g", error)
                     break
@@ -623,7 +630,7 @@ def _best_aligned(columns, residual, candidates) -> tuple[int, np.ndarray] | Non
     return (int(candidates[i]), A[:, i].copy()) if scores[i] > 0 else None
 
 
-def _best_aligned_everywhere(columns, residual, pool, comm) -> tuple[int, np.ndarray] | None:
+def _best_aligned_in_chunks(columns, residual, pool, comm) -> tuple[int, np.ndarray] | None:
     """:func:`_best_aligned` over every element of ``pool``, chunk by chunk (split across
     the ranks of ``comm``); the first of equal best scores, as in one pass."""
     blocks = columns.chunks(pool)
