@@ -43,7 +43,9 @@ TARGET_RTOL = 0.2
 MAX_ESTIMATED_TETS = 2_000_000
 #: above this estimated tetrahedron count the volume is meshed by gmsh's HXT algorithm
 #: (``Mesh.Algorithm3D = 10``) instead of the default Delaunay: the 100k-vertex bar
-#: (h = 6.8 mm) takes 7.7 s instead of 30-56 s; every default size stays below it
+#: (h = 6.5 mm) takes 5-8 s instead of 30-90 s; every default size stays below it. HXT is
+#: not reproducible to the vertex (104.5k-104.7k vertices at h = 6.5 mm from run to run,
+#: one thread); the precompute caches the mesh it used
 HXT_ESTIMATED_TETS = 500_000
 
 

@@ -52,7 +52,7 @@ from lbshape.scene.reader import builtin_scene_names
 #: the scene whose object is refined
 DEFAULT_SCENE = "bar-cylinder"
 #: object sizes h (m) of the default sweep: about 330, 1.9k, 9k, 25k, 56k and 103k vertices
-DEFAULT_SIZES: tuple[float, ...] = (0.0665, 0.035, 0.0185, 0.0125, 0.0092, 0.0068)
+DEFAULT_SIZES: tuple[float, ...] = (0.0665, 0.035, 0.0185, 0.0125, 0.0092, 0.0065)
 #: steps per timed reduced run, and repeats
 DEFAULT_STEPS = 300
 DEFAULT_REPEATS = 3
