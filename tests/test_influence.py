@@ -9,10 +9,15 @@ import pytest
 
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.reduced import ReducedSimulation
+from lbshape.dynamics.rigid_frame import cayley
+from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.errors import LbshapeError
 from lbshape.geometry.poses import twist
 from lbshape.geometry.primitives import structured_box
 from lbshape.pipeline.influence import (
     STATS_KEYS,
+    Influence,
+    body_deformations,
     compare_runs,
     descriptor,
     end_twist_degrees,
@@ -43,6 +48,74 @@ def test_trajectory_influence_of_identical_and_of_scaled_runs():
     # a reference that never moves: undefined unless the example run does not move either
     assert trajectory_influence(u, np.zeros_like(u), mass) == (None, None)
     assert trajectory_influence(np.zeros_like(u), np.zeros_like(u), mass) == (0.0, 0.0)
+
+
+# ----------------------------------------------------------- body frame (free bodies)
+def _box():
+    mesh = structured_box((0.2, 0.3, 1.0), (3, 3, 8))
+    mass = mass_matrix(mesh, 1000.0)
+    return mesh, mass, mass[0::3, 0::3]
+
+
+def _rigidly_moved(points, deformed, rotation_vector, translation):
+    """World displacement of ``deformed`` positions turned by cay(w) about the origin and moved."""
+    return deformed @ cayley(np.asarray(rotation_vector)).T + np.asarray(translation) - points
+
+
+def test_rigid_motion_of_a_deformed_state_does_not_change_the_body_frame_measure():
+    """The best rigid fit removes any rotation and translation: the deformation of a
+    state moved rigidly is the deformation of the state; the world measure sees the move."""
+    mesh, mass, scalar = _box()
+    X = mesh.points
+    bent = twist(X, angle=0.7, axis="z", anchor="min") + 0.05 * np.sin(3.0 * X[:, [2]]) * [1, 0, 0]
+    body = body_deformations(scalar, X, (bent - X)[None])[0]
+    assert np.linalg.norm(body) > 0.05
+    for w, c in (((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)), ((0.3, -1.2, 0.7), (2.0, -1.0, 0.5)),
+                 ((4.0, 0.1, -3.0), (-0.3, 0.2, 9.0))):
+        moved = body_deformations(scalar, X, _rigidly_moved(X, bent, w, c)[None])[0]
+        np.testing.assert_allclose(moved, body, atol=1e-12)
+    # the same state, moved: zero body-frame influence, a large world one
+    still = (bent - X)[None]
+    flown = _rigidly_moved(X, bent, (0.2, 0.5, -0.1), (1.0, 0.0, -0.3))[None]
+    final, peak = trajectory_influence(body_deformations(scalar, X, flown),
+                                       body_deformations(scalar, X, still), mass, atol=1e-12)
+    assert final == 0.0 and peak == 0.0
+    assert trajectory_influence(flown, still, mass)[0] > 1.0
+    # a rigid motion alone has no deformation
+    np.testing.assert_allclose(body_deformations(scalar, X, _rigidly_moved(X, X, w, c)[None]),
+                               0.0, atol=1e-12)
+
+
+@pytest.mark.parametrize(("a_none", "a_ex"), [(0.01, 0.03), (0.02, -0.01), (-0.05, -0.04)])
+def test_body_frame_influence_of_two_uniform_stretches_flying_differently(a_none, a_ex):
+    """Hand-built: the object stretched uniformly by (1 + a) about its centre of mass, then
+    turned and moved (differently in the two runs). The best fit of a uniform stretch is
+    the identity, so the deformations are a·X̄ and the influence is |a_ex − a_none| / |a_none|
+    whatever the two rigid motions; the world measure is not."""
+    mesh, mass, scalar = _box()
+    X = mesh.points
+    weights = np.asarray(scalar.sum(axis=1)).ravel()
+    centre = weights @ X / weights.sum()
+    stretched = [centre + (1.0 + a) * (X - centre) for a in (a_ex, a_none)]
+    u_ex = np.stack([_rigidly_moved(X, stretched[0], (0.0, 0.1 * t, 0.3 * t), (t, 0.0, -t))
+                     for t in (0.5, 1.0)])
+    u_none = np.stack([_rigidly_moved(X, stretched[1], (0.2 * t, 0.0, 0.0), (0.0, t, 0.0))
+                       for t in (0.5, 1.0)])
+    body_ex, body_none = (body_deformations(scalar, X, u) for u in (u_ex, u_none))
+    np.testing.assert_allclose(body_ex[-1], a_ex * (X - centre), atol=1e-12)
+    final, peak = trajectory_influence(body_ex, body_none, mass)
+    expected = abs(a_ex - a_none) / abs(a_none)
+    np.testing.assert_allclose([final, peak], [expected, expected], rtol=1e-9)
+    world, _ = trajectory_influence(u_ex, u_none, mass)
+    assert abs(world - expected) > 0.05 * expected  # the world measure mixes in the flight
+
+
+def test_influence_frame_is_checked_and_reported():
+    stats = Influence(0.7, 0.9, None, None, "body", 0.1, 0.2).stats()
+    assert tuple(stats) == STATS_KEYS
+    assert stats["influence_frame"] == "body" and stats["example_influence_world"] == 0.1
+    with pytest.raises(LbshapeError, match="frame"):
+        Influence(0.1, 0.1, frame="inertial")
 
 
 class _Linear:
@@ -123,6 +196,35 @@ def test_influence_is_zero_when_the_examples_are_the_rest_shape(demo):
     assert effect.final is None  # u_none = 0: relative influence undefined
 
 
+@pytest.mark.parametrize("method", ["reduced", "full"])
+def test_free_body_influence_is_zero_when_the_examples_are_the_rest_shape(method):
+    """A free bar thrown without loads, examples equal to its rest shape: it flies
+    undeformed with and without them (influence 0 in the body frame, although its
+    world displacement is large); an S example deforms it while the reference stays
+    undeformed (undefined, None). Same measure for the reduced engine and the full one."""
+    scene = load_scene("bar-s-cuboid")
+    pose = scene.examples.poses[0]
+    rest_pose = dataclasses.replace(pose, parameters={**pose.parameters, "amplitude": 0.0})
+    thrown = dataclasses.replace(
+        scene, loads=(), planes=(), initial=dataclasses.replace(
+            scene.initial, velocity=(1.0, 0.0, 0.5), angular_velocity=(0.0, 0.0, 0.0)))
+    rest_examples = dataclasses.replace(thrown, examples=dataclasses.replace(
+        thrown.examples, poses=(rest_pose,)))
+    steps = 40
+    pre = precompute(rest_examples)
+    output = simulate(rest_examples, pre, method=method, steps=steps)
+    effect, reference = example_influence(rest_examples, pre, output, method=method, steps=steps)
+    assert effect.frame == "body"
+    assert effect.final == 0.0 and effect.maximum == 0.0, effect
+    assert np.abs(reference.displacements[-1]).max() > 0.03  # it flew
+
+    pre_s = precompute(thrown)
+    bent = simulate(thrown, pre_s, method=method, steps=steps)
+    effect, reference = example_influence(thrown, pre_s, bent, method=method, steps=steps)
+    assert effect.frame == "body" and effect.final is None, effect
+    assert effect.world_final is not None and effect.world_final > 0.0
+
+
 def test_influence_grows_with_k_ex_on_the_demo_scene(demo):
     """The maximum over time (the value at T depends on the phase of the oscillation)."""
     scene, pre = demo
@@ -184,6 +286,9 @@ def test_bench_records_the_influence_of_reduced_and_full_in_table2(demo, tmp_pat
         run = simulate(scene, pre, method=method, steps=40)
         np.testing.assert_allclose(stats["example_influence"],
                                    compare_runs(pre, run, reference).final, rtol=1e-9)
+        assert stats["influence_frame"] == "world"  # the demo bar is fixed
+        assert stats["example_influence_world"] == stats["example_influence"]
     md, js = write_table2([result], tmp_path)
     assert "## Example influence" in md.read_text()
-    assert f"| demo | reduced | {effects['reduced']['example_influence']:.3f} |" in md.read_text()
+    assert (f"| demo | reduced | world | {effects['reduced']['example_influence']:.3f} |"
+            in md.read_text())

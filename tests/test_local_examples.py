@@ -21,6 +21,7 @@ from lbshape.scene.reader import load_scene
 from lbshape.scene.schema import LocalRegion, Selection
 from lbshape.shapespace.local_examples import (
     FullSpaceLocalForce,
+    LocalShapeSpace,
     RegionSpec,
     build_local_space,
     check_partition,
@@ -30,6 +31,7 @@ from lbshape.shapespace.local_examples import (
     rigid_fields,
     submesh,
 )
+from lbshape.shapespace.target_table import DEFAULT_TOLERANCE
 
 MATERIAL = Material(model="stvk", young=1e5, poisson=0.3, density=1000.0)
 BAR = (0.2, 0.2, 1.0)
@@ -165,18 +167,82 @@ def test_per_region_weights_follow_eq5():
         np.testing.assert_allclose(w, force.weights[name], atol=1e-10)
 
 
-def test_tabulated_target_matches_newton():
-    specs = [RegionSpec("low", None, "z < 0.5", (0, 1))]
-    mesh, U, space = _local_space(specs, angles=(0.9, -0.5))
+@pytest.mark.parametrize("angles", [(0.9, -0.5), (0.9, -0.5, 0.3)])
+def test_region_target_table_matches_newton_on_the_runtime_path(angles):
+    """Two examples: Hermite in w₁; three: cubic triangles. Built with the local space
+    (checked there), the step's in-place path looks it up already mapped to the pull and
+    agrees with the Newton solve of the exact target at weights never tabulated."""
+    k = len(angles)
+    specs = [RegionSpec("low", None, "z < 0.5", tuple(range(k)))]
+    mesh, U, space = _local_space(specs, angles=angles)
+    region = space.regions[0]
+    table = region.table
+    assert table is not None and table.k == k
+    assert table.check.max_error <= DEFAULT_TOLERANCE and table.check.checks >= 40
     tabulated = local_example_driver(mesh, MATERIAL, space, route="lb-exact")
-    newton = local_example_driver(mesh, MATERIAL, space, route="lb-exact", tabulate=False)
-    assert tabulated.drivers[0].solver.error < 1e-3
-    separation = np.linalg.norm(space.regions[0].to_reduced @ np.diff(
-        space.regions[0].example_coefficients.reshape(2, -1), axis=0)[0])
-    for w in (0.0, 0.37, 0.8):
-        a = tabulated.drivers[0].solver.solve(np.array([1 - w, w])).z
-        b = newton.drivers[0].solver.solve(np.array([1 - w, w])).z
-        assert np.linalg.norm(space.regions[0].to_reduced @ (a - b)) < 1e-3 * separation
+    newton = local_example_driver(mesh, MATERIAL, space, route="lb-exact", tabulate=False,
+                                  tolerance=1e-12, max_iterations=100)
+    assert tabulated.drivers[0].solver.table is not table  # a mapped copy, the stored one kept
+    offsets = region.example_coefficients.reshape(k, -1)
+    separation = max(np.linalg.norm(a - b) for a in offsets for b in offsets)
+    pull = region.pull_matrix()
+    rng = np.random.default_rng(3)
+    out = np.zeros(U.shape[1])
+    for w in [*rng.dirichlet(np.ones(k), size=12), np.eye(k)[0]]:
+        exact = newton.drivers[0].solver.solve(w).z
+        looked_up = tabulated.drivers[0].solver.solve(w).z
+        assert np.linalg.norm(looked_up - exact) <= 1e-2 * separation
+        tabulated.drivers[0].w[:] = w
+        tabulated.drivers[0].target_from_weights_into(out)
+        np.testing.assert_allclose(out, pull @ looked_up, rtol=0,
+                                   atol=1e-12 * np.abs(pull @ looked_up).max())
+
+
+def test_in_place_step_of_the_local_driver_equals_its_target_and_allocates_nothing():
+    import tracemalloc
+
+    specs = [RegionSpec("low", None, "z < 0.5", (0, 1)), RegionSpec("high", None, "z >= 0.5",
+                                                                    (1, 2))]
+    bottom = np.flatnonzero(structured_box(BAR, (2, 2, 8)).points[:, 2] < 1e-9)
+    mesh, U, space = _local_space(specs, angles=(0.9, -0.5, 0.4), fixed=bottom)
+    driver = local_example_driver(mesh, MATERIAL, space, route="lb-exact")
+    assert all(d.solver.table is not None for d in driver.drivers)
+    rng = np.random.default_rng(5)
+    out = np.zeros(U.shape[1])
+    states = [rng.normal(size=U.shape[1]) * 1e-2 for _ in range(20)]
+    for q in states:
+        driver.weights_into(q)
+        driver.target_from_weights_into(out)
+        np.testing.assert_allclose(out, driver.target(q).q_target, rtol=1e-12, atol=1e-15)
+    tracemalloc.start()
+    before = tracemalloc.take_snapshot()
+    for q in states * 5:
+        driver.weights_into(q)
+        driver.target_from_weights_into(out)
+    after = tracemalloc.take_snapshot()
+    tracemalloc.stop()
+    grown = sum(stat.size_diff for stat in after.compare_to(before, "filename")
+                if stat.size_diff > 0 and "lbshape" in str(stat.traceback))
+    assert grown == 0, grown
+
+
+def test_region_tables_survive_the_precompute_artifact():
+    specs = [RegionSpec("low", None, "z < 0.5", (0, 1)), RegionSpec("high", None, "z >= 0.5",
+                                                                    (0, 1, 2, 3))]
+    mesh, U, space = _local_space(specs, angles=(0.9, -0.5, 0.4, 0.2))
+    low, high = space.regions
+    assert low.table is not None and high.table is None  # four examples: solved at run time
+    restored = LocalShapeSpace.from_arrays(["low", "high"], space.arrays(), {})
+    np.testing.assert_array_equal(restored.regions[0].table.cells, low.table.cells)
+    assert restored.regions[0].table.check == low.table.check
+    assert restored.regions[1].table is None
+    untabulated = build_local_space(mesh, MATERIAL, U, specs[:1],
+                                    _twisted_examples((0.9, -0.5)), m=M, tabulate=False)
+    assert untabulated.regions[0].table is None
+    # without a stored table the driver builds the same one at set-up
+    driver = local_example_driver(mesh, MATERIAL, untabulated, route="lb-exact")
+    np.testing.assert_allclose(driver.drivers[0].solver.table.cells, low.table.cells,
+                               rtol=1e-9, atol=1e-12 * np.abs(low.table.cells).max())
 
 
 def test_one_region_covering_the_object_reproduces_the_global_path():

@@ -18,10 +18,24 @@ effect. With M the consistent elastic mass (kg) and
   the examples themselves are from the rest shape), so 0 means "on the example
   manifold" and 1 "as far from it as the examples are from rest". With local
   examples: the largest of the regions' residuals, each on its own descriptors.
+  A free body's final shape is its deformation (see **Frame**).
+
+**Frame.** For a fixed object u is the world displacement (``influence_frame:
+"world"``). A free body's world displacement is dominated by its rigid motion
+(where it flies, how it spins), which the examples barely change while they plainly
+change its shape, so there u is the **deformation** (``influence_frame: "body"``):
+the displacement left after the mass-weighted best rigid fit of the deformed
+positions onto the rest positions (Kabsch,
+:func:`lbshape.dynamics.rigid_frame.best_rigid_frame`), ``u_body = Rᵀ(x − c) − X̄``.
+It needs nothing but positions, so it is the same measure for the reduced engine
+and the full-space reference, and a rigid motion of either run does not change it.
+The world-displacement figures are kept next to it (``example_influence_world``,
+``example_influence_world_max``; equal to the main ones for a fixed object).
 
 A measure is ``None`` when it is undefined: the reference never moves (division
-by zero) while the example run does. Two trajectories that agree to round-off
-(:data:`ROUNDOFF` of the object's size) have influence 0, also when neither moves.
+by zero; for a free body: never deforms) while the example run does. Two
+trajectories that agree to round-off (:data:`ROUNDOFF` of the object's size) have
+influence 0, also when neither moves.
 
 Examples equal to the rest shape are not "no examples": the example force
 ``k_ex (q* − q)`` with ``q* = 0`` is a spring towards rest, so under loads their
@@ -41,6 +55,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lbshape.dynamics.rigid_frame import best_rigid_frame
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import Precomputed
@@ -53,7 +68,10 @@ ROUNDOFF = 1e-12
 #: the stats keys this module adds to a run's ``stats.json``
 STATS_KEYS: tuple[str, ...] = (
     "example_influence", "example_influence_max", "example_residual", "example_residual_none",
+    "influence_frame", "example_influence_world", "example_influence_world_max",
 )
+#: what ``example_influence`` measures: world displacement (fixed) or deformation (free)
+FRAMES: tuple[str, ...] = ("world", "body")
 
 
 @dataclass(frozen=True)
@@ -66,17 +84,30 @@ class Influence:
         residual: eq. 5 residual of the final shape with examples (relative, see
             the module docstring; None without examples).
         residual_none: the same for the run without examples.
+        frame: ``"world"`` (final and maximum measure world displacements) or
+            ``"body"`` (they measure the deformation, best rigid fit removed).
+        world_final: ``final`` of the world displacements (None if undefined; the
+            same as ``final`` when ``frame == "world"``).
+        world_maximum: ``maximum`` of the world displacements.
     """
 
     final: float | None
     maximum: float | None
     residual: float | None = None
     residual_none: float | None = None
+    frame: str = "world"
+    world_final: float | None = None
+    world_maximum: float | None = None
+
+    def __post_init__(self):
+        if self.frame not in FRAMES:
+            raise LbshapeError(f"influence frame must be one of {FRAMES}, got {self.frame!r}")
 
     def stats(self) -> dict:
         """The :data:`STATS_KEYS` entries of ``stats.json``."""
         return dict(zip(STATS_KEYS, (self.final, self.maximum, self.residual,
-                                     self.residual_none), strict=True))
+                                     self.residual_none, self.frame, self.world_final,
+                                     self.world_maximum), strict=True))
 
 
 def mass_norms(u: np.ndarray, mass) -> np.ndarray:
@@ -92,7 +123,7 @@ def mass_norms(u: np.ndarray, mass) -> np.ndarray:
 def _ratio(numerator: float, denominator: float, atol: float) -> float | None:
     if numerator <= atol:
         return 0.0
-    return numerator / denominator if denominator > 0.0 else None
+    return numerator / denominator if denominator > atol else None
 
 
 def trajectory_influence(u_ex: np.ndarray, u_none: np.ndarray, mass, *, atol: float = 0.0
@@ -103,7 +134,8 @@ def trajectory_influence(u_ex: np.ndarray, u_none: np.ndarray, mass, *, atol: fl
         u_ex: (k, n, 3) displacements with examples (m).
         u_none: (k, n, 3) displacements without examples (m).
         mass: (3n, 3n) consistent mass (kg).
-        atol: M-norm differences (m·kg^½) up to ``atol`` count as none (influence 0).
+        atol: M-norms (m·kg^½) up to ``atol`` count as none: a difference that small
+            is influence 0, a reference that small (and a larger difference) None.
     """
     u_ex, u_none = np.asarray(u_ex, dtype=float), np.asarray(u_none, dtype=float)
     if u_ex.shape != u_none.shape or u_ex.shape[0] == 0:
@@ -113,6 +145,27 @@ def trajectory_influence(u_ex: np.ndarray, u_none: np.ndarray, mass, *, atol: fl
     reference = mass_norms(u_none, mass)
     return (_ratio(float(difference[-1]), float(reference[-1]), atol),
             _ratio(float(difference.max()), float(reference.max()), atol))
+
+
+def body_deformations(scalar_mass, rest: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """(k, n, 3) deformations of displacements u (k, n, 3) (m): each sample's displacement
+    after its mass-weighted best rigid fit (``Rᵀ(X + u − c) − X̄``, body frame, m).
+
+    Args:
+        scalar_mass: (n, n) scalar mass M₁ (kg).
+        rest: (n, 3) rest positions X (m).
+        u: (k, n, 3) world displacements (m).
+    """
+    rest = np.asarray(rest, dtype=float)
+    u = np.asarray(u, dtype=float).reshape(len(u), -1, 3)
+    if u.shape[1:] != rest.shape:
+        raise LbshapeError(f"displacements of shape {u.shape[1:]} for {rest.shape} rest points")
+    return np.stack([best_rigid_frame(scalar_mass, rest, rest + sample)[2] for sample in u])
+
+
+def is_free_body(pre: Precomputed) -> bool:
+    """True for a free body (it has a rigid frame): its influence is measured in the body frame."""
+    return pre.frame is not None
 
 
 def descriptor(pre: Precomputed, u: np.ndarray) -> np.ndarray:
@@ -167,7 +220,12 @@ def with_stiffness(scene: Scene, stiffness: float) -> Scene:
 
 
 def compare_runs(pre: Precomputed, with_ex, without, mass=None) -> Influence:
-    """The :class:`Influence` of two finished runs (``SimulationOutput``) of one scene."""
+    """The :class:`Influence` of two finished runs (``SimulationOutput``) of one scene.
+
+    A free body's (``pre.frame`` set) is measured on the deformation, a fixed
+    object's on the world displacement (see the module docstring); both report the
+    world figures too.
+    """
     if with_ex.displacements.shape != without.displacements.shape or not np.allclose(
             with_ex.times, without.times):
         raise LbshapeError("the runs with and without examples are sampled differently "
@@ -176,16 +234,23 @@ def compare_runs(pre: Precomputed, with_ex, without, mass=None) -> Influence:
     points = pre.mesh.points
     size = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
     atol = ROUNDOFF * size * math.sqrt(float(mass.sum()) / 3.0)
-    final, maximum = trajectory_influence(with_ex.displacements, without.displacements, mass,
-                                          atol=atol)
-    residual = residual_none = None
+    world = trajectory_influence(with_ex.displacements, without.displacements, mass, atol=atol)
+    frame, (final, maximum) = "world", world
+    shape_ex, shape_none = with_ex.displacements, without.displacements
+    if is_free_body(pre):
+        scalar_mass = mass[0::3, 0::3]
+        frame = "body"
+        shape_ex = body_deformations(scalar_mass, points, shape_ex)
+        shape_none = body_deformations(scalar_mass, points, shape_none)
+        final, maximum = trajectory_influence(shape_ex, shape_none, mass, atol=atol)
+    residual = residual_none = None  # of the final shape (a free body's deformation)
     if pre.has_examples:
-        residual = manifold_residual(pre, with_ex.displacements[-1])
-        residual_none = manifold_residual(pre, without.displacements[-1])
+        residual = manifold_residual(pre, shape_ex[-1])
+        residual_none = manifold_residual(pre, shape_none[-1])
     elif pre.has_local_examples:
-        residual = local_residual(pre, with_ex.displacements[-1])
-        residual_none = local_residual(pre, without.displacements[-1])
-    return Influence(final, maximum, residual, residual_none)
+        residual = local_residual(pre, shape_ex[-1])
+        residual_none = local_residual(pre, shape_none[-1])
+    return Influence(final, maximum, residual, residual_none, frame, *world)
 
 
 def end_twist_degrees(points: np.ndarray, u: np.ndarray, *, axis: int = 2,

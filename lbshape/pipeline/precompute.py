@@ -119,7 +119,7 @@ CUBATURE_TRAINING_POSES = 120
 #: seed of every random choice of the precompute (training poses, candidates)
 PRECOMPUTE_SEED = 20170401
 #: bumped whenever the artifact's content or meaning changes (part of the cache key)
-PIPELINE_VERSION = 9
+PIPELINE_VERSION = 10
 #: target routes in the LB basis faded to zero at the fixed vertices (when safe). Off: the
 #: full-space reference interpolates in the free basis, and the clamped targets moved the
 #: coarse demo bar 28.7 % away from it (3.3 % free) while gaining 3.8 % -> 3.1 % on the bars;

@@ -58,7 +58,7 @@ SUMMARY_KEYS: tuple[str, ...] = (
     "scene", "headline", "precompute_seconds", "precompute_from_cache", "stage_seconds",
     "alignment_residuals", "cubature_errors", "reduced", "reduced_no_examples", "full",
     "full_no_examples", "error_vs_full", "speedup_t_total", "example_influence",
-    "example_influence_max", "example_influence_full", "example_residual",
+    "example_influence_max", "influence_frame", "example_influence_full", "example_residual",
     "example_residual_none", "end_twist_deg", "example_twist_deg", "simulation_seconds",
     "pictures",
 )
@@ -163,6 +163,7 @@ def simulation_figures(out: Path) -> dict:
         "speedup_t_total": runs["full"].stats["t_total_ms"] / runs["reduced"].stats["t_total_ms"],
         "example_influence": influence.final,
         "example_influence_max": influence.maximum,
+        "influence_frame": influence.frame,
         "example_influence_full": influence_full.final,
         "example_residual": influence.residual,
         "example_residual_none": influence.residual_none,

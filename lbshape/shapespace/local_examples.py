@@ -64,13 +64,22 @@ target ``c*_R = argmin Σ_k w_k E_k(c − c_k)`` with E_k the StVK energy of exa
 k's region shape ``X_R + Φ_R c_k`` over R's tetrahedra, evaluated exactly as a
 quartic polynomial (the ``lb-exact`` route, O((3m)⁴) per evaluation); for other
 materials, or the ``euclidean`` baseline, the energy is summed over R's elements.
-A region with two examples has a target that depends on one number, w₁; the
-reduced method tabulates it at set-up (:class:`TabulatedTarget`, measured against
-the Newton solve) so that a step only interpolates a table.
+A region's target depends only on its few weights, so the precompute tabulates it
+over the region's weight simplex like the global target
+(:func:`region_target_table`, :mod:`lbshape.shapespace.target_table`: Hermite in
+w₁ for two examples, cubic triangles for three, each checked against the exact
+target at held-out weights as a share of the region's example separation). The
+reduced method's step (:meth:`LocalExampleDriver.weights_into`,
+:meth:`~LocalExampleDriver.target_from_weights_into`) then evaluates, per region,
+the precomputed eq. 5 weights and one table lookup already mapped to the pull
+``T'_R c*_R`` (r,), into preallocated arrays: no Newton, no n-sized array, no
+allocation. A region without a table (more than three examples, or a refused
+table) solves its target by Newton at run time.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable, Sequence
@@ -78,7 +87,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.interpolate import CubicSpline
 from scipy.sparse.csgraph import connected_components
 
 from lbshape.elastic.element_kernels import mass_matrix
@@ -88,9 +96,15 @@ from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.regions import evaluate_region
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_driver import ExampleDriver, TargetInfo
-from lbshape.shapespace.interpolation import TargetResult, TargetSolver, simplex_weights
+from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
 from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
 from lbshape.shapespace.projections import block_eigenfunctions, direct_projection, embed_example
+from lbshape.shapespace.target_table import (
+    DEFAULT_TOLERANCE,
+    TableSolver,
+    TargetTable,
+    tabulate_examples,
+)
 from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
@@ -249,6 +263,9 @@ class RegionSpace:
         anchor_reduced: (r, 6) ``(F_R U_anchor)ᵀ``: the anchor fit of ``U q``.
         anchor: (n_R,) bool, the anchor vertices (:func:`region_anchor`).
         rigid_lb: (3m, 6) ``L_Rᵀ M^(R) Q_R``: LB coefficients (times ρ) of the rigid fields.
+        table: the region's exact target tabulated over its weight simplex, in the
+            coefficients c (3m,) (:func:`region_target_table`), or None (more than three
+            examples, a refused table, or not built).
     """
 
     name: str
@@ -265,6 +282,7 @@ class RegionSpace:
     anchor_reduced: np.ndarray
     anchor: np.ndarray
     rigid_lb: np.ndarray
+    table: TargetTable | None = None
 
     @property
     def m(self) -> int:
@@ -346,6 +364,8 @@ class LocalShapeSpace:
                         "rigid_reduced", "rigid_coefficients", "anchor_reduced", "anchor",
                         "rigid_lb"):
                 out[f"local{i}_{key}"] = getattr(reg, key)
+            if reg.table is not None:
+                out.update(reg.table.to_arrays(prefix=f"local{i}_table_"))
         return out
 
     @classmethod
@@ -364,7 +384,8 @@ class LocalShapeSpace:
                 rigid_reduced=get("rigid_reduced"),
                 rigid_coefficients=get("rigid_coefficients"),
                 anchor_reduced=get("anchor_reduced"), anchor=get("anchor").astype(bool),
-                rigid_lb=get("rigid_lb")))
+                rigid_lb=get("rigid_lb"),
+                table=TargetTable.from_arrays(arrays, prefix=f"local{i}_table_")))
         return cls(tuple(regions), np.asarray(arrays["local_spring"]),
                    float(arrays["local_covered"]), dict(errors))
 
@@ -410,6 +431,7 @@ def build_local_space(
     object_pose: Callable[[int, TetMesh], np.ndarray] | None = None,
     global_eigenvectors: np.ndarray | None = None,
     fixed_vertices: np.ndarray | None = None,
+    tabulate: bool = True,
 ) -> LocalShapeSpace:
     """Region spectra, example coefficients per region and the small matrices.
 
@@ -430,6 +452,8 @@ def build_local_space(
         global_eigenvectors: (n, m) the whole object's eigenvectors (M-orthonormal),
             for the whole-object variant of that measurement.
         fixed_vertices: the object's fixed vertices (part of a region's anchor).
+        tabulate: tabulate each region's exact target over its weights
+            (:func:`region_target_table`).
 
     Raises:
         LbshapeError: overlapping, disconnected or too small regions, or an example
@@ -484,7 +508,7 @@ def build_local_space(
             else:
                 errors[spec.name] = _representation_errors(
                     sub, vertices, volume_mass, spec_R.eigenvectors, posed, global_eigenvectors)
-        regions.append(RegionSpace(
+        region = RegionSpace(
             name=spec.name, cells=selected, vertices=vertices,
             examples=np.asarray(spec.examples, dtype=np.int64),
             eigenvalues=np.asarray(spec_R.eigenvalues, dtype=float),
@@ -494,7 +518,11 @@ def build_local_space(
             to_reduced=to_reduced, rigid_reduced=U_R.T @ (mass_R @ Q),
             rigid_coefficients=(F @ L_R[anchor_rows]).T,
             anchor_reduced=(F @ U_R[anchor_rows]).T, anchor=anchor,
-            rigid_lb=L_R.T @ (mass_R @ Q)))
+            rigid_lb=L_R.T @ (mass_R @ Q))
+        if tabulate:
+            region = dataclasses.replace(region, table=region_target_table(mesh, material,
+                                                                           region))
+        regions.append(region)
     covered_fraction = float(volumes[covered].sum() / volumes.sum())
     if covered_fraction < 1.0:
         log.info("local examples: %.1f %% of the volume is in no region (no example force "
@@ -548,46 +576,32 @@ def local_route(route: str, material: Material) -> str:
     return "lb-exact"
 
 
-class TabulatedTarget:
-    """The target of two examples as a table in w₁ (drop-in for a :class:`TargetSolver`).
+def region_target_table(mesh: TetMesh, material: Material, region: RegionSpace, *,
+                        tolerance: float = DEFAULT_TOLERANCE) -> TargetTable | None:
+    """The region's exact target ``c*_R(w)`` (3m,) tabulated over its weight simplex.
 
-    With k = 2 the weights are ``(1 − w₁, w₁)`` and the target ``z*(w₁)`` is a
-    smooth curve from ``z_0`` to ``z_1``; it is solved at ``samples`` equally spaced
-    w₁ (warm-started in turn) and interpolated by a cubic spline. The error is
-    measured at the midpoints against the Newton solve: :attr:`error` is its
-    maximum relative to the example separation ``‖z_1 − z_0‖``.
+    :func:`lbshape.shapespace.target_table.tabulate_examples` on the region's mesh,
+    eigenvectors Φ_R and example coefficients: the exact example energies (the
+    quartic polynomial for StVK, else all of R's elements), the table and its check
+    at held-out weights, the error measured in ``‖L_R Δc‖_{M_R}`` as a share of the
+    region's example separation (``tolerance``, refining the grid until it holds).
 
-    Args:
-        solver: the Newton :class:`TargetSolver` of the two examples.
-        samples: table size, ≥ 3.
-
-    Raises:
-        LbshapeError: a solver of other than two examples.
+    Returns:
+        The checked table, or None for more than three examples or a refused table
+        (logged; the target is then solved at run time).
     """
-
-    def __init__(self, solver: TargetSolver, *, samples: int = 33):
-        if len(solver.models) != 2:
-            raise LbshapeError(f"a tabulated target needs 2 examples, got {len(solver.models)}")
-        self.models = solver.models
-        self.offsets = solver.offsets
-        grid = np.linspace(0.0, 1.0, int(samples))
-        fine = np.linspace(0.0, 1.0, 2 * int(samples) - 1)
-        solver.reset()
-        solved = np.array([solver.solve(np.array([1.0 - w, w])).z for w in fine])
-        solver.reset()
-        self._spline = CubicSpline(grid, solved[0::2], axis=0)
-        separation = float(np.linalg.norm(self.offsets[1] - self.offsets[0])) or 1.0
-        check = self._spline(fine[1::2])
-        self.error = float(np.linalg.norm(check - solved[1::2], axis=1).max()) / separation
-
-    @property
-    def dimension(self) -> int:
-        return int(self.offsets.shape[1])
-
-    def solve(self, weights: np.ndarray):
-        """The tabulated target for weights (2,) (a :class:`TargetResult`, 0 iterations)."""
-        w = float(np.clip(np.asarray(weights, dtype=float)[1], 0.0, 1.0))
-        return TargetResult(np.asarray(self._spline(w)), 0, 0.0, float("nan"))
+    started = time.perf_counter()
+    sub = region.submesh(mesh)
+    volume_mass = mass_matrix(sub, 1.0)[0::3, 0::3]  # M_R (n_R, n_R), m³
+    table, _, _ = tabulate_examples(sub.points, sub.tets, material, region.eigenvectors,
+                                    region.example_coefficients, mass=volume_mass,
+                                    tolerance=tolerance)
+    if table is not None and table.check is not None:
+        log.info("region %s: target table (%s, N=%d), error max %.2g / median %.2g of the "
+                 "example separation at %d held-out weights, %.2f s", region.name, table.kind,
+                 table.intervals, table.check.max_error, table.check.median_error,
+                 table.check.checks, time.perf_counter() - started)
+    return table
 
 
 class LocalExampleDriver:
@@ -602,6 +616,10 @@ class LocalExampleDriver:
     Attributes:
         spring: the spring matrix the dynamics use instead of the identity.
         last: per-region :class:`TargetInfo` of the last :meth:`target` call.
+
+    The run-time step calls :meth:`weights_into` then :meth:`target_from_weights_into`:
+    per region the precomputed weights and the target written into preallocated
+    arrays (one table lookup per region when tabulated), nothing allocated.
     """
 
     def __init__(self, drivers: Sequence[ExampleDriver], spring: np.ndarray,
@@ -614,8 +632,29 @@ class LocalExampleDriver:
         r = self.drivers[0].D.shape[1]
         if self.spring.shape != (r, r):
             raise LbshapeError(f"spring must be ({r}, {r}), got {self.spring.shape}")
-        self.rigid_pull = None if rigid_pull is None else np.asarray(rigid_pull, dtype=float)
+        self.rigid_pull = (None if rigid_pull is None
+                           else np.ascontiguousarray(rigid_pull, dtype=float))
         self.last: tuple[TargetInfo, ...] = ()
+        self._q = np.zeros(r)  # the state of the last weights_into call
+        self._part = np.zeros(r)  # one region's pull
+
+    def weights_into(self, q: np.ndarray) -> None:
+        """Each region's weights for reduced coordinates q (r,), into its driver's ``w``."""
+        self._q[:] = q
+        for driver in self.drivers:
+            driver.weights_into(q)
+
+    def target_from_weights_into(self, out: np.ndarray) -> None:
+        """The pull ``Σ_R T'_R c*_R + Π q`` (r,) for the weights of :meth:`weights_into`,
+        written into ``out``."""
+        if self.rigid_pull is None:
+            out[:] = 0.0
+        else:
+            np.dot(self.rigid_pull, self._q, out=out)
+        part = self._part
+        for driver in self.drivers:
+            driver.target_from_weights_into(part)
+            np.add(out, part, out=out)
 
     def target(self, q: np.ndarray) -> TargetInfo:
         """Pull ``Σ_R T_R c*_R + Π q`` (r,), concatenated weights, total iterations."""
@@ -644,26 +683,38 @@ def local_example_driver(mesh: TetMesh, material: Material, space: LocalShapeSpa
         material: its material.
         space: the local shape space of the precompute.
         route: one of :data:`LOCAL_ROUTES`.
-        tabulate: regions with two examples use a :class:`TabulatedTarget` on the
-            ``lb-exact`` route (the ``euclidean`` baseline solves every step).
+        tabulate: on the ``lb-exact`` route, regions look their target up in their
+            table (:attr:`RegionSpace.table`, built here when the precompute has none);
+            the ``euclidean`` baseline solves every step.
         free_rigid: anchor each region's target where the region is attached (the
             module docstring); False leaves the targets unanchored.
         tolerance, max_iterations: Newton settings of the target solves.
     """
+    if route not in LOCAL_ROUTES:
+        raise LbshapeError(f"local examples support the routes {', '.join(LOCAL_ROUTES)}, "
+                           f"got {route!r}")
     drivers = []
+    rho = material.density
     for region in space.regions:
-        models = region_energy_models(mesh, material, region, route=route)
         k = region.example_coefficients.shape[0]
-        solver = TargetSolver(models, region.example_coefficients.reshape(k, -1),
-                              tolerance=tolerance, max_iterations=max_iterations)
-        if tabulate and k == 2 and route == "lb-exact":  # the baseline solves every step
-            solver = TabulatedTarget(solver)
-            log.info("region %s: tabulated target, error %.2g of the example separation",
-                     region.name, solver.error)
-        rho = material.density
+        offsets = region.example_coefficients.reshape(k, -1)
+        pull = region.pull_matrix(free_rigid=free_rigid)
+        table = None
+        if tabulate and route == "lb-exact":  # the baseline solves every step
+            table = region.table
+            if table is None and k <= 3:
+                log.info("region %s: no target table in the precompute, built at set-up",
+                         region.name)
+                table = region_target_table(mesh, material, region)
+        if table is not None:
+            solver = TableSolver(table.mapped(pull), [None] * k, offsets)
+        else:
+            models = region_energy_models(mesh, material, region, route=route)
+            solver = TargetSolver(models, offsets, tolerance=tolerance,
+                                  max_iterations=max_iterations)
         drivers.append(ExampleDriver(region.descriptor_matrix(rho, free_rigid=free_rigid),
                                      region.example_descriptors(rho, free_rigid=free_rigid),
-                                     solver, to_reduced=region.pull_matrix(free_rigid=free_rigid)))
+                                     solver, to_reduced=pull))
     return LocalExampleDriver(drivers, space.spring, [reg.name for reg in space.regions],
                               rigid_pull=space.rigid_pull if free_rigid else None)
 

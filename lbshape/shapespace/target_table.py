@@ -139,6 +139,14 @@ class TargetTable:
             raise LbshapeError(f"to_reduced must have shape (r, {self.dimension}), got {R.shape}")
         self._reduced_cells = np.ascontiguousarray(self.cells @ R.T)
 
+    def mapped(self, to_reduced: np.ndarray | None) -> TargetTable:
+        """A table sharing this one's nodes and check whose :meth:`reduced_into` returns
+        ``R z*(w)`` (R (r, p); ``None``: z itself); this table is left as it is."""
+        table = TargetTable(self.kind, self.intervals, self.cells, self.nodes,
+                            self.node_weights, self.check)
+        table.set_reduced_map(to_reduced)
+        return table
+
     def reduced_into(self, weights: np.ndarray, out: np.ndarray) -> np.ndarray:
         """Write ``R z*(w)`` (r,) into ``out`` (after :meth:`set_reduced_map`)."""
         if self._reduced_cells is None:
