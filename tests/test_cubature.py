@@ -355,3 +355,25 @@ def test_sampled_fallback_is_the_same_streamed_and_on_ranks(bar, monkeypatch):
         np.testing.assert_array_equal(rule.elements, one.elements)
         np.testing.assert_allclose(rule.weights, one.weights, rtol=1e-9)
     assert one.train_error <= 1e-3 or one.size == 40
+
+
+def test_example_cubatures_leave_out_forceless_and_non_finite_targets(bar):
+    """Path targets equal to an example (no force) or not finite (a diverged exact solve)
+    are left out: the rules equal those trained without them."""
+    mesh, U = bar
+    rng = np.random.default_rng(7)
+    offsets = np.stack([np.zeros(R), 0.02 * rng.standard_normal(R)])
+    t = np.linspace(0.0, 1.0, 9)[:, None]
+    path = (1 - t) * offsets[0] + t * offsets[1]
+    bad = np.concatenate([path, [offsets[1] * (1 + 1e-14)], [np.full(R, np.nan)]])
+    rests = [mesh.points, mesh.points]
+
+    def rules(targets):
+        return train_example_cubatures(rests, mesh.tets, material("stvk"), U, offsets, targets,
+                                       rng=np.random.default_rng(3), max_elements=20, tol=1e-3)
+
+    clean = rules(np.concatenate([path, [np.full(R, np.nan)]])[:-1])
+    dirty = rules(bad)
+    for a, b in zip(dirty, clean, strict=True):
+        assert a.train_error <= max(1e-3, b.train_error) * 1.5
+        assert np.isfinite(a.weights).all() and a.size > 0

@@ -353,6 +353,7 @@ def train_cubature_on_poses(
     progress: bool = False,
     peak_strain: float | None = None,
     comm=None,
+    drop_forceless: bool = False,
 ) -> Cubature:
     """Greedy + NNLS cubature fitted to given training poses on a given rest shape.
 
@@ -373,6 +374,10 @@ def train_cubature_on_poses(
             :func:`train_cubature`.
         peak_strain: the poses' largest expected strain, for the rigid-pose check
             (default: measured on the poses).
+        drop_forceless: leave out (and log) poses without a finite, non-negligible exact
+            force instead of refusing them (an error only when no training or held-out
+            pose remains); e.g. example path targets from an exact solve that did not
+            converge.
 
     Returns:
         The :class:`Cubature` (``n_train``/``n_holdout`` the pose counts).
@@ -395,6 +400,21 @@ def train_cubature_on_poses(
     all_poses = np.concatenate([train, holdout])
     forces, strains = exact_pose_forces(rest_points, tets, material, U, all_poses,
                                         max_bytes=max_bytes, comm=comm)
+    n_train = train.shape[0]
+    if drop_forceless:
+        norms = np.linalg.norm(forces, axis=1)
+        finite = np.isfinite(norms) & np.isfinite(strains)
+        largest = norms[finite].max(initial=0.0)
+        keep = finite & (norms > 1e-12 * largest) & (strains > 1e-9 * strains[finite].max(
+            initial=0.0))
+        if not keep.all():
+            log.warning("cubature: %d of %d poses without a finite elastic force left out",
+                        int((~keep).sum()), keep.size)
+        if not keep[:n_train].any() or not keep[n_train:].any():
+            raise LbshapeError("no training or held-out pose has an elastic force")
+        forces, strains = forces[keep], strains[keep]
+        train, holdout = train[keep[:n_train]], holdout[keep[n_train:]]
+        n_train = train.shape[0]
     if peak_strain is None:
         peak_strain = float(strains.max())
     if (strains <= 1e-9 * peak_strain).any():
@@ -402,7 +422,6 @@ def train_cubature_on_poses(
             "a training pose has no elastic force: the basis only translates the "
             "mesh rigidly (or not at all) for some poses"
         )
-    n_train = train.shape[0]
     b, factor = _normalised_forces(forces[:n_train])
     b_hold, factor_hold = _normalised_forces(forces[n_train:])
     columns = _Columns(rest_points, tets, material, U, train, factor, max_bytes=max_bytes)
@@ -492,6 +511,11 @@ def train_example_cubatures(
         raise LbshapeError(f"need {k} rest shapes and a path of >= 4 targets with {p} "
                            f"coordinates, got {len(rest_points)} and {path.shape}")
     _check_int("max_path", max_path, minimum=4)
+    finite = np.isfinite(path).all(axis=1)
+    if not finite.all():
+        log.warning("example cubature: %d non-finite path targets left out",
+                    int((~finite).sum()))
+        path = path[finite]
     if path.shape[0] > max_path:
         path = path[np.unique(np.round(np.linspace(0, path.shape[0] - 1, max_path)).astype(int))]
     spread = max((float(np.linalg.norm(offsets[i] - offsets[j]))
@@ -511,7 +535,7 @@ def train_example_cubatures(
         rules.append(train_cubature_on_poses(
             rest_points[index], tets, material, basis, train=poses[~held & moving],
             holdout=poses[held], rng=rng, max_elements=max_elements, tol=tol,
-            max_bytes=max_bytes, comm=comm))
+            max_bytes=max_bytes, comm=comm, drop_forceless=True))
     return rules
 
 
