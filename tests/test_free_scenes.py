@@ -7,6 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from lbshape.dynamics.free_body import PHASES as FREE_BODY_PHASES
+from lbshape.dynamics.reduced import PHASES as FIXED_PHASES
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.geometry.primitives import structured_box
@@ -111,9 +113,13 @@ def test_planes_act_in_every_method(dropped):
     heights = [float(np.mean(pre.mesh.points[:, 2] + out.displacements[-1, :, 2]))
                for out in (reduced, full)]
     assert abs(heights[0] - heights[1]) <= 5e-3, heights
-    breakdown = outputs["reduced"].breakdown
-    assert set(breakdown) == {"interp", "rigid", "contact", "solve"}
-    assert all(value >= 0 for value in breakdown.values())
+    # the one phase record: the fixed-object phases plus rigid and contact, in the stats too
+    phases = outputs["reduced"].phase_ms
+    assert list(phases) == list(FREE_BODY_PHASES)
+    assert set(FIXED_PHASES) < set(phases)
+    assert all(value >= 0 for value in phases.values())
+    assert outputs["reduced"].stats["phase_ms"] == phases
+    assert outputs["full"].phase_ms is None
 
 
 def test_without_planes_the_bar_falls_through(dropped):

@@ -105,9 +105,12 @@ def run(args) -> int:
                   f"t_total {row['t_total_ms']:.3f} ms per step, error vs full "
                   f"{'—' if error is None else f'{error:.2%}'}")
         for result in results:
-            if result.breakdown:
-                parts = ", ".join(f"{name} {ms:.3f} ms" for name, ms in result.breakdown.items())
-                print(f"bench {result.scene} [reduced]: step by part: {parts}")
+            for timing in result.timings:
+                phases = timing.phase_summary()
+                if phases:
+                    parts = ", ".join(f"{name} {ms:.3f}" for name, ms in phases.items())
+                    print(f"bench {result.scene} [{timing.method}]: step by part (median ms): "
+                          f"{parts}")
         print(f"bench: {md} and {js}")
     if jobs:
         _print_summary(jobs, file=sys.stderr if args.json else sys.stdout)

@@ -74,13 +74,15 @@ def precompute_summary(name: str, *, force: bool = False) -> dict:
 
 def precompute_record(pre) -> dict:
     """The JSON summary of one precompute: sizes, cubature errors, and per stage the wall
-    time (s) and the number of MPI ranks it ran on (of the run that built the artifact)."""
+    time (s), the peak memory (MB, summed over the ranks) and the number of MPI ranks it
+    ran on (of the run that built the artifact)."""
     return {"scene": pre.scene, "origin": "cache" if pre.from_cache else "computed",
             "key": pre.key, "n_vertices": pre.mesh.n_vertices, "n_tets": pre.mesh.n_tets,
             "m": None if pre.eigenvalues is None else int(pre.eigenvalues.size), "r": pre.r,
             "s": int(pre.cubature_elements.size),
             "cubature_errors": pre.cubature_errors,
             "stage_seconds": dict(pre.stage_seconds),
+            "stage_peak_mb": dict(pre.stage_peak_mb),
             "stage_ranks": dict(pre.stage_ranks),
             "total_seconds": float(sum(pre.stage_seconds.values()))}
 

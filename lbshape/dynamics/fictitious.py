@@ -32,7 +32,10 @@ The Euler–Lagrange equations of the deformation (body frame) then read
 ``F_coriolis = Γ(ω) q̇``, ``Γ_jk = 2 ω · S_kj`` (skew: does no work);
 ``F_centrifugal_j = ωᵀ A_j ω − |ω|² tr A_j``, ``A_j(q) = G_j + Σ_k q_k C_jk``
 (``= U_jᵀ M (ω × (ω × y))``); and the linear inertial force ``Uᵀ M Rᵀ c̈`` vanishes
-because ``Σ M U = 0``. Every run-time quantity is an r- or r²-sized contraction.
+because ``Σ M U = 0``. Every run-time quantity is an r- or r²-sized contraction,
+computed by the compiled kernels of this module (:func:`inertia_momentum_into`,
+:func:`fictitious_into`, :func:`coriolis_into`) into arrays the caller owns; the
+methods of :class:`FrameTensors` return new arrays from the same kernels.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from lbshape._jit import njit
 from lbshape.errors import LbshapeError
 
 #: largest accepted ``‖Σ M U_j‖ / √m_tot`` (translation content of the basis)
@@ -83,8 +87,10 @@ class FrameTensors:
         object.__setattr__(self, "_G9", np.ascontiguousarray(self.G.reshape(r, 9)))
         object.__setattr__(self, "_C9", np.ascontiguousarray(self.C.reshape(r * r, 9)))
         object.__setattr__(self, "_S3", np.ascontiguousarray(self.S.reshape(r * r, 3)))
+        object.__setattr__(self, "_H", np.ascontiguousarray(self.H, dtype=float))
+        object.__setattr__(self, "_Y0", np.ascontiguousarray(self.Y0, dtype=float))
         object.__setattr__(self, "_G_trace", np.einsum("jaa->j", self.G))
-        object.__setattr__(self, "_C_trace", np.einsum("jkaa->jk", self.C))
+        object.__setattr__(self, "_C_trace", np.ascontiguousarray(np.einsum("jkaa->jk", self.C)))
 
     @property
     def r(self) -> int:
@@ -95,41 +101,133 @@ class FrameTensors:
         """(3, 3) rest inertia tensor about the centre of mass (kg·m²)."""
         return np.trace(self.Y0) * np.eye(3) - self.Y0
 
-    # ------------------------------------------------------------- run time
-    def second_moment(self, q: np.ndarray) -> np.ndarray:
-        """(3, 3) ``Y(q)`` (kg·m²)."""
-        lin = (q @ self._G9).reshape(3, 3)
-        quad = (np.outer(q, q).reshape(-1) @ self._C9).reshape(3, 3)
-        return self.Y0 + lin + lin.T + quad
+    @property
+    def kernel_arrays(self) -> tuple[np.ndarray, ...]:
+        """``(Y0, G9, C9, S3, H, G_trace, C_trace)``: the contiguous arrays the kernels take
+        (``G9`` (r, 9), ``C9`` (r², 9), ``S3`` (r², 3) the flattened G, C, S; the traces
+        ``tr G_j`` (r,) and ``tr C_jk`` (r, r))."""
+        return (self._Y0, self._G9, self._C9, self._S3, self._H, self._G_trace, self._C_trace)
 
+    # ------------------------------------------------------------- run time
     def inertia(self, q: np.ndarray) -> np.ndarray:
         """(3, 3) body-frame inertia tensor ``I(q)`` about the centre of mass (kg·m²)."""
-        Y = self.second_moment(q)
-        return np.trace(Y) * np.eye(3) - Y
+        inertia, h = np.zeros((3, 3)), np.zeros(3)
+        q = np.asarray(q, dtype=float)
+        inertia_momentum_into(q, np.zeros_like(q), self._Y0, self._G9, self._C9, self._S3,
+                              self._H, inertia, h)
+        return inertia
 
     def relative_momentum(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """(3,) body-frame angular momentum of the deformation ``h(q, q̇)`` (kg·m²/s)."""
-        return self.H @ qd + np.outer(q, qd).reshape(-1) @ self._S3
+        inertia, h = np.zeros((3, 3)), np.zeros(3)
+        inertia_momentum_into(np.asarray(q, dtype=float), np.asarray(qd, dtype=float),
+                              self._Y0, self._G9, self._C9, self._S3, self._H, inertia, h)
+        return h
 
     def euler(self, q: np.ndarray, omega_dot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Euler force (r,) and its tangent ∂/∂q (r, r) for ω̇ (3,) rad/s² (body frame)."""
-        r = self.G.shape[0]
-        tangent = -(self._S3 @ omega_dot).reshape(r, r)  # ω̇ · S_kj
-        return self.H.T @ omega_dot + tangent @ q, tangent
+        return self._forces(q, np.zeros(3), omega_dot)
 
     def coriolis(self, omega: np.ndarray) -> np.ndarray:
         """(r, r) skew matrix Γ(ω) of the Coriolis force ``Γ q̇`` (ω body frame, rad/s)."""
-        r = self.G.shape[0]
-        return -2.0 * (self._S3 @ omega).reshape(r, r)
+        r = self.r
+        out = np.zeros((r, r))
+        coriolis_into(np.asarray(omega, dtype=float), self._S3, np.zeros((r, r)), out)
+        return out
 
     def centrifugal(self, q: np.ndarray, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Centrifugal force (r,) and its tangent ∂/∂q (r, r) for ω (3,) rad/s (body frame)."""
-        r = self.G.shape[0]
-        w2 = float(omega @ omega)
-        ww = np.outer(omega, omega).reshape(-1)
-        tangent = (self._C9 @ ww).reshape(r, r) - w2 * self._C_trace
-        base = self._G9 @ ww - w2 * self._G_trace
-        return base + tangent @ q, tangent
+        return self._forces(q, omega, np.zeros(3))
+
+    def _forces(self, q, omega, omega_dot) -> tuple[np.ndarray, np.ndarray]:
+        r = self.r
+        f, K = np.zeros(r), np.zeros((r, r))
+        fictitious_into(np.asarray(q, dtype=float), np.asarray(omega, dtype=float),
+                        np.asarray(omega_dot, dtype=float), self._G9, self._C9, self._S3,
+                        self._H, self._G_trace, self._C_trace, f, K)
+        return f, K
+
+
+# ------------------------------------------------------------------ compiled kernels
+@njit
+def inertia_momentum_into(q, qd, Y0, G9, C9, S3, H, inertia, h):
+    """Write ``I(q)`` (3, 3) into ``inertia`` and ``h(q, q̇)`` (3,) into ``h``."""
+    r = q.shape[0]
+    Y = inertia  # Y(q) first, then I = tr(Y) I₃ − Y in place
+    for a in range(3):
+        for b in range(3):
+            Y[a, b] = Y0[a, b]
+    for j in range(r):
+        for a in range(3):
+            for b in range(3):
+                Y[a, b] += q[j] * (G9[j, 3 * a + b] + G9[j, 3 * b + a])
+    for j in range(r):
+        if q[j] == 0.0:
+            continue
+        for k in range(r):
+            w = q[j] * q[k]
+            row = j * r + k
+            for a in range(3):
+                for b in range(3):
+                    Y[a, b] += w * C9[row, 3 * a + b]
+    trace = Y[0, 0] + Y[1, 1] + Y[2, 2]
+    for a in range(3):
+        for b in range(3):
+            Y[a, b] = -Y[a, b]
+        Y[a, a] += trace
+    for c in range(3):
+        value = 0.0
+        for k in range(r):
+            value += H[c, k] * qd[k]
+        h[c] = value
+    for j in range(r):
+        if q[j] == 0.0:
+            continue
+        for k in range(r):
+            w = q[j] * qd[k]
+            row = j * r + k
+            for c in range(3):
+                h[c] += w * S3[row, c]
+
+
+@njit
+def fictitious_into(q, omega, omega_dot, G9, C9, S3, H, G_trace, C_trace, f, K):
+    """Add the Euler and centrifugal forces (r,) to ``f`` and their tangents (r, r) to ``K``.
+
+    Euler: ``H_jᵀ ω̇ + Σ_k q_k (−ω̇ · S_jk)``, tangent ``−ω̇ · S_jk``; centrifugal:
+    ``G_j : ωωᵀ − |ω|² tr G_j + Σ_k q_k T_jk``, ``T_jk = C_jk : ωωᵀ − |ω|² tr C_jk``.
+    """
+    r = q.shape[0]
+    w2 = omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2]
+    for j in range(r):
+        value = 0.0
+        for c in range(3):
+            value += H[c, j] * omega_dot[c]
+        for a in range(3):
+            for b in range(3):
+                value += G9[j, 3 * a + b] * omega[a] * omega[b]
+        value -= w2 * G_trace[j]
+        for k in range(r):
+            row = j * r + k
+            tangent = -(S3[row, 0] * omega_dot[0] + S3[row, 1] * omega_dot[1]
+                        + S3[row, 2] * omega_dot[2]) - w2 * C_trace[j, k]
+            for a in range(3):
+                for b in range(3):
+                    tangent += C9[row, 3 * a + b] * omega[a] * omega[b]
+            K[j, k] += tangent
+            value += tangent * q[k]
+        f[j] += value
+
+
+@njit
+def coriolis_into(omega, S3, damping, out):
+    """``out = damping + Γ(ω)`` (r, r), ``Γ_jk = −2 ω · S_jk`` (the Coriolis matrix)."""
+    r = out.shape[0]
+    for j in range(r):
+        for k in range(r):
+            row = j * r + k
+            out[j, k] = damping[j, k] - 2.0 * (S3[row, 0] * omega[0] + S3[row, 1] * omega[1]
+                                                + S3[row, 2] * omega[2])
 
 
 def frame_tensors(points: np.ndarray, tets: np.ndarray, mass: sp.spmatrix,

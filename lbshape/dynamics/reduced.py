@@ -201,17 +201,17 @@ class ReducedSimulation:
             self._f[:] = f
             self._K[:] = K
         if self.contact is not None:  # contact may touch surface vertices (n-sized)
-            res = self.contact.evaluate(_ORIGIN, _IDENTITY3, q, rigid=False)
-            if res.active:
-                self._f -= res.generalized
-                self._K += res.stiffness_q
+            if self.contact.evaluate_into(_ORIGIN, _IDENTITY3, q, False):
+                self._f -= self.contact.generalized
+                self._K += self.contact.stiffness_q
 
     def _potential(self, q: np.ndarray) -> float:
         energy = float(self.elastic.energy(q))
         if self.k_ex:
             energy += 0.5 * self.k_ex * float(q @ (self._spring @ q))
         if self.contact is not None:
-            energy += self.contact.evaluate(_ORIGIN, _IDENTITY3, q, rigid=False).energy
+            self.contact.evaluate_into(_ORIGIN, _IDENTITY3, q, False)
+            energy += float(self.contact.scalars[0])
         return energy
 
     # ----------------------------------------------------------------- step
@@ -425,7 +425,20 @@ def _newton_update(base, K, S, c, R, J, dx):
     for i in range(n):
         for j in range(i + 1):
             J[i, j] = base[i, j] + 0.5 * (K[i, j] + K[j, i]) + 0.5 * c[5] * (S[i, j] + S[j, i])
-    for j in range(n):  # lower Cholesky factor in place
+    if not cholesky_in_place(J):
+        return False
+    cholesky_solve_in_place(J, R)
+    for i in range(n):
+        dx[i] -= R[i]
+    return True
+
+
+@njit
+def cholesky_in_place(J):
+    """Lower Cholesky factor of the symmetric matrix J (n, n), read from and written to its
+    lower triangle; False if J is not positive definite."""
+    n = J.shape[0]
+    for j in range(n):
         d = J[j, j]
         for k in range(j):
             d -= J[j, k] * J[j, k]
@@ -438,20 +451,23 @@ def _newton_update(base, K, S, c, R, J, dx):
             for k in range(j):
                 value -= J[i, k] * J[j, k]
             J[i, j] = value / d
-    # solve L y = R, then Lᵀ δ = y, both in place in R
-    for i in range(n):
-        value = R[i]
-        for k in range(i):
-            value -= J[i, k] * R[k]
-        R[i] = value / J[i, i]
-    for i in range(n - 1, -1, -1):
-        value = R[i]
-        for k in range(i + 1, n):
-            value -= J[k, i] * R[k]
-        R[i] = value / J[i, i]
-    for i in range(n):
-        dx[i] -= R[i]
     return True
+
+
+@njit
+def cholesky_solve_in_place(L, b):
+    """b ← (L Lᵀ)⁻¹ b with the factor of :func:`cholesky_in_place` (lower triangle of L)."""
+    n = b.shape[0]
+    for i in range(n):
+        value = b[i]
+        for k in range(i):
+            value -= L[i, k] * b[k]
+        b[i] = value / L[i, i]
+    for i in range(n - 1, -1, -1):
+        value = b[i]
+        for k in range(i + 1, n):
+            value -= L[k, i] * b[k]
+        b[i] = value / L[i, i]
 
 
 @njit

@@ -19,7 +19,8 @@ same midpoint velocity, ``R₁ = R₀ cay(Δt ω)``, ``Π₁ = cay(Δt ω)ᵀ Π
 exactly), keeps ``|Π|`` and, for fixed I and h, the rotational kinetic energy
 ``½ (Π − h)ᵀ I⁻¹ (Π − h)`` exactly (both are quadratic invariants of the midpoint
 rule), is second order, and ``cay`` maps skew matrices to exact rotations, so R
-leaves SO(3) only by round-off. The implicit ω is found by fixed-point iteration.
+leaves SO(3) only by round-off. The implicit ω is found by fixed-point iteration
+(compiled: :func:`rotate_into`, which the free-body step calls with its own arrays).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lbshape._jit import njit
 from lbshape.errors import SolverError
 
 #: fixed-point iterations of the midpoint angular velocity before giving up
@@ -47,8 +49,9 @@ def cayley(w: np.ndarray) -> np.ndarray:
     Closed form: with ``W = [w]×`` and ``s = ¼|w|²``, ``cay = I + (W + ½ W²) / (1 + s)``.
     It rotates by ``2 atan(|w|/2)`` about ``w`` (≈ exp([w]×) to third order).
     """
-    W = skew(w)
-    return np.eye(3) + (W + 0.5 * W @ W) / (1.0 + 0.25 * float(w @ w))
+    out = np.zeros((3, 3))
+    cayley_into(np.asarray(w, dtype=float), 1.0, out)
+    return out
 
 
 def orthonormality_error(R: np.ndarray) -> float:
@@ -104,23 +107,102 @@ def rotate(rotation: np.ndarray, body_momentum: np.ndarray, inertia: np.ndarray,
         SolverError: the midpoint iteration did not converge (step too large for
             the spin rate), naming the step.
     """
-    inverse = np.linalg.inv(inertia)
-    omega = inverse @ (body_momentum - relative)
+    R1, Pi1, omega, work = np.zeros((3, 3)), np.zeros(3), np.zeros(3), np.zeros((2, 3, 3))
+    if not rotate_into(np.asarray(rotation, dtype=float), np.asarray(body_momentum, dtype=float),
+                       np.asarray(inertia, dtype=float), np.asarray(relative, dtype=float),
+                       float(dt), R1, Pi1, omega, work):
+        raise rotation_error(dt, omega, step, time)
+    return R1, Pi1, omega
+
+
+def rotation_error(dt: float, omega: np.ndarray, step: int, time: float) -> SolverError:
+    """The error of a midpoint iteration that did not converge (ω (3,) its last iterate)."""
+    return SolverError(
+        f"rigid rotation did not converge at step {step} (t = {time:.6g} s): "
+        f"|omega| dt = {dt * float(np.linalg.norm(omega)):.3g} rad is too large"
+    )
+
+
+# ------------------------------------------------------------------ compiled kernels
+@njit
+def cayley_into(w, scale, out):
+    """``out = cay(scale · w)`` (3, 3) (closed form of :func:`cayley`)."""
+    x, y, z = scale * w[0], scale * w[1], scale * w[2]
+    denominator = 1.0 + 0.25 * (x * x + y * y + z * z)
+    # W = [w]×, W² = w wᵀ − |w|² I
+    s2 = x * x + y * y + z * z
+    out[0, 0] = 1.0 + 0.5 * (x * x - s2) / denominator
+    out[1, 1] = 1.0 + 0.5 * (y * y - s2) / denominator
+    out[2, 2] = 1.0 + 0.5 * (z * z - s2) / denominator
+    out[0, 1] = (-z + 0.5 * x * y) / denominator
+    out[1, 0] = (z + 0.5 * x * y) / denominator
+    out[0, 2] = (y + 0.5 * x * z) / denominator
+    out[2, 0] = (-y + 0.5 * x * z) / denominator
+    out[1, 2] = (-x + 0.5 * y * z) / denominator
+    out[2, 1] = (x + 0.5 * y * z) / denominator
+
+
+@njit
+def inverse3_into(A, out):
+    """``out = A⁻¹`` (3, 3) by the adjugate; False if A is singular."""
+    c00 = A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]
+    c01 = A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]
+    c02 = A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]
+    det = A[0, 0] * c00 + A[0, 1] * c01 + A[0, 2] * c02
+    if not (det != 0.0 and np.isfinite(det)):
+        return False
+    out[0, 0], out[1, 0], out[2, 0] = c00 / det, c01 / det, c02 / det
+    out[0, 1] = (A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2]) / det
+    out[1, 1] = (A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0]) / det
+    out[2, 1] = (A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1]) / det
+    out[0, 2] = (A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]) / det
+    out[1, 2] = (A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]) / det
+    out[2, 2] = (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) / det
+    return True
+
+
+@njit
+def rotate_into(rotation, body_momentum, inertia, relative, dt, R1, Pi1, omega, work):
+    """Compiled :func:`rotate`: writes R₁, Π₁ and the midpoint ω; False if the midpoint
+    iteration did not converge (or I is singular). ``work`` (2, 3, 3) scratch."""
+    inverse, F = work[0], work[1]
+    if not inverse3_into(inertia, inverse):
+        return False
+    for a in range(3):
+        value = 0.0
+        for b in range(3):
+            value += inverse[a, b] * (body_momentum[b] - relative[b])
+        omega[a] = value
+    converged = False
     for _ in range(ROTATION_MAX_ITERATIONS):
-        F = cayley(dt * omega)
-        after = F.T @ body_momentum
-        new = inverse @ (0.5 * (body_momentum + after) - relative)
-        change = float(np.abs(new - omega).max())
-        omega = new
-        if change <= ROTATION_TOLERANCE * max(float(np.abs(omega).max()), 1e-300):
+        cayley_into(omega, dt, F)
+        for a in range(3):  # Π₁ = Fᵀ Π₀
+            Pi1[a] = F[0, a] * body_momentum[0] + F[1, a] * body_momentum[1] + \
+                F[2, a] * body_momentum[2]
+        change = 0.0
+        largest = 0.0
+        for a in range(3):
+            value = 0.0
+            for b in range(3):
+                value += inverse[a, b] * (0.5 * (body_momentum[b] + Pi1[b]) - relative[b])
+            change = max(change, abs(value - omega[a]))
+            R1[0, a] = value  # the new iterate, parked in R1's first row
+        for a in range(3):
+            omega[a] = R1[0, a]
+            largest = max(largest, abs(omega[a]))
+        if change <= ROTATION_TOLERANCE * max(largest, 1e-300):
+            converged = True
             break
-    else:
-        raise SolverError(
-            f"rigid rotation did not converge at step {step} (t = {time:.6g} s): "
-            f"|omega| dt = {dt * float(np.linalg.norm(omega)):.3g} rad is too large"
-        )
-    F = cayley(dt * omega)
-    return rotation @ F, F.T @ body_momentum, omega
+    if not converged:
+        return False
+    cayley_into(omega, dt, F)
+    for a in range(3):
+        Pi1[a] = F[0, a] * body_momentum[0] + F[1, a] * body_momentum[1] + \
+            F[2, a] * body_momentum[2]
+        for b in range(3):
+            R1[a, b] = rotation[a, 0] * F[0, b] + rotation[a, 1] * F[1, b] + \
+                rotation[a, 2] * F[2, b]
+    return True
 
 
 def best_rigid_frame(scalar_mass, rest: np.ndarray,

@@ -195,18 +195,21 @@ def force_contribution_matrix(
     return A
 
 
-def element_chunks(count: int, per_element_bytes: int, max_bytes: int) -> list[range]:
+def element_chunks(count: int, per_element_bytes: int, max_bytes: int, *,
+                   parts: int = 1) -> list[range]:
     """Consecutive blocks of ``range(count)`` whose temporaries stay below ``max_bytes``.
 
     Args:
         count: number of elements.
         per_element_bytes: temporary bytes one element needs (> 0).
         max_bytes: the bound (bytes); at least one element per block whatever it is.
+        parts: at least this many blocks when ``count`` allows (e.g. the number of MPI
+            ranks sharing them, so that every rank gets work).
 
     Returns:
         The blocks in order (their concatenation is ``range(count)``).
     """
-    size = int(max(1, max_bytes // max(1, per_element_bytes)))
+    size = int(max(1, min(max_bytes // max(1, per_element_bytes), -(-count // parts))))
     return [range(start, min(count, start + size)) for start in range(0, count, size)]
 
 
@@ -249,7 +252,8 @@ def exact_pose_forces(
     n_poses = poses.shape[0]
     # model (element rows, BU three times, kernel) + gradients, stresses, strains
     per_element = 8 * (39 * r + 260 + 21 * n_poses)
-    chunks = element_chunks(tets.shape[0], per_element, max_bytes)
+    chunks = element_chunks(tets.shape[0], per_element, max_bytes,
+                            parts=1 if comm is None else comm.size)
     forces, strains = np.zeros((n_poses, r)), np.zeros(n_poses)
     for index in rank_share(comm, len(chunks)):
         chunk = chunks[index]
@@ -572,10 +576,12 @@ class _Columns:
         A *= self._factor[:, None]
         return A
 
-    def chunks(self, elements: np.ndarray) -> list[np.ndarray]:
-        """``elements`` split into blocks whose columns fit the memory bound."""
+    def chunks(self, elements: np.ndarray, *, parts: int = 1) -> list[np.ndarray]:
+        """``elements`` split into blocks (at least ``parts``) whose columns fit the
+        memory bound."""
         return [elements[block.start:block.stop] for block in
-                element_chunks(elements.size, self._per_element, self._max_bytes)]
+                element_chunks(elements.size, self._per_element, self._max_bytes,
+                               parts=parts)]
 
 
 def _greedy_nnls(columns, b, hold_columns, b_hold, *, n_elements, s, tol, candidates, rng,
@@ -657,7 +663,7 @@ def _best_aligned(columns, residual, candidates) -> tuple[int, np.ndarray] | Non
 def _best_aligned_in_chunks(columns, residual, pool, comm) -> tuple[int, np.ndarray] | None:
     """:func:`_best_aligned` over every element of ``pool``, chunk by chunk (split across
     the ranks of ``comm``); the first of equal best scores, as in one pass."""
-    blocks = columns.chunks(pool)
+    blocks = columns.chunks(pool, parts=1 if comm is None else comm.size)
     best_score, best_element = 0.0, -1
     for index in rank_share(comm, len(blocks)):
         scores = _scores(columns(blocks[index]), residual)

@@ -122,6 +122,7 @@ class ForceHessian:
         #: (3 · local vertices,) input index of every local dof (owned, then ghosts)
         self.local_dofs = dof_to_input_order(self._dof_vertices, 3)
         self.n_owned = 3 * space.dofmap.index_map.size_local
+        self._vector = None
 
     def assemble(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """H(a, b) on the owned dofs (3 · owned vertices,) in DOLFINx order, in N/m², for
@@ -131,12 +132,19 @@ class ForceHessian:
 
         self._a.x.array[:] = a
         self._b.x.array[:] = b
-        vector = dolfinx.fem.petsc.assemble_vector(self._form)
-        try:
-            vector.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-            return vector.getArray(readonly=True)[: self.n_owned].copy()
-        finally:
-            vector.destroy()
+        if self._vector is None:  # one ghosted vector, re-used by every call
+            self._vector = dolfinx.fem.petsc.create_vector(self._form)
+        with self._vector.localForm() as local:
+            local.set(0.0)
+        dolfinx.fem.petsc.assemble_vector(self._vector, self._form)
+        self._vector.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        return self._vector.getArray(readonly=True)[: self.n_owned].copy()
+
+    def destroy(self) -> None:
+        """Destroy the assembly vector (idempotent; also done at garbage collection)."""
+        if self._vector is not None:
+            self._vector.destroy()
+            self._vector = None
 
     def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """H(a, b) (3n,) in N/m² for node-major input-order displacements a, b (3n,) in m
@@ -216,13 +224,15 @@ def modal_derivatives(
                 if rigid is not None:
                     h -= system.mass_times(rigid @ sum_over_ranks(comm, rigid.T @ h))
                 rhs[:, q] = -h
-                if comm.allreduce(bool(np.any(h)), op=MPI.LOR):
-                    vectors[:, q] = system.solve(rhs[:, q])
+            nonzero = np.flatnonzero(sum_over_ranks(comm, np.any(rhs, axis=0).astype(np.int64)))
+            if nonzero.size:  # all right-hand sides in one block solve
+                vectors[:, nonzero] = system.solve(rhs[:, nonzero])
             if rigid is not None:
                 masses = np.column_stack([system.mass_times(x) for x in vectors.T])
                 vectors -= rigid @ sum_over_ranks(comm, rigid.T @ masses)
             # residuals on every equation that must hold (all DOFs of a free body)
             misfit = np.column_stack([system.stiffness_times(x) for x in vectors.T]) - rhs
+        hessian.destroy()
         misfit_norms = np.sqrt(sum_over_ranks(comm, np.sum(misfit**2, axis=0)))
         norms = np.sqrt(sum_over_ranks(comm, np.sum(rhs**2, axis=0)))
         residuals = np.divide(misfit_norms, norms, out=np.zeros(p), where=norms > 0)
@@ -315,7 +325,7 @@ class _DistributedSystem:
         return self._apply(self._M, x)
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
-        """x (l,) with K x = rhs on the solve rows, zero on the pinned rows."""
+        """X (l, c) with K X = rhs (l, c) on the solve rows, zero on the pinned rows."""
         if self._solve_rows is None:
             return self._solver.solve(rhs)
         x = np.zeros_like(rhs)
@@ -356,12 +366,27 @@ class _CholeskySolver:
             raise SolverError(f"Cholesky factorisation of the stiffness failed ({exc})") from None
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
-        self._b.setArray(rhs)
-        self._ksp.solve(self._b, self._x)
-        reason = self._ksp.getConvergedReason()
-        if reason <= 0:
-            raise SolverError(f"modal derivative solve failed (KSP reason {reason})")
-        return self._x.getArray(readonly=True).copy()
+        """X (l, c) for the local rows (l, c) of c right-hand sides: one block solve
+        (MUMPS solves them together)."""
+        from petsc4py import PETSc
+
+        rows, count = rhs.shape
+        comm = self._ksp.getComm()
+        sizes = [(rows, PETSc.DECIDE), (PETSc.DECIDE, count)]
+        B = PETSc.Mat().createDense(sizes, array=np.asfortranarray(rhs), comm=comm)
+        X = PETSc.Mat().createDense(sizes, comm=comm)
+        try:
+            B.assemble()
+            X.setUp()
+            X.assemble()
+            try:
+                self._ksp.getPC().getFactorMatrix().matSolve(B, X)
+            except PETSc.Error as exc:
+                raise SolverError(f"modal derivative solve failed ({exc})") from None
+            return X.getDenseArray().copy()
+        finally:
+            B.destroy()
+            X.destroy()
 
     def destroy(self) -> None:
         for obj in ("_ksp", "_b", "_x"):

@@ -33,14 +33,16 @@ changing dt, steps, loads, damping or k_ex never redoes the precompute, while
 changing any mesh byte, material value, m, r, s or example does.
 
 **MPI.** ``precompute(scene, comm=MPI.COMM_WORLD)`` on every rank distributes the
-n-sized solver stages over the ranks: ``modes`` and ``lb`` (DOLFINx assembly, SLEPc
-with MUMPS) and ``derivatives`` (parallel assembly, one MUMPS factorisation); the
-other stages are small dense work or per-example loops and run on rank 0 only
-(:func:`lbshape.fem.mpi.compute_on_root`: the other ranks sleep, and a user error
-on rank 0 is raised on every rank). Rank 0 alone reads and writes the cache and
-gets the :class:`Precomputed`; the others get ``None``. ``stage_ranks`` in the
-artifact's metadata says over how many ranks each stage ran. The result equals the
-serial one to solver tolerance.
+n-sized stages over the ranks: ``modes`` and ``lb`` (DOLFINx assembly, SLEPc with
+MUMPS), ``derivatives`` (parallel assembly, one MUMPS factorisation), and the element
+passes of ``cubature`` and ``lb-cubature`` (split with
+:func:`lbshape.fem.mpi.rank_share`; their inputs broadcast from rank 0). The other
+stages run on rank 0 only (:func:`lbshape.fem.mpi.compute_on_root`: the other ranks
+sleep, and a user error on rank 0 is raised on every rank). Rank 0 alone reads and
+writes the cache and gets the :class:`Precomputed`; the others get ``None``.
+``stage_ranks`` in the artifact's metadata says over how many ranks each stage ran
+(``stage_peak_mb`` is summed over the ranks). The result equals the serial one to
+solver tolerance.
 
 **Basis scaling.** U is orthonormal in the elastic mass ``M = ρ M₃``; the shape
 space (:mod:`lbshape.shapespace.projections`) works with the volume mass M₃. Its projection
@@ -173,7 +175,7 @@ class Precomputed:
         frame: reduced rigid-frame tensors of a free body, or None (fixed object).
         stage_seconds: wall time per stage (s) of the run that built the artifact.
         stage_peak_mb: largest resident memory (MB) of the process during each stage of
-            that run.
+            that run; under MPI the sum of every rank's peak (the job's memory).
         stage_ranks: the number of MPI ranks each stage of that run was distributed
             over (1: rank 0 alone, or a serial run).
         from_cache: True when loaded from the cache.
@@ -407,10 +409,12 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False,
             return _from_arrays(scene, key, *cached) if root else None
         stages = _Stages(stage_names(scene), show=progress and root)
         arrays, meta = _compute(scene, stages, comm)
+        peaks = comm.gather(stages.peak_mb, root=0)
         if not root:
             return None
         meta["stage_seconds"] = stages.seconds
-        meta["stage_peak_mb"] = stages.peak_mb
+        meta["stage_peak_mb"] = {name: float(sum(peak.get(name, 0.0) for peak in peaks))
+                                 for name in stages.peak_mb}
         if save:
             save_artifact(scene.name, key, arrays, meta)
     return _from_arrays(scene, key, arrays, meta, from_cache=False)
@@ -473,13 +477,17 @@ def _compute(scene: Scene, stages: _Stages, comm: MPI.Comm) -> tuple[dict | None
         return mass, nonlinear_basis(modes, derivatives, mass, reduced.r)
 
     mass, basis = ranks.on_root("basis", basis_stage) or (None, None)
-    cubature = ranks.on_root("cubature", lambda: train_cubature(
-        mesh, material, basis.U, rng=np.random.default_rng(PRECOMPUTE_SEED),
-        scales=inverse_frequency_scales(np.asarray(basis.omega2)),
-        max_elements=reduced.s, tol=reduced.cubature_tolerance,
-        n_train=CUBATURE_TRAINING_POSES, n_holdout=CUBATURE_TRAINING_POSES // 2,
-    ))
-    U = None if basis is None else basis.U
+
+    def cubature_stage():  # every rank: the element passes are split across the ranks
+        U, omega2 = compute_on_root(comm, lambda: (basis.U, np.asarray(basis.omega2)))
+        return U, train_cubature(
+            mesh, material, U, rng=np.random.default_rng(PRECOMPUTE_SEED),
+            scales=inverse_frequency_scales(omega2),
+            max_elements=reduced.s, tol=reduced.cubature_tolerance,
+            n_train=CUBATURE_TRAINING_POSES, n_holdout=CUBATURE_TRAINING_POSES // 2,
+            comm=comm)
+
+    U, cubature = ranks.distributed("cubature", cubature_stage)
     if scene.has_local_examples:
         local, eigen = _local_space(scene, mesh, U, fixed, ranks)
     elif scene.has_examples:
@@ -554,10 +562,11 @@ def _shape_space_arrays(scene: Scene, mesh: TetMesh, U: np.ndarray | None, fixed
         scene, mesh, U, fixed, spectrum, *embedded))
     table = ranks.on_root("target-table", lambda: _target_table(
         scene, mesh, fixed, spectrum, *projections))
-    lb_arrays = ranks.on_root("lb-cubature", lambda: _train_lb_cubatures(
-        scene, mesh, table[3], spectrum.eigenvalues, projections[0].example_coefficients,
-        table[1]))
-    if lb_arrays is None:
+    lb_arrays = ranks.distributed("lb-cubature", lambda: _train_lb_cubatures(
+        scene, mesh, *compute_on_root(ranks.comm, lambda: (
+            table[3], spectrum.eigenvalues, projections[0].example_coefficients, table[1])),
+        comm=ranks.comm))
+    if ranks.comm.rank != 0:
         return None
     space, _, projection_clamped = projections
     target, _, clamped, _ = table
@@ -633,11 +642,11 @@ def _target_table(scene: Scene, mesh: TetMesh, fixed: np.ndarray, spectrum, spac
 
 
 def _train_lb_cubatures(scene: Scene, mesh: TetMesh, eigenvectors, eigenvalues,
-                        example_coefficients, path) -> dict:
+                        example_coefficients, path, *, comm: MPI.Comm) -> dict:
     """One cubature per example for the LB basis ``Φ ⊗ I₃`` (the one of the target
     routes), trained on the example's rest shape along the path (P, 3m) of exact
-    targets between the examples (:func:`lbshape.elastic.cubature.train_example_cubatures`);
-    arrays (k, s) padded."""
+    targets between the examples (:func:`lbshape.elastic.cubature.train_example_cubatures`,
+    its element passes split across the ranks of ``comm``); arrays (k, s) padded."""
     k = example_coefficients.shape[0]
     rests = [mesh.points + eigenvectors @ c for c in example_coefficients]
     rules = train_example_cubatures(
@@ -645,7 +654,7 @@ def _train_lb_cubatures(scene: Scene, mesh: TetMesh, eigenvectors, eigenvalues,
         example_coefficients.reshape(k, -1), path,
         rng=np.random.default_rng(PRECOMPUTE_SEED + 1),
         scales=inverse_frequency_scales(np.repeat(eigenvalues, 3)),
-        max_elements=scene.reduced.s, tol=scene.reduced.cubature_tolerance,
+        max_elements=scene.reduced.s, tol=scene.reduced.cubature_tolerance, comm=comm,
     )
     width = max(rule.size for rule in rules)
     elements = np.full((k, width), -1, dtype=np.int64)

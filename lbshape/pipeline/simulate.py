@@ -14,7 +14,8 @@ from a scene and its precompute (:func:`reduced_simulation`, :func:`full_simulat
 The engines (:mod:`lbshape.dynamics`) see arrays only and both return a
 :class:`~lbshape.dynamics.record.RunRecord`.
 
-Outputs in ``DIR``: ``stats.json`` (keys fixed by the command-line contract),
+Outputs in ``DIR``: ``stats.json`` (keys fixed by the command-line contract, plus
+``phase_ms``, the one per-phase timing record of a reduced step: :func:`phase_medians`),
 ``trajectory.pvd`` + ``trajectory_*.vtu`` (ParaView), and ``states.npz`` (the
 sampled full-space displacements, for error measurements).
 """
@@ -23,13 +24,14 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from lbshape.dynamics.contact import PlaneContact
-from lbshape.dynamics.free_body import FreeBodyRecord, FreeBodySimulation, FreeLoad
+from lbshape.dynamics.free_body import PHASES as FREE_BODY_PHASES
+from lbshape.dynamics.free_body import FreeBodySimulation, FreeLoad
 from lbshape.dynamics.full import (
     FullSpaceContact,
     FullSpaceDiverged,
@@ -85,19 +87,33 @@ class SimulationOutput:
         times: (k,) sample times (s).
         displacements: (k, n, 3) sampled full-space displacements (m).
         message: solver failure message ('' if stable).
-        breakdown: per-step mean cost (ms) of a free-body reduced step by part:
-            ``interp``, ``rigid``, ``contact``, ``solve`` (empty otherwise).
-        phase_ms: reduced methods on fixed objects: the median time per step of each
-            part of the step (:data:`~lbshape.dynamics.reduced.PHASES`) after the
-            warm-up, in ms.
+        phase_ms: reduced methods: the median time per step of each part of the step
+            after the warm-up, in ms (:func:`phase_medians`); ``None`` for ``full``. Also
+            ``stats["phase_ms"]``.
+        step_median_ms: the median wall time of a step after the warm-up (ms; the whole
+            step, as ``t_total_ms`` whose mean the stats give).
     """
 
     stats: dict
     times: np.ndarray
     displacements: np.ndarray
     message: str = ""
-    breakdown: dict = field(default_factory=dict)
     phase_ms: dict | None = None
+    step_median_ms: float | None = None
+
+
+def phase_medians(sim) -> dict | None:
+    """The one phase record of a reduced engine's last run: ``{phase: median ms per step
+    after the warm-up}``, phases in the engine's order — a fixed object's
+    :data:`~lbshape.dynamics.reduced.PHASES`, a free body's
+    :data:`~lbshape.dynamics.free_body.PHASES` (the same names plus ``rigid`` and
+    ``contact``); ``None`` without timed steps."""
+    names = FREE_BODY_PHASES if isinstance(sim, FreeBodySimulation) else PHASES
+    phases = getattr(sim, "phase_seconds", np.zeros((0, len(names))))
+    phases = phases[WARMUP_STEPS:] if len(phases) > WARMUP_STEPS else phases
+    if not len(phases):
+        return None
+    return dict(zip(names, (1e3 * np.median(phases, axis=0)).tolist(), strict=True))
 
 
 def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[TimedLoad]:
@@ -274,11 +290,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
     else:
         sim = reduced_simulation(scene, pre, method=method)
         record = sim.run(steps, stride=stride)
-        phases = getattr(sim, "phase_seconds", np.zeros((0, len(PHASES))))  # fixed objects
-        phases = phases[WARMUP_STEPS:] if len(phases) > WARMUP_STEPS else phases
-        if len(phases):
-            phase_ms = dict(zip(PHASES, (1e3 * np.median(phases, axis=0)).tolist(),
-                                strict=True))
+        phase_ms = phase_medians(sim)
     if method == "full":
         frames = record.displacements()
         r, s = 3 * (pre.mesh.n_vertices - pre.fixed_vertices.size), pre.mesh.n_tets
@@ -293,12 +305,11 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "m": scene.reduced.m, "r": int(r), "s": int(s),
         "dt": scene.simulation.dt, "steps": record.steps,
         "t_interp_ms": t_interp, "t_total_ms": t_total,
-        "stable": bool(record.stable), "max_displacement": max_disp,
+        "stable": bool(record.stable), "max_displacement": max_disp, "phase_ms": phase_ms,
     }
-    breakdown = (record.breakdown(warmup=WARMUP_STEPS) if isinstance(record, FreeBodyRecord)
-                 else {})
-    output = SimulationOutput(stats, record.times, frames, record.message,
-                              breakdown=breakdown, phase_ms=phase_ms)
+    totals = record.t_total_ms[WARMUP_STEPS:] if record.steps > WARMUP_STEPS else record.t_total_ms
+    output = SimulationOutput(stats, record.times, frames, record.message, phase_ms=phase_ms,
+                              step_median_ms=float(np.median(totals)) if totals.size else None)
     if influence and record.stable and has_example_force(scene, pre):
         stats.update(example_influence(scene, pre, output, method=method, steps=steps)[0].stats())
     if out is not None:

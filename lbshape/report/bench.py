@@ -136,7 +136,12 @@ class MethodTiming:
         stable: False if a run stopped on a solver failure.
         message: the failure message ('' if stable).
         phase_ms: reduced methods: per repeat, the median time per step of each part of
-            the step (ms, :data:`~lbshape.dynamics.reduced.PHASES`).
+            the step (ms; the one phase record,
+            :func:`~lbshape.pipeline.simulate.phase_medians`: a fixed object's
+            :data:`~lbshape.dynamics.reduced.PHASES`, a free body's
+            :data:`~lbshape.dynamics.free_body.PHASES`).
+        step_median_ms: (repeats,) per run, the median wall time of a step after the
+            warm-up (ms).
     """
 
     method: str
@@ -145,6 +150,7 @@ class MethodTiming:
     stable: bool
     message: str = ""
     phase_ms: tuple[dict, ...] = ()
+    step_median_ms: tuple[float, ...] = ()
 
     def phase_summary(self) -> dict | None:
         """Per part of the step, the median over the repeats (ms); None without phases."""
@@ -177,8 +183,6 @@ class SceneBenchmark:
             (:data:`lbshape.pipeline.influence.STATS_KEYS`) of the ``reduced`` and
             ``full`` runs against the same scene without examples (empty without
             examples).
-        breakdown: a free body's reduced step by part, mean ms per step of the first
-            ``reduced`` run (``interp``, ``rigid``, ``contact``, ``solve``); empty otherwise.
     """
 
     scene: str
@@ -189,7 +193,6 @@ class SceneBenchmark:
     rows: tuple[dict, ...]
     timings: tuple[MethodTiming, ...]
     influence: tuple[tuple[str, dict], ...] = ()
-    breakdown: dict = dataclasses.field(default_factory=dict)
 
     def row(self, method: str) -> dict | None:
         """The row of ``method`` (None if it was not run)."""
@@ -267,10 +270,8 @@ def bench_scene(
         for timing in timings
     )
     effects = _influence(scene, pre, outputs, steps=steps) if influence else ()
-    reduced = outputs.get("reduced")
-    breakdown = dict(reduced.breakdown) if reduced is not None else {}
     return SceneBenchmark(scene.name, float(scene.simulation.dt), steps, repeats, WARMUP_STEPS,
-                          rows, timings, effects, breakdown)
+                          rows, timings, effects)
 
 
 def _influence(scene, pre, outputs: dict, *, steps: int) -> tuple[tuple[str, dict], ...]:
@@ -301,6 +302,7 @@ def _run_interleaved(scene, pre, methods: tuple[str, ...], *, steps: int, repeat
     interp: dict[str, list[float]] = {m: [] for m in methods}
     total: dict[str, list[float]] = {m: [] for m in methods}
     phases: dict[str, list[dict]] = {m: [] for m in methods}
+    medians: dict[str, list[float]] = {m: [] for m in methods}
     for repeat in range(repeats):
         for method in methods:
             first = outputs.get(method)
@@ -313,12 +315,14 @@ def _run_interleaved(scene, pre, methods: tuple[str, ...], *, steps: int, repeat
             total[method].append(float(output.stats["t_total_ms"]))
             if output.phase_ms:
                 phases[method].append(output.phase_ms)
+            if output.step_median_ms is not None:
+                medians[method].append(output.step_median_ms)
             outputs.setdefault(method, output)
             if output.message:
                 log.error("bench %s: method %s stopped: %s", scene.name, method, output.message)
     timings = tuple(
         MethodTiming(m, tuple(interp[m]), tuple(total[m]), bool(outputs[m].stats["stable"]),
-                     outputs[m].message, tuple(phases[m]))
+                     outputs[m].message, tuple(phases[m]), tuple(medians[m]))
         for m in methods
     )
     return outputs, timings

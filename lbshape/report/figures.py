@@ -32,12 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from lbshape.dynamics.rigid_frame import best_rigid_frame
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import RESULTS_DIR
-from lbshape.pipeline.influence import compare_runs, end_twist_degrees
+from lbshape.pipeline.influence import body_deformations, compare_runs, end_twist_degrees
 from lbshape.pipeline.meshes import example_mesh
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
@@ -434,14 +433,12 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
         picks = np.unique(np.linspace(0, count - 1, frames + 1).round().astype(int)[1:])
         rows.append([_deformed(pre, output.displacements[i]) for i in picks])
         labels.append([f"{name} t={output.times[i]:.2f} s" for i in picks])
-        scalars.append([np.linalg.norm(best_rigid_frame(
-            _scalar_mass(pre), pre.mesh.points,
-            pre.mesh.points + output.displacements[i])[2], axis=1) for i in picks])
+        picked = body_deformations(_scalar_mass(pre), pre.mesh.points,
+                                   np.asarray(output.displacements)[picks])
+        scalars.append(list(np.linalg.norm(picked, axis=2)))
         finals.append(output.displacements[-1])
     mass = mass_matrix(pre.mesh, pre.material.density)
-    scalar_mass = mass[0::3, 0::3]
-    rest = pre.mesh.points
-    body = [best_rigid_frame(scalar_mass, rest, rest + u)[2] for u in finals]
+    body = body_deformations(mass[0::3, 0::3], pre.mesh.points, np.asarray(finals))
     world = [float(m_norms((u - finals[0])[None], mass)[0] / m_norms(finals[0][None], mass)[0])
              for u in finals[1:]]
     deformation = [float(m_norms((b - body[0])[None], mass)[0] / m_norms(body[0][None], mass)[0])

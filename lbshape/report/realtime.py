@@ -11,7 +11,9 @@
   ``flops / rate`` states how close each part is to the limit;
 * :func:`breakdown_lines` — the Markdown of the step breakdown for ``table2.md``;
 * :func:`newton_study` — the reduced method with 1, 2 and converged Newton updates per
-  step: error vs full, difference to converged, cost (``step_breakdown.md``).
+  step: error vs full, difference to converged, cost (``step_breakdown.md``);
+* :func:`write_free_body_step` — the free-body step against the 1 ms target: median
+  per step, its parts and the error vs full (``free_body_step.md`` and ``.json``).
 """
 
 from __future__ import annotations
@@ -21,14 +23,23 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from lbshape.dynamics.free_body import PHASES as FREE_BODY_PHASES
 from lbshape.dynamics.reduced import PHASES, REALTIME_NEWTON_ITERATIONS
 from lbshape.elastic.element_kernels import mass_matrix
-from lbshape.pipeline.simulate import MAX_FRAMES, WARMUP_STEPS, reduced_simulation, simulate
-from lbshape.report.bench import SceneBenchmark, trajectory_error
-from lbshape.report.machine import load_text, threads_text
+from lbshape.io.atomic import write_json_atomic, write_text_atomic
+from lbshape.pipeline.simulate import (
+    MAX_FRAMES,
+    WARMUP_STEPS,
+    phase_medians,
+    reduced_simulation,
+    simulate,
+)
+from lbshape.report.bench import TARGET_T_TOTAL_MS, SceneBenchmark, trajectory_error
+from lbshape.report.machine import load_text, machine_description, threads_text
 
 #: the paper's Table 2 (Zhu et al. [2] and the paper's method), ms per step, by our scene
 #: names: (DOFs, tets, example vertices, m, r, s, [2] t_interp, [2] t_total, ours
@@ -114,6 +125,7 @@ def breakdown_lines(results: Sequence[SceneBenchmark], *, rate: float | None = N
         return lines
     first = measured[0][0].row("reduced")
     rate = gemm_rate(first["r"], first["s"]) if rate is None else rate
+    columns = phase_columns([timing.phase_summary() for _, timing in measured])
     lines += ["", "## Breakdown of a reduced step (µs, median over steps after warm-up, "
               "median over repeats) and its floor", "",
               "Floor: the flops of one Newton iteration at (r, s) (gradients, element "
@@ -121,26 +133,38 @@ def breakdown_lines(results: Sequence[SceneBenchmark], *, rate: float | None = N
               f"solve, weights, tabulated target) at {rate:.1f} GFlop/s, the best "
               "single-thread rate of this machine on the step's largest matrix product "
               "(r × 9s by 9s × r), measured in the same process.", "",
-              "| model | r | s | " + " | ".join(PHASES) + " | total | floor total "
+              "| model | r | s | " + " | ".join(columns) + " | total | floor total "
               "| flops (one iteration) |",
-              "|---|---|---|" + "---|" * (len(PHASES) + 3)]
+              "|---|---|---|" + "---|" * (len(columns) + 3)]
     for result, timing in measured:
         phases = timing.phase_summary()
         row = result.row("reduced")
         r, s, m = row["r"], row["s"], row["m"]
         flops = newton_flops(r, s, m=m)
         floor = {name: 1e6 * value / (rate * 1e9) for name, value in flops.items()}
-        cells = [f"{1e3 * phases[name]:.1f} (≥ {floor[name]:.2f})" if name in floor
-                 else f"{1e3 * phases[name]:.1f}" for name in PHASES]
+        cells = ["—" if name not in phases
+                 else f"{1e3 * phases[name]:.1f} (≥ {floor[name]:.2f})" if name in floor
+                 else f"{1e3 * phases[name]:.1f}" for name in columns]
         total = 1e3 * sum(phases.values())
         lines.append(f"| {result.scene} | {r} | {s} | " + " | ".join(cells)
                      + f" | {total:.1f} | {floor['total']:.1f} | {flops['total']:,} |")
     lines += ["", "In parentheses: that part's floor (µs). Overhead: the rest of the step "
-              "(predictor, state swap, checks, Python). The parts are medians over steps; "
+              "(predictor, state swap, checks, Python). Free bodies (rigid and contact "
+              "columns) iterate Newton to convergence, so their floor of one iteration is "
+              "a lower bound. The parts are medians over steps; "
               "t_total in the tables above is the contract's per-step mean, which also "
               "counts the rare slow steps (other processes taking the core, garbage "
               "collection)."]
     return lines
+
+
+def phase_columns(summaries: Sequence[dict | None]) -> list[str]:
+    """The phase names present in any of the phase records, in step order (a fixed
+    object's :data:`~lbshape.dynamics.reduced.PHASES` are a subsequence of a free body's
+    :data:`~lbshape.dynamics.free_body.PHASES`)."""
+    present = {name for summary in summaries if summary for name in summary}
+    order = list(FREE_BODY_PHASES) + [name for name in PHASES if name not in FREE_BODY_PHASES]
+    return [name for name in order if name in present]
 
 
 def _fmt(value: float | None, spec: str = ".3f") -> str:
@@ -187,7 +211,7 @@ def newton_study(scene, pre, *, steps: int, repeats: int = 3,
             sim = reduced_simulation(scene, pre, newton_iterations=variant)
             record = sim.run(steps, stride=max(1, math.ceil(steps / MAX_FRAMES)))
             times[variant].append(record.mean_ms(warmup=WARMUP_STEPS)[1])
-            phases[variant].append(np.median(sim.phase_seconds[WARMUP_STEPS:], axis=0))
+            phases[variant].append(phase_medians(sim))
             first.setdefault(variant, record)
     converged = first.get(None)
     out = []
@@ -204,14 +228,15 @@ def newton_study(scene, pre, *, steps: int, repeats: int = 3,
             iterations=variant, error_vs_full=error, difference=difference,
             mean_iterations=float(np.mean(record.newton_iterations)),
             t_total_ms=tuple(times[variant]),
-            phase_ms=dict(zip(PHASES, (1e3 * np.median(phases[variant], axis=0)).tolist(),
-                              strict=True))))
+            phase_ms={name: float(np.median([p[name] for p in phases[variant]]))
+                      for name in phases[variant][0]}))
     return out
 
 
 def newton_study_markdown(studies: dict[str, list[NewtonVariant]], *, steps: int,
                           repeats: int, machine: dict) -> str:
     """``step_breakdown.md``: per scene, 1 Newton update per step against converged Newton."""
+    columns = phase_columns([v.phase_ms for variants in studies.values() for v in variants])
     lines = ["# The reduced step: Newton updates per step and the breakdown of a step", "",
              "Each variant is the `reduced` method (tabulated target) with a fixed number of "
              "Newton updates per time step, or converged Newton (relative residual 1e-8). "
@@ -220,8 +245,8 @@ def newton_study_markdown(studies: dict[str, list[NewtonVariant]], *, steps: int
              f"{WARMUP_STEPS} warm-up steps, median over {repeats} interleaved repeats "
              f"[min, max]; parts of a step: medians (µs).", "",
              "| model | Newton updates | mean updates | error vs full | difference to "
-             "converged | t_total ms | " + " | ".join(PHASES) + " |",
-             "|---|---|---|---|---|---|" + "---|" * len(PHASES)]
+             "converged | t_total ms | " + " | ".join(columns) + " |",
+             "|---|---|---|---|---|---|" + "---|" * len(columns)]
     for scene, variants in studies.items():
         for v in variants:
             t = np.asarray(v.t_total_ms)
@@ -230,7 +255,8 @@ def newton_study_markdown(studies: dict[str, list[NewtonVariant]], *, steps: int
                 f"| {v.mean_iterations:.3f} | {_fmt(v.error_vs_full, '.3%')} "
                 f"| {_fmt(v.difference, '.2e')} | {np.median(t):.4f} [{t.min():.4f}, "
                 f"{t.max():.4f}] | "
-                + " | ".join(f"{1e3 * v.phase_ms[p]:.1f}" for p in PHASES) + " |")
+                + " | ".join(f"{1e3 * v.phase_ms[p]:.1f}" if p in v.phase_ms else "—"
+                             for p in columns) + " |")
     chosen = [v for variants in studies.values() for v in variants if v.iterations == 1]
     worst = max((v.difference for v in chosen if v.difference is not None), default=None)
     lines += ["", "## Choice", "",
@@ -251,3 +277,81 @@ def newton_study_payload(studies: dict[str, list[NewtonVariant]]) -> dict:
     """``step_breakdown.json``."""
     return {scene: [dataclasses.asdict(v) for v in variants]
             for scene, variants in studies.items()}
+
+
+# ------------------------------------------------------------------ free-body step
+def free_body_step_payload(results: Sequence[SceneBenchmark], machine: dict) -> dict:
+    """The document of ``free_body_step.json``: per scene, the ``reduced`` step's median
+    wall time per step (median over repeats, with min and max), its mean, the phase
+    record (median ms per phase) and the error vs ``full``."""
+    rows = []
+    for result in results:
+        row = result.row("reduced")
+        timing = next((t for t in result.timings if t.method == "reduced"), None)
+        if row is None or timing is None or not timing.step_median_ms:
+            continue
+        medians = np.asarray(timing.step_median_ms)
+        rows.append({
+            "scene": result.scene, "n_vertices": row["n_vertices"], "m": row["m"],
+            "r": row["r"], "s": row["s"], "steps": result.steps, "repeats": result.repeats,
+            "warmup_steps": result.warmup, "dt": result.dt,
+            "step_median_ms": {"median": float(np.median(medians)),
+                               "min": float(medians.min()), "max": float(medians.max())},
+            "t_total_ms": timing.summary("t_total_ms"),
+            "phase_ms": timing.phase_summary(),
+            "error_vs_full": row["error_vs_full"], "stable": timing.stable,
+            "target_ms": TARGET_T_TOTAL_MS,
+            "meets_target": bool(np.median(medians) <= TARGET_T_TOTAL_MS),
+        })
+    return {"rows": rows, "machine": machine}
+
+
+def free_body_step_markdown(payload: dict) -> str:
+    """The Markdown of ``free_body_step.md`` from :func:`free_body_step_payload`."""
+    rows, machine = payload["rows"], payload["machine"]
+    columns = phase_columns([row["phase_ms"] for row in rows])
+    lines = ["# The free-body step against real time (dt = 1 ms)", "",
+             "The `reduced` method on free bodies (rigid frame, fictitious forces, plane "
+             "contact, Newton to convergence). Median per step: the median wall time of a "
+             "step after the warm-up, median over the repeats [min, max]; mean: the "
+             "contract's per-step mean (it also counts the rare slow steps); parts of a "
+             "step: median µs per phase; error vs full: "
+             "`max_t ‖u(t) − u_full(t)‖_M / max_t ‖u_full(t)‖_M`. Target: "
+             f"≤ {TARGET_T_TOTAL_MS:g} ms median per step.", "",
+             "| model | vertices | m | r | s | steps | median per step (ms) | mean (ms) "
+             "| target met | error vs full |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        median, mean = row["step_median_ms"], row["t_total_ms"]["median"]
+        lines.append(
+            f"| {row['scene']} | {row['n_vertices']} | {row['m']} | {row['r']} | {row['s']} "
+            f"| {row['steps']} | {median['median']:.3f} [{median['min']:.3f}, "
+            f"{median['max']:.3f}] | {mean:.3f} | {'yes' if row['meets_target'] else 'no'} "
+            f"| {_fmt(row['error_vs_full'], '.2%')} |")
+    lines += ["", "## Parts of a step (µs, median over steps, median over repeats)", "",
+              "| model | " + " | ".join(columns) + " |",
+              "|---|" + "---|" * len(columns)]
+    for row in rows:
+        phases = row["phase_ms"] or {}
+        lines.append(f"| {row['scene']} | " + " | ".join(
+            f"{1e3 * phases[name]:.1f}" if name in phases else "—" for name in columns) + " |")
+    repeats = sorted({row["repeats"] for row in rows})
+    lines += ["", "## Conditions", "",
+              f"- dt = 1 ms, the scenes' own (m, r, s); {', '.join(map(str, repeats))} "
+              "runs of `reduced` per scene for the times, the error from a run against "
+              f"`full`; one process; threads: {threads_text(machine)}; {machine['cpu']}, "
+              f"{machine['cores']} cores.",
+              f"- Load average (1, 5, 15 min) when written: {load_text(machine)} — other "
+              "processes shared the cores.", ""]
+    return "\n".join(lines)
+
+
+def write_free_body_step(results: Sequence[SceneBenchmark], out_dir: str | Path
+                         ) -> tuple[Path, Path]:
+    """Write ``free_body_step.md`` and ``free_body_step.json`` to ``out_dir`` atomically;
+    their paths."""
+    out_dir = Path(out_dir)
+    payload = free_body_step_payload(results, machine_description())
+    md = write_text_atomic(out_dir / "free_body_step.md", free_body_step_markdown(payload))
+    js = write_json_atomic(out_dir / "free_body_step.json", payload)
+    return md, js

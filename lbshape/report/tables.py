@@ -173,27 +173,11 @@ def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
                   "| eq. 5 residual, examples | eq. 5 residual, no examples |",
                   "|---|---|---|---|---|---|---|---|"]
         lines += [row for result in results for row in _influence_rows(result)]
-    lines += _breakdown_lines(results)
     lines += ["", "## Conditions", "", *_conditions(results, machine)]
     lines += ["", "## Targets (reported, not enforced)", ""]
     lines += [line for result in results for line in _targets(result)]
     lines += breakdown_lines(results)
     return "\n".join(lines) + "\n"
-
-
-def _breakdown_lines(results: Sequence[SceneBenchmark]) -> list[str]:
-    """The reduced free-body step by part (ms per step), for scenes that have it."""
-    rows = [r for r in results if r.breakdown]
-    if not rows:
-        return []
-    lines = ["", "## Reduced step of a free body, by part (mean ms per step after warm-up)", "",
-             "| model | interpolation | rigid update | contact | deformation solve |",
-             "|---|---|---|---|---|"]
-    for result in rows:
-        b = result.breakdown
-        lines.append(f"| {result.scene} | {b['interp']:.3f} | {b['rigid']:.3f} | "
-                     f"{b['contact']:.3f} | {b['solve']:.3f} |")
-    return lines
 
 
 def table2_payload(results: Sequence[SceneBenchmark], machine: dict) -> dict:
@@ -215,8 +199,6 @@ def table2_payload(results: Sequence[SceneBenchmark], machine: dict) -> dict:
             {"scene": result.scene, "method": method, **stats}
             for result in results for method, stats in result.influence
         ],
-        "breakdown": [{"scene": result.scene, **result.breakdown}
-                      for result in results if result.breakdown],
         "machine": machine,
     }
 
