@@ -15,6 +15,7 @@ from lbshape.elastic.cubature import (
     force_contribution_matrix,
     inverse_frequency_scales,
     train_cubature,
+    train_example_cubatures,
     training_poses,
 )
 from lbshape.elastic.element_kernels import FullSpaceElasticity
@@ -282,7 +283,7 @@ def test_streamed_exact_forces_are_the_full_space_forces(bar, model):
 @pytest.mark.parametrize("candidates", [50, 2])
 def test_streamed_training_equals_one_chunk_and_the_dense_system(bar, candidates):
     """A byte bound of one element per chunk (many chunks; with 2 candidates per step the
-    whole-mesh scan runs too) gives the rule of one chunk, and its weights are the NNLS
+    scan of every element runs too) gives the rule of one chunk, and its weights are the NNLS
     optimum of the dense system ``A (P·r, E)`` on the selected columns."""
     mesh, U = bar
     one = train(bar, candidates_per_iter=candidates, tol=1e-3)
@@ -313,3 +314,66 @@ def test_training_split_across_ranks_equals_serial(bar):
     for rule in ranked:
         np.testing.assert_array_equal(rule.elements, serial.elements)
         np.testing.assert_allclose(rule.weights, serial.weights, rtol=1e-9)
+
+
+def test_example_cubatures_train_on_at_most_max_path_targets(bar):
+    """A long path is subsampled evenly (ends kept): the same rules as that subsample."""
+    mesh, U = bar
+    rng = np.random.default_rng(7)
+    offsets = np.stack([np.zeros(R), 0.02 * rng.standard_normal(R)])
+    t = np.linspace(0.0, 1.0, 17)[:, None]
+    path = (1 - t) * offsets[0] + t * offsets[1]  # 17 targets
+    rests = [mesh.points, mesh.points]
+
+    def rules(targets, **options):
+        return train_example_cubatures(rests, mesh.tets, material("stvk"), U, offsets, targets,
+                                       rng=np.random.default_rng(3), max_elements=20,
+                                       tol=1e-3, **options)
+
+    capped = rules(path, max_path=5)
+    explicit = rules(path[[0, 4, 8, 12, 16]])
+    for a, b in zip(capped, explicit, strict=True):
+        np.testing.assert_array_equal(a.elements, b.elements)
+        np.testing.assert_allclose(a.weights, b.weights, rtol=1e-12)
+    assert [c.n_train + c.n_holdout for c in rules(path)] != \
+        [c.n_train + c.n_holdout for c in capped]  # 17 <= MAX_PATH_POSES: all used
+    with pytest.raises(LbshapeError, match="max_path"):
+        rules(path, max_path=3)
+
+
+def test_sampled_fallback_is_the_same_streamed_and_on_ranks(bar, monkeypatch):
+    """More elements than FALLBACK_ELEMENTS: the wider scan draws a sample (the same on
+    every rank and for every byte bound); the rules still meet the tolerance."""
+    import lbshape.elastic.cubature as cubature
+
+    monkeypatch.setattr(cubature, "FALLBACK_ELEMENTS", 40)
+    one = train(bar, candidates_per_iter=2, tol=1e-3)
+    many = train(bar, candidates_per_iter=2, tol=1e-3, max_bytes=1)
+    ranked = on_ranks(2, lambda comm: train(bar, candidates_per_iter=2, tol=1e-3,
+                                            max_bytes=20_000, comm=comm))
+    for rule in (many, *ranked):
+        np.testing.assert_array_equal(rule.elements, one.elements)
+        np.testing.assert_allclose(rule.weights, one.weights, rtol=1e-9)
+    assert one.train_error <= 1e-3 or one.size == 40
+
+
+def test_example_cubatures_leave_out_forceless_and_non_finite_targets(bar):
+    """Path targets equal to an example (no force) or not finite (a diverged exact solve)
+    are left out: the rules equal those trained without them."""
+    mesh, U = bar
+    rng = np.random.default_rng(7)
+    offsets = np.stack([np.zeros(R), 0.02 * rng.standard_normal(R)])
+    t = np.linspace(0.0, 1.0, 9)[:, None]
+    path = (1 - t) * offsets[0] + t * offsets[1]
+    bad = np.concatenate([path, [offsets[1] * (1 + 1e-14)], [np.full(R, np.nan)]])
+    rests = [mesh.points, mesh.points]
+
+    def rules(targets):
+        return train_example_cubatures(rests, mesh.tets, material("stvk"), U, offsets, targets,
+                                       rng=np.random.default_rng(3), max_elements=20, tol=1e-3)
+
+    clean = rules(np.concatenate([path, [np.full(R, np.nan)]])[:-1])
+    dirty = rules(bad)
+    for a, b in zip(dirty, clean, strict=True):
+        assert a.train_error <= max(1e-3, b.train_error) * 1.5
+        assert np.isfinite(a.weights).all() and a.size > 0

@@ -68,3 +68,13 @@ def test_two_coarse_sizes_end_to_end(tmp_path):
     for p in points:
         assert p.wall_seconds > p.stages_seconds > 0 and p.peak_mb > 50
         assert set(p.stage_peak_mb) == set(p.stage_seconds) and len(p.t_total_ms) == 1
+
+
+def test_fine_scene_is_bar_cylinder_with_a_finer_object():
+    """bar-cylinder-fine: only the object's size differs from bar-cylinder (its precompute,
+    ≥ 100k vertices, is measured by ``bench --scaling``, not here)."""
+    fine, base = load_scene("bar-cylinder-fine"), load_scene("bar-cylinder")
+    assert fine.object.shape == base.object.shape and fine.object.size == 0.0065
+    assert (fine.examples, fine.reduced, fine.material, fine.loads, fine.fixed) == \
+        (base.examples, base.reduced, base.material, base.loads, base.fixed)
+    assert fine.precompute_key_fields() != base.precompute_key_fields()

@@ -27,7 +27,9 @@ on random training poses:
    weight became zero, and stop when the relative training error
    ``‖A w − b‖ / ‖b‖`` reaches ``tol`` or s elements are selected. Each NNLS solve
    is optimal on its set, so the error never increases. Only when no candidate of a
-   batch helps are all elements scanned (again in chunks). The greedy steps are the
+   batch helps is a wider set scanned (in chunks): every element when at most
+   :data:`FALLBACK_ELEMENTS` remain (every built-in scene but the 100k-vertex one),
+   else that many drawn at random (one scan of 575k elements cost ~50 s). The greedy steps are the
    same on every rank (same seed, same draws); memory is O(P·r·(s + batch)) besides
    one chunk.
 
@@ -55,6 +57,12 @@ log = logging.getLogger(__name__)
 
 #: default bound (bytes) on the temporary arrays of one chunk of elements or poses
 DEFAULT_MAX_BYTES = 512 * 2**20
+#: elements scanned when no candidate of a batch helps: all of them up to this many,
+#: else this many drawn at random
+FALLBACK_ELEMENTS = 8192
+#: path targets used by :func:`train_example_cubatures` at most (evenly spaced); a
+#: target table of N = 32 intervals has 33 nodes, finer tables are subsampled to it
+MAX_PATH_POSES = 33
 
 
 @dataclass(frozen=True)
@@ -349,6 +357,7 @@ def train_cubature_on_poses(
     progress: bool = False,
     peak_strain: float | None = None,
     comm=None,
+    drop_forceless: bool = False,
 ) -> Cubature:
     """Greedy + NNLS cubature fitted to given training poses on a given rest shape.
 
@@ -369,6 +378,10 @@ def train_cubature_on_poses(
             :func:`train_cubature`.
         peak_strain: the poses' largest expected strain, for the rigid-pose check
             (default: measured on the poses).
+        drop_forceless: leave out (and log) poses without a finite, non-negligible exact
+            force instead of refusing them (an error only when no training or held-out
+            pose remains); e.g. example path targets from an exact solve that did not
+            converge.
 
     Returns:
         The :class:`Cubature` (``n_train``/``n_holdout`` the pose counts).
@@ -391,6 +404,21 @@ def train_cubature_on_poses(
     all_poses = np.concatenate([train, holdout])
     forces, strains = exact_pose_forces(rest_points, tets, material, U, all_poses,
                                         max_bytes=max_bytes, comm=comm)
+    n_train = train.shape[0]
+    if drop_forceless:
+        norms = np.linalg.norm(forces, axis=1)
+        finite = np.isfinite(norms) & np.isfinite(strains)
+        largest = norms[finite].max(initial=0.0)
+        keep = finite & (norms > 1e-12 * largest) & (strains > 1e-9 * strains[finite].max(
+            initial=0.0))
+        if not keep.all():
+            log.warning("cubature: %d of %d poses without a finite elastic force left out",
+                        int((~keep).sum()), keep.size)
+        if not keep[:n_train].any() or not keep[n_train:].any():
+            raise LbshapeError("no training or held-out pose has an elastic force")
+        forces, strains = forces[keep], strains[keep]
+        train, holdout = train[keep[:n_train]], holdout[keep[n_train:]]
+        n_train = train.shape[0]
     if peak_strain is None:
         peak_strain = float(strains.max())
     if (strains <= 1e-9 * peak_strain).any():
@@ -398,7 +426,6 @@ def train_cubature_on_poses(
             "a training pose has no elastic force: the basis only translates the "
             "mesh rigidly (or not at all) for some poses"
         )
-    n_train = train.shape[0]
     b, factor = _normalised_forces(forces[:n_train])
     b_hold, factor_hold = _normalised_forces(forces[n_train:])
     columns = _Columns(rest_points, tets, material, U, train, factor, max_bytes=max_bytes)
@@ -446,6 +473,7 @@ def train_example_cubatures(
     tol: float = 0.01,
     max_bytes: int = DEFAULT_MAX_BYTES,
     comm=None,
+    max_path: int = MAX_PATH_POSES,
 ) -> list[Cubature]:
     """One cubature per example, trained where the target search evaluates it.
 
@@ -472,6 +500,10 @@ def train_example_cubatures(
             the example path, 10 % with 2 copies 3 %).
         copies: perturbations per path pose.
         max_elements, tol, max_bytes, comm: as in :func:`train_cubature`.
+        max_path: at most this many path targets are used, evenly spaced along the path
+            (first and last kept): every pose costs one pass over all elements, and a
+            table refined to N = 256 intervals (257 nodes) on a fine mesh would make
+            the training 8 times as long as the N = 32 nodes it then uses.
 
     Returns:
         k :class:`Cubature` rules (element indices into ``tets``).
@@ -482,6 +514,14 @@ def train_example_cubatures(
     if len(rest_points) != k or path.shape[1] != p or path.shape[0] < 4:
         raise LbshapeError(f"need {k} rest shapes and a path of >= 4 targets with {p} "
                            f"coordinates, got {len(rest_points)} and {path.shape}")
+    _check_int("max_path", max_path, minimum=4)
+    finite = np.isfinite(path).all(axis=1)
+    if not finite.all():
+        log.warning("example cubature: %d non-finite path targets left out",
+                    int((~finite).sum()))
+        path = path[finite]
+    if path.shape[0] > max_path:
+        path = path[np.unique(np.round(np.linspace(0, path.shape[0] - 1, max_path)).astype(int))]
     spread = max((float(np.linalg.norm(offsets[i] - offsets[j]))
                   for i in range(k) for j in range(i + 1, k)), default=0.0)
     spread = spread or float(np.linalg.norm(offsets, axis=1).max()) or 1.0
@@ -499,7 +539,7 @@ def train_example_cubatures(
         rules.append(train_cubature_on_poses(
             rest_points[index], tets, material, basis, train=poses[~held & moving],
             holdout=poses[held], rng=rng, max_elements=max_elements, tol=tol,
-            max_bytes=max_bytes, comm=comm))
+            max_bytes=max_bytes, comm=comm, drop_forceless=True))
     return rules
 
 
@@ -569,8 +609,10 @@ def _greedy_nnls(columns, b, hold_columns, b_hold, *, n_elements, s, tol, candid
                 break
             batch = rng.choice(pool, size=min(candidates, pool.size), replace=False)
             column = _best_aligned(columns, residual, batch)
-            if column is None:  # nothing in the batch helps: look at every element
-                column = _best_aligned_everywhere(columns, residual, pool, comm)
+            if column is None:  # nothing in the batch helps: look at (many) more elements
+                wider = pool if pool.size <= FALLBACK_ELEMENTS else np.sort(
+                    rng.choice(pool, size=FALLBACK_ELEMENTS, replace=False))
+                column = _best_aligned_in_chunks(columns, residual, wider, comm)
                 if column is None:
                     log.info("cubature: no remaining element reduces the error %.3g", error)
                     break
@@ -618,7 +660,7 @@ def _best_aligned(columns, residual, candidates) -> tuple[int, np.ndarray] | Non
     return (int(candidates[i]), A[:, i].copy()) if scores[i] > 0 else None
 
 
-def _best_aligned_everywhere(columns, residual, pool, comm) -> tuple[int, np.ndarray] | None:
+def _best_aligned_in_chunks(columns, residual, pool, comm) -> tuple[int, np.ndarray] | None:
     """:func:`_best_aligned` over every element of ``pool``, chunk by chunk (split across
     the ranks of ``comm``); the first of equal best scores, as in one pass."""
     blocks = columns.chunks(pool, parts=1 if comm is None else comm.size)

@@ -14,8 +14,8 @@ H is compiled once as a linear form with two coefficient Functions (a, b) and
 re-assembled per pair. Because E is a quartic polynomial of ∇u for StVK, f is cubic
 and ``H(ψ, ψ) = (f(εψ) + f(−εψ))/ε²`` holds exactly for every ε.
 
-Solving. One sparse Cholesky factorisation (PETSc KSP ``preonly`` + Cholesky with
-MUMPS, options prefix ``md_``) serves every right-hand side.
+Solving. One sparse Cholesky factorisation (PETSc KSP ``preonly`` + Cholesky: CHOLMOD
+serially, MUMPS over several ranks; options prefix ``md_``) serves every right-hand side.
 
 * **Clamped body:** the system is restricted to the free DOFs; Ψ is zero at the
   fixed vertices.
@@ -55,7 +55,7 @@ from lbshape.elastic.materials import Material, strain_energy_ufl
 from lbshape.elastic.modes import LinearModes, elastic_matrices, rigid_body_modes
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.fem.dolfinx_bridge import dof_to_input_order, p1_dof_vertices, to_dolfinx
-from lbshape.fem.eigenproblem import check_residuals
+from lbshape.fem.eigenproblem import check_residuals, factor_package
 from lbshape.fem.mpi import compute_on_root, sum_over_ranks
 from lbshape.fem.petsc_gather import gather_rows, scatter_rows
 from lbshape.geometry.mesh import TetMesh
@@ -343,8 +343,9 @@ class _DistributedSystem:
 
 
 class _CholeskySolver:
-    """One MUMPS Cholesky factorisation of a symmetric positive definite PETSc matrix
-    (serial or distributed; not owned)."""
+    """One Cholesky factorisation of a symmetric positive definite PETSc matrix (serial:
+    CHOLMOD, distributed: MUMPS, :func:`~lbshape.fem.eigenproblem.factor_package`;
+    not owned)."""
 
     def __init__(self, A):
         from petsc4py import PETSc
@@ -355,7 +356,7 @@ class _CholeskySolver:
         self._ksp.setType("preonly")
         pc = self._ksp.getPC()
         pc.setType("cholesky")
-        pc.setFactorSolverType("mumps")
+        pc.setFactorSolverType(factor_package(A.getComm()))
         self._ksp.setFromOptions()
         self._b, self._x = A.createVecs()
         try:

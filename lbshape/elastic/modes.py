@@ -4,7 +4,7 @@ The tangent stiffness at rest ``K = ∂²E/∂u²|₀`` is the second UFL deriva
 :func:`lbshape.elastic.materials.strain_energy_ufl` (vector P1) and the mass is consistent,
 ``M = ∫ρ u·v``. Both materials linearise to the same isotropic linear elasticity, so
 K does not depend on the material model. ``K ψ = ω² M ψ`` is solved with SLEPc
-(GHEP, shift-and-invert, Cholesky with MUMPS).
+(GHEP, shift-and-invert, Cholesky with CHOLMOD serially and MUMPS over several ranks).
 
 Choices:
 
@@ -53,6 +53,7 @@ from lbshape.fem.eigenproblem import (
     check_residuals,
     check_tol_and_target,
     converged_pairs,
+    factor_package,
     fix_signs,
     relative_residuals,
     shift_invert_eps,
@@ -432,7 +433,7 @@ def _solve_eigenproblem(mats: ElasticMatrices, nev: int, sigma: float,
 
     eps = shift_invert_eps(mats.stiffness_petsc, mats.mass_petsc, comm=mats.comm,
                            prefix=OPTIONS_PREFIX, nev=nev, sigma=sigma, tol=tol,
-                           factor="mumps")
+                           factor=factor_package(mats.comm))
     try:
         eps.setFromOptions()
         tol = eps.getTolerances()[0]  # as overridden by -elastic_eps_tol, if given

@@ -67,6 +67,7 @@ from lbshape.fem.eigenproblem import (
     check_residuals,
     check_tol_and_target,
     converged_pairs,
+    factor_package,
     fix_signs,
     relative_residuals,
     shift_invert_eps,
@@ -444,15 +445,6 @@ def count_eigenvalues_below(mats: LBMatrices, tau: float) -> int:
     finally:
         ksp.destroy()
         A.destroy()
-
-
-def factor_package(comm: MPI.Comm) -> str:
-    """The sparse Cholesky package used by default: ``"cholmod"`` (serial) or ``"mumps"``."""
-    from petsc4py import PETSc
-
-    if comm.size == 1 and PETSc.Sys.hasExternalPackage("suitesparse"):
-        return "cholmod"
-    return "mumps"
 
 
 def _check_single_zero(values: np.ndarray, scale: float) -> None:
