@@ -45,7 +45,7 @@ the full reference from 3.3 % to 23 %, while the torque's response, 7 % outside,
 lowers it to 2.7 %). The entering responses are kept exactly, after the linear modes
 (made M-orthogonal to them, then their own M-PCA), and the derivatives' PCA fills
 the remaining columns. Measured on the teddy with local examples (r = 30): the full
-trajectory lies 44 % outside span U without responses, 11 % with them
+trajectory lies 44 % outside span U without responses, 8.5 % with them
 (``scripts/diagnose_accuracy.py``).
 
 After the PCA, U is re-orthonormalised once in the M inner product (the Gram route
