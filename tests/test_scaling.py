@@ -48,6 +48,20 @@ def test_report_files_and_verdicts(tmp_path):
     text = (tmp_path / "scaling.md").read_text()
     assert "| 103000 |" in text and "not met" in text
     assert "no object with" in scaling.verdicts(points[:1])[0]
+    assert len(lines) == 3  # no common-route timings: no fourth verdict
+
+
+def test_common_route_verdict_and_columns(tmp_path):
+    """The per-step time with the same target route at every size gets its own verdict."""
+    points = [point(0.0665, 330, 3.0, 400.0, 0.12), point(0.0068, 103_000, 290.0, 900.0, 2.4)]
+    points[0].t_total_common_ms = [1.00, 1.05, 0.95]
+    points[1].t_total_common_ms = [1.10, 1.30, 1.00]
+    lines = scaling.verdicts(points)
+    assert "20 x" in lines[2] and "not met" in lines[2]  # the scene's own routes differ
+    assert scaling.COMMON_ROUTE in lines[3] and "1.1 x" in lines[3] and ": met" in lines[3]
+    scaling.write_scaling(points, tmp_path)
+    rows = list(csv.DictReader((tmp_path / "scaling.csv").open()))
+    assert [float(r["t_total_common_route_ms"]) for r in rows] == [1.0, 1.1]
 
 
 @pytest.mark.parametrize("arguments, message", [
@@ -68,6 +82,7 @@ def test_two_coarse_sizes_end_to_end(tmp_path):
     for p in points:
         assert p.wall_seconds > p.stages_seconds > 0 and p.peak_mb > 50
         assert set(p.stage_peak_mb) == set(p.stage_seconds) and len(p.t_total_ms) == 1
+        assert len(p.t_total_common_ms) == 1 and p.t_total_common_ms[0] > 0
 
 
 def test_fine_scene_is_bar_cylinder_with_a_finer_object():

@@ -15,7 +15,11 @@ vertices:
 * **per-step time** — the reduced simulation of every size in this process (threads as
   set by the caller; 1 for the published numbers), sizes interleaved within each repeat
   so that load from other processes spreads over all sizes; per size the median over
-  repeats of the mean ``t_total`` / ``t_interp`` after the warm-up steps.
+  repeats of the mean ``t_total`` / ``t_interp`` after the warm-up steps. Each size is
+  timed twice: with the scene's own route (``lb-table`` where the precompute accepted
+  the table, else the per-step solve it falls back to) and with :data:`COMMON_ROUTE`,
+  the per-step target solve, at every size — the same work per step whatever the
+  size, so that column shows whether the step itself grows with the mesh.
 
 Writes ``scaling.csv`` (one row per size), ``scaling.md`` (tables, machine, the ≥100k
 verdicts) and ``scaling.png`` (log-log precompute time and peak memory per stage, and
@@ -25,6 +29,7 @@ per-step time, against vertices).
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import os
 import shutil
@@ -55,6 +60,9 @@ DEFAULT_SCENE = "bar-cylinder"
 DEFAULT_SIZES: tuple[float, ...] = (0.0665, 0.035, 0.0185, 0.0125, 0.0092, 0.0065)
 #: steps per timed reduced run, and repeats
 DEFAULT_STEPS = 300
+#: the route timed at every size besides the scene's own: the per-step target solve
+#: (``lb-exact``), which every precompute with examples supports
+COMMON_ROUTE = "lb-exact"
 DEFAULT_REPEATS = 3
 #: the targets of a ≥ 100k-vertex object (reported, never asserted)
 TARGET_VERTICES = 100_000
@@ -63,7 +71,8 @@ TARGET_PEAK_MB = 8 * 1024.0
 TARGET_STEP_RATIO = 1.2
 #: CSV columns before the per-stage ones
 _COLUMNS = ("size_m", "n_vertices", "n_tets", "ranks", "wall_s", "stages_s", "peak_mb",
-            "t_total_ms", "t_total_min_ms", "t_total_max_ms", "t_interp_ms", "target_table")
+            "t_total_ms", "t_total_min_ms", "t_total_max_ms", "t_interp_ms", "target_table",
+            "t_total_common_route_ms")
 
 
 @dataclass
@@ -82,6 +91,8 @@ class ScalingPoint:
         t_interp_ms: per repeat, the mean time of the example target (ms).
         target_table: whether the precompute tabulated the example target (else the
             reduced step solves it at run time, a different t_interp).
+        t_total_common_ms: per repeat, the mean reduced step time (ms) with the
+            target route :data:`COMMON_ROUTE` at every size.
     """
 
     size: float
@@ -95,6 +106,7 @@ class ScalingPoint:
     t_total_ms: list = field(default_factory=list)
     t_interp_ms: list = field(default_factory=list)
     target_table: bool | None = None
+    t_total_common_ms: list = field(default_factory=list)
 
     @property
     def stages_seconds(self) -> float:
@@ -172,14 +184,22 @@ def run_scaling(sizes: Sequence[float] = DEFAULT_SIZES, *, scene: str = DEFAULT_
                       f"{wall:.1f} s, peak {peak:.0f} MB", file=sys.stderr)
         for _ in range(repeats):
             for point, (loaded, pre) in zip(points, runs, strict=True):
-                record = reduced_simulation(loaded, pre).run(steps, stride=steps)
-                if not record.stable:
-                    raise LbshapeError(f"the reduced run of {loaded.name} stopped: "
-                                       f"{record.message}")
-                t_interp, t_total = record.mean_ms(warmup=WARMUP_STEPS)
+                t_interp, t_total = _timed_run(loaded, pre, steps)
                 point.t_total_ms.append(t_total)
                 point.t_interp_ms.append(t_interp)
+                if pre.has_examples:
+                    common = dataclasses.replace(loaded, reduced=dataclasses.replace(
+                        loaded.reduced, interpolation=COMMON_ROUTE))
+                    point.t_total_common_ms.append(_timed_run(common, pre, steps)[1])
     return points
+
+
+def _timed_run(scene, pre, steps: int) -> tuple[float, float]:
+    """(t_interp, t_total) in ms: means after the warm-up of one reduced run."""
+    record = reduced_simulation(scene, pre).run(steps, stride=steps)
+    if not record.stable:
+        raise LbshapeError(f"the reduced run of {scene.name} stopped: {record.message}")
+    return record.mean_ms(warmup=WARMUP_STEPS)
 
 
 # ------------------------------------------------------------------------------ output
@@ -189,7 +209,8 @@ def point_payload(point: ScalingPoint) -> dict:
             "ranks": point.ranks, "wall_s": point.wall_seconds, "peak_mb": point.peak_mb,
             "stage_seconds": point.stage_seconds, "stage_peak_mb": point.stage_peak_mb,
             "t_total_ms": list(point.t_total_ms), "t_interp_ms": list(point.t_interp_ms),
-            "target_table": point.target_table}
+            "target_table": point.target_table,
+            "t_total_common_route_ms": list(point.t_total_common_ms)}
 
 
 def write_scaling(points: Sequence[ScalingPoint], out: Path, *,
@@ -207,7 +228,7 @@ def write_scaling(points: Sequence[ScalingPoint], out: Path, *,
                          f"{p.stages_seconds:.2f}", f"{p.peak_mb:.0f}",
                          f"{np.median(p.t_total_ms):.4f}", f"{min(p.t_total_ms):.4f}",
                          f"{max(p.t_total_ms):.4f}", f"{np.median(p.t_interp_ms):.4f}",
-                         _yes_no(p.target_table),
+                         _yes_no(p.target_table), _median_cell(p.t_total_common_ms),
                          *(_cell(p.stage_seconds.get(n), ".2f") for n in names),
                          *(_cell(p.stage_peak_mb.get(n), ".0f") for n in names)])
     paths = [write_text_atomic(out / "scaling.csv", buffer.getvalue()),
@@ -224,12 +245,18 @@ def verdicts(points: Sequence[ScalingPoint]) -> list[str]:
     big = max(large, key=lambda p: p.n_vertices)
     small = min(points, key=lambda p: p.n_vertices)
     ratio = np.median(big.t_total_ms) / np.median(small.t_total_ms)
+    common = ([] if not (big.t_total_common_ms and small.t_total_common_ms) else [
+        _verdict(f"reduced t_total with the {COMMON_ROUTE} route at every size, "
+                 f"{big.n_vertices} / {small.n_vertices} vertices",
+                 np.median(big.t_total_common_ms) / np.median(small.t_total_common_ms),
+                 TARGET_STEP_RATIO, "x")])
     return [
         _verdict(f"precompute of {big.n_vertices} vertices (-n {big.ranks})",
                  big.wall_seconds, TARGET_SECONDS, "s"),
         _verdict("its peak memory", big.peak_mb, TARGET_PEAK_MB, "MB"),
         _verdict(f"reduced t_total at {big.n_vertices} / {small.n_vertices} vertices",
                  ratio, TARGET_STEP_RATIO, "x"),
+        *common,
     ]
 
 
@@ -248,15 +275,17 @@ def scaling_markdown(points: Sequence[ScalingPoint], machine: dict) -> str:
         f"Machine: {machine_text(machine)}; load average {load_text(machine)} at the end.",
         "",
         "| h (m) | vertices | tets | ranks | precompute wall (s) | stages (s) | peak (MB) "
-        "| t_total (ms) [range] | t_interp (ms) | target table |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        f"| t_total (ms) [range] | t_interp (ms) | target table | t_total, {COMMON_ROUTE} "
+        "route (ms) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for p in points:
         lines.append(
             f"| {p.size:g} | {p.n_vertices} | {p.n_tets} | {p.ranks} | {p.wall_seconds:.1f} "
             f"| {p.stages_seconds:.1f} | {p.peak_mb:.0f} | {np.median(p.t_total_ms):.3f} "
             f"[{min(p.t_total_ms):.3f}–{max(p.t_total_ms):.3f}] "
-            f"| {np.median(p.t_interp_ms):.3f} | {_yes_no(p.target_table)} |")
+            f"| {np.median(p.t_interp_ms):.3f} | {_yes_no(p.target_table)} "
+            f"| {_median_cell(p.t_total_common_ms) or '—'} |")
     for title, key, fmt in (("Seconds per stage", "stage_seconds", ".2f"),
                             ("Peak resident memory per stage (MB)", "stage_peak_mb", ".0f")):
         lines += ["", f"## {title}", "", "| vertices | " + " | ".join(names) + " |",
@@ -301,6 +330,9 @@ def scaling_plot(points: Sequence[ScalingPoint], path: Path) -> Path:
     high = np.array([max(p.t_total_ms) for p in points]) - total
     ax.errorbar(n, total, yerr=[low, high], fmt="k-o", label="reduced t_total")
     ax.plot(n, [np.median(p.t_interp_ms) for p in points], "-s", label="t_interp")
+    if all(p.t_total_common_ms for p in points):
+        ax.plot(n, [np.median(p.t_total_common_ms) for p in points], "-^",
+                label=f"t_total, {COMMON_ROUTE} route at every size")
     ax.fill_between([min(n), max(n)], total[0], total[0] * TARGET_STEP_RATIO, color="0.9",
                     label="smallest + 20 %")
     ax.set_xscale("log")
@@ -324,6 +356,11 @@ def _stage_order(points: Sequence[ScalingPoint]) -> list[str]:
 
 def _yes_no(value) -> str:
     return "—" if value is None else ("yes" if value else "no (solved per step)")
+
+
+def _median_cell(values: list) -> str:
+    """The median of ``values`` (ms, 3 decimals), '' when there are none."""
+    return f"{np.median(values):.3f}" if values else ""
 
 
 def _cell(value, fmt: str) -> str:
