@@ -59,11 +59,11 @@ import logging
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from lbshape.elastic.modal_derivatives import ModalDerivatives
 from lbshape.elastic.modes import LinearModes
 from lbshape.errors import LbshapeError, SolverError
+from lbshape.fem.cholesky import cholesky_solve
 
 log = logging.getLogger(__name__)
 
@@ -253,10 +253,10 @@ def static_responses(
     A = A.tocsr()[free][:, free].tocsc()
     out = np.zeros_like(F)
     if F.shape[1]:
-        solution = spla.splu(A).solve(F[free])
-        out[free] = solution.reshape(free.sum(), -1)
-    if not np.isfinite(out).all():
-        raise LbshapeError("static responses: the system is singular")
+        try:
+            out[free] = cholesky_solve(A, F[free])
+        except SolverError:
+            raise LbshapeError("static responses: the system is singular") from None
     return out
 
 
