@@ -54,8 +54,9 @@ from mpi4py import MPI
 from lbshape.elastic.materials import Material, strain_energy_ufl
 from lbshape.elastic.modes import LinearModes, elastic_matrices, rigid_body_modes
 from lbshape.errors import LbshapeError, SolverError
+from lbshape.fem.cholesky import CholeskySolver
 from lbshape.fem.dolfinx_bridge import dof_to_input_order, p1_dof_vertices, to_dolfinx
-from lbshape.fem.eigenproblem import check_residuals, factor_package
+from lbshape.fem.eigenproblem import check_residuals
 from lbshape.fem.mpi import compute_on_root, sum_over_ranks
 from lbshape.fem.petsc_gather import gather_rows, scatter_rows
 from lbshape.geometry.mesh import TetMesh
@@ -311,7 +312,8 @@ class _DistributedSystem:
                 self._sub = self._K.createSubMatrix(index_set, index_set)
             finally:
                 index_set.destroy()
-        self._solver = _CholeskySolver(self._sub if self._sub is not None else self._K)
+        self._solver = CholeskySolver(self._sub if self._sub is not None else self._K,
+                                      prefix=OPTIONS_PREFIX, what="the stiffness")
 
     def _apply(self, A, x: np.ndarray) -> np.ndarray:
         self._x.setArray(x)
@@ -340,57 +342,3 @@ class _DistributedSystem:
         for item in (self._sub, self._x, self._y):
             if item is not None:
                 item.destroy()
-
-
-class _CholeskySolver:
-    """One Cholesky factorisation of a symmetric positive definite PETSc matrix (serial:
-    CHOLMOD, distributed: MUMPS, :func:`~lbshape.fem.eigenproblem.factor_package`;
-    not owned)."""
-
-    def __init__(self, A):
-        from petsc4py import PETSc
-
-        self._ksp = PETSc.KSP().create(A.getComm())
-        self._ksp.setOptionsPrefix(OPTIONS_PREFIX)
-        self._ksp.setOperators(A)
-        self._ksp.setType("preonly")
-        pc = self._ksp.getPC()
-        pc.setType("cholesky")
-        pc.setFactorSolverType(factor_package(A.getComm()))
-        self._ksp.setFromOptions()
-        self._b, self._x = A.createVecs()
-        try:
-            self._ksp.setUp()
-        except PETSc.Error as exc:
-            self.destroy()
-            raise SolverError(f"Cholesky factorisation of the stiffness failed ({exc})") from None
-
-    def solve(self, rhs: np.ndarray) -> np.ndarray:
-        """X (l, c) for the local rows (l, c) of c right-hand sides: one block solve
-        (MUMPS solves them together)."""
-        from petsc4py import PETSc
-
-        rows, count = rhs.shape
-        comm = self._ksp.getComm()
-        sizes = [(rows, PETSc.DECIDE), (PETSc.DECIDE, count)]
-        B = PETSc.Mat().createDense(sizes, array=np.asfortranarray(rhs), comm=comm)
-        X = PETSc.Mat().createDense(sizes, comm=comm)
-        try:
-            B.assemble()
-            X.setUp()
-            X.assemble()
-            try:
-                self._ksp.getPC().getFactorMatrix().matSolve(B, X)
-            except PETSc.Error as exc:
-                raise SolverError(f"modal derivative solve failed ({exc})") from None
-            return X.getDenseArray().copy()
-        finally:
-            B.destroy()
-            X.destroy()
-
-    def destroy(self) -> None:
-        for obj in ("_ksp", "_b", "_x"):
-            item = getattr(self, obj, None)
-            if item is not None:
-                item.destroy()
-                setattr(self, obj, None)
