@@ -1,4 +1,5 @@
-"""Static-response vectors in the basis: they solve their systems, U keeps them exactly
+"""Static-response vectors in the basis: they solve their systems (with the modal
+derivatives' factorisation of K), U keeps them exactly
 after the linear modes, a load's linear static solution then lies in span U (it does not
 without them), and a scene's responses are what its loads and example pulls ask for."""
 
@@ -9,7 +10,7 @@ import pytest
 import scipy.linalg
 import scipy.sparse as sp
 
-from lbshape.elastic.basis import RESPONSE_MIN_OUTSIDE, nonlinear_basis, static_responses
+from lbshape.elastic.basis import RESPONSE_MIN_OUTSIDE, nonlinear_basis
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.modal_derivatives import modal_derivatives
@@ -17,7 +18,7 @@ from lbshape.elastic.modes import linear_modes
 from lbshape.errors import LbshapeError
 from lbshape.geometry.primitives import structured_box
 from lbshape.pipeline.meshes import build_mesh, selected_vertices
-from lbshape.pipeline.responses import basis_responses, example_pulls, mesh_load_patterns
+from lbshape.pipeline.responses import example_pulls, mesh_load_patterns, response_loads
 from lbshape.scene import load_scene
 
 MATERIAL = Material(young=2.0e5, poisson=0.3, density=1100.0)
@@ -29,7 +30,8 @@ def clamped():
     mesh = structured_box((0.1, 0.1, 0.6), (2, 2, 10))
     fixed = np.flatnonzero(mesh.points[:, 2] < 1e-12)
     modes = linear_modes(mesh, MATERIAL, K_MODES, fixed_vertices=fixed)
-    return mesh, fixed, modes, modal_derivatives(mesh, MATERIAL, modes)
+    return mesh, fixed, modes, modal_derivatives(mesh, MATERIAL, modes,
+                                                 static_loads=tip_loads(mesh))
 
 
 def tip_loads(mesh) -> np.ndarray:
@@ -50,25 +52,30 @@ def m_angles(A, B, M) -> np.ndarray:
 
 
 def test_static_responses_solve_their_systems(clamped):
-    mesh, fixed, modes, _ = clamped
-    K, M = modes.stiffness, modes.mass
+    mesh, fixed, modes, derivatives = clamped
+    K = modes.stiffness
     F = tip_loads(mesh)
+    X = derivatives.static_responses
+    assert X.shape == F.shape and derivatives.vectors.shape[1] == derivatives.pairs.shape[0]
     free = np.setdiff1d(np.arange(3 * mesh.n_vertices), (3 * fixed[:, None] + np.arange(3)))
-    for shift in (0.0, 500.0):
-        X = static_responses(K, F, fixed_vertices=fixed, spring=M, shift=shift)
-        residual = ((K + shift * M) @ X - F)[free]
-        assert np.abs(residual).max() < 1e-9 * np.abs(F).max()
-        assert np.abs(X.reshape(-1, 3, 2)[fixed]).max() == 0.0
-    with pytest.raises(LbshapeError, match="free body need shift > 0"):
-        static_responses(K, F)
-    with pytest.raises(LbshapeError, match="shift must be"):
-        static_responses(K, F, fixed_vertices=fixed, spring=M, shift=-1.0)
+    residual = (K @ X - F)[free]
+    assert np.abs(residual).max() < 1e-9 * np.abs(F).max()
+    assert np.abs(X.reshape(-1, 3, 2)[fixed]).max() == 0.0
+    # the same derivatives as without loads: one factorisation serves both
+    alone = modal_derivatives(mesh, MATERIAL, modes)
+    assert np.abs(alone.vectors - derivatives.vectors).max() < 1e-10 * np.abs(alone.vectors).max()
+    assert alone.static_responses.shape == (3 * mesh.n_vertices, 0)
+    free_modes = linear_modes(mesh, MATERIAL, 7)
+    with pytest.raises(LbshapeError, match="need a clamped body"):
+        modal_derivatives(mesh, MATERIAL, free_modes, pairs=[[6, 6]], static_loads=F)
+    with pytest.raises(LbshapeError, match="static_loads must be a finite"):
+        modal_derivatives(mesh, MATERIAL, modes, static_loads=F[:-1])
 
 
 def test_responses_the_plain_basis_misses_are_kept_exactly_after_the_linear_modes(clamped):
     mesh, fixed, modes, derivatives = clamped
     M = modes.mass
-    X = static_responses(modes.stiffness, tip_loads(mesh), fixed_vertices=fixed)
+    X = derivatives.static_responses
     r = 10
     plain = nonlinear_basis(modes, derivatives, M, r).U
     share = [float(np.sqrt(v @ (M @ v) / (x @ (M @ x))))
@@ -96,7 +103,7 @@ def test_responses_the_plain_basis_misses_are_kept_exactly_after_the_linear_mode
 def test_a_load_static_solution_lies_in_span_u_only_with_responses(clamped):
     mesh, fixed, modes, derivatives = clamped
     M = modes.mass
-    X = static_responses(modes.stiffness, tip_loads(mesh), fixed_vertices=fixed)
+    X = derivatives.static_responses
     u = X[:, 1]  # the linear static solution of the tip twist
 
     def outside(U):
@@ -117,7 +124,8 @@ def test_scene_responses_answer_its_loads_and_example_pulls(name):
     M = mass_matrix(mesh, scene.material.density)
     modes = linear_modes(mesh, scene.material, 1, fixed_vertices=fixed)
     K = modes.stiffness
-    X = basis_responses(scene, mesh, K, M, fixed)
+    X = modal_derivatives(mesh, scene.material, modes,
+                          static_loads=response_loads(scene, mesh, M, fixed)).static_responses
     loads = np.column_stack([load.pattern for load in mesh_load_patterns(scene, mesh, M)])
     D, S = example_pulls(scene, mesh, M)
     expected = len(scene.loads) + (sum(len(reg.examples) for reg in scene.regions)
@@ -144,7 +152,7 @@ def test_a_free_body_gets_no_responses():
     mesh = structured_box((0.3, 0.1, 0.1), (3, 1, 1))
     scene = load_scene("car")
     M = mass_matrix(mesh, scene.material.density)
-    X = basis_responses(scene, mesh, sp.identity(3 * mesh.n_vertices), M, np.zeros(0, int))
+    X = response_loads(scene, mesh, M, np.zeros(0, int))
     assert X.shape == (3 * mesh.n_vertices, 0)
 
 

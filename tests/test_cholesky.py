@@ -8,7 +8,24 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from lbshape.errors import SolverError
-from lbshape.fem.cholesky import cholesky_solve
+from lbshape.fem.cholesky import CholeskySolver
+
+
+def cholesky_solve(A: sp.csr_matrix, B: np.ndarray) -> np.ndarray:
+    """X with A X = B through one :class:`CholeskySolver` on a serial PETSc copy of A."""
+    from petsc4py import PETSc
+
+    mat = PETSc.Mat().createAIJ(size=A.shape, comm=PETSc.COMM_SELF, csr=(
+        A.indptr.astype(PETSc.IntType), A.indices.astype(PETSc.IntType), A.data))
+    mat.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+    try:
+        solver = CholeskySolver(mat, what="the test matrix")
+        try:
+            return solver.solve(B.reshape(A.shape[0], -1)).reshape(B.shape)
+        finally:
+            solver.destroy()
+    finally:
+        mat.destroy()
 
 
 def spd_matrix(n: int, seed: int = 0) -> sp.csr_matrix:

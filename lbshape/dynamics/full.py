@@ -20,7 +20,9 @@ the step (explicit in the target, implicit in u — as the reduced method does):
 2. weights ``w = simplex_weights(example descriptors (k, 3m), d)``;
 3. target coefficients ``c* = argmin_c Σ_k w_k E_k(c − c_k)``, with ``E_k`` the
    energy of example k's rest shape ``X_k = X + Φ c_k`` deformed by ``L (c − c_k)``
-   over all elements (:class:`~lbshape.shapespace.euclidean_energy.EuclideanExampleEnergy`),
+   over all elements but those an example's reconstruction squeezes
+   (:func:`lbshape.shapespace.example_shapes.energy_elements`, as in every route;
+   :class:`~lbshape.shapespace.euclidean_energy.EuclideanExampleEnergy`),
    ``L = Φ ⊗ I₃`` (3n, 3m), solved by :class:`~lbshape.shapespace.interpolation.TargetSolver`
    (warm-started from the previous step);
 4. target displacement ``u* = L c*`` and force ``f_ex = k_ex M (u* − u)``, k_ex in
@@ -83,6 +85,7 @@ from lbshape.elastic.modes import rigid_body_modes
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
+from lbshape.shapespace.example_shapes import energy_elements, example_rest_shapes
 from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
 from lbshape.shapespace.local_examples import FullSpaceLocalForce
 
@@ -331,8 +334,10 @@ class FullSpaceSimulator:
         self._mass_target = np.ascontiguousarray(ML[self.free_dofs])  # (nf, 3m): (M L)_free
         flat = coefficients.reshape(k, 3 * m)
         self._example_descriptors = flat * weights
-        rests = [self.mesh.points + phi @ c for c in coefficients]
-        models = [EuclideanExampleEnergy(x, self.mesh.tets, self.material, L) for x in rests]
+        rests = example_rest_shapes(self.mesh.points, phi, coefficients)
+        kept = energy_elements(self.mesh.points, self.mesh.tets, rests)
+        models = [EuclideanExampleEnergy(x, self.mesh.tets[kept], self.material, L)
+                  for x in rests]
         self._target_solver = TargetSolver(models, flat, tolerance=tolerance)
         self._kM_ff = self._k_ex * self._mass_ff
 

@@ -30,7 +30,8 @@ smallest k with ``k + k(k+1)/2 ≥ 2r`` (capped at r), so the PCA chooses r dire
 from about twice as many candidates. The paper's bars use r = 30, which gives
 k = 10 (10 modes + 55 derivatives = 65 vectors); r = 10 gives k = 5 (20 vectors).
 
-**Response vectors** (keyword ``responses``, :func:`static_responses`): the linear
+**Response vectors** (keyword ``responses``; solved with the modal derivatives'
+factorisation, :func:`lbshape.elastic.modal_derivatives.modal_derivatives`): the linear
 static responses of the object to what drives it — each load pattern (``K x = f``)
 and each example's pull (``K x = S d_k``, d_k the example pose's
 displacement, S the mass its pull acts with). Linear modes and their derivatives
@@ -63,7 +64,6 @@ import scipy.sparse as sp
 from lbshape.elastic.modal_derivatives import ModalDerivatives
 from lbshape.elastic.modes import LinearModes
 from lbshape.errors import LbshapeError, SolverError
-from lbshape.fem.cholesky import cholesky_solve
 
 log = logging.getLogger(__name__)
 
@@ -133,7 +133,7 @@ def nonlinear_basis(
         mass: (3n, 3n) consistent mass matrix M in kg (node-major, input order).
         r: number of basis vectors, 1 ≤ r ≤ numerical rank of the k + p vectors.
         keep_linear: keep the linear modes exactly (see the module docstring).
-        responses: (3n, c) response vectors (:func:`static_responses`) kept after the
+        responses: (3n, c) response vectors (static solutions ``K x = f``) kept after the
             linear modes (only with ``keep_linear``); their numerically independent
             part beyond the modes' span takes up to ``r − k`` columns.
 
@@ -211,53 +211,6 @@ def _outside_share(X: np.ndarray, U: np.ndarray, mass) -> np.ndarray:
     total = np.sqrt(np.einsum("ij,ij->j", X, mass @ X))
     part = np.sqrt(np.einsum("ij,ij->j", rest, mass @ rest))
     return np.divide(part, total, out=np.zeros_like(part), where=total > 0)
-
-
-def static_responses(
-    stiffness: sp.spmatrix,
-    forces: np.ndarray,
-    *,
-    fixed_vertices: np.ndarray | None = None,
-    spring: sp.spmatrix | None = None,
-    shift: float = 0.0,
-) -> np.ndarray:
-    """Linear static responses ``x = (K + shift · S)⁻¹ f`` (zero on the fixed vertices).
-
-    Args:
-        stiffness: (3n, 3n) K at rest in N/m (unconstrained, node-major).
-        forces: (3n, c) force patterns in N (or (3n,) for one).
-        fixed_vertices: (f,) clamped vertices; the system is solved on the other dofs.
-        spring: (3n, 3n) S in kg (the mass an example pulls with), needed when
-            ``shift`` > 0.
-        shift: a spring stiffness in 1/s², ≥ 0 (e.g. k_ex). Without fixed vertices
-            ``shift`` must be > 0 (K alone is singular for a free body).
-
-    Returns:
-        (3n, c) displacements in m.
-
-    Raises:
-        LbshapeError: inconsistent shapes, a negative shift, or a singular system
-            (a free body with ``shift`` = 0).
-    """
-    K = sp.csr_matrix(stiffness)
-    size = K.shape[0]
-    F = np.asarray(forces, dtype=float).reshape(size, -1)
-    if not (np.isfinite(shift) and shift >= 0.0):
-        raise LbshapeError(f"shift must be a finite number >= 0, got {shift}")
-    free = np.ones(size, dtype=bool)
-    if fixed_vertices is not None and np.size(fixed_vertices):
-        free[(3 * np.asarray(fixed_vertices)[:, None] + np.arange(3)).ravel()] = False
-    if free.all() and shift == 0.0:
-        raise LbshapeError("static responses of a free body need shift > 0 (K is singular)")
-    A = K if shift == 0.0 else K + shift * sp.csr_matrix(spring)
-    A = A.tocsr()[free][:, free].tocsc()
-    out = np.zeros_like(F)
-    if F.shape[1]:
-        try:
-            out[free] = cholesky_solve(A, F[free])
-        except SolverError:
-            raise LbshapeError("static responses: the system is singular") from None
-    return out
 
 
 def _check_responses(responses: np.ndarray, size: int) -> np.ndarray:

@@ -5,14 +5,9 @@ has SuiteSparse and the matrix is serial, else MUMPS;
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 from lbshape.errors import SolverError
 from lbshape.fem.eigenproblem import factor_package
-
-#: largest accepted ``‖A X − B‖ / ‖B‖`` of :func:`cholesky_solve` (a backward-stable
-#: factorisation lands near machine precision)
-RESIDUAL_TOL = 1e-8
 
 
 class CholeskySolver:
@@ -53,6 +48,8 @@ class CholeskySolver:
         from petsc4py import PETSc
 
         rows, count = rhs.shape
+        if count == 0:
+            return np.zeros((rows, 0))
         comm = self._ksp.getComm()
         sizes = [(rows, PETSc.DECIDE), (PETSc.DECIDE, count)]
         B = PETSc.Mat().createDense(sizes, array=np.asfortranarray(rhs), comm=comm)
@@ -74,45 +71,3 @@ class CholeskySolver:
         if self._ksp is not None:
             self._ksp.destroy()
             self._ksp = None
-
-
-def cholesky_solve(matrix: sp.spmatrix, rhs: np.ndarray) -> np.ndarray:
-    """X with ``A X = B`` for a serial SciPy SPD matrix A, one factorisation.
-
-    SuperLU (``scipy.sparse.linalg.splu``) fills in badly on 3-D elasticity: at 18.6k
-    vertices it took 18 s and grew as n^1.9; CHOLMOD took 2.2 s.
-
-    Args:
-        matrix: (l, l) SPD sparse matrix A (any SciPy format).
-        rhs: (l,) or (l, c) right-hand sides B.
-
-    Returns:
-        X of the shape of ``rhs``.
-
-    Raises:
-        SolverError: the factorisation failed, or the solution's relative residual
-            exceeds :data:`RESIDUAL_TOL`.
-    """
-    from petsc4py import PETSc
-
-    A = sp.csr_matrix(matrix, dtype=float)
-    B = np.asarray(rhs, dtype=float)
-    columns = B.reshape(A.shape[0], -1)
-    if columns.shape[1] == 0:
-        return np.zeros_like(B)
-    mat = PETSc.Mat().createAIJ(size=A.shape, comm=PETSc.COMM_SELF, csr=(
-        A.indptr.astype(PETSc.IntType), A.indices.astype(PETSc.IntType), A.data))
-    mat.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-    try:
-        solver = CholeskySolver(mat)
-        try:
-            solution = solver.solve(columns)
-        finally:
-            solver.destroy()
-    finally:
-        mat.destroy()
-    residual = np.linalg.norm(A @ solution - columns) if np.isfinite(solution).all() \
-        else np.inf
-    if not residual <= RESIDUAL_TOL * max(np.linalg.norm(columns), np.finfo(float).tiny):
-        raise SolverError(f"sparse Cholesky solve failed: relative residual {residual:.1e}")
-    return solution.reshape(B.shape)

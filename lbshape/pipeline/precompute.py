@@ -4,10 +4,11 @@ Stages (only those the scene needs; paper pre-computation steps 1–6):
 
 1. ``mesh``: the object's rest mesh and its fixed vertices;
 2. ``modes``: linear elastic modes (fixed vertices from the scene);
-3. ``derivatives``: modal derivatives (Barbič & James);
+3. ``derivatives``: modal derivatives (Barbič & James), and with the same
+   factorisation of K the static responses to the scene's loads and example pulls
+   (:mod:`lbshape.pipeline.responses`);
 4. ``basis``: mass-PCA nonlinear basis U (3n, r), ``UᵀMU = I``: the linear modes, the
-   static responses to the scene's loads and example pulls
-   (:mod:`lbshape.pipeline.responses`), then the modal derivatives' principal components;
+   static responses, then the modal derivatives' principal components;
 5. ``cubature``: optimized cubature for the reduced elastic force;
 6. ``lb``: the object's LB spectrum (m pairs)                — scenes with examples;
 7. ``examples``: example meshes, poses, frame and basis alignment, displacement
@@ -79,7 +80,7 @@ from lbshape.elastic.cubature import (
     train_cubature,
     train_example_cubatures,
 )
-from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.modal_derivatives import modal_derivatives
 from lbshape.elastic.modes import linear_modes
@@ -100,8 +101,14 @@ from lbshape.pipeline.meshes import (
     posed_file_meshes,
     selected_vertices,
 )
-from lbshape.pipeline.responses import basis_responses, response_key
+from lbshape.pipeline.responses import response_key, response_loads
 from lbshape.scene.schema import MeshSource, Scene
+from lbshape.shapespace.example_shapes import (
+    MIN_VOLUME_RATIO,
+    clamp_is_safe,
+    energy_elements,
+    example_rest_shapes,
+)
 from lbshape.shapespace.frames import body_frame
 from lbshape.shapespace.local_examples import (
     LocalShapeSpace,
@@ -114,7 +121,6 @@ from lbshape.shapespace.projections import direct_projection, embed_example, mak
 from lbshape.shapespace.target_table import (
     TargetTable,
     block_basis,
-    clamp_is_safe,
     clamped_eigenvectors,
     tabulate_examples,
 )
@@ -127,7 +133,7 @@ CUBATURE_TRAINING_POSES = 120
 #: seed of every random choice of the precompute (training poses, candidates)
 PRECOMPUTE_SEED = 20170401
 #: bumped whenever the artifact's content or meaning changes (part of the cache key)
-PIPELINE_VERSION = 11
+PIPELINE_VERSION = 12
 #: target routes in the LB basis faded to zero at the fixed vertices (when safe). Off: the
 #: full-space reference interpolates in the free basis, and the clamped targets moved the
 #: coarse demo bar 28.7 % away from it (3.3 % free) while gaining 3.8 % -> 3.1 % on the bars;
@@ -169,7 +175,7 @@ class Precomputed:
         target_boundary: ``"clamped"`` when the target routes use the LB basis faded to
             zero at the fixed vertices (only with :data:`CLAMPED_TARGETS` and when it
             keeps the examples' elements healthy,
-            :func:`~lbshape.shapespace.target_table.clamp_is_safe`), else ``"free"``;
+            :func:`~lbshape.shapespace.example_shapes.clamp_is_safe`), else ``"free"``;
             the table and the per-example LB cubature use it.
         alignment_residuals: (k,) basis alignment residuals or None.
         lb_cubature_elements, lb_cubature_weights: cubature of the LB displacement
@@ -253,6 +259,14 @@ class Precomputed:
         ``clamped``: with the clamped basis (no displacement at the fixed vertices)."""
         return self.mesh.points + self.target_eigenvectors(clamped) @ \
             self.example_coefficients[index]
+
+    def example_energy_elements(self, *, clamped: bool = False) -> np.ndarray:
+        """(e,) int64 the elements the example energies sum over
+        (:func:`~lbshape.shapespace.example_shapes.energy_elements` of the rest shapes
+        of :meth:`example_rest_points`)."""
+        k = self.example_coefficients.shape[0]
+        return energy_elements(self.mesh.points, self.mesh.tets, [
+            self.example_rest_points(i, clamped=clamped) for i in range(k)])
 
     def target_eigenvectors(self, clamped: bool = False) -> np.ndarray:
         """(n, m) Φ, or Φ_F faded to zero at the fixed vertices when ``clamped``."""
@@ -475,18 +489,17 @@ def _compute(scene: Scene, stages: _Stages, comm: MPI.Comm) -> tuple[dict | None
     count = reduced.linear_modes or default_linear_modes(reduced.r)
     modes = ranks.distributed("modes", lambda: linear_modes(
         mesh, material, count, fixed_vertices=fixed if fixed.size else None, comm=comm))
-    derivatives = ranks.distributed("derivatives", lambda: modal_derivatives(
-        mesh, material, modes, comm=comm))
+    def derivatives_stage():  # with the static responses, one factorisation of K
+        def loads_on_root():
+            mass = mass_matrix(mesh, material.density)
+            return mass, response_loads(scene, mesh, mass, fixed)
 
-    def basis_stage():
-        mass = mass_matrix(mesh, material.density)
-        stiffness = modes.stiffness
-        if stiffness is None:
-            stiffness = FullSpaceElasticity(mesh, material).tangent(np.zeros(3 * mesh.n_vertices))
-        responses = basis_responses(scene, mesh, stiffness, mass, fixed)
-        return mass, nonlinear_basis(modes, derivatives, mass, reduced.r, responses=responses)
+        mass, loads = compute_on_root(comm, loads_on_root, share=False) or (None, None)
+        return mass, modal_derivatives(mesh, material, modes, static_loads=loads, comm=comm)
 
-    mass, basis = ranks.on_root("basis", basis_stage) or (None, None)
+    mass, derivatives = ranks.distributed("derivatives", derivatives_stage)
+    basis = ranks.on_root("basis", lambda: nonlinear_basis(
+        modes, derivatives, mass, reduced.r, responses=derivatives.static_responses))
 
     def cubature_stage():  # every rank: the element passes are split across the ranks
         U, omega2 = compute_on_root(comm, lambda: (basis.U, np.asarray(basis.omega2)))
@@ -646,6 +659,13 @@ def _target_table(scene: Scene, mesh: TetMesh, fixed: np.ndarray, spectrum, spac
         log.warning("the clamped LB basis would flatten elements of the examples' rest "
                     "shapes: the target routes keep the free basis")
     phi_target = phi_clamped if clamped else spectrum.eigenvectors
+    kept = energy_elements(mesh.points, mesh.tets, example_rest_shapes(
+        mesh.points, phi_target, space.example_coefficients))
+    if kept.size < mesh.n_tets:
+        log.warning("the examples' reconstructions (m=%d) squeeze %d of %d elements below "
+                    "%g %% of their volume: the example energies leave them out",
+                    scene.reduced.m, mesh.n_tets - kept.size, mesh.n_tets,
+                    100 * MIN_VOLUME_RATIO)
     table, path, _ = tabulate_examples(mesh.points, mesh.tets, scene.material, phi_target,
                                        space.example_coefficients, mass=spectrum.mass)
     return table, path, clamped, phi_target
@@ -654,13 +674,16 @@ def _target_table(scene: Scene, mesh: TetMesh, fixed: np.ndarray, spectrum, spac
 def _train_lb_cubatures(scene: Scene, mesh: TetMesh, eigenvectors, eigenvalues,
                         example_coefficients, path, *, comm: MPI.Comm) -> dict:
     """One cubature per example for the LB basis ``Φ ⊗ I₃`` (the one of the target
-    routes), trained on the example's rest shape along the path (P, 3m) of exact
+    routes) over the example energies' elements
+    (:func:`~lbshape.shapespace.example_shapes.energy_elements`), trained on the
+    example's rest shape along the path (P, 3m) of exact
     targets between the examples (:func:`lbshape.elastic.cubature.train_example_cubatures`,
     its element passes split across the ranks of ``comm``); arrays (k, s) padded."""
     k = example_coefficients.shape[0]
-    rests = [mesh.points + eigenvectors @ c for c in example_coefficients]
+    rests = example_rest_shapes(mesh.points, eigenvectors, example_coefficients)
+    kept = energy_elements(mesh.points, mesh.tets, rests)  # the example energies' elements
     rules = train_example_cubatures(
-        rests, mesh.tets, scene.material, block_basis(eigenvectors),
+        rests, mesh.tets[kept], scene.material, block_basis(eigenvectors),
         example_coefficients.reshape(k, -1), path,
         rng=np.random.default_rng(PRECOMPUTE_SEED + 1),
         scales=inverse_frequency_scales(np.repeat(eigenvalues, 3)),
@@ -670,7 +693,7 @@ def _train_lb_cubatures(scene: Scene, mesh: TetMesh, eigenvectors, eigenvalues,
     elements = np.full((k, width), -1, dtype=np.int64)
     weights = np.zeros((k, width))
     for index, rule in enumerate(rules):
-        elements[index, :rule.size] = rule.elements
+        elements[index, :rule.size] = kept[rule.elements]
         weights[index, :rule.size] = rule.weights
     return {"lb_cub_elements": elements, "lb_cub_weights": weights,
             "lb_cub_errors": np.array([max(r.train_error for r in rules),

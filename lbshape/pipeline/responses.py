@@ -1,5 +1,5 @@
-"""What a scene drives its object with: load patterns and example pulls, and the
-object's static responses to them, which the basis keeps (:mod:`lbshape.elastic.basis`).
+"""What a scene drives its object with: load patterns and example pulls, the forces
+whose static responses the basis keeps (:mod:`lbshape.elastic.basis`).
 
 * **Load patterns** (:func:`mesh_load_patterns`): the scene's ``[[loads]]`` as
   full-space force patterns (3n,) in N with their time profiles — the same patterns
@@ -11,12 +11,14 @@ object's static responses to them, which the basis keeps (:mod:`lbshape.elastic.
   analytic pose evaluated on the object's points (no inversion check: it is a
   direction, not a rest shape); an example without an analytic pose (a posed mesh
   file) adds no direction.
-* **Responses** (:func:`basis_responses`): ``K⁻¹ f`` per load pattern and
-  ``K⁻¹ S d_k`` per example pull, the linear static shapes the object takes under
-  each. Neither depends on a load's size or profile nor on k_ex (only on whether it
-  is > 0), so runtime changes keep the precompute; a load's type, region and direction
-  are part of the cache key (:func:`response_key`). Fixed objects only: a free body's loads move it
-  rigidly, and on the car the full trajectory's deformation lies 1.4 % outside the
+* **Response loads** (:func:`response_loads`): f per load pattern and ``S d_k`` per
+  example pull; their responses ``K⁻¹ f``, the linear static shapes the object takes
+  under each, are solved with the modal derivatives' factorisation of K
+  (:func:`lbshape.elastic.modal_derivatives.modal_derivatives`, ``static_loads``).
+  Neither depends on a load's size or profile nor on k_ex (only on whether it is > 0),
+  so runtime changes keep the precompute; a load's type, region and direction are part
+  of the cache key (:func:`response_key`). Fixed objects only: a free body's loads move
+  it rigidly, and on the car the full trajectory's deformation lies 1.4 % outside the
   plain basis while its error against full (37 %) comes from the free-body dynamics;
   the one example response above the threshold (the S-bend, 12 % outside) took a
   derivative's place and raised that error to 40 %.
@@ -33,7 +35,6 @@ from lbshape.dynamics.loads import (
     region_force_pattern,
     region_torque_pattern,
 )
-from lbshape.elastic.basis import static_responses
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
@@ -107,29 +108,29 @@ def example_pulls(scene: Scene, mesh: TetMesh, mass) -> tuple[np.ndarray, sp.csr
     return _stack(columns, n), spring.tocsr()
 
 
-def basis_responses(scene: Scene, mesh: TetMesh, stiffness, mass,
-                    fixed_vertices: np.ndarray) -> np.ndarray:
-    """(3n, c) static responses (m) to the scene's loads and example pulls.
+def response_loads(scene: Scene, mesh: TetMesh, mass,
+                   fixed_vertices: np.ndarray) -> np.ndarray:
+    """(3n, c) forces in N whose static responses the basis keeps: the scene's load
+    patterns, then the example pulls ``S d_k`` when the examples pull (k_ex > 0).
 
     Args:
         scene: the scene (loads, examples, regions, k_ex).
         mesh: the object's rest mesh.
-        stiffness: (3n, 3n) K at rest, N/m, unconstrained.
         mass: (3n, 3n) consistent mass, kg.
-        fixed_vertices: (f,) clamped vertices; none means a free body (no responses).
+        fixed_vertices: (f,) clamped vertices; none means a free body (no loads, see
+            the module docstring).
     """
-    if np.size(fixed_vertices) == 0:  # a free body: none (see the module docstring)
+    if np.size(fixed_vertices) == 0:
         return np.zeros((3 * mesh.n_vertices, 0))
     columns = []
     if scene.loads:
-        forces = np.column_stack([load.pattern for load in mesh_load_patterns(scene, mesh, mass)])
-        columns.append(static_responses(stiffness, forces, fixed_vertices=fixed_vertices))
+        columns.append(np.column_stack([load.pattern
+                                        for load in mesh_load_patterns(scene, mesh, mass)]))
     k_ex = scene.examples.stiffness if scene.examples is not None else 0.0
     if k_ex > 0:
         D, spring = example_pulls(scene, mesh, mass)
         if D.shape[1]:
-            columns.append(static_responses(stiffness, spring @ D,
-                                            fixed_vertices=fixed_vertices))
+            columns.append(spring @ D)
     return np.hstack(columns) if columns else np.zeros((3 * mesh.n_vertices, 0))
 
 

@@ -30,7 +30,10 @@ routes differ in the coordinates z, the basis B that maps them to displacements
 
 In every route example k's energy is that of its rest shape ``X_k = X + B_Φ c_k``
 (the example reconstructed on the object's mesh, :meth:`Precomputed.example_rest_points`),
-so ``E_k(0) = 0`` and a single example is its own target.
+so ``E_k(0) = 0`` and a single example is its own target, summed over the same
+elements (:meth:`Precomputed.example_energy_elements`: those no example's
+reconstruction squeezes, :mod:`lbshape.shapespace.example_shapes`; the ``modal``
+route's cubature keeps its elements among them, the ``lb`` cubature is trained on them).
 
 **Boundary.** The LB eigenfunctions are free at the object's fixed vertices while U is
 clamped there, so the examples' LB displacements ``Φ c_k`` keep a part at the fixed
@@ -88,8 +91,8 @@ class InterpolationRoute:
             reduced coordinates (``modal``, p = r).
         basis: (3n, p) node-major B: the displacement of coordinates z is ``B z``
             in metres (``U`` or ``L``). For output and error measurements only.
-        elements: (s,) element indices the energies sum over (all for ``euclidean``
-            and ``lb-exact``).
+        elements: (s,) element indices the energies sum over (every one of
+            :meth:`Precomputed.example_energy_elements` for ``euclidean`` and ``lb-exact``).
         weights: (s,) their non-negative weights (dimensionless).
         cubature_errors: the cubature's relative force errors (``train``,
             ``holdout``) as recorded by the precompute; empty without a cubature.
@@ -187,6 +190,7 @@ def target_solver(
     k = pre.example_coefficients.shape[0]
     coefficients = pre.example_coefficients.reshape(k, -1)
     rests = [pre.example_rest_points(i, clamped=clamped) for i in range(k)]
+    kept = pre.example_energy_elements(clamped=clamped)
     tets, material = pre.mesh.tets, pre.material
     lb_to_reduced = pre.lb_to_reduced_for(clamped=clamped)
     if route == "lb-table":
@@ -203,13 +207,14 @@ def target_solver(
     if route in ("euclidean", "lb-exact"):
         energy = EuclideanExampleEnergy if route == "euclidean" else StVKPolynomialEnergy
         basis = pre.lb_basis(clamped=clamped)
-        elements = np.arange(pre.mesh.n_tets, dtype=np.int64)
-        weights = np.ones(pre.mesh.n_tets)
-        models = [energy(x, tets, material, basis) for x in rests]
+        elements, weights = kept, np.ones(kept.size)
+        models = [energy(x, tets[kept], material, basis) for x in rests]
         offsets, to_reduced, errors = coefficients, lb_to_reduced, {}
     else:
         if route == "modal":
-            basis, elements, weights = pre.U, pre.cubature_elements, pre.cubature_weights
+            inside = np.isin(pre.cubature_elements, kept)
+            basis = pre.U
+            elements, weights = pre.cubature_elements[inside], pre.cubature_weights[inside]
             offsets, to_reduced = coefficients @ lb_to_reduced.T, None
             errors = dict(pre.cubature_errors)
             models = [ReducedForceModel(x, tets, material, basis, elements, weights)

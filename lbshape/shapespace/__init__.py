@@ -3,6 +3,7 @@
 __all__ = [
     "alignment",
     "euclidean_energy",
+    "example_shapes",
     "example_driver",
     "frames",
     "interpolation",

@@ -96,6 +96,7 @@ from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.regions import evaluate_region
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_driver import ExampleDriver, TargetInfo
+from lbshape.shapespace.example_shapes import energy_elements, example_rest_shapes
 from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
 from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
 from lbshape.shapespace.projections import block_eigenfunctions, direct_projection, embed_example
@@ -320,10 +321,13 @@ class RegionSpace:
         local = np.searchsorted(self.vertices, np.asarray(mesh.tets)[self.cells])
         return TetMesh(np.asarray(mesh.points)[self.vertices], local)
 
-    def example_rest_points(self, mesh: TetMesh, index: int) -> np.ndarray:
-        """(n_R, 3) example ``index`` (position in :attr:`examples`) on the region's mesh."""
-        return np.asarray(mesh.points)[self.vertices] + \
-            self.eigenvectors @ self.example_coefficients[index]
+    def example_energy_shapes(self, mesh: TetMesh) -> tuple[list[np.ndarray], np.ndarray]:
+        """The examples' rest shapes (n_R, 3) on the region's mesh and the (e, 4)
+        tetrahedra (region vertex numbering) their energies sum over
+        (:func:`~lbshape.shapespace.example_shapes.energy_elements`)."""
+        sub = self.submesh(mesh)
+        rests = example_rest_shapes(sub.points, self.eigenvectors, self.example_coefficients)
+        return rests, sub.tets[energy_elements(sub.points, sub.tets, rests)]
 
     def displacement(self, coefficients: np.ndarray) -> np.ndarray:
         """(n_R, 3) region displacement ``Φ_R c`` of coefficients (3m,) or (m, 3)."""
@@ -562,11 +566,10 @@ def region_energy_models(mesh: TetMesh, material: Material, region: RegionSpace,
     if route not in LOCAL_ROUTES:
         raise LbshapeError(f"local examples support the routes {', '.join(LOCAL_ROUTES)}, "
                            f"got {route!r}")
-    sub = region.submesh(mesh)
     basis = block_eigenfunctions(region.eigenvectors).toarray()
     energy = StVKPolynomialEnergy if route == "lb-exact" else EuclideanExampleEnergy
-    return [energy(region.example_rest_points(mesh, i), sub.tets, material, basis)
-            for i in range(region.example_coefficients.shape[0])]
+    rests, tets = region.example_energy_shapes(mesh)
+    return [energy(x, tets, material, basis) for x in rests]
 
 
 def local_route(route: str, material: Material) -> str:
@@ -761,8 +764,8 @@ class FullSpaceLocalForce:
                 ML = ML - mass_QF @ L[anchor_rows]
             descriptor = np.repeat(region.eigenvalues, 3)[:, None] * relative / rho
             k = region.example_coefficients.shape[0]
-            models = [EuclideanExampleEnergy(region.example_rest_points(mesh, i), sub.tets,
-                                             material, L) for i in range(k)]
+            rests, tets = region.example_energy_shapes(mesh)
+            models = [EuclideanExampleEnergy(x, tets, material, L) for x in rests]
             solver = TargetSolver(models, region.example_coefficients.reshape(k, -1),
                                   tolerance=tolerance)
             examples = region.example_descriptors(rho, free_rigid=self.free_rigid)

@@ -40,6 +40,7 @@ from lbshape._jit import njit
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
+from lbshape.shapespace.example_shapes import energy_elements, example_rest_shapes
 from lbshape.shapespace.interpolation import TargetResult, TargetSolver
 from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
 
@@ -509,36 +510,6 @@ def clamped_eigenvectors(eigenvectors: np.ndarray, fixed_vertices: np.ndarray,
     return np.asarray(eigenvectors, dtype=float) * chi[:, None]
 
 
-def clamp_is_safe(points: np.ndarray, tets: np.ndarray, eigenvectors: np.ndarray,
-                  clamped: np.ndarray, coefficients: np.ndarray) -> bool:
-    """Whether the clamped examples' rest shapes keep their elements healthy.
-
-    Fading the LB displacement to zero near the fixed vertices adds strain there; on a
-    coarse mesh it can flatten or invert an element of an example's rest shape
-    ``X + Φ_F c_k``. Safe: every element keeps at least half of the smallest volume
-    ratio (deformed / rest) that the free reconstruction ``X + Φ c_k`` has.
-
-    Args:
-        points: (n, 3) rest shape; tets: (t, 4).
-        eigenvectors, clamped: (n, m) Φ and Φ_F.
-        coefficients: (k, m, 3) example displacement coefficients.
-    """
-    tets = np.asarray(tets)
-
-    def smallest_ratio(phi):
-        rest = _volumes(points, tets)
-        return min(float((_volumes(points + phi @ c, tets) / rest).min()) for c in coefficients)
-
-    free = smallest_ratio(eigenvectors)
-    faded = smallest_ratio(clamped)
-    return faded > 0.0 and faded >= 0.5 * free
-
-
-def _volumes(x: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    a, b, c, d = (x[tets[:, i]] for i in range(4))
-    return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
-
-
 def block_basis(eigenvectors: np.ndarray) -> np.ndarray:
     """Dense ``Φ ⊗ I₃`` (3n, 3m), node-major rows, column ``3i + c``."""
     n, m = eigenvectors.shape
@@ -583,6 +554,9 @@ def tabulate_examples(
 ) -> tuple[TargetTable | None, np.ndarray, list]:
     """The precompute's table stage: exact example energies, table, path.
 
+    The energies sum over the elements of
+    :func:`~lbshape.shapespace.example_shapes.energy_elements`.
+
     Args:
         rest_points: (n, 3) the object's rest shape.
         tets: (t, 4) tetrahedra.
@@ -601,8 +575,10 @@ def tabulate_examples(
     """
     k = coefficients.shape[0]
     offsets = coefficients.reshape(k, -1)
-    rests = [rest_points + eigenvectors @ c for c in coefficients]
-    models = exact_example_energies(rests, tets, material, block_basis(eigenvectors))
+    rests = example_rest_shapes(rest_points, eigenvectors, coefficients)
+    kept = energy_elements(rest_points, tets, rests)
+    models = exact_example_energies(rests, np.asarray(tets)[kept], material,
+                                    block_basis(eigenvectors))
     solver = TargetSolver(models, offsets)
     metric = None
     if mass is not None:
