@@ -64,6 +64,19 @@ def test_common_route_verdict_and_columns(tmp_path):
     assert [float(r["t_total_common_route_ms"]) for r in rows] == [1.0, 1.1]
 
 
+def test_memory_verdict_under_mpi_counts_every_rank():
+    """Under mpirun the memory target is the machine's: the per-stage sums over the ranks
+    (here 2 × 3000 MB in one stage), not the largest process (4000 MB)."""
+    small, big = point(0.0665, 330, 3.0, 400.0, 0.12), point(0.0068, 103_000, 250.0, 4000.0,
+                                                              0.12, ranks=2)
+    big.stage_peak_mb = {"mesh": 1000.0, "cubature": 9000.0}
+    assert big.total_peak_mb == 9000.0 and small.total_peak_mb == 400.0
+    line = scaling.verdicts([small, big])[1]
+    assert "all 2 ranks" in line and "9e+03 MB" in line and "not met" in line
+    big.stage_peak_mb = {"mesh": 1000.0, "cubature": 3000.0}
+    assert big.total_peak_mb == 4000.0  # never below the largest process
+
+
 @pytest.mark.parametrize("arguments, message", [
     (["--scaling", "--sweep"], "different benchmarks"),
     (["--sizes", "0.1"], "belong to --scaling"),
