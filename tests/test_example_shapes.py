@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lbshape.elastic.materials import Material
 from lbshape.geometry.primitives import structured_box
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.routes import target_solver
@@ -91,3 +92,33 @@ def test_every_route_and_the_full_reference_use_the_same_elements(squeezed):
         [EuclideanExampleEnergy(pre.example_rest_points(i), pre.mesh.tets, pre.material, L)
          for i in range(2)], exact["euclidean"].offsets, tolerance=1e-12, max_iterations=100)
     assert np.linalg.norm(everything.solve(weights).z - targets["euclidean"]) > 1e-3 * scale
+
+
+def test_a_region_leaves_out_the_elements_its_examples_squeeze():
+    """Local examples apply the rule on the region's own mesh: a region covering the
+    right three quarters of a box, example 1 squeezing x < 0.5 to 20 % of its length."""
+    from lbshape.shapespace.local_examples import RegionSpace, region_energy_models
+
+    mesh = structured_box((1.0, 0.25, 0.25), (4, 1, 1))
+    centres = mesh.points[mesh.tets].mean(axis=1)
+    cells = np.flatnonzero(centres[:, 0] > 0.25)
+    vertices = np.unique(mesh.tets[cells])
+    x = mesh.points[vertices, 0]
+    phi = np.column_stack([np.ones_like(x), np.minimum(x, 0.5)])  # (n_R, 2)
+    coefficients = np.zeros((2, 2, 3))
+    coefficients[1, 1, 0] = 0.2 - 1.0  # x ↦ 0.2 x below 0.5, unit slope beyond
+    zeros = np.zeros((1, 6))
+    region = RegionSpace(
+        name="right", cells=cells, vertices=vertices, examples=np.arange(2),
+        eigenvalues=np.ones(2), eigenvectors=phi, example_coefficients=coefficients,
+        alignment_residuals=np.zeros(2), to_reduced=np.zeros((1, 6)), rigid_reduced=zeros,
+        rigid_coefficients=np.zeros((6, 6)), anchor_reduced=zeros,
+        anchor=np.zeros(vertices.size, dtype=bool), rigid_lb=np.zeros((6, 6)))
+    rests, tets = region.example_energy_shapes(mesh)
+    local_centres = mesh.points[vertices][tets].mean(axis=1)
+    expected = int(np.sum(centres[cells, 0] > 0.5))
+    assert len(rests) == 2 and tets.shape == (expected, 4) and (local_centres[:, 0] > 0.5).all()
+    assert 0 < expected < cells.size
+    material = Material(young=1.0e5, poisson=0.3, density=1000.0)
+    for model in region_energy_models(mesh, material, region, route="euclidean"):
+        assert model.n_elements == expected
