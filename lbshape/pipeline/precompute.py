@@ -104,7 +104,6 @@ from lbshape.pipeline.meshes import (
 from lbshape.pipeline.responses import response_key, response_loads
 from lbshape.scene.schema import MeshSource, Scene
 from lbshape.shapespace.example_shapes import (
-    MIN_VOLUME_RATIO,
     clamp_is_safe,
     energy_elements,
     example_rest_shapes,
@@ -659,13 +658,6 @@ def _target_table(scene: Scene, mesh: TetMesh, fixed: np.ndarray, spectrum, spac
         log.warning("the clamped LB basis would flatten elements of the examples' rest "
                     "shapes: the target routes keep the free basis")
     phi_target = phi_clamped if clamped else spectrum.eigenvectors
-    kept = energy_elements(mesh.points, mesh.tets, example_rest_shapes(
-        mesh.points, phi_target, space.example_coefficients))
-    if kept.size < mesh.n_tets:
-        log.warning("the examples' reconstructions (m=%d) squeeze %d of %d elements below "
-                    "%g %% of their volume: the example energies leave them out",
-                    scene.reduced.m, mesh.n_tets - kept.size, mesh.n_tets,
-                    100 * MIN_VOLUME_RATIO)
     table, path, _ = tabulate_examples(mesh.points, mesh.tets, scene.material, phi_target,
                                        space.example_coefficients, mass=spectrum.mass)
     return table, path, clamped, phi_target

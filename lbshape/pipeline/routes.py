@@ -189,8 +189,6 @@ def target_solver(
     started = time.perf_counter()
     k = pre.example_coefficients.shape[0]
     coefficients = pre.example_coefficients.reshape(k, -1)
-    rests = [pre.example_rest_points(i, clamped=clamped) for i in range(k)]
-    kept = pre.example_energy_elements(clamped=clamped)
     tets, material = pre.mesh.tets, pre.material
     lb_to_reduced = pre.lb_to_reduced_for(clamped=clamped)
     if route == "lb-table":
@@ -204,6 +202,8 @@ def target_solver(
             basis=pre.lb_basis(clamped=clamped), elements=np.zeros(0, dtype=np.int64),
             weights=np.zeros(0), seconds=seconds,
             cubature_errors={} if check is None else {"table_max_error": check.max_error})
+    rests = [pre.example_rest_points(i, clamped=clamped) for i in range(k)]
+    kept = pre.example_energy_elements(clamped=clamped)  # n-sized: set-up only
     if route in ("euclidean", "lb-exact"):
         energy = EuclideanExampleEnergy if route == "euclidean" else StVKPolynomialEnergy
         basis = pre.lb_basis(clamped=clamped)

@@ -40,7 +40,11 @@ from lbshape._jit import njit
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
-from lbshape.shapespace.example_shapes import energy_elements, example_rest_shapes
+from lbshape.shapespace.example_shapes import (
+    MIN_VOLUME_RATIO,
+    energy_elements,
+    example_rest_shapes,
+)
 from lbshape.shapespace.interpolation import TargetResult, TargetSolver
 from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
 
@@ -555,7 +559,8 @@ def tabulate_examples(
     """The precompute's table stage: exact example energies, table, path.
 
     The energies sum over the elements of
-    :func:`~lbshape.shapespace.example_shapes.energy_elements`.
+    :func:`~lbshape.shapespace.example_shapes.energy_elements` (a warning names how many
+    the examples squeeze).
 
     Args:
         rest_points: (n, 3) the object's rest shape.
@@ -577,6 +582,11 @@ def tabulate_examples(
     offsets = coefficients.reshape(k, -1)
     rests = example_rest_shapes(rest_points, eigenvectors, coefficients)
     kept = energy_elements(rest_points, tets, rests)
+    if kept.size < len(tets):
+        log.warning("the examples' reconstructions (m=%d) squeeze %d of %d elements below "
+                    "%g %% of their volume: the example energies leave them out",
+                    eigenvectors.shape[1], len(tets) - kept.size, len(tets),
+                    100 * MIN_VOLUME_RATIO)
     models = exact_example_energies(rests, np.asarray(tets)[kept], material,
                                     block_basis(eigenvectors))
     solver = TargetSolver(models, offsets)
