@@ -211,7 +211,7 @@ def markdown(payload: dict) -> str:
         "`max_t ‖u − u_ref‖_M / max_t ‖u_ref‖_M` over the scene's steps (states every "
         f"{STRIDE} steps). *subspace*: the full trajectory's best M-orthogonal projection "
         "onto span U (free body: after the best rigid fit); *reduced*: the real-time "
-        "reduced run (1 Newton update per step on fixed objects); *converged*: Newton "
+        "reduced run (Newton to the real-time residual tolerance); *converged*: Newton "
         "iterated to convergence; *exact forces*: every element with weight 1 instead of "
         "the cubature (converged Newton); *cubature vs exact*: the reduced run against the "
         "exact-force reduced run. *no examples*: k_ex = 0 in both methods.",

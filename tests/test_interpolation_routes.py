@@ -97,7 +97,7 @@ def test_lb_route_needs_the_lb_cubature(pre):
 def test_m_too_large_for_an_example_mesh():
     """The bar at element size 1 m has 10 vertices: at most m = 8 non-constant modes."""
     coarse = dict(TWIST, shape="bar-cuboid", size=1.0)
-    with pytest.raises(LbshapeError, match="example 1 .*m=12 is too large for an example mesh "
+    with pytest.raises(LbshapeError, match="example 0 .*m=12 is too large for an example mesh "
                                            "with 10 vertices"):
         precompute(_scene([coarse], m=12))
 
@@ -105,7 +105,7 @@ def test_m_too_large_for_an_example_mesh():
 def test_an_unrelated_example_fails_alignment():
     """A cube is no pose of a bar: its frame alignment leaves a residual above the
     threshold (the LB basis alignment would refuse it next)."""
-    with pytest.raises(LbshapeError, match=r"^example 1 \(cube\): example does not correspond "
+    with pytest.raises(LbshapeError, match=r"^example 0 \(cube\): example does not correspond "
                                            r"to the object: frame alignment residual 0\.\d+ "
                                            r"exceeds 0\.2 [^\n]*$"):
         precompute(_scene([{"shape": "cube"}]))

@@ -233,7 +233,7 @@ def test_posed_files_without_correspondence_refused(posed_files):
     for pose, message in cases:
         with pytest.raises(LbshapeError, match=message) as info:
             precompute(_scene(posed_files, [pose], name="refused"), force=True)
-        assert "\n" not in str(info.value) and "example 1" in str(info.value)
+        assert "\n" not in str(info.value) and "example 0" in str(info.value)
 
 
 def test_scene_keys_for_mesh_files(posed_files):

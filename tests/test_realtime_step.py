@@ -1,5 +1,6 @@
 """The real-time reduced step: compiled kernels against numpy, the allocation-free step
-against the generic implicit stepper, one Newton update against converged Newton."""
+against the generic implicit stepper, the real-time Newton tolerance against converged
+Newton."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import pytest
 
 from lbshape.dynamics.integrators import make_stepper
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
-from lbshape.dynamics.reduced import ReducedSimulation
+from lbshape.dynamics.reduced import REALTIME_RTOL, ReducedSimulation
 from lbshape.elastic.energy_densities import density_model
 from lbshape.elastic.jit_densities import density_parameters, stress_and_tangent
 from lbshape.elastic.materials import Material
@@ -86,14 +87,30 @@ def test_converged_step_matches_the_generic_implicit_stepper(demo, integrator):
     np.testing.assert_allclose(fast.v, reference.v, rtol=0, atol=1e-8 * np.abs(reference.v).max())
 
 
-def test_one_newton_update_stays_on_the_converged_trajectory(demo):
+def test_the_real_time_tolerance_stays_on_the_converged_trajectory(demo):
+    """The real-time step (Newton to REALTIME_RTOL, its first update linearised at the start
+    of the step) against converged Newton at dt = 1 ms: measured 5e-7 relative, limit 1e-4
+    (200x margin); it costs under 2 updates per step on average (measured 1.97)."""
     scene, pre = demo
-    runs = {n: reduced_simulation(scene, pre, newton_iterations=n).run(200)
-            for n in (1, None)}
-    q1, qc = runs[1].states, runs[None].states
+    realtime = reduced_simulation(scene, pre).run(200)
+    converged = reduced_simulation(scene, pre, rtol=1e-12).run(200)
+    q1, qc = realtime.states, converged.states
     difference = np.abs(q1 - qc).max() / np.abs(qc).max()
-    assert runs[1].newton_iterations.max() == 1
-    assert difference < 1e-4, f"one update vs converged: {difference:.2e}"
+    assert realtime.stable and converged.stable
+    assert difference < 1e-4, f"real-time tolerance vs converged: {difference:.2e}"
+    assert realtime.newton_iterations.mean() <= converged.newton_iterations.mean()
+
+
+def test_every_accepted_step_meets_the_residual_tolerance(demo):
+    """The residual is measured at the state each step accepts, never assumed."""
+    scene, pre = demo
+    sim = reduced_simulation(scene, pre)
+    residuals = []
+    for _ in range(100):
+        sim.step()
+        residuals.append(sim.last_residual)
+    assert max(residuals) <= REALTIME_RTOL
+    assert max(residuals) > 0.0  # measured, not skipped
 
 
 def test_the_step_allocates_no_arrays(demo):

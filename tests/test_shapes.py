@@ -43,7 +43,7 @@ def built(name):
 def test_registry_names_and_targets():
     assert shape_names() == [
         "bar-cuboid", "bar-cylinder", "cross", "cross-example", "car", "car-example",
-        "teddy", "teddy-example", "demo-bar", "demo-cylinder", "cube",
+        "teddy", "teddy-example", "demo-bar", "demo-cylinder", "cube", "l-beam",
     ]
     table2 = {"bar-cuboid": (327, 1053), "bar-cylinder": (2478, None),
               "cross": (1561, 4912), "cross-example": (3172, None), "car": (727, 2369),

@@ -115,7 +115,11 @@ def test_zero_example_stiffness_has_no_effect(demo):
 
 
 def test_reduced_error_against_full_falls_as_r_grows(demo):
-    """Elastic response (no examples): the reduced space converges to full space."""
+    """Elastic response (no examples): the reduced space converges to full space.
+
+    Measured (cubature s = 40): r = 4, 8, 24 give 0.425, 0.276, 0.069 (r = 16 still 0.22:
+    the basis, 0.21 with every element). Limits: r = 24 below 0.15 (2.2x margin) and at
+    most half the r = 4 error (measured a sixth: 3x margin)."""
     scene, _ = demo
     scene = dataclasses.replace(scene, examples=None)
     steps = 150
@@ -123,14 +127,14 @@ def test_reduced_error_against_full_falls_as_r_grows(demo):
     full = simulate(scene, full_pre, method="full", steps=steps)
     mass = mass_matrix(full_pre.mesh, scene.material.density)
     errors = []
-    for r in (4, 8, 16):
+    for r in (4, 8, 24):
         variant = dataclasses.replace(scene, reduced=dataclasses.replace(scene.reduced, r=r, s=40))
         pre = precompute(variant)
         out = simulate(variant, pre, steps=steps)
         diff = _m_norm(out.displacements - full.displacements, mass).max()
         errors.append(diff / _m_norm(full.displacements, mass).max())
-    assert errors[2] < errors[0], f"errors vs full for r=4,8,16: {errors}"
-    assert errors[2] < 0.2, f"errors vs full for r=4,8,16: {errors}"
+    assert errors[2] < 0.5 * errors[0], f"errors vs full for r=4,8,24: {errors}"
+    assert errors[2] < 0.15, f"errors vs full for r=4,8,24: {errors}"
 
 
 @pytest.mark.parametrize(

@@ -110,7 +110,7 @@ def run_one(name: str, *, force: bool = False, as_json: bool = False) -> int:
         for region in pre.local.regions:
             residuals = ", ".join(f"{r:.3f}" for r in region.alignment_residuals)
             print(f"  region {region.name}: {region.vertices.size} vertices, "
-                  f"m={region.m}, examples {[int(k) + 1 for k in region.examples]}, "
+                  f"m={region.m}, examples {[int(k) for k in region.examples]}, "
                   f"alignment residuals [{residuals}]")
     total = sum(pre.stage_seconds.values())
     print("  stage times (s): " + ", ".join(

@@ -2,6 +2,11 @@
 
 Runs on one process: under ``mpirun`` with several ranks it refuses with one error
 line (printed by rank 0) before reading the scene or writing anything.
+
+``DIR`` is replaced as a whole once the run ends (an earlier run's files never stay
+beside the new ones; a folder holding other files is refused before the run). A run
+that stops on a solver failure exits with status 3 and leaves ``DIR`` holding only
+``FAILED.txt`` (the message and the stats up to the stop): no result files.
 """
 
 from __future__ import annotations
@@ -12,8 +17,9 @@ from pathlib import Path
 from lbshape.cli._mpi import require_one_rank
 from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
+from lbshape.io.atomic import FAILED_MARKER, check_replaceable
 from lbshape.pipeline.precompute import precompute
-from lbshape.pipeline.simulate import METHODS, simulate
+from lbshape.pipeline.simulate import METHODS, RUN_FILES, simulate
 from lbshape.scene import load_scene
 
 
@@ -23,7 +29,9 @@ def register(subparsers) -> None:
     parser.add_argument("--method", choices=METHODS, default="reduced")
     parser.add_argument("--steps", type=int, default=None, help="override the scene's steps")
     parser.add_argument("--out", type=Path, default=None,
-                        help="output folder (default: results/runs/SCENE-METHOD)")
+                        help="output folder, replaced as a whole (default: "
+                        "results/runs/SCENE-METHOD); a run that stops (exit 3) leaves only "
+                        "FAILED.txt in it")
     parser.add_argument("--json", action="store_true", help="print stats as JSON")
     parser.set_defaults(func=run)
 
@@ -33,8 +41,9 @@ def run(args) -> int:
     if args.steps is not None and args.steps < 1:
         raise LbshapeError(f"--steps must be >= 1, got {args.steps}")
     scene = load_scene(args.scene)
-    pre = precompute(scene, progress=not args.json)
     out = args.out or Path("results") / "runs" / f"{scene.name}-{args.method}"
+    check_replaceable(out, RUN_FILES)  # before the precompute
+    pre = precompute(scene, progress=not args.json)
     result = simulate(scene, pre, method=args.method, steps=args.steps, out=out,
                       influence=True)
     if args.json:
@@ -43,7 +52,8 @@ def run(args) -> int:
         s = result.stats
         print(f"simulate {s['scene']} [{s['method']}]: {s['steps']} steps of {s['dt']} s, "
               f"t_interp {s['t_interp_ms']:.3f} ms, t_total {s['t_total_ms']:.3f} ms per step, "
-              f"max displacement {s['max_displacement']:.4g} m -> {out}")
+              f"max displacement {s['max_displacement']:.4g} m -> "
+              f"{out / FAILED_MARKER if result.message else out}")
         if "example_influence" in s:
             final, peak = (("undefined" if s[k] is None else f"{s[k]:.3f}")
                            for k in ("example_influence", "example_influence_max"))

@@ -79,6 +79,7 @@ from lbshape.dynamics.record import RunRecord
 from lbshape.dynamics.reduced import PHASES as FIXED_PHASES
 from lbshape.dynamics.reduced import _axpy, _predict, cholesky_in_place, cholesky_solve_in_place
 from lbshape.dynamics.rigid_frame import RigidState, inverse3_into, rotate_into, rotation_error
+from lbshape.dynamics.sanity import DeformationBound
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
 
@@ -221,6 +222,8 @@ class FreeBodySimulation:
             record (optional).
         reuse_contact: reuse the previous step's last contact evaluation at the start
             of a step (same configuration; ``False`` evaluates it again, for checks).
+        deformation_bound: the object's :class:`~lbshape.dynamics.sanity.DeformationBound`
+            on the body-frame deformation q (a state beyond it stops the run), or ``None``.
 
     Attributes:
         q, qd, qa: (r,) deformation, its rate and acceleration at :attr:`time`.
@@ -249,6 +252,7 @@ class FreeBodySimulation:
         max_iterations: int = 20,
         rest_points: np.ndarray | None = None,
         reuse_contact: bool = True,
+        deformation_bound: DeformationBound | None = None,
     ):
         self.rest_points = None if rest_points is None else np.asarray(rest_points, dtype=float)
         if integrator not in _SCHEMES:
@@ -266,6 +270,7 @@ class FreeBodySimulation:
             and hasattr(self.driver, "target_from_weights_into")
         self.contact = contact
         self.reuse_contact = bool(reuse_contact)
+        self.deformation_bound = deformation_bound
         self.rtol, self.max_iterations = float(newton_rtol), int(max_iterations)
         self._into = hasattr(elastic, "force_and_tangent_into")
         self.q_target = np.zeros(r)
@@ -523,6 +528,8 @@ class FreeBodySimulation:
         budget = abs(self.energy0) + work
         if not finite:
             raise SolverError(f"non-finite state at step {index} (t = {t1:.6g} s)")
+        if self.deformation_bound is not None:
+            self.deformation_bound.check(self._q1, index, t1)
         elastic = max(self._elastic_energy + energies[2], 0.0)
         energy = energies[0] + elastic
         limit = ENERGY_FACTOR * budget

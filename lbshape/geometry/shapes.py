@@ -110,6 +110,9 @@ SHAPES: dict[str, ShapeSpec] = {
     "cube": ShapeSpec(
         "cube.py", 0.16, "unit cube [0, 1]^3 (tests, repeated LB eigenvalues)",
         450, None, ("x0", "x1", "y0", "y1", "z0", "z1", "body")),
+    "l-beam": ShapeSpec(
+        "l_beam.py", 0.06, "L-shaped beam, 1 m arm along x, 0.6 m leg along z (a user's mesh "
+        "in the real-time step tests)", 380, None, ("body",)),
 }
 
 

@@ -12,19 +12,33 @@ mode ``0o666 & ~umask``, not the private ``0o600`` of :func:`tempfile.mkstemp`.
   :func:`write_npz_atomic` — content held in memory;
 * :func:`write_atomic` — a callback that writes a path (another library's writer,
   e.g. ``lambda tmp: plotter.screenshot(tmp)``);
-* :func:`atomic_path` — the same as a context manager.
+* :func:`atomic_path` — the same as a context manager;
+* :func:`atomic_folder` — a whole output folder (a run's files) written beside its
+  place and renamed into it when complete, replacing the previous one;
+  :func:`write_failed_folder` replaces it by a folder holding only
+  :data:`FAILED_MARKER`, so a failed run never looks like a result.
+  :func:`check_replaceable` refuses, before any work, a folder holding files the
+  writer does not own (it is never deleted).
 """
 
 from __future__ import annotations
 
 import contextlib
+import fnmatch
 import json
 import os
+import secrets
+import shutil
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
+
+from lbshape.errors import LbshapeError
+
+#: the only file of a failed run's output folder (see :func:`write_failed_folder`)
+FAILED_MARKER = "FAILED.txt"
 
 
 def _umask() -> int:
@@ -111,3 +125,94 @@ def write_npz_atomic(path: str | Path, **arrays: np.ndarray) -> Path:
             np.savez(handle, **arrays)
 
     return write_atomic(path, save)
+
+
+def check_replaceable(folder: str | Path, owned: Iterable[str]) -> Path:
+    """Check that ``folder`` may be replaced as a whole by :func:`atomic_folder`.
+
+    It may when it does not exist, or is a folder holding only files whose names match
+    one of the glob patterns ``owned`` (the files its writer makes), :data:`FAILED_MARKER`
+    or hidden temporaries of this module (``.*.tmp*``).
+
+    Args:
+        folder: the output folder.
+        owned: glob patterns of the writer's file names, e.g. ``("stats.json", "*.vtu")``.
+
+    Returns:
+        ``folder`` as an absolute path.
+
+    Raises:
+        LbshapeError: ``folder`` is a file, or holds something else (left untouched).
+    """
+    folder = Path(os.path.abspath(folder))
+    if not folder.name:
+        raise LbshapeError(f"cannot use {folder} as an output folder")
+    if not os.path.lexists(folder):
+        return folder
+    if not folder.is_dir():
+        raise LbshapeError(f"output folder {folder} exists and is not a folder")
+    patterns = (*owned, FAILED_MARKER, ".*.tmp*")
+    foreign = sorted(entry.name for entry in folder.iterdir()
+                     if entry.is_dir() or not any(fnmatch.fnmatchcase(entry.name, p)
+                                                  for p in patterns))
+    if foreign:
+        raise LbshapeError(f"output folder {folder} holds other files ({', '.join(foreign[:3])}"
+                           f"{', ...' if len(foreign) > 3 else ''}); choose a new or empty "
+                           f"folder")
+    return folder
+
+
+@contextlib.contextmanager
+def atomic_folder(folder: str | Path, owned: Iterable[str]) -> Iterator[Path]:
+    """A temporary folder beside ``folder`` that replaces ``folder`` when the block succeeds.
+
+    The block writes its files into the temporary (hidden: ``.<name>.<random>.tmp``,
+    same file system). On normal exit the previous ``folder`` (checked by
+    :func:`check_replaceable` first) is moved aside, the temporary renamed into its
+    place and the previous one deleted, so ``folder`` never mixes two runs' files. If
+    the block raises, the temporary is removed, ``folder`` is left as it was, and the
+    exception propagates.
+
+    Args:
+        folder: the output folder (its parent is created).
+        owned: glob patterns of the files the writer makes (see :func:`check_replaceable`).
+
+    Yields:
+        The temporary folder's path.
+    """
+    owned = tuple(owned)
+    folder = check_replaceable(folder, owned)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    try:
+        os.chmod(tmp, 0o777 & ~_umask())
+        yield tmp
+        check_replaceable(folder, owned)  # nothing foreign arrived meanwhile
+        old = folder.with_name(f".{folder.name}.{secrets.token_hex(4)}.old")
+        if os.path.lexists(folder):
+            os.rename(folder, old)
+        try:
+            os.rename(tmp, folder)
+        except OSError:
+            if os.path.lexists(old):
+                os.rename(old, folder)
+            raise
+        if old.is_symlink():
+            old.unlink()
+        else:
+            shutil.rmtree(old, ignore_errors=True)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def write_failed_folder(folder: str | Path, text: str, owned: Iterable[str]) -> Path:
+    """Replace ``folder`` by a folder holding only :data:`FAILED_MARKER` with ``text``.
+
+    For a run that stopped: whatever the folder held before (an earlier result) is
+    gone, and nothing in it can be mistaken for a result. See :func:`atomic_folder`.
+    Returns the marker's path.
+    """
+    with atomic_folder(folder, owned) as tmp:
+        (tmp / FAILED_MARKER).write_text(text if text.endswith("\n") else text + "\n")
+    return Path(os.path.abspath(folder)) / FAILED_MARKER

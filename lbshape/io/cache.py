@@ -11,9 +11,12 @@ key, missing arrays or non-finite values -> the artifact is reported stale
 Concurrent jobs (processes) share the cache: :func:`artifact_lock` is an exclusive
 ``fcntl`` lock on ``<name>-<key[:16]>.lock`` beside the artifact, held while one job
 checks for the artifact and computes it, so a second job on the same artifact waits
-and then loads it instead of computing it again. The lock is advisory and released by
-the kernel when its process ends; lock files are left in place (removing them would
-race with a waiting job).
+and then loads it instead of computing it again. A lock file exists only while its lock
+is held: the holder deletes it before unlocking, whether the block succeeded or raised,
+and a job that acquired the lock of a file meanwhile deleted (or replaced) re-opens the
+path and locks again, so the lock stays exclusive. The kernel releases a lock when its
+process ends; a lock file left by a killed process (stale: nobody holds it) is deleted
+by the next :func:`artifact_lock` in the same cache (:func:`remove_stale_locks`).
 
 The root is ``$LBSHAPE_CACHE`` if set, else ``~/.cache/lbshape``.
 """
@@ -83,12 +86,75 @@ def artifact_path(name: str, key: str, root: Path | None = None) -> Path:
     return (root or cache_root()) / f"{name}-{key[:16]}.npz"
 
 
+def _lock_file(path: Path, *, wait: bool):
+    """An open handle on ``path`` holding its exclusive ``fcntl`` lock, or ``None`` if
+    ``wait`` is False and another process holds it (or ``path`` is gone).
+
+    Locks the file, then checks that ``path`` still names the locked file (its holder
+    may have deleted it meanwhile); otherwise opens ``path`` again (creating it when
+    ``wait``) and retries.
+    """
+    while True:
+        try:
+            handle = open(path, "a+b" if wait else "r+b")  # noqa: SIM115 -- returned or closed
+        except FileNotFoundError:
+            if not wait:
+                return None
+            raise
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX if wait else fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.close()
+            return None
+        except BaseException:
+            handle.close()
+            raise
+        try:
+            same = os.path.samestat(os.fstat(handle.fileno()), os.stat(path))
+        except FileNotFoundError:
+            same = False
+        if same:
+            return handle
+        handle.close()  # locked a deleted file: its holder is done with it
+        if not wait:
+            return None
+
+
+def _unlink_and_unlock(path: Path, handle) -> None:
+    """Delete the lock file ``path`` (still locked through ``handle``), then unlock it."""
+    with handle:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+
+
+def remove_stale_locks(root: Path | None = None) -> list[Path]:
+    """Delete the lock files of ``root`` (default: the cache root) that nobody holds.
+
+    Such a file was left by a process that ended without deleting it (killed). Each
+    is locked first (without waiting; held ones are skipped), so no running job's lock
+    file is deleted. Returns the deleted paths.
+    """
+    removed = []
+    root = root or cache_root()
+    for path in sorted(root.glob("*.lock")) if root.is_dir() else ():
+        with contextlib.suppress(OSError):
+            handle = _lock_file(path, wait=False)
+            if handle is not None:
+                _unlink_and_unlock(path, handle)
+                removed.append(path)
+    if removed:
+        log.info("cache: removed %d stale lock file(s) in %s", len(removed), root)
+    return removed
+
+
 @contextlib.contextmanager
 def artifact_lock(name: str, key: str, *, root: Path | None = None) -> Iterator[Path]:
     """Hold the exclusive inter-process lock of one artifact for the block.
 
     Blocks until no other process holds it. Yields the lock file's path
-    (``<root>/<name>-<key[:16]>.lock``, created with its folder if needed).
+    (``<root>/<name>-<key[:16]>.lock``, created with its folder if needed); the file
+    is deleted when the block ends, normally or by an exception. Stale lock files of
+    the cache are deleted first (:func:`remove_stale_locks`).
 
     Raises:
         LbshapeError: the cache folder cannot be created or written.
@@ -96,16 +162,15 @@ def artifact_lock(name: str, key: str, *, root: Path | None = None) -> Iterator[
     path = artifact_path(name, key, root).with_suffix(".lock")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        handle = open(path, "a+b")  # noqa: SIM115 -- closed by the with block below
+        remove_stale_locks(path.parent)
+        handle = _lock_file(path, wait=True)
     except OSError as exc:
         raise LbshapeError(f"cannot use the cache folder {path.parent}: "
                            f"{exc.strerror or exc}") from None
-    with handle:
-        fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
-        try:
-            yield path
-        finally:
-            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
+    try:
+        yield path
+    finally:
+        _unlink_and_unlock(path, handle)
 
 
 def save_artifact(

@@ -4,11 +4,14 @@ The scene (:mod:`lbshape.scene.schema`) only says where meshes come from and whi
 vertices a region or group names; this module does the work: it runs the gmsh
 script of a built-in shape or reads a mesh file (any format of
 :func:`lbshape.geometry.mesh_files.read_mesh_file`, surfaces tetrahedralised at the
-source's size), applies an analytic pose
-(:mod:`lbshape.geometry.poses`) and evaluates a selection on a mesh.
+source's size), gives an example's rest and posed meshes (an analytic pose of
+:mod:`lbshape.geometry.poses` applied, or a posed file paired with its rest), poses a
+part of an example (a local-example region) and evaluates a selection on a mesh.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 
@@ -77,6 +80,49 @@ def posed_file_meshes(pose: ExamplePose, object_mesh: TetMesh) -> tuple[TetMesh,
             f"({posed.n_vertices} vs {rest.n_vertices} vertices, or other tets); both must "
             "be the same mesh, or surfaces with the same triangles")
     return posed, rest
+
+
+def example_meshes(pose: ExamplePose, object_mesh: TetMesh, *,
+                   build: Callable[[MeshSource], TetMesh] = build_mesh
+                   ) -> tuple[TetMesh, TetMesh]:
+    """(rest, posed) meshes of an example, with one connectivity: the built mesh and
+    its analytic pose applied (:func:`posed_example`), or a posed file and its rest
+    (:func:`posed_file_meshes`; the object's mesh for a posed copy of the object).
+    Every use of an example, whole or by region, starts here.
+
+    Args:
+        pose: the example.
+        object_mesh: the object's rest mesh.
+        build: builds the mesh of a source that is not a posed file (e.g. a memoised
+            :func:`build_mesh` when several examples pose one mesh).
+
+    Raises:
+        LbshapeError: a posed file without vertex correspondence to its rest.
+    """
+    if pose.is_posed_file:
+        posed, rest = posed_file_meshes(pose, object_mesh)
+        return rest, posed
+    rest = build(pose.source)
+    return rest, posed_example(pose, rest)
+
+
+def posed_part(pose: ExamplePose, part: TetMesh, vertices: np.ndarray,
+               posed: TetMesh) -> np.ndarray:
+    """(n_P, 3) posed positions (m) of a part of an example (a local-example region).
+
+    An analytic pose is applied to the part itself: the pose's bar is the part (its
+    extent along the pose axis, its anchor end). A posed file (or a shape at rest)
+    gives its own positions of the part's vertices.
+
+    Args:
+        pose: the example.
+        part: (n_P vertices) the part, cut from the example's rest mesh.
+        vertices: (n_P,) int the part's vertices in that rest mesh.
+        posed: the example's posed mesh (:func:`example_meshes`).
+    """
+    if pose.pose is not None:
+        return posed_example(pose, part).points
+    return np.asarray(posed.points)[vertices]
 
 
 def _same_connectivity(a: TetMesh, b: TetMesh) -> bool:

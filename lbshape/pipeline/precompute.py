@@ -60,6 +60,7 @@ coefficients of ``U q`` are ``c = Pᵀ q / √ρ``.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import math
 import os
@@ -97,8 +98,8 @@ from lbshape.io.cache import (
 )
 from lbshape.pipeline.meshes import (
     build_mesh,
-    posed_example,
-    posed_file_meshes,
+    example_meshes,
+    posed_part,
     selected_vertices,
 )
 from lbshape.pipeline.responses import response_key, response_loads
@@ -132,7 +133,7 @@ CUBATURE_TRAINING_POSES = 120
 #: seed of every random choice of the precompute (training poses, candidates)
 PRECOMPUTE_SEED = 20170401
 #: bumped whenever the artifact's content or meaning changes (part of the cache key)
-PIPELINE_VERSION = 12
+PIPELINE_VERSION = 13
 #: target routes in the LB basis faded to zero at the fixed vertices (when safe). Off: the
 #: full-space reference interpolates in the free basis, and the clamped targets moved the
 #: coarse demo bar 28.7 % away from it (3.3 % free) while gaining 3.8 % -> 3.1 % on the bars;
@@ -550,23 +551,38 @@ def _local_space(scene: Scene, mesh: TetMesh, U: np.ndarray | None, fixed: np.nd
 
     m = scene.reduced.m
     spectrum = ranks.distributed("lb", lambda: lb_spectrum(mesh, m, comm=ranks.comm))
-    rests: dict[MeshSource, TetMesh] = {}  # examples often share one mesh
     poses = scene.examples.poses
+    meshes: dict[int, tuple[TetMesh, TetMesh]] = {}  # example -> (rest, posed)
+    build = functools.cache(build_mesh)  # examples often pose one mesh
+
+    def example(k: int) -> tuple[TetMesh, TetMesh]:
+        if k not in meshes:
+            try:
+                meshes[k] = example_meshes(poses[k], mesh, build=build)
+            except LbshapeError as exc:
+                raise LbshapeError(f"example {k} ({_example_label(poses[k])}): {exc}") from None
+        return meshes[k]
 
     def example_part(k: int, spec: RegionSpec):
-        source = poses[k].source
-        if source not in rests:
-            rests[source] = build_mesh(source)
-        what = f"region '{spec.name}' on example {k + 1} ({_example_label(poses[k])})"
-        cells = region_cells(rests[source], group=spec.group, region=spec.region, what=what)
-        part, _ = submesh(rests[source], cells, what=what)
-        return part, posed_example(poses[k], part).points
+        """The region's part of example k's rest mesh and its posed positions."""
+        rest, posed = example(k)
+        what = f"region '{spec.name}' on example {k} ({_example_label(poses[k])})"
+        cells = region_cells(rest, group=spec.group, region=spec.region, what=what)
+        part, vertices = submesh(rest, cells, what=what)
+        return part, posed_part(poses[k], part, vertices, posed)
+
+    def object_pose(k: int, part: TetMesh, vertices: np.ndarray) -> np.ndarray:
+        """Example k's pose on the object's own region (representation measurement)."""
+        if poses[k].is_posed_file and poses[k].rest is not None:
+            raise LbshapeError("a posed file with its own rest mesh has no pose on the "
+                               "object's mesh")
+        return posed_part(poses[k], part, vertices, example(k)[1])
 
     specs = [RegionSpec(reg.name, reg.selection.group, reg.selection.region, reg.examples)
              for reg in scene.regions]
     local = ranks.on_root("regions", lambda: build_local_space(
         mesh, scene.material, U, specs, example_part, m=m,
-        object_pose=lambda k, part: posed_example(poses[k], part).points,
+        object_pose=object_pose,
         global_eigenvectors=spectrum.eigenvectors, fixed_vertices=fixed))
     if local is None:
         return None, None
@@ -606,17 +622,14 @@ def _embed_examples(scene: Scene, mesh: TetMesh, spectrum) -> tuple[list, list]:
     """The ``examples`` stage: (coefficients (m, 3) per example, alignments)."""
     m = scene.reduced.m
     frame = body_frame(mesh)
+    build = functools.cache(build_mesh)  # examples often pose one mesh
     coefficients, alignments = [], []
     for index, pose in enumerate(scene.examples.poses):
-        label = f"example {index + 1} ({_example_label(pose)})"
-        if pose.pose is None and pose.source.mesh_file is not None:  # a posed file
-            try:
-                posed, rest = posed_file_meshes(pose, mesh)
-            except LbshapeError as exc:
-                raise LbshapeError(f"{label}: {exc}") from None
-        else:
-            rest = build_mesh(pose.source)
-            posed = posed_example(pose, rest)
+        label = f"example {index} ({_example_label(pose)})"
+        try:
+            rest, posed = example_meshes(pose, mesh, build=build)
+        except LbshapeError as exc:
+            raise LbshapeError(f"{label}: {exc}") from None
         if rest.n_vertices <= m + 1:
             raise LbshapeError(
                 f"{label}: m={m} is too large for an example mesh with "

@@ -17,11 +17,13 @@ The engines (:mod:`lbshape.dynamics`) see arrays only and both return a
 Outputs in ``DIR``: ``stats.json`` (keys fixed by the command-line contract, plus
 ``phase_ms``, the one per-phase timing record of a reduced step: :func:`phase_medians`),
 ``trajectory.pvd`` + ``trajectory_*.vtu`` (ParaView), and ``states.npz`` (the
-sampled full-space displacements, for error measurements).
+sampled full-space displacements, for error measurements). A run that stopped on a
+solver failure leaves ``DIR`` holding only ``FAILED.txt`` (:func:`write_outputs`).
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 from dataclasses import dataclass
@@ -41,11 +43,18 @@ from lbshape.dynamics.full import (
 )
 from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord
-from lbshape.dynamics.reduced import PHASES, REALTIME_NEWTON_ITERATIONS, ReducedSimulation
+from lbshape.dynamics.reduced import PHASES, REALTIME_RTOL, ReducedSimulation
+from lbshape.dynamics.sanity import DeformationBound
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
-from lbshape.io.atomic import write_json_atomic, write_npz_atomic
+from lbshape.io.atomic import (
+    atomic_folder,
+    check_replaceable,
+    write_failed_folder,
+    write_json_atomic,
+    write_npz_atomic,
+)
 from lbshape.io.trajectory import TrajectoryWriter
 from lbshape.pipeline.influence import (
     Influence,
@@ -71,6 +80,9 @@ METHODS = ("reduced", "euclidean", "full")
 WARMUP_STEPS = 10
 #: most trajectory frames written per run
 MAX_FRAMES = 100
+#: the files of a run's output folder (glob patterns); a folder holding anything else is
+#: never replaced
+RUN_FILES = ("stats.json", "states.npz", "trajectory.pvd", "trajectory_*.vtu")
 
 
 @dataclass(frozen=True)
@@ -130,19 +142,18 @@ def example_stiffness(scene: Scene, pre: Precomputed) -> float:
 
 
 def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced",
-                       newton_iterations: int | None | str = "realtime",
+                       newton_iterations: int | None = None, rtol: float = REALTIME_RTOL,
                        exact_forces: bool = False) -> ReducedSimulation:
     """The :class:`~lbshape.dynamics.reduced.ReducedSimulation` of a scene.
 
     ``method`` picks the example target's route: the scene's
     ``reduced.interpolation`` for ``reduced``, the all-element baseline for
-    ``euclidean``. ``newton_iterations``: Newton updates per step, ``"realtime"`` for
-    :data:`~lbshape.dynamics.reduced.REALTIME_NEWTON_ITERATIONS`, ``None`` to converge.
+    ``euclidean``. ``newton_iterations``: ``None`` (the default) iterates Newton until the
+    relative residual is below ``rtol`` (:data:`~lbshape.dynamics.reduced.REALTIME_RTOL`, the
+    real-time tolerance); a number fixes the updates per step, residual unchecked (studies).
     ``exact_forces``: the reduced elastic force summed over every element with weight 1
     instead of the cubature (for measuring the cubature's share of the error; slow).
     """
-    if newton_iterations == "realtime":
-        newton_iterations = REALTIME_NEWTON_ITERATIONS
     elements, weights = pre.cubature_elements, pre.cubature_weights
     if exact_forces:
         elements = np.arange(pre.mesh.n_tets, dtype=np.int64)
@@ -170,7 +181,14 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
         k_ex=k_ex, contact=_contact(scene, pre, None), newton_iterations=newton_iterations,
+        rtol=rtol, deformation_bound=deformation_bound(pre),
     )
+
+
+def deformation_bound(pre: Precomputed) -> DeformationBound:
+    """The object's :class:`~lbshape.dynamics.sanity.DeformationBound` (its mass and size)."""
+    return DeformationBound.for_object(pre.mesh.points,
+                                       pre.material.density * pre.mesh.volume())
 
 
 def _contact(scene: Scene, pre: Precomputed, center):
@@ -199,7 +217,7 @@ def _free_body_simulation(scene: Scene, pre: Precomputed, elastic, driver, k_ex:
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
         k_ex=k_ex, contact=_contact(scene, pre, pre.frame.center),
         velocity=scene.initial.velocity, angular_velocity=scene.initial.angular_velocity,
-        rest_points=pre.mesh.points,
+        rest_points=pre.mesh.points, deformation_bound=deformation_bound(pre),
     )
 
 
@@ -263,13 +281,17 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
 
     With ``influence`` and a scene whose examples act (``k_ex > 0``), the same
     scene is also run without examples and the stats gain the example influence
-    keys (:data:`lbshape.pipeline.influence.STATS_KEYS`).
+    keys (:data:`lbshape.pipeline.influence.STATS_KEYS`). With ``out`` the run's folder
+    is written by :func:`write_outputs` (a run that stopped: only ``FAILED.txt``); a
+    folder holding other files is refused before the run.
     """
     if method not in METHODS:
         raise LbshapeError(f"method must be one of {METHODS}, got {method!r}")
     steps = scene.simulation.steps if steps is None else int(steps)
     if steps < 1:
         raise LbshapeError(f"steps must be >= 1, got {steps}")
+    if out is not None:
+        check_replaceable(out, RUN_FILES)  # refuse a folder of other files before the run
     stride = max(1, math.ceil(steps / MAX_FRAMES))
     phase_ms = None
     if method == "full":
@@ -327,12 +349,32 @@ def example_influence(scene: Scene, pre: Precomputed, output: SimulationOutput, 
     return compare_runs(pre, output, reference), reference
 
 
-def write_outputs(out: Path, pre: Precomputed, output: SimulationOutput) -> None:
-    """stats.json, states.npz and the ParaView trajectory, each written atomically."""
-    out.mkdir(parents=True, exist_ok=True)
-    writer = TrajectoryWriter(out, pre.mesh)
-    for t, u in zip(output.times, output.displacements, strict=True):
-        writer.write(float(t), u)
-    writer.close()
-    write_npz_atomic(out / "states.npz", times=output.times, displacements=output.displacements)
-    write_json_atomic(out / "stats.json", output.stats)
+def write_outputs(out: Path, pre: Precomputed, output: SimulationOutput) -> Path:
+    """A run's folder ``out``, replaced as a whole (:func:`lbshape.io.atomic.atomic_folder`).
+
+    A stable run: ``stats.json``, ``states.npz`` and the ParaView trajectory, written
+    beside ``out`` and renamed into place once complete. A run that stopped
+    (``output.message``): ``out`` holds only ``FAILED.txt`` (the message, then the
+    stats up to the stop as JSON), so it cannot be taken for a result; in both cases
+    an earlier run's files in ``out`` are gone. Returns the folder.
+
+    Raises:
+        LbshapeError: ``out`` holds files other than a run's (:data:`RUN_FILES`).
+    """
+    if output.message:
+        text = (f"simulation stopped: {output.message}\n"
+                f"This folder holds no result: the {output.stats['method']} run of scene "
+                f"{output.stats['scene']} stopped after {output.stats['steps']} steps.\n"
+                f"Its stats up to the stop:\n"
+                f"{json.dumps({**output.stats, 'message': output.message}, indent=2)}")
+        write_failed_folder(out, text, RUN_FILES)
+        return out
+    with atomic_folder(out, RUN_FILES) as folder:
+        writer = TrajectoryWriter(folder, pre.mesh)
+        for t, u in zip(output.times, output.displacements, strict=True):
+            writer.write(float(t), u)
+        writer.close()
+        write_npz_atomic(folder / "states.npz", times=output.times,
+                         displacements=output.displacements)
+        write_json_atomic(folder / "stats.json", output.stats)
+    return out

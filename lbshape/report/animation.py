@@ -3,10 +3,12 @@
 :func:`simulation_movie` runs the scene's method and, unless that is ``full``
 already, the ``full`` reference; each run writes its usual outputs
 (``stats.json``, ``states.npz`` and the ParaView trajectory) into
-``OUT/runs/METHOD/``. The frames are then read back from those ``states.npz`` files
-(:func:`read_states`) — the same samples the ParaView trajectory holds — drawn side
-by side by :func:`lbshape.report.render.animation_frames` and written as a GIF
-(and an MP4 where the encoder is installed) by :mod:`lbshape.report.movie`.
+``OUT/runs/METHOD/``; a run that stopped leaves only ``FAILED.txt`` there
+(:func:`lbshape.pipeline.simulate.write_outputs`) and shows until its stop. The
+frames are the runs' samples — those ``states.npz`` (:func:`read_states`) and the
+ParaView trajectory hold — drawn side by side by
+:func:`lbshape.report.render.animation_frames` and written as a GIF (and an MP4
+where the encoder is installed) by :mod:`lbshape.report.movie`.
 """
 
 from __future__ import annotations
@@ -37,7 +39,8 @@ class SceneMovie:
     Attributes:
         movies: the GIF, then the MP4 if written.
         methods: the methods shown, left to right.
-        runs: the run folders the frames were read from (one per method).
+        runs: the runs' output folders (one per method; a stopped run's holds only
+            ``FAILED.txt``).
         frames: frames per movie.
         message: failure messages of runs that stopped early ('' if none).
     """
@@ -100,7 +103,7 @@ def simulation_movie(scene, out: str | Path, *, method: str = "reduced",
     methods = movie_methods(method)
     out = Path(out)
     pre = precompute(scene, progress=progress)
-    runs, messages = [], []
+    runs, messages, states = [], [], []
     for name in methods:
         folder = out / "runs" / name
         output = simulate(scene, pre, method=name, steps=steps, out=folder)
@@ -108,7 +111,7 @@ def simulation_movie(scene, out: str | Path, *, method: str = "reduced",
             messages.append(f"{name}: {output.message}")
             log.error("movie %s: the %s run stopped: %s", scene.name, name, output.message)
         runs.append(folder)
-    states = [read_states(folder) for folder in runs]
+        states.append((np.asarray(output.times, float), np.asarray(output.displacements, float)))
     times = max((t for t, _ in states), key=len)
     fields = [_hold_last(u, len(times)) for _, u in states]
     labels = [f"{scene.name}: {name}" for name in methods]

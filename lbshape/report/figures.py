@@ -128,9 +128,10 @@ def simulation_figure(pre, output, path: str | Path, *, frames: int = 4,
 
 
 def example_caption(index: int, pose) -> str:
-    """``example k: SOURCE POSE p=v …`` for an :class:`~lbshape.scene.schema.ExamplePose`."""
+    """``example k: SOURCE POSE p=v …`` for an :class:`~lbshape.scene.schema.ExamplePose`
+    (k from 0, as the scene's ``[[regions]]`` number the examples)."""
     source = pose.source.shape or Path(pose.source.mesh_file).name
-    words = [f"example {index + 1}: {source}"]
+    words = [f"example {index}: {source}"]
     if pose.pose is not None:
         words.append(pose.pose)
         words += [f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
@@ -524,7 +525,9 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
                  frames: int = 4, progress: bool = False) -> RenderedScene:
     """Every picture of one scene into ``out`` (see the module docstring).
 
-    Writes ``simulation.png`` (``method``'s run), ``eigenfunctions.png`` and, with
+    Writes ``simulation.png`` (``method``'s run; a run that stopped is drawn up to its
+    stop as ``simulation-STOPPED.png`` instead, labelled so, and an earlier
+    ``simulation.png`` is removed), ``eigenfunctions.png`` and, with
     examples, ``examples_on_object.png`` and ``examples_raw.png`` (with local
     examples: ``local_regions.png``, ``local_examples.png``, ``local_result.png``
     and ``local_examples.json``); plus ``summary.json`` (the run's stats and the files).
@@ -542,7 +545,13 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
     output = simulate(scene, pre, method=method, steps=steps)
     if output.message:
         log.error("render %s: the %s run stopped: %s", scene.name, method, output.message)
-    paths = [simulation_figure(pre, output, out / "simulation.png", frames=frames)]
+    if output.message:  # no picture of a stopped run may pass for a result
+        (out / "simulation.png").unlink(missing_ok=True)
+        paths = [simulation_figure(pre, output, out / "simulation-STOPPED.png", frames=frames,
+                                   method=f"STOPPED {output.stats.get('method', '')}")]
+    else:
+        (out / "simulation-STOPPED.png").unlink(missing_ok=True)
+        paths = [simulation_figure(pre, output, out / "simulation.png", frames=frames)]
     paths.append(eigenfunctions_figure(scene, pre, out / "eigenfunctions.png"))
     if pre.has_examples:
         paths.extend(examples_figures(scene, pre, out))

@@ -234,6 +234,11 @@ class ExamplePose:
     landmarks: tuple[tuple[int, int], ...] = ()
     rest: MeshSource | None = None
 
+    @property
+    def is_posed_file(self) -> bool:
+        """A mesh file without analytic pose: the file holds the posed shape."""
+        return self.pose is None and self.source.mesh_file is not None
+
     def key(self) -> dict:
         key = {} if self.rest is None else {"rest": self.rest.key()}
         return {

@@ -1,7 +1,8 @@
 """Example interpolation: weights (paper eq. 5) and the nonlinear target (eqs. 4 and 6).
 
 Weights solve ``min_w ½‖Σ_k w_k e_k − c‖²`` over the simplex ``Σw = 1, w ≥ 0``
-exactly (active-set enumeration; k is a handful of examples).
+exactly (support enumeration, k ≤ 12 examples; one implementation,
+:class:`SimplexWeights`, for every method; ties go to the minimum-norm minimiser).
 
 The target minimises ``F(z) = Σ_k w_k E_k(z − z_k)``, where ``E_k(y)`` is the elastic
 energy of deforming example shape k (its rest shape reconstructed on the object's
@@ -65,86 +66,88 @@ class EnergyModel(Protocol):
     def force_and_tangent(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
 
 
+#: at most this many examples per region (2^k − 1 supports are enumerated)
+MAX_EXAMPLES = 12
+#: a support's weights are feasible down to ``-FEASIBILITY_TOLERANCE`` (weights are O(1))
+FEASIBILITY_TOLERANCE = 1e-12
+#: two feasible supports give the same minimiser when their descriptors ``Eᵀw`` differ by
+#: less than this, relative to the size of the examples and of the current descriptor
+TIE_TOLERANCE = 1e-9
+#: relative cut-off of the singular values of a support's (scaled) KKT matrix
+_KKT_RCOND = 1e-12
+
+
+def _example_matrix(examples) -> np.ndarray:
+    """The (k, d) example descriptors as floats, checked (1 <= k <= MAX_EXAMPLES)."""
+    E = np.asarray(examples, dtype=float)
+    if E.ndim != 2 or not 1 <= E.shape[0] <= MAX_EXAMPLES:
+        raise LbshapeError(f"examples must be a (k, d) array with 1 <= k <= {MAX_EXAMPLES}, "
+                           f"got shape {E.shape}")
+    return E
+
+
 def simplex_weights(examples: np.ndarray, current: np.ndarray) -> np.ndarray:
     """Exact solution of ``min ½‖Eᵀw − c‖²`` s.t. ``Σw = 1, w ≥ 0`` (paper eq. 5).
 
-    Enumerates supports (2^k − 1 of them, k ≤ 12) and solves the equality-
-    constrained least squares on each via its KKT system; the best feasible one is
-    the global optimum of this convex problem. Ties (e.g. identical examples) are
-    split evenly among the tied examples.
+    One call of :class:`SimplexWeights` (the one implementation, see there for the
+    method and the tie rule): tied examples, e.g. identical ones, share their weight
+    evenly. For repeated calls with the same examples build a :class:`SimplexWeights`
+    once.
 
     Args:
-        examples: (k, d) example descriptors (flattened).
+        examples: (k, d) example descriptors (flattened), 1 <= k <= 12.
         current: (d,) the current descriptor.
 
     Returns:
         (k,) weights on the simplex.
     """
-    E = np.asarray(examples, dtype=float)
+    E = _example_matrix(examples)
     c = np.asarray(current, dtype=float).ravel()
-    if E.ndim != 2 or E.shape[0] == 0:
-        raise LbshapeError(f"examples must be a (k, d) array with k >= 1, got shape {E.shape}")
     if E.shape[1] != c.size:
         raise LbshapeError(
             f"example descriptors have dimension {E.shape[1]} but the current one has {c.size}"
         )
-    k = E.shape[0]
-    if k > 12:
-        raise LbshapeError(f"at most 12 examples per region are supported, got {k}")
-    if k == 1:
-        return np.ones(1)
-    G = E @ E.T
-    b = E @ c
-    scale = max(float(np.trace(G)) / k, 1e-300)
-    best_w, best_value = None, np.inf
-    for size in range(1, k + 1):
-        for support in itertools.combinations(range(k), size):
-            idx = np.array(support)
-            w_s = _equality_constrained(G[np.ix_(idx, idx)], b[idx], scale)
-            if w_s is None or (w_s < -1e-12).any():
-                continue
-            w = np.zeros(k)
-            w[idx] = np.clip(w_s, 0.0, None)
-            w /= w.sum()
-            value = 0.5 * w @ G @ w - b @ w
-            if value < best_value - 1e-14 * scale:
-                best_w, best_value = w, value
-    if best_w is None:  # cannot happen for a convex problem; keep a loud failure
-        raise SolverError("simplex least squares found no feasible support")
-    return best_w
+    return SimplexWeights(E)(c)
 
 
 class SimplexWeights:
     """Paper eq. 5 for fixed examples, precomputed: the run-time weights in a few µs.
 
-    The same problem and answer as :func:`simplex_weights`, but everything that depends
-    only on the examples is done once: the Gram matrix ``G = E Eᵀ`` (k, k), the map
-    ``b = (E D) q`` (k, r) from reduced coordinates to the right-hand side, and for
-    each of the 2^k − 1 supports S the affine solution ``w_S = P_S b + a_S`` of the
-    equality-constrained problem (the minimum-norm solution of its KKT system). At run
-    time all supports are evaluated at once; the feasible one (``w ≥ 0``) with the
-    smallest objective ``½ wᵀGw − bᵀw`` wins. The call writes into preallocated arrays.
+    The problem ``min ½‖Eᵀw − c‖²`` s.t. ``Σw = 1, w ≥ 0`` is convex: its minimisers
+    share one descriptor ``Eᵀw``, and the minimiser of least norm ``‖w‖`` on one
+    support is the minimum-norm solution of that support's equality-constrained KKT
+    system. Everything that depends only on the examples is done once: the Gram
+    matrix ``G = E Eᵀ`` (k, k), the map ``b = (E D) q`` (k, r) from reduced
+    coordinates to the right-hand side ``b = E c``, and for each of the 2^k − 1
+    supports S the affine solution ``w_S = P_S b + a_S``. At run time all supports
+    are evaluated; among the feasible ones (``w ≥ −FEASIBILITY_TOLERANCE``) the
+    least objective ``½ wᵀGw − bᵀw`` gives the minimiser's descriptor, and among
+    the supports at that descriptor (within :data:`TIE_TOLERANCE`) the weights of
+    least norm win. That is the one tie rule: the minimum-norm minimiser, so tied
+    examples (identical ones, or any affinely dependent set the current shape
+    cannot tell apart) share their weight evenly. The call writes into
+    preallocated arrays (no allocation with ``out``).
 
     Args:
-        examples: (k, d) example descriptors (flattened), k <= 12.
+        examples: (k, d) example descriptors (flattened), 1 <= k <= 12.
         descriptor_matrix: (d, r) ``D``: the current descriptor is ``D q``; ``None``
             means the caller passes descriptors (r = d).
     """
 
     def __init__(self, examples: np.ndarray, descriptor_matrix: np.ndarray | None = None):
-        E = np.atleast_2d(np.asarray(examples, dtype=float))
+        E = _example_matrix(np.atleast_2d(np.asarray(examples, dtype=float)))
         k = E.shape[0]
-        if k == 0 or k > 12:
-            raise LbshapeError(f"1 to 12 examples per region are supported, got {k}")
-        D = np.eye(E.shape[1]) if descriptor_matrix is None else np.asarray(descriptor_matrix,
-                                                                            dtype=float)
-        if D.shape[0] != E.shape[1]:
-            raise LbshapeError(
-                f"example descriptors have dimension {E.shape[1]}, the descriptor matrix "
-                f"{D.shape[0]} rows")
+        if descriptor_matrix is None:
+            self.ED = np.array(E, order="C")  # (k, d)
+        else:
+            D = np.asarray(descriptor_matrix, dtype=float)
+            if D.ndim != 2 or D.shape[0] != E.shape[1]:
+                raise LbshapeError(
+                    f"example descriptors have dimension {E.shape[1]}, the descriptor matrix "
+                    f"shape {D.shape}")
+            self.ED = np.ascontiguousarray(E @ D)  # (k, r)
         self.k = k
         self.G = E @ E.T
-        self.ED = np.ascontiguousarray(E @ D)  # (k, r)
         scale = max(float(np.trace(self.G)) / k, 1e-300)
         supports = [np.array(c) for size in range(1, k + 1)
                     for c in itertools.combinations(range(k), size)]
@@ -157,7 +160,7 @@ class SimplexWeights:
             kkt[:size, :size] = self.G[np.ix_(idx, idx)] / scale
             kkt[:size, size] = 1.0
             kkt[size, :size] = 1.0
-            inverse = np.linalg.pinv(kkt, rcond=1e-12)
+            inverse = np.linalg.pinv(kkt, rcond=_KKT_RCOND)
             P[index, idx[:, None], idx[None, :]] = inverse[:size, :size] / scale
             a[index, idx] = inverse[:size, size]
         self._P = np.ascontiguousarray(P.reshape(n * k, k))
@@ -166,6 +169,7 @@ class SimplexWeights:
         # work arrays
         self.b = np.zeros(k)
         self._W = np.zeros((n, k))
+        self._values = np.zeros(n)
 
     def __call__(self, q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(k,) weights for reduced coordinates q (r,) (or a descriptor, see Args)."""
@@ -178,18 +182,20 @@ class SimplexWeights:
 
     def from_rhs(self, b: np.ndarray, out: np.ndarray) -> np.ndarray:
         """Weights (k,) from the right-hand side ``b = E c`` (k,), written into ``out``."""
-        _best_support(self._P, self._a, self.G, b, self._W, out)
+        _best_support(self._P, self._a, self.G, b, self._scale, FEASIBILITY_TOLERANCE,
+                      TIE_TOLERANCE, self._W, self._values, out)
         return out
 
 
 @njit
-def _best_support(P, a, G, b, W, out):
-    """Evaluate every support's affine solution, keep the feasible one of least objective.
+def _best_support(P, a, G, b, scale, feasibility, tie, W, values, out):
+    """The minimum-norm minimiser among the supports' affine solutions (see SimplexWeights).
 
-    P (n·k, k), a (n, k), G (k, k), b (k,), W (n, k) work, out (k,) the weights.
+    P (n·k, k), a (n, k), G (k, k), b (k,), scale (the mean of diag G), feasibility and
+    tie the tolerances; W (n, k) and values (n,) work; out (k,) the weights.
     """
     n, k = a.shape
-    best, best_value = 0, np.inf
+    best, best_value = -1, np.inf
     for s in range(n):
         feasible = True
         for i in range(k):
@@ -197,8 +203,9 @@ def _best_support(P, a, G, b, W, out):
             for j in range(k):
                 value += P[s * k + i, j] * b[j]
             W[s, i] = value
-            if value < -1e-12:
+            if value < -feasibility:
                 feasible = False
+        values[s] = np.inf
         if not feasible:
             continue
         objective = 0.0
@@ -207,29 +214,40 @@ def _best_support(P, a, G, b, W, out):
             for j in range(k):
                 gw += G[i, j] * W[s, j]
             objective += W[s, i] * (0.5 * gw - b[i])
+        values[s] = objective
         if objective < best_value:
             best, best_value = s, objective
+    # ties: every feasible support whose descriptor is the best one's, least ‖w‖ wins
+    b_max = 0.0
+    for i in range(k):
+        b_max = max(b_max, abs(b[i]))
+    root = np.sqrt(scale)
+    reach = tie * (root + b_max / root)  # descriptor units: |E| + |c|
+    chosen, chosen_norm = best, 0.0
+    for i in range(k):
+        chosen_norm += W[best, i] * W[best, i]
+    for s in range(n):
+        if s == best or values[s] == np.inf:
+            continue
+        distance = 0.0  # ‖Eᵀ(w_s − w_best)‖²
+        for i in range(k):
+            gd = 0.0
+            for j in range(k):
+                gd += G[i, j] * (W[s, j] - W[best, j])
+            distance += (W[s, i] - W[best, i]) * gd
+        if distance > reach * reach:
+            continue
+        norm = 0.0
+        for i in range(k):
+            norm += W[s, i] * W[s, i]
+        if norm < chosen_norm:
+            chosen, chosen_norm = s, norm
     total = 0.0
     for i in range(k):
-        out[i] = max(W[best, i], 0.0)
+        out[i] = max(W[chosen, i], 0.0)
         total += out[i]
     for i in range(k):
         out[i] /= total
-
-
-def _equality_constrained(G: np.ndarray, b: np.ndarray, scale: float) -> np.ndarray | None:
-    """min ½wᵀGw − bᵀw s.t. Σw = 1 (G PSD; minimum-norm solution when singular)."""
-    s = G.shape[0]
-    kkt = np.zeros((s + 1, s + 1))
-    kkt[:s, :s] = G / scale
-    kkt[:s, s] = 1.0
-    kkt[s, :s] = 1.0
-    rhs = np.concatenate([b / scale, [1.0]])
-    solution, *_ = np.linalg.lstsq(kkt, rhs, rcond=1e-12)
-    w = solution[:s]
-    if not np.isfinite(w).all() or abs(w.sum() - 1.0) > 1e-8:
-        return None
-    return w
 
 
 @dataclass(frozen=True)

@@ -20,8 +20,11 @@ functions on the region. That is the reason for the choice (numbers in
 selected by R (the same physical group, or the expression evaluated on the example
 mesh in its own coordinates), with k's pose applied to *that part*: the pose's
 bar is the region (its extent along the pose axis, its anchor end), so "twist the
-left arm" is ``pose = "twist", axis = "x"`` on a region that is the left arm. An
-example without a pose (a posed mesh file) is restricted as it is. The part is
+left arm" is ``pose = "twist", axis = "x"`` on a region that is the left arm. A
+posed mesh file is cut the same way on its *rest* mesh (its ``rest`` file, or the
+object for a posed copy of the object), and the part's posed positions are the
+file's positions of the same vertices (:func:`lbshape.pipeline.meshes.example_meshes`
+gives every example's rest and posed meshes, whole or by region). The part is
 brought into R's shape space with the global machinery
 (:func:`lbshape.shapespace.projections.embed_example`: frame and basis alignment
 against R's own spectrum; landmarks are not used for regions).
@@ -49,15 +52,25 @@ region descriptor of the current shape is ``D_R q``, ``D_R = diag(λ_R ⊗ 1₃)
 (3m, r). Like the target, the anchor fit uses the state at the start of the step.
 The runtime step touches only these small matrices. ``free_rigid=False`` drops
 the anchoring (``u*_R = E_R L_R c*_R``): the region's mean is then pulled to rest,
-as the global path does for the whole object; with one region covering the object
-it is the global path.
+as the global path does for the whole object.
+
+**A region without neighbours is not anchored.** The anchor attaches a region's
+target to the rest of the object; a region covering every tetrahedron has no rest
+of the object to attach to, so its anchor is empty (its fixed vertices alone do not
+make one) and its target is placed as the global path places the examples: one
+region covering the object with all the examples *is* the global path, with the
+default settings. Anchoring it on its fixed vertices would be another model (the
+target moved rigidly to fit the support), not the paper's §4 (numbers in
+``docs/architecture.md``).
 
 **Rules.** Regions are sets of tetrahedra: a physical group must be a volume
 group; an expression selects the tetrahedra whose centroid satisfies it. Regions
 must not share a tetrahedron (one-line error naming both). Tetrahedra in no region
 feel no example force (``S`` then differs from M: the spring only acts on covered
 elements). Each region must be one connected piece with more than m + 1 vertices.
-With one region covering every tetrahedron the whole path equals the global one.
+With one region covering every tetrahedron the whole path equals the global one
+(no anchor, see above). Messages number the examples from 0, as the scene's
+``examples`` lists do.
 
 **Targets.** Per region, weights by paper eq. 5 on the region's descriptors and a
 target ``c*_R = argmin Σ_k w_k E_k(c − c_k)`` with E_k the StVK energy of example
@@ -117,6 +130,9 @@ LOCAL_ROUTES = ("lb-exact", "euclidean")
 #: (a teddy's leg: ~50 against the example part's ~800), so a matching part measures
 #: ~0.25 by resolution alone; the basis alignment residual still guards the match.
 REGION_FRAME_RMS = 0.35
+#: an example whose RMS displacement on a region is below this share of the region's
+#: extent is at rest to round-off (warned about: a scene does not mean that)
+AT_REST = 1e-9
 
 
 # ------------------------------------------------------------------ regions
@@ -207,11 +223,14 @@ def rigid_fields(points: np.ndarray, mass: sp.spmatrix) -> np.ndarray:
 
 def region_anchor(mesh: TetMesh, cells: np.ndarray, vertices: np.ndarray,
                   fixed_vertices: np.ndarray | None = None) -> np.ndarray:
-    """(n_R,) bool: the region's vertices shared with tetrahedra outside it, or fixed."""
+    """(n_R,) bool: where a region is attached to the rest of the object: its vertices
+    shared with tetrahedra outside it, and its fixed vertices. None for a region
+    covering every tetrahedron (no neighbour to attach to: its target is placed as
+    the global path's, see the module docstring)."""
     outside = np.ones(mesh.n_tets, dtype=bool)
     outside[cells] = False
     anchor = np.isin(vertices, np.asarray(mesh.tets)[outside])
-    if fixed_vertices is not None:
+    if fixed_vertices is not None and anchor.any():
         anchor |= np.isin(vertices, fixed_vertices)
     return anchor
 
@@ -223,20 +242,20 @@ def anchor_fit(points: np.ndarray, mass: sp.spmatrix, anchor: np.ndarray
     Args:
         points: (n_R, 3) region vertices.
         mass: (3n_R, 3n_R) the region's mass.
-        anchor: (n_R,) bool anchor vertices; none means the whole region.
+        anchor: (n_R,) bool anchor vertices; none: no fit (g = 0, an unanchored region).
 
     Returns:
         ``(Q, F, rows)``: Q (3n_R, 6) mass-orthonormal rigid fields, rows the
         node-major anchor rows and F (6, rows.size) with ``g = F v[rows]`` the
         lumped-mass least-squares rigid fit of a field v (3n_R,) on the anchor
         (``Q F v[rows] = v`` for a rigid v; a degenerate anchor, e.g. collinear,
-        fits with the minimum-norm g).
+        fits with the minimum-norm g; F is (6, 0) without anchor).
     """
     Q = rigid_fields(points, mass)
     anchor = np.asarray(anchor, dtype=bool)
-    if not anchor.any():
-        anchor = np.ones_like(anchor)
     rows = (3 * np.flatnonzero(anchor)[:, None] + np.arange(3)).ravel()
+    if rows.size == 0:
+        return Q, np.zeros((6, 0)), rows
     w = np.asarray(mass.sum(axis=1)).ravel()[rows]
     QA = Q[rows]
     F = np.linalg.pinv((QA * w[:, None]).T @ QA, rcond=1e-10) @ (QA * w[:, None]).T
@@ -346,7 +365,8 @@ class LocalShapeSpace:
         representation_errors: region name -> {"per-region": e_B, "whole-object":
             e_A}: relative M_R-norm errors of reconstructing the region's posed
             displacement (the first example's pose applied to the object's own
-            region) from m coefficients in each variant.
+            region) from m coefficients in each variant; no entry where that pose is
+            not defined on the object's mesh (a posed file with its own rest).
     """
 
     regions: tuple[RegionSpace, ...]
@@ -445,14 +465,16 @@ def build_local_space(
         U: (3n, r) basis with ``Uᵀ M U = I`` (M the elastic mass).
         specs: the regions.
         example_part: ``(k, spec) -> (rest part, posed part points)``: example k's
-            part selected by the region, at rest (a TetMesh) and posed ((n_e, 3)).
+            part selected by the region on the example's rest mesh, at rest (a
+            TetMesh) and posed ((n_e, 3) m).
         m: eigenpairs per region.
         spectrum: ``(mesh, m) -> LBSpectrum`` (default
             :func:`lbshape.spectral.spectrum.lb_spectrum`).
         embed: :func:`lbshape.shapespace.projections.embed_example` or a stand-in.
-        object_pose: optional ``(k, region mesh) -> posed points (n_R, 3)``: example
-            k's pose applied to the object's own region, for the representation
-            measurement (skipped without it).
+        object_pose: optional ``(k, region mesh, region vertices (n_R,) in the
+            object) -> posed points (n_R, 3)``: example k's pose applied to the
+            object's own region, for the representation measurement (skipped
+            without it, or for a region where it raises :class:`LbshapeError`).
         global_eigenvectors: (n, m) the whole object's eigenvectors (M-orthonormal),
             for the whole-object variant of that measurement.
         fixed_vertices: the object's fixed vertices (part of a region's anchor).
@@ -495,7 +517,7 @@ def build_local_space(
         L_R = block_eigenfunctions(spec_R.eigenvectors).toarray()
         coefficients, residuals = [], []
         for k in spec.examples:
-            what = f"{label}, example {k + 1}"
+            what = f"{label}, example {k}"
             rest_part, posed_points = example_part(k, spec)
             try:
                 embedded = embed(sub, spec_R, rest_part, [posed_points])
@@ -504,9 +526,10 @@ def build_local_space(
             coefficients.append(embedded.coefficients[0])
             residuals.append(embedded.alignment.residual)
             log.info("%s: alignment residual %.3g", what, embedded.alignment.residual)
+            _warn_at_rest(what, embedded.coefficients[0], sub)
         if object_pose is not None:
             try:  # a pose may not fit the coarser object mesh: then nothing is measured
-                posed = object_pose(spec.examples[0], sub)
+                posed = object_pose(spec.examples[0], sub, vertices)
             except LbshapeError as exc:
                 log.info("%s: representation not measured (%s)", label, exc)
             else:
@@ -532,6 +555,17 @@ def build_local_space(
         log.info("local examples: %.1f %% of the volume is in no region (no example force "
                  "there)", 100 * (1 - covered_fraction))
     return LocalShapeSpace(tuple(regions), 0.5 * (spring + spring.T), covered_fraction, errors)
+
+
+def _warn_at_rest(what: str, coefficients: np.ndarray, region: TetMesh) -> None:
+    """Log a warning when an example's region shape is its rest shape to round-off:
+    its RMS displacement ``‖c‖ / √V_R`` (m; Φ_R is M_R-orthonormal, c (m, 3)) below
+    :data:`AT_REST` of the region's extent."""
+    rms = float(np.linalg.norm(coefficients)) / np.sqrt(region.volume())
+    extent = float(np.ptp(region.points, axis=0).max())
+    if rms <= AT_REST * extent:
+        log.warning("%s is the region at rest (RMS displacement %.1e m): it only pulls the "
+                    "region back to rest", what, rms)
 
 
 def _representation_errors(sub, vertices, volume_mass, phi_R, posed, phi_global) -> dict:
