@@ -5,7 +5,7 @@ Usage: ``.venv/bin/python scripts/bench_large_steps.py [--out-dir results]``.
 Runs :func:`lbshape.report.large_steps.large_step_study` on the demo, the paper's bar
 scenes (bar-cuboid, bar-cylinder, and the free bar-s-cuboid of Figure 4) and a user's own
 mesh (the ``l-beam`` shape read from a ``.msh`` file) at 1000, 60, 50 and 20 Hz, and
-writes ``large_steps.md`` and ``large_steps.json`` atomically.
+writes ``large_steps.md``, ``large_steps.json`` and ``large_steps.png`` atomically.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from lbshape.report.large_steps import (
     large_step_study,
     large_steps_markdown,
     large_steps_payload,
+    large_steps_plot,
     user_mesh_scene,
 )
 from lbshape.report.machine import machine_description
@@ -57,6 +58,7 @@ def main(argv: list[str] | None = None) -> list[Path]:
         write_text_atomic(args.out_dir / "large_steps.md", large_steps_markdown(
             rows, duration=DURATIONS, machine=machine_description(), command=command.strip())),
         write_json_atomic(args.out_dir / "large_steps.json", large_steps_payload(rows)),
+        large_steps_plot(rows, args.out_dir / "large_steps.png"),
     ]
 
 

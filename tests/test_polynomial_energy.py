@@ -7,9 +7,9 @@ import pytest
 
 from lbshape.elastic.element_kernels import FullSpaceElasticity
 from lbshape.elastic.materials import Material
+from lbshape.elastic.polynomial_energy import StVKPolynomialEnergy
 from lbshape.errors import LbshapeError
 from lbshape.geometry.primitives import structured_box
-from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
 
 MATERIAL = Material("stvk", young=1e5, poisson=0.3, density=1000.0)
 

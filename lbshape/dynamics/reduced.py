@@ -291,12 +291,8 @@ class ReducedSimulation:
         self._update(index, t1)
         forces, solves, updates = 0.0, clock() - started, 1
         while True:
-            started = clock()
-            np.add(self.x, self._dx, out=self._x1)
-            self._force_and_tangent(self._x1)
+            forces += self._evaluate_trial()
             middle = clock()
-            forces += middle - started
-            self._residual_into()
             if not np.isfinite(norms[0]):
                 raise SolverError(f"non-finite residual at step {index} (t = {t1:.6g} s)")
             self.last_residual = norms[0] / scale if scale > 0 else 0.0
@@ -322,12 +318,8 @@ class ReducedSimulation:
         clock = self._clock
         forces = solves = 0.0
         for _ in range(self.newton_iterations):
-            started = clock()
-            np.add(self.x, self._dx, out=self._x1)
-            self._force_and_tangent(self._x1)
+            forces += self._evaluate_trial()
             middle = clock()
-            forces += middle - started
-            self._residual_into()
             self._update(index, t1)
             solves += clock() - middle
         _kinematics(self._dx, self.x, self.v, self.a, self._coefficients, self._x1, self._v1,
@@ -335,6 +327,16 @@ class ReducedSimulation:
         self._f_start[:] = self._f  # the force at the last evaluation (for the next step)
         self._K_start[:] = self._K
         return forces, solves, self.newton_iterations
+
+    def _evaluate_trial(self) -> float:
+        """Force, tangent and residual at the trial state ``x + dx`` (into ``_x1``, ``_f``,
+        ``_K``, ``_R``, ``_norms``); returns the seconds the force and tangent took."""
+        started = self._clock()
+        np.add(self.x, self._dx, out=self._x1)
+        self._force_and_tangent(self._x1)
+        seconds = self._clock() - started
+        self._residual_into()
+        return seconds
 
     def _residual_into(self) -> None:
         """The step's residual at ``x + dx`` with the current force and tangent into

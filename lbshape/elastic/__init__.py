@@ -1,4 +1,5 @@
-"""The reduced elastic space: materials, kernels, modes, modal derivatives, basis, cubature."""
+"""The reduced elastic space: materials, kernels, modes, modal derivatives, basis, cubature,
+the exact polynomial StVK energy and forces."""
 
 __all__ = [
     "basis",
@@ -8,5 +9,7 @@ __all__ = [
     "materials",
     "modal_derivatives",
     "modes",
+    "polynomial_energy",
+    "polynomial_forces",
     "reduced_forces",
 ]

@@ -15,7 +15,7 @@ routes differ in the coordinates z, the basis B that maps them to displacements
   coordinates through ``T``.
 * ``lb-exact`` (StVK only): z = c, ``B = L``, the energy summed over all elements
   but evaluated exactly as a precomputed quartic polynomial in z
-  (:class:`lbshape.shapespace.polynomial_energy.StVKPolynomialEnergy`): the ``euclidean``
+  (:class:`lbshape.elastic.polynomial_energy.StVKPolynomialEnergy`): the ``euclidean``
   target at a run-time cost of O((3m)⁴), independent of the mesh.
 * ``euclidean`` (Zhu et al. 2015 baseline): z = c, ``B = L``, **all** elements
   with unit weights (:class:`lbshape.shapespace.euclidean_energy.EuclideanExampleEnergy`).
@@ -59,13 +59,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lbshape.elastic.polynomial_energy import StVKPolynomialEnergy
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import Precomputed
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_driver import ExampleDriver
 from lbshape.shapespace.interpolation import ROUTES, TargetSolver
-from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
 from lbshape.shapespace.target_table import TableSolver
 
 log = logging.getLogger(__name__)

@@ -8,7 +8,7 @@ reports the final displacement of each, their relative difference, the trajector
 error (``max_t ‖u(t) − u_full(t)‖_M / max_t ‖u_full(t)‖_M``), the Newton updates and
 the per-step cost; beside it one unchecked Newton update per step (the step before the
 residual was measured), to show what the tolerance prevents. :func:`large_steps_markdown`
-writes ``large_steps.md``.
+writes ``large_steps.md`` and :func:`large_steps_plot` ``large_steps.png``.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from lbshape.pipeline.precompute import Precomputed
 from lbshape.pipeline.simulate import WARMUP_STEPS, reduced_simulation, run_full_space
 from lbshape.report.bench import trajectory_error
 from lbshape.report.machine import load_text, threads_text
+from lbshape.report.plots import pyplot, save_figure
 from lbshape.scene.reader import scene_from_dict
 from lbshape.scene.schema import Scene
 
@@ -229,3 +230,45 @@ def large_steps_markdown(rows: Sequence[LargeStepRow], *, duration: dict[str, fl
 def large_steps_payload(rows: Sequence[LargeStepRow]) -> dict:
     """``large_steps.json``."""
     return {"rtol": REALTIME_RTOL, "rows": [dataclasses.asdict(row) for row in rows]}
+
+
+def large_steps_plot(rows: Sequence[LargeStepRow], path: str | Path) -> Path:
+    """``large_steps.png``: per scene, the final largest displacement (m) at each step rate
+    (Hz) for the full method, the reduced method and one unchecked update per step (a
+    cross where a run stopped)."""
+    plt = pyplot()
+    scenes = list(dict.fromkeys(row.scene for row in rows))
+    fig, axes = plt.subplots(1, len(scenes), figsize=(3.2 * len(scenes), 3.4), squeeze=False)
+    for ax, scene in zip(axes[0], scenes, strict=True):
+        mine = sorted((r for r in rows if r.scene == scene), key=lambda r: r.hz)
+        hz = list(range(len(mine)))  # one slot per rate, labelled below
+        ax.plot(hz, [r.full_final for r in mine], "o-", color="black", label="full")
+        ax.plot(hz, [np.nan if r.reduced_final is None else r.reduced_final for r in mine],
+                "s--", color="tab:blue", label="reduced")
+        top = max(r.full_final for r in mine) * 1.6
+        label = "1 update, unchecked"
+        for x, r in zip(hz, mine, strict=True):
+            if r.unchecked_message:  # stopped: a cross at the top
+                ax.plot([x], [top], "x", color="tab:red", markersize=9)
+                ax.annotate("stopped", (x, top), textcoords="offset points",
+                            xytext=(0, -12), ha="center", fontsize=7, color="tab:red")
+            elif r.unchecked_final is not None:  # finished: off the axis shown by value
+                value = min(r.unchecked_final, top)
+                ax.plot([x], [value], "^", color="tab:red", label=label)
+                label = None
+                if r.unchecked_final > top:
+                    ax.annotate(f"{r.unchecked_final:.2g} m", (x, value),
+                                textcoords="offset points", xytext=(0, -12), ha="center",
+                                fontsize=7, color="tab:red")
+        ax.set_xticks(hz, [f"{r.hz:g}" for r in mine])
+        ax.set_xlim(-0.5, len(mine) - 0.5)
+        ax.set_ylim(0.0, top * 1.1)
+        ax.set_title(scene, fontsize=10)
+        ax.set_xlabel("step rate (Hz)")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("final largest displacement (m)")
+    axes[0][0].legend(fontsize=7, loc="lower left")
+    fig.suptitle("final displacement at real-time step sizes: reduced vs full; one unchecked "
+                 "Newton update per step in red (its value where off the axis)", fontsize=10)
+    fig.tight_layout()
+    return save_figure(fig, path)

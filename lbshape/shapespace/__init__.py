@@ -8,6 +8,5 @@ __all__ = [
     "frames",
     "interpolation",
     "local_examples",
-    "polynomial_energy",
     "projections",
 ]

@@ -104,6 +104,7 @@ from scipy.sparse.csgraph import connected_components
 
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.materials import Material
+from lbshape.elastic.polynomial_energy import StVKPolynomialEnergy
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.regions import evaluate_region
@@ -111,7 +112,6 @@ from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_driver import ExampleDriver, TargetInfo
 from lbshape.shapespace.example_shapes import energy_elements, example_rest_shapes
 from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
-from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
 from lbshape.shapespace.projections import block_eigenfunctions, direct_projection, embed_example
 from lbshape.shapespace.target_table import (
     DEFAULT_TOLERANCE,

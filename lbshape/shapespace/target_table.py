@@ -38,6 +38,7 @@ import numpy as np
 
 from lbshape._jit import njit
 from lbshape.elastic.materials import Material
+from lbshape.elastic.polynomial_energy import StVKPolynomialEnergy
 from lbshape.errors import LbshapeError
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_shapes import (
@@ -46,7 +47,6 @@ from lbshape.shapespace.example_shapes import (
     example_rest_shapes,
 )
 from lbshape.shapespace.interpolation import TargetResult, TargetSolver
-from lbshape.shapespace.polynomial_energy import StVKPolynomialEnergy
 
 log = logging.getLogger(__name__)
 
@@ -201,7 +201,7 @@ def exact_example_energies(rest_points: Sequence[np.ndarray], tets: np.ndarray,
     """The exact (all-element) energy model per example rest shape X_k (n, 3).
 
     StVK: the quartic polynomial
-    (:class:`~lbshape.shapespace.polynomial_energy.StVKPolynomialEnergy`, O(p⁴) per call);
+    (:class:`~lbshape.elastic.polynomial_energy.StVKPolynomialEnergy`, O(p⁴) per call);
     other materials: the all-element kernel
     (:class:`~lbshape.shapespace.euclidean_energy.EuclideanExampleEnergy`). Basis B (3n, p).
     """

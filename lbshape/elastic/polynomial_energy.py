@@ -115,6 +115,15 @@ class StVKPolynomialEnergy:
         self._C_first = np.ascontiguousarray(C)  # (p, p²): rows i
         self._C_pair = np.ascontiguousarray(C.reshape(p * p, p))  # (p², p): rows (i, j)
         self._D_cubic = np.ascontiguousarray(D.reshape(p * p * p, p))  # rows (i, j, k)
+    def cubic_tensor(self) -> np.ndarray:
+        """(p, p, p) C with ``E₃ = Σ C_ijk y_i y_j y_k`` (symmetric in j, k)."""
+        return self._C_first.reshape(self.p, self.p, self.p).copy()
+
+    def quartic_tensor(self) -> np.ndarray:
+        """(p, p, p, p) D with ``E₄ = Σ D_ijkl y_i y_j y_k y_l`` (symmetric in i ↔ j,
+        k ↔ l and (i, j) ↔ (k, l))."""
+        return self._D_cubic.reshape(self.p, self.p, self.p, self.p).copy()
+
     def energy(self, y: np.ndarray) -> float:
         """E(y) in J."""
         y = np.asarray(y, dtype=float)
