@@ -105,7 +105,7 @@ def test_two_ranks_equal_serial_and_write_once(tmp_path, monkeypatch, text):
     record = json.loads(proc.stdout)  # one JSON object: rank 0 alone printed
     assert record["origin"] == "computed"
     assert len(list(parallel_cache.rglob("*.npz"))) == 1
-    distributed = {"modes", "derivatives", "cubature"} | (
+    distributed = {"modes", "derivatives", "cubature", "forces"} | (
         {"lb", "lb-cubature"} if scene.has_examples else set())
     assert record["stage_ranks"] == {name: 2 if name in distributed else 1
                                      for name in record["stage_seconds"]}

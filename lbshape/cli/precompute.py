@@ -79,7 +79,7 @@ def precompute_record(pre) -> dict:
     return {"scene": pre.scene, "origin": "cache" if pre.from_cache else "computed",
             "key": pre.key, "n_vertices": pre.mesh.n_vertices, "n_tets": pre.mesh.n_tets,
             "m": None if pre.eigenvalues is None else int(pre.eigenvalues.size), "r": pre.r,
-            "s": int(pre.cubature_elements.size),
+            "s": int(pre.cubature_elements.size), "forces": pre.force_model,
             "cubature_errors": pre.cubature_errors,
             "stage_seconds": dict(pre.stage_seconds),
             "stage_peak_mb": dict(pre.stage_peak_mb),
@@ -101,7 +101,9 @@ def run_one(name: str, *, force: bool = False, as_json: bool = False) -> int:
     print(f"precompute {scene.name} ({origin}, key {pre.key[:16]}): n={pre.mesh.n_vertices} "
           f"vertices, {pre.mesh.n_tets} tets, r={pre.r}, s={pre.cubature_elements.size}, "
           f"cubature error train {pre.cubature_errors.get('train', float('nan')):.3g} / "
-          f"held-out {pre.cubature_errors.get('holdout', float('nan')):.3g}")
+          f"held-out {pre.cubature_errors.get('holdout', float('nan')):.3g}; reduced forces: "
+          + ("exact polynomials (every element)" if pre.force_model == "polynomial"
+             else "the cubature"))
     if pre.has_examples:
         residuals = ", ".join(f"{r:.3f}" for r in pre.alignment_residuals)
         print(f"  shape space: m={pre.eigenvalues.size}, {len(pre.example_names)} examples, "

@@ -12,12 +12,14 @@ stored over index pairs ``(a ≤ b)`` (P = r(r+1)/2 of them), one product
 ``z = D̃ w`` with ``w_(cd) = q_c q_d`` (times 2 off the diagonal) gives both the quartic
 part of the tangent (``12 z_(ab)``) and of the force (``4 Σ_b z_(ab) q_b``), and
 ``y = C̃ q`` the cubic parts (``6 y_(ab)``, ``3 Σ_b y_(ab) q_b``). A call costs about
-P² + P r multiply-adds (r = 30: 0.23 M), independent of the mesh, and reads the
-P × P matrix D̃ (r = 30: 1.7 MB).
+P² + P r multiply-adds (r = 30: 0.23 M; two BLAS matrix-vector products), independent
+of the mesh, and reads the P × P matrix D̃ (r = 30: 1.7 MB).
 
 :class:`PolynomialForceModel` has the interface the reduced engines use
 (``force_and_tangent``, the allocation-free ``force_and_tangent_into``, ``energy``).
-Only StVK has this form; other materials keep the cubature.
+Only StVK has this form; other materials keep the cubature. Building the coefficients
+costs about 7 t P² multiply-adds (t elements), so :func:`resolve_force_model` keeps the
+cubature for a mesh where that exceeds :data:`POLYNOMIAL_BUILD_FLOPS`.
 """
 
 from __future__ import annotations
@@ -28,6 +30,40 @@ from lbshape._jit import njit
 from lbshape.elastic.materials import Material
 from lbshape.elastic.polynomial_energy import StVKPolynomialEnergy
 from lbshape.errors import LbshapeError
+
+#: the reduced force models: exact polynomials (StVK only) or the trained cubature
+FORCE_MODELS: tuple[str, ...] = ("polynomial", "cubature")
+#: what a scene may ask for (``auto``: :func:`resolve_force_model`)
+FORCE_CHOICES: tuple[str, ...] = ("auto",) + FORCE_MODELS
+#: largest build cost (multiply-adds, ≈ 7 t P²) for which ``auto`` picks the polynomials
+#: (a few seconds at the BLAS rate of one core)
+POLYNOMIAL_BUILD_FLOPS = 6e10
+
+
+def polynomial_build_flops(n_tets: int, r: int) -> float:
+    """Multiply-adds of building the quartic coefficients: 7 t P², P = r(r+1)/2."""
+    pairs = r * (r + 1) // 2
+    return 7.0 * n_tets * pairs * pairs
+
+
+def resolve_force_model(choice: str, material_model: str, n_tets: int, r: int) -> str:
+    """The force model a scene uses: ``choice`` unless ``auto``, which picks
+    ``polynomial`` for StVK when its build costs at most :data:`POLYNOMIAL_BUILD_FLOPS`,
+    else ``cubature``.
+
+    Raises:
+        LbshapeError: an unknown choice, or ``polynomial`` for a material other than StVK.
+    """
+    if choice not in FORCE_CHOICES:
+        raise LbshapeError(f"reduced.forces must be one of {FORCE_CHOICES}, got {choice!r}")
+    if choice == "polynomial" and material_model != "stvk":
+        raise LbshapeError(f"reduced.forces = 'polynomial' needs the stvk material, not "
+                           f"{material_model!r}")
+    if choice != "auto":
+        return choice
+    if material_model == "stvk" and polynomial_build_flops(n_tets, r) <= POLYNOMIAL_BUILD_FLOPS:
+        return "polynomial"
+    return "cubature"
 
 
 class PolynomialForceModel:
@@ -119,9 +155,11 @@ class PolynomialForceModel:
     def force_and_tangent_into(self, q: np.ndarray, f: np.ndarray, K: np.ndarray) -> None:
         """The run-time path: force (r,) into ``f``, tangent (r, r) into ``K``; compiled,
         preallocated, no checks."""
-        _polynomial_force_and_tangent(q, self.K, self.pair_cubic, self.pair_quartic,
-                                      self._first, self._second, self._w, self._y, self._z,
-                                      f, K)
+        first, second = self._first, self._second
+        _pairs(q, first, second, self._w)
+        np.dot(self.pair_cubic, q, out=self._y)
+        np.dot(self.pair_quartic, self._w, out=self._z)
+        _assemble(q, self.K, first, second, self._y, self._z, f, K)
 
 
 @njit
@@ -133,35 +171,21 @@ def _pairs(q, first, second, w):
 
 
 @njit
-def _polynomial_force_and_tangent(q, K0, Cp, Dp, first, second, w, y, z, f, K):
+def _assemble(q, K0, first, second, y, z, f, K):
+    """Force and tangent from y = C̃ q and z = D̃ w (pairs): ``K = K₀ + 6y + 12z``,
+    ``f = K₀ q + Σ_b (3 y_ab + 4 z_ab) q_b``."""
     r = q.shape[0]
-    npairs = first.shape[0]
-    _pairs(q, first, second, w)
-    for p in range(npairs):  # y = C̃ q, z = D̃ w
-        value = 0.0
-        for c in range(r):
-            value += Cp[p, c] * q[c]
-        y[p] = value
-        value = 0.0
-        for s in range(npairs):
-            value += Dp[p, s] * w[s]
-        z[p] = value
     for a in range(r):
+        value = 0.0
         for b in range(r):
             K[a, b] = K0[a, b]
-    for p in range(npairs):
-        a, b = first[p], second[p]
-        value = 6.0 * y[p] + 12.0 * z[p]
-        K[a, b] += value
-        if a != b:
-            K[b, a] += value
-    for a in range(r):
-        value = 0.0
-        for b in range(r):
             value += K0[a, b] * q[b]
         f[a] = value
-    for p in range(npairs):  # f += 3 Σ_b y_ab q_b + 4 Σ_b z_ab q_b
+    for p in range(first.shape[0]):
         a, b = first[p], second[p]
+        K[a, b] += 6.0 * y[p] + 12.0 * z[p]
+        if a != b:
+            K[b, a] = K[a, b]
         value = 3.0 * y[p] + 4.0 * z[p]
         f[a] += value * q[b]
         if a != b:

@@ -9,7 +9,11 @@ Stages (only those the scene needs; paper pre-computation steps 1–6):
    (:mod:`lbshape.pipeline.responses`);
 4. ``basis``: mass-PCA nonlinear basis U (3n, r), ``UᵀMU = I``: the linear modes, the
    static responses, then the modal derivatives' principal components;
-5. ``cubature``: optimized cubature for the reduced elastic force;
+5. ``cubature``: optimized cubature for the reduced elastic force (the force model of
+   non-StVK materials and large meshes, and the energy of the ``modal`` route);
+5b. ``forces``: the exact reduced StVK force as polynomials in q (K, C̃, D̃ of
+   :class:`~lbshape.elastic.polynomial_forces.PolynomialForceModel`)   — StVK scenes
+   whose ``reduced.forces`` resolves to ``polynomial``;
 6. ``lb``: the object's LB spectrum (m pairs)                — scenes with examples;
 7. ``examples``: example meshes, poses, frame and basis alignment, displacement
    coefficients                                              — scenes with examples;
@@ -85,6 +89,7 @@ from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.modal_derivatives import modal_derivatives
 from lbshape.elastic.modes import linear_modes
+from lbshape.elastic.polynomial_forces import PolynomialForceModel, resolve_force_model
 from lbshape.errors import LbshapeError
 from lbshape.fem.mpi import compute_on_root
 from lbshape.geometry.mesh import TetMesh
@@ -133,7 +138,7 @@ CUBATURE_TRAINING_POSES = 120
 #: seed of every random choice of the precompute (training poses, candidates)
 PRECOMPUTE_SEED = 20170401
 #: bumped whenever the artifact's content or meaning changes (part of the cache key)
-PIPELINE_VERSION = 13
+PIPELINE_VERSION = 14
 #: target routes in the LB basis faded to zero at the fixed vertices (when safe). Off: the
 #: full-space reference interpolates in the free basis, and the clamped targets moved the
 #: coarse demo bar 28.7 % away from it (3.3 % free) while gaining 3.8 % -> 3.1 % on the bars;
@@ -163,6 +168,10 @@ class Precomputed:
         omega2: (k,) squared angular frequencies of the linear modes used (rad²/s²).
         cubature_elements: (s,) element indices; ``cubature_weights`` (s,).
         cubature_errors: training and held-out relative force errors.
+        force_model: the reduced elastic force of the engines: ``"polynomial"`` (exact,
+            :attr:`force_coefficients`) or ``"cubature"``.
+        force_coefficients: (K (r, r), C̃ (P, r), D̃ (P, P)) of the polynomial force
+            model, or None.
         eigenvalues: (m,) object's LB eigenvalues (1/m²) or None without examples.
         eigenvectors: (n, m) object's LB eigenvectors (M₃-orthonormal) or None.
         example_coefficients: (k, m, 3) example LB displacement coefficients or None.
@@ -221,6 +230,8 @@ class Precomputed:
     stage_peak_mb: dict = field(default_factory=dict)
     stage_ranks: dict = field(default_factory=dict)
     from_cache: bool = False
+    force_model: str = "cubature"
+    force_coefficients: tuple | None = None
 
     @property
     def r(self) -> int:
@@ -390,6 +401,8 @@ def resident_mb() -> float:
 def stage_names(scene: Scene) -> list[str]:
     """The stages this scene needs, in order."""
     names = ["mesh", "modes", "derivatives", "basis", "cubature"]
+    if scene.material.model == "stvk" and scene.reduced.forces != "cubature":
+        names.append("forces")
     if scene.has_local_examples:
         names += ["lb", "regions"]
     elif scene.has_examples:
@@ -511,6 +524,10 @@ def _compute(scene: Scene, stages: _Stages, comm: MPI.Comm) -> tuple[dict | None
             comm=comm)
 
     U, cubature = ranks.distributed("cubature", cubature_stage)
+    polynomial = None
+    if "forces" in stages.names:
+        polynomial = ranks.distributed("forces", lambda: _polynomial_forces(
+            scene, mesh, U, comm))
     if scene.has_local_examples:
         local, eigen = _local_space(scene, mesh, U, fixed, ranks)
     elif scene.has_examples:
@@ -524,6 +541,9 @@ def _compute(scene: Scene, stages: _Stages, comm: MPI.Comm) -> tuple[dict | None
         "points": mesh.points, "tets": mesh.tets, "fixed": fixed, "U": U,
         "omega2": np.asarray(modes.omega2), "cub_elements": cubature.elements,
         "cub_weights": cubature.weights,
+        **({} if polynomial is None else {
+            "poly_K": polynomial.K, "poly_cubic": polynomial.pair_cubic,
+            "poly_quartic": polynomial.pair_quartic}),
     }
     meta = {"scene": scene.name, "cubature_errors": {
         "train": cubature.train_error, "holdout": cubature.holdout_error,
@@ -542,6 +562,19 @@ def _compute(scene: Scene, stages: _Stages, comm: MPI.Comm) -> tuple[dict | None
         arrays.update({f"frame_{name}": np.asarray(getattr(frame, name))
                        for name in _FRAME_FIELDS})
     return arrays, meta
+
+
+def _polynomial_forces(scene: Scene, mesh: TetMesh, U: np.ndarray,
+                       comm: MPI.Comm) -> PolynomialForceModel | None:
+    """The ``forces`` stage: the polynomial force model when ``reduced.forces`` resolves
+    to ``polynomial`` for this mesh (element chunks split across the ranks), else None."""
+    chosen = resolve_force_model(scene.reduced.forces, scene.material.model,
+                                 mesh.n_tets, U.shape[1])
+    if chosen != "polynomial":
+        log.info("reduced forces: the cubature (the polynomial build is too large for "
+                 "%d tetrahedra at r = %d)", mesh.n_tets, U.shape[1])
+        return None
+    return PolynomialForceModel(mesh.points, mesh.tets, scene.material, U, comm=comm)
 
 
 def _local_space(scene: Scene, mesh: TetMesh, U: np.ndarray | None, fixed: np.ndarray,
@@ -777,6 +810,10 @@ def _from_arrays(scene: Scene, key: str, arrays: dict, meta: dict, *,
         stage_peak_mb=dict(meta.get("stage_peak_mb", {})),
         stage_ranks=dict(meta.get("stage_ranks", {})),
         from_cache=from_cache,
+        force_model="polynomial" if "poly_K" in arrays else "cubature",
+        force_coefficients=((np.asarray(arrays["poly_K"]), np.asarray(arrays["poly_cubic"]),
+                             np.asarray(arrays["poly_quartic"]))
+                            if "poly_K" in arrays else None),
     )
 
 

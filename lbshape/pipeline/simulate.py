@@ -46,6 +46,7 @@ from lbshape.dynamics.record import RunRecord
 from lbshape.dynamics.reduced import PHASES, REALTIME_RTOL, ReducedSimulation
 from lbshape.dynamics.sanity import DeformationBound
 from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.elastic.polynomial_forces import PolynomialForceModel
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import (
@@ -154,12 +155,7 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
     ``exact_forces``: the reduced elastic force summed over every element with weight 1
     instead of the cubature (for measuring the cubature's share of the error; slow).
     """
-    elements, weights = pre.cubature_elements, pre.cubature_weights
-    if exact_forces:
-        elements = np.arange(pre.mesh.n_tets, dtype=np.int64)
-        weights = np.ones(pre.mesh.n_tets)
-    elastic = ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U,
-                                elements, weights)
+    elastic = reduced_force_model(pre, exact_forces=exact_forces)
     loads = []
     if scene.loads:
         mass = mass_matrix(pre.mesh, pre.material.density)
@@ -189,6 +185,29 @@ def deformation_bound(pre: Precomputed) -> DeformationBound:
     """The object's :class:`~lbshape.dynamics.sanity.DeformationBound` (its mass and size)."""
     return DeformationBound.for_object(pre.mesh.points,
                                        pre.material.density * pre.mesh.volume())
+
+
+def reduced_force_model(pre: Precomputed, *, exact_forces: bool = False):
+    """The reduced elastic force model of a precompute: the exact polynomials
+    (:class:`~lbshape.elastic.polynomial_forces.PolynomialForceModel`) when it has them,
+    else the cubature (:class:`~lbshape.elastic.reduced_forces.ReducedForceModel`);
+    ``exact_forces``: the element sum over every element with weight 1 (slow; equal to the
+    polynomials for StVK)."""
+    if exact_forces:
+        every = np.arange(pre.mesh.n_tets, dtype=np.int64)
+        return ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U, every,
+                                 np.ones(pre.mesh.n_tets))
+    if pre.force_model == "polynomial":
+        return PolynomialForceModel.from_arrays(*pre.force_coefficients)
+    return ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U,
+                             pre.cubature_elements, pre.cubature_weights)
+
+
+def force_elements(pre: Precomputed) -> int:
+    """How many elements the reduced force sums over: every one for the polynomials, s
+    for the cubature."""
+    return pre.mesh.n_tets if pre.force_model == "polynomial" else int(
+        pre.cubature_elements.size)
 
 
 def _contact(scene: Scene, pre: Precomputed, center):
@@ -305,7 +324,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         r, s = 3 * (pre.mesh.n_vertices - pre.fixed_vertices.size), pre.mesh.n_tets
     else:
         frames = record.displacements(pre.U)
-        r, s = pre.r, int(pre.cubature_elements.size)
+        r, s = pre.r, force_elements(pre)
     t_interp, t_total = record.mean_ms(warmup=WARMUP_STEPS)
     max_disp = float(np.max(np.linalg.norm(frames, axis=2))) if frames.size else 0.0
     stats = {
@@ -315,6 +334,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "dt": scene.simulation.dt, "steps": record.steps,
         "t_interp_ms": t_interp, "t_total_ms": t_total,
         "stable": bool(record.stable), "max_displacement": max_disp, "phase_ms": phase_ms,
+        "forces": "full" if method == "full" else pre.force_model,
     }
     totals = record.t_total_ms[WARMUP_STEPS:] if record.steps > WARMUP_STEPS else record.t_total_ms
     output = SimulationOutput(stats, record.times, frames, record.message, phase_ms=phase_ms,

@@ -183,6 +183,8 @@ class SceneBenchmark:
             (:data:`lbshape.pipeline.influence.STATS_KEYS`) of the ``reduced`` and
             ``full`` runs against the same scene without examples (empty without
             examples).
+        force_model: the reduced elastic force of the reduced methods (``"polynomial"``:
+            s counts every element; ``"cubature"``).
     """
 
     scene: str
@@ -193,6 +195,7 @@ class SceneBenchmark:
     rows: tuple[dict, ...]
     timings: tuple[MethodTiming, ...]
     influence: tuple[tuple[str, dict], ...] = ()
+    force_model: str = "cubature"
 
     def row(self, method: str) -> dict | None:
         """The row of ``method`` (None if it was not run)."""
@@ -271,7 +274,7 @@ def bench_scene(
     )
     effects = _influence(scene, pre, outputs, steps=steps) if influence else ()
     return SceneBenchmark(scene.name, float(scene.simulation.dt), steps, repeats, WARMUP_STEPS,
-                          rows, timings, effects)
+                          rows, timings, effects, force_model=pre.force_model)
 
 
 def _influence(scene, pre, outputs: dict, *, steps: int) -> tuple[tuple[str, dict], ...]:

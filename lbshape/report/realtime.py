@@ -57,11 +57,14 @@ PAPER_TABLE2: dict[str, tuple] = {
 _ELEMENT_FLOPS = 700
 
 
-def newton_flops(r: int, s: int, *, k: int = 2, m: int = 10) -> dict[str, int]:
+def newton_flops(r: int, s: int, *, k: int = 2, m: int = 10,
+                 forces: str = "cubature") -> dict[str, int]:
     """Floating-point operations of one reduced step with one Newton iteration.
 
     Args:
         r: reduced coordinates; s: cubature elements; k: examples; m: LB modes.
+        forces: ``"cubature"`` (s elements) or ``"polynomial"`` (the exact polynomial
+            force: two matrix-vector products with P = r(r+1)/2 rows, s unused).
 
     Returns:
         Flops per part (keys as :data:`~lbshape.dynamics.reduced.PHASES` where they
@@ -76,9 +79,13 @@ def newton_flops(r: int, s: int, *, k: int = 2, m: int = 10) -> dict[str, int]:
     force = 2 * 9 * s * r
     tangent = 2 * 9 * s * r * r  # K = (W BU)ᵀ T
     solve = r * r * r // 3 + 2 * r * r + 12 * r
+    internal = gradients + element + projected + force + tangent
+    if forces == "polynomial":
+        pairs = r * (r + 1) // 2
+        internal = 2 * pairs * pairs + 2 * pairs * r + 2 * r * r + 8 * pairs
     parts = {
         "weights": weights, "target": target, "example_force": example_force,
-        "internal_force_tangent": gradients + element + projected + force + tangent,
+        "internal_force_tangent": internal,
         "solve": solve,
     }
     parts["total"] = sum(parts.values())
@@ -131,7 +138,9 @@ def breakdown_lines(results: Sequence[SceneBenchmark], *, rate: float | None = N
               "median over repeats) and its floor", "",
               "Floor: the flops of one Newton iteration at (r, s) (gradients, element "
               "stresses and tangents, reduced force and tangent, Newton matrix and Cholesky "
-              f"solve, weights, tabulated target) at {rate:.1f} GFlop/s, the best "
+              "solve, weights, tabulated target; with the exact polynomial forces, s = every "
+              "element, the force and tangent are two matrix-vector products with "
+              f"r(r+1)/2 rows instead) at {rate:.1f} GFlop/s, the best "
               "single-thread rate of this machine on the step's largest matrix product "
               "(r × 9s by 9s × r), measured in the same process.", "",
               "| model | r | s | " + " | ".join(columns) + " | total | floor total "
@@ -141,7 +150,7 @@ def breakdown_lines(results: Sequence[SceneBenchmark], *, rate: float | None = N
         phases = timing.phase_summary()
         row = result.row("reduced")
         r, s, m = row["r"], row["s"], row["m"]
-        flops = newton_flops(r, s, m=m)
+        flops = newton_flops(r, s, m=m, forces=result.force_model)
         floor = {name: 1e6 * value / (rate * 1e9) for name, value in flops.items()}
         cells = ["—" if name not in phases
                  else f"{1e3 * phases[name]:.1f} (≥ {floor[name]:.2f})" if name in floor

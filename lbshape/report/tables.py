@@ -33,7 +33,9 @@ from lbshape.report.realtime import breakdown_lines
 _INTRO = (
     "Columns as in the paper's Table 2: DOFs (3 × vertices) and tetrahedra of the "
     "object, vertices of the last example, m LB eigenfunctions, r reduced "
-    "coordinates, s cubature elements; per-step times in ms for the Euclidean "
+    "coordinates, s the elements the reduced elastic force sums over (every element with "
+    "the exact polynomial StVK force, else the cubature's); per-step times in ms for the "
+    "Euclidean "
     "baseline (Zhu et al. 2015: target found in LB space with the energy over all "
     "elements, reduced dynamics) and the reduced method (the paper's); speed-ups "
     "euclidean / reduced; the full-space reference's per-step time; and the error "
@@ -101,12 +103,17 @@ def _spread_rows(result: SceneBenchmark) -> list[str]:
     return rows
 
 
+#: how the conditions name each reduced force model
+_FORCE_LABELS = {"polynomial": "exact polynomials (every element)", "cubature": "cubature"}
+
+
 def _conditions(results: Sequence[SceneBenchmark], machine: dict) -> list[str]:
     """The run settings of each scene, the machine and its load."""
     lines = [
         f"- {result.scene}: dt = {result.dt:g} s, {result.steps} steps per run, "
         f"{result.repeats} repeats per method (methods interleaved), the first "
-        f"{result.warmup} steps of each run left out of the per-step means."
+        f"{result.warmup} steps of each run left out of the per-step means; reduced "
+        f"elastic force: {_FORCE_LABELS.get(result.force_model, result.force_model)}."
         for result in results
     ]
     return lines + [

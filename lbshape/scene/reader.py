@@ -28,6 +28,7 @@ from lbshape.dynamics.contact import ContactPlane
 from lbshape.dynamics.integrators import INTEGRATORS
 from lbshape.dynamics.loads import PROFILES, TimeProfile
 from lbshape.elastic.materials import MODELS, Material
+from lbshape.elastic.polynomial_forces import FORCE_CHOICES
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh_files import SURFACE_FORMATS, is_surface_file
 from lbshape.geometry.poses import POSE_CHOICES, POSE_PARAMETERS, POSES
@@ -130,6 +131,9 @@ def scene_from_dict(
     material = _material(top, ctx)
     damping = _damping(top)
     reduced = _reduced(top)
+    if reduced.forces == "polynomial" and material.model != "stvk":
+        raise ctx.error(f"reduced.forces = 'polynomial' needs material.model = 'stvk', not "
+                        f"{material.model!r}")
     examples = _examples(top, ctx)
     fixed = _fixed(top, ctx)
     loads = tuple(_load(t, ctx) for t in top.array_of_tables("loads", _LOAD_KEYS))
@@ -174,7 +178,7 @@ def _damping(top: _Table) -> Damping:
 
 def _reduced(top: _Table) -> Reduced:
     red = top.subtable("reduced", ("m", "r", "s", "linear_modes", "cubature_tolerance",
-                                   "interpolation"))
+                                   "interpolation", "forces"))
     r = red.integer("r", Reduced.r, low=1)
     return Reduced(
         m=red.integer("m", Reduced.m, low=1),
@@ -184,6 +188,7 @@ def _reduced(top: _Table) -> Reduced:
         cubature_tolerance=red.number("cubature_tolerance", Reduced.cubature_tolerance,
                                       low=0.0, high=1.0, open_low=True, open_high=True),
         interpolation=red.choice("interpolation", Reduced.interpolation, ROUTE_CHOICES),
+        forces=red.choice("forces", Reduced.forces, FORCE_CHOICES),
     )
 
 

@@ -197,6 +197,10 @@ class Reduced:
             (cubature on the LB displacement subspace), ``"modal"`` (the paper's:
             nonlinear modal basis and direct projection), or ``"auto"``
             (``lb-table``). Run time only.
+        forces: the reduced elastic force: ``"polynomial"`` (exact, StVK only: the
+            energy over every element as a polynomial in q), ``"cubature"`` (s trained
+            elements), or ``"auto"`` (polynomial for StVK unless its build is too large
+            for the mesh, :func:`lbshape.elastic.polynomial_forces.resolve_force_model`).
     """
 
     m: int = 10
@@ -205,6 +209,7 @@ class Reduced:
     linear_modes: int = 0
     cubature_tolerance: float = 0.01
     interpolation: str = "auto"
+    forces: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -376,7 +381,8 @@ class Scene:
                          "density": m.density},
             "reduced": {"m": self.reduced.m, "r": self.reduced.r, "s": self.reduced.s,
                         "linear_modes": self.reduced.linear_modes,
-                        "cubature_tolerance": self.reduced.cubature_tolerance},
+                        "cubature_tolerance": self.reduced.cubature_tolerance,
+                        "forces": self.reduced.forces},
             "examples": None if self.examples is None
             else [pose.key() for pose in self.examples.poses],
             "fixed": None if self.fixed is None else self.fixed.key(),
