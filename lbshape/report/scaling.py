@@ -124,7 +124,12 @@ class ScalingPoint:
 
 def scaled_scene(base: str, size: float, folder: Path) -> Path:
     """Write the scene ``base`` (a built-in name) with ``[object] size = size`` to
-    ``folder`` and return the TOML path (named ``<base>-h<size>``)."""
+    ``folder`` and return the TOML path (named ``<base>-h<size>``).
+
+    Every size keeps the cubature force model (``reduced.forces = "cubature"``): the
+    exact polynomial forces' build grows as t r⁴ and ``auto`` leaves them for large
+    meshes, so a study of cost against mesh size compares one force model at every size.
+    """
     if base not in builtin_scene_names():
         raise LbshapeError(f"--scaling needs a built-in scene, got {base!r}; valid names: "
                            f"{', '.join(builtin_scene_names())}")
@@ -136,6 +141,7 @@ def scaled_scene(base: str, size: float, folder: Path) -> Path:
         raise LbshapeError(f"scene {base!r}: its object is not a built-in shape with a size")
     data["name"] = f"{base}-h{size:g}"
     data["object"]["size"] = float(size)
+    data.setdefault("reduced", {})["forces"] = "cubature"
     target = folder / f"{data['name']}.toml"
     target.write_text(dumps(data), encoding="utf-8")
     return target
