@@ -203,7 +203,8 @@ def test_benchmark_script_smoke(bench, tmp_path):
     s = [int(r[0]) for r in rows[1:]]
     assert s == list(range(1, 7))
     timing = (tmp_path / "reduced_force_timing.md").read_text()
-    assert "| stvk | 30 | 60 |" in timing and "Target" in timing
+    assert "| stvk | cubature | 30 | 60 |" in timing and "Target" in timing
+    assert "| stvk | polynomial | 30 |" in timing
     assert not list(tmp_path.glob("tmp*")), "temporary files left behind"
 
 
