@@ -283,7 +283,8 @@ def scaling_markdown(points: Sequence[ScalingPoint], machine: dict) -> str:
         "# Cost growth with mesh size",
         "",
         f"Scene: the built-in bar-cylinder with `[object] size` = h (its examples, m, r, s "
-        f"unchanged); precompute from scratch in a fresh process per size "
+        f"unchanged; the cubature force model at every size, `reduced.forces = "
+        f"\"cubature\"`); precompute from scratch in a fresh process per size "
         f"({'serial' if ranks == [1] else 'mpirun -n ' + '/'.join(map(str, ranks))}); "
         f"per-step times: the reduced method, sizes interleaved in one process, median of "
         f"{len(points[0].t_total_ms)} repeats of the mean after {WARMUP_STEPS} warm-up steps.",
