@@ -219,7 +219,6 @@ def test_zero_example_stiffness_builds_and_calls_no_example_machinery(bar, monke
     result = sim.run(12, stride=3)
     np.testing.assert_array_equal(result.displacements(), reference.displacements())
     np.testing.assert_array_equal(result.times, reference.times)
-    assert np.all(result.t_interp_ms < 0.1 * result.t_total_ms)
     assert result.max_displacement > 0
 
 

@@ -81,12 +81,6 @@ class RigidState:
                           self.angular_momentum.copy())
 
 
-def body_angular_velocity(state: RigidState, inertia: np.ndarray,
-                          relative: np.ndarray) -> np.ndarray:
-    """(3,) body ω (rad/s) from L, R, the body inertia (3, 3) and h (3,)."""
-    return np.linalg.solve(inertia, state.rotation.T @ state.angular_momentum - relative)
-
-
 def rotate(rotation: np.ndarray, body_momentum: np.ndarray, inertia: np.ndarray,
            relative: np.ndarray, dt: float, *, step: int = 0,
            time: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

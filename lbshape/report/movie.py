@@ -18,7 +18,6 @@ Nothing here draws: pictures come from :mod:`lbshape.report.render` or anywhere 
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -211,7 +210,3 @@ def write_movie(frames, path: str | Path, *, fps: float = DEFAULT_FPS,
             log.warning("no MP4 encoder (install imageio-ffmpeg): wrote the GIF only")
     return tuple(movies)
 
-
-def frames_from_images(images: Sequence) -> np.ndarray:
-    """Frames from RGB(A) images (arrays or PIL images) of one size: ``(k, H, W, 3)`` uint8."""
-    return as_frames([np.asarray(image) for image in images])
