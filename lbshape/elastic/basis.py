@@ -54,11 +54,9 @@ squares the condition number) and ``UᵀMU = I`` is checked to ``ORTHONORMALITY_
 
 **Sign.** Each principal component's sign follows the rule of the linear modes and LB
 eigenvectors (:func:`lbshape.fem.eigenproblem.fix_signs`). The signs ``eigh`` returns
-are arbitrary and changed with the BLAS thread count (on the test bar of
-``tests/test_interpolation_target.py``, 16 of the 20 derivative columns flipped between
-``OMP_NUM_THREADS=1`` and 2, even for the identical Gram matrix); the cubature draws its
-training poses in U's coordinates, so a flipped column gave it other poses, other
-elements, and the ``modal`` target's end rotation of that test moved from 0.005 to 0.046 rad.
+are arbitrary and change with the BLAS thread count even for an identical Gram
+matrix; the cubature draws its training poses in U's coordinates, so a flipped column
+would give it other poses and other elements.
 """
 
 from __future__ import annotations
@@ -275,10 +273,7 @@ def _principal(X: np.ndarray, mass) -> tuple[np.ndarray, np.ndarray]:
     w, V = w[::-1], V[:, ::-1]
     singular = np.sqrt(np.clip(w, 0.0, None))
     rank = _rank(singular)
-    # eigh's eigenvector signs are arbitrary and follow the round-off of the Gram
-    # matrix (they flipped with the BLAS thread count), and the cubature's training
-    # poses are drawn in U's coordinates: fix each component's sign by the rule of the
-    # linear modes and LB eigenvectors
+    # eigh's signs are arbitrary (see "Sign" in the module docstring)
     return fix_signs(X @ (V[:, :rank] / singular[:rank])), singular
 
 

@@ -62,10 +62,8 @@ DEFAULT_MAX_BYTES = 512 * 2**20
 #: else this many drawn at random
 FALLBACK_ELEMENTS = 8192
 #: greedy scores within this share of the best are a tie, broken by the lowest element
-#: index: round-off decided them otherwise (on the demo bar, r = 16, two elements scored
-#: equal to 4e-16 and the BLAS thread count picked one; the reduced run's error against
-#: the full one then moved from 0.215 to 0.221); apart from such ties the best two
-#: scores of the greedy steps measured on the test bars differed by 5e-4 of the best or more
+#: index, so round-off (e.g. the BLAS thread count) never decides between elements whose
+#: scores differ only by it
 TIE_RTOL = 1e-9
 #: path targets used by :func:`train_example_cubatures` at most (evenly spaced); a
 #: target table of N = 32 intervals has 33 nodes, finer tables are subsampled to it

@@ -46,19 +46,25 @@ def polynomial_build_flops(n_tets: int, r: int) -> float:
     return 7.0 * n_tets * pairs * pairs
 
 
+def check_force_choice(choice: str, material_model: str) -> None:
+    """Raise :class:`~lbshape.errors.LbshapeError` (one line) for a ``reduced.forces``
+    value that is unknown or asks for the polynomials of a material other than StVK."""
+    if choice not in FORCE_CHOICES:
+        raise LbshapeError(f"reduced.forces must be one of {FORCE_CHOICES}, got {choice!r}")
+    if choice == "polynomial" and material_model != "stvk":
+        raise LbshapeError(f"reduced.forces = 'polynomial' needs the stvk material, not "
+                           f"{material_model!r}")
+
+
 def resolve_force_model(choice: str, material_model: str, n_tets: int, r: int) -> str:
     """The force model a scene uses: ``choice`` unless ``auto``, which picks
     ``polynomial`` for StVK when its build costs at most :data:`POLYNOMIAL_BUILD_FLOPS`,
     else ``cubature``.
 
     Raises:
-        LbshapeError: an unknown choice, or ``polynomial`` for a material other than StVK.
+        LbshapeError: see :func:`check_force_choice`.
     """
-    if choice not in FORCE_CHOICES:
-        raise LbshapeError(f"reduced.forces must be one of {FORCE_CHOICES}, got {choice!r}")
-    if choice == "polynomial" and material_model != "stvk":
-        raise LbshapeError(f"reduced.forces = 'polynomial' needs the stvk material, not "
-                           f"{material_model!r}")
+    check_force_choice(choice, material_model)
     if choice != "auto":
         return choice
     if material_model == "stvk" and polynomial_build_flops(n_tets, r) <= POLYNOMIAL_BUILD_FLOPS:
@@ -87,46 +93,37 @@ class PolynomialForceModel:
 
     def __init__(self, rest_points: np.ndarray, tets: np.ndarray, material: Material,
                  U: np.ndarray, *, max_bytes: int | None = None, comm=None):
-        if material.model != "stvk":
-            raise LbshapeError(f"the polynomial reduced force exists only for StVK materials, "
-                               f"not {material.model!r}; use the cubature")
         kwargs = {} if max_bytes is None else {"max_bytes": max_bytes}
         energy = StVKPolynomialEnergy(rest_points, tets, material, U, comm=comm,
-                                      structured=False, **kwargs)
-        r = energy.p
+                                      structured=False, **kwargs)  # refuses other materials
         C = energy.cubic_tensor()  # (r, r, r), symmetric in the last two indices
-        D = energy.quartic_tensor()  # (r, r, r, r)
-        self.r = r
-        self.K = np.ascontiguousarray(energy.K)
-        first, second = np.triu_indices(r)
+        D = energy.quartic_tensor()  # (r, r, r, r), symmetric in a ↔ b, c ↔ d, (ab) ↔ (cd)
+        first, second = np.triu_indices(energy.p)
         C_sym = (C + C.transpose(1, 2, 0) + C.transpose(2, 0, 1)) / 3.0
         D_sym = (D + D.transpose(0, 2, 1, 3) + D.transpose(0, 3, 2, 1)) / 3.0
-        D_sym = 0.5 * (D_sym + D_sym.transpose(2, 3, 0, 1))
-        self.pair_cubic = np.ascontiguousarray(C_sym[first, second, :])
-        self.pair_quartic = np.ascontiguousarray(D_sym[first, second][:, first, second])
-        self._first = first.astype(np.int64)
-        self._second = second.astype(np.int64)
-        self._w = np.zeros(first.size)
-        self._y = np.zeros(first.size)
-        self._z = np.zeros(first.size)
+        self._store(energy.K, C_sym[first, second, :], D_sym[first, second][:, first, second])
 
     @classmethod
     def from_arrays(cls, K: np.ndarray, pair_cubic: np.ndarray,
                     pair_quartic: np.ndarray) -> PolynomialForceModel:
         """The model from its stored coefficients (K (r, r), C̃ (P, r), D̃ (P, P))."""
         model = cls.__new__(cls)
+        model._store(K, pair_cubic, pair_quartic)
+        return model
+
+    def _store(self, K: np.ndarray, pair_cubic: np.ndarray, pair_quartic: np.ndarray) -> None:
+        """Keep the coefficients (checked against r) and the run-time work arrays."""
         r = K.shape[0]
         first, second = np.triu_indices(r)
         if pair_cubic.shape != (first.size, r) or pair_quartic.shape != (first.size,) * 2:
             raise LbshapeError(f"polynomial force coefficients of shapes {pair_cubic.shape} "
                                f"and {pair_quartic.shape} do not fit r = {r}")
-        model.r = r
-        model.K = np.ascontiguousarray(K, dtype=float)
-        model.pair_cubic = np.ascontiguousarray(pair_cubic, dtype=float)
-        model.pair_quartic = np.ascontiguousarray(pair_quartic, dtype=float)
-        model._first, model._second = first.astype(np.int64), second.astype(np.int64)
-        model._w, model._y, model._z = (np.zeros(first.size) for _ in range(3))
-        return model
+        self.r = r
+        self.K = np.ascontiguousarray(K, dtype=float)
+        self.pair_cubic = np.ascontiguousarray(pair_cubic, dtype=float)
+        self.pair_quartic = np.ascontiguousarray(pair_quartic, dtype=float)
+        self._first, self._second = first.astype(np.int64), second.astype(np.int64)
+        self._w, self._y, self._z = (np.zeros(first.size) for _ in range(3))
 
     @property
     def n_coordinates(self) -> int:

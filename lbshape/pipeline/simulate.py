@@ -152,8 +152,9 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
     ``euclidean``. ``newton_iterations``: ``None`` (the default) iterates Newton until the
     relative residual is below ``rtol`` (:data:`~lbshape.dynamics.reduced.REALTIME_RTOL`, the
     real-time tolerance); a number fixes the updates per step, residual unchecked (studies).
-    ``exact_forces``: the reduced elastic force summed over every element with weight 1
-    instead of the cubature (for measuring the cubature's share of the error; slow).
+    ``exact_forces``: the reduced elastic force summed element by element over every
+    element with weight 1 instead of the precompute's force model
+    (:func:`reduced_force_model`; a check of the force model's share of the error; slow).
     """
     elastic = reduced_force_model(pre, exact_forces=exact_forces)
     loads = []

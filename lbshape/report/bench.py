@@ -369,6 +369,8 @@ class SweepPoint:
         error_vs_full: trajectory error against ``full`` with the same m (None if a
             run failed).
         cubature_holdout_error: relative reduced-force error on held-out poses.
+        forces: the reduced elastic force the runs used (``"polynomial"``: exact, every
+            element, so s only sizes the cubature trained beside it; ``"cubature"``).
     """
 
     m: int
@@ -381,6 +383,7 @@ class SweepPoint:
     t_total_max_ms: float
     error_vs_full: float | None
     cubature_holdout_error: float | None
+    forces: str = "cubature"
 
 
 def _variant(scene, *, m: int, r: int, s: int):
@@ -445,6 +448,7 @@ def speed_error_sweep(
             t_interp_ms=timing.summary("t_interp_ms")["median"], t_total_ms=total["median"],
             t_total_min_ms=total["min"], t_total_max_ms=total["max"], error_vs_full=error,
             cubature_holdout_error=None if holdout is None else float(holdout),
+            forces=pre.force_model,
         ))
         log.info("sweep %s: %s", scene.name, points[-1])
     return tuple(points)

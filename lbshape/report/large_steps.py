@@ -52,7 +52,8 @@ class LargeStepRow:
         error_vs_full: the trajectory error in the mass norm (None if stopped).
         mean_updates, max_updates: Newton updates per step of the reduced run.
         step_ms: median wall time of a reduced step after the warm-up (ms).
-        reduced_message: why the reduced run stopped ('' if it finished).
+        reduced_message: why the reduced run stopped, or ``full: …`` why the full run did
+            ('' if both finished).
         unchecked_final: one unchecked update per step: final largest displacement (m),
             None if that run stopped.
         unchecked_message: why the unchecked run stopped ('' if it finished).
@@ -151,11 +152,12 @@ def large_step_study(scene: Scene, pre: Precomputed, *, duration: float,
             reduced_final=reduced_final, final_difference=difference, error_vs_full=error,
             mean_updates=float(iterations.mean()) if iterations.size else 0.0,
             max_updates=int(iterations.max()) if iterations.size else 0,
-            step_ms=step_ms, reduced_message=record.message or full.message,
+            step_ms=step_ms,
+            reduced_message=record.message or (f"full: {full.message}" if full.message else ""),
             unchecked_final=(_final_max(unchecked.displacements(pre.U))
                              if unchecked is not None and unchecked.stable else None),
-            unchecked_message=("" if unchecked is None else unchecked.message)
-            if unchecked is None or not unchecked.stable else ""))
+            unchecked_message="" if unchecked is None or unchecked.stable
+            else unchecked.message))
     return rows
 
 

@@ -32,12 +32,19 @@ def save_figure(fig, path: str | Path) -> Path:
         pyplot().close(fig)
 
 
+def _s_label(point: SweepPoint) -> str:
+    """How a sweep point's force is labelled: ``s=…`` for the cubature, ``exact`` for the
+    polynomial forces (every element, whatever s)."""
+    return f"s={point.s}" if point.forces == "cubature" else "exact"
+
+
 def speed_error_plot(points: Sequence[SweepPoint], path: str | Path, *, scene: str, steps: int,
                      dt: float) -> Path:
     """Per-step time (ms) against trajectory error vs ``full`` (%), one line per r.
 
-    Points at the sweep's first m are grouped by r (annotated with s); points at
-    other m are shown apart. Failed runs (no error) are left out.
+    Points at the sweep's first m are grouped by r (annotated with s; with the exact
+    polynomial forces s changes nothing, so each r is one point marked "exact"); points
+    at other m are shown apart. Failed runs (no error) are left out.
 
     Args:
         points: the sweep, the scene's own m first (see
@@ -50,8 +57,9 @@ def speed_error_plot(points: Sequence[SweepPoint], path: str | Path, *, scene: s
     fig, ax = plt.subplots(figsize=(6.0, 4.2), dpi=120)
     markers = "osD^v<>ph*"
     for index, r in enumerate(sorted({p.r for p in points if p.m == base_m})):
-        unique = {p.s: p for p in points if p.m == base_m and p.r == r
-                  and p.error_vs_full is not None}  # s_max past the tolerance: same s
+        # s_max past the tolerance: same s; the exact forces: one point per r (s unused)
+        unique = {p.s if p.forces == "cubature" else 0: p for p in points
+                  if p.m == base_m and p.r == r and p.error_vs_full is not None}
         group = [unique[s] for s in sorted(unique)]
         if not group:
             continue
@@ -59,7 +67,7 @@ def speed_error_plot(points: Sequence[SweepPoint], path: str | Path, *, scene: s
         ax.plot(x, [100 * p.error_vs_full for p in group], marker=markers[index % len(markers)],
                 label=f"r = {r} (m = {base_m})")
         for p in group:
-            ax.annotate(f"s={p.s}", (p.t_total_ms, 100 * p.error_vs_full), fontsize=7,
+            ax.annotate(_s_label(p), (p.t_total_ms, 100 * p.error_vs_full), fontsize=7,
                         xytext=(3, 3), textcoords="offset points")
     m_points = [p for p in points if p.m != base_m and p.error_vs_full is not None]
     if m_points:

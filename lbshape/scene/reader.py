@@ -28,7 +28,7 @@ from lbshape.dynamics.contact import ContactPlane
 from lbshape.dynamics.integrators import INTEGRATORS
 from lbshape.dynamics.loads import PROFILES, TimeProfile
 from lbshape.elastic.materials import MODELS, Material
-from lbshape.elastic.polynomial_forces import FORCE_CHOICES
+from lbshape.elastic.polynomial_forces import FORCE_CHOICES, check_force_choice
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh_files import SURFACE_FORMATS, is_surface_file
 from lbshape.geometry.poses import POSE_CHOICES, POSE_PARAMETERS, POSES
@@ -131,9 +131,10 @@ def scene_from_dict(
     material = _material(top, ctx)
     damping = _damping(top)
     reduced = _reduced(top)
-    if reduced.forces == "polynomial" and material.model != "stvk":
-        raise ctx.error(f"reduced.forces = 'polynomial' needs material.model = 'stvk', not "
-                        f"{material.model!r}")
+    try:
+        check_force_choice(reduced.forces, material.model)
+    except LbshapeError as exc:
+        raise ctx.error(str(exc)) from None
     examples = _examples(top, ctx)
     fixed = _fixed(top, ctx)
     loads = tuple(_load(t, ctx) for t in top.array_of_tables("loads", _LOAD_KEYS))

@@ -224,7 +224,7 @@ def rigid_fields(points: np.ndarray, mass: sp.spmatrix) -> np.ndarray:
 def region_anchor(mesh: TetMesh, cells: np.ndarray, vertices: np.ndarray,
                   fixed_vertices: np.ndarray | None = None) -> np.ndarray:
     """(n_R,) bool: where a region is attached to the rest of the object: its vertices
-    shared with tetrahedra outside it, and its fixed vertices. None for a region
+    shared with tetrahedra outside it, and its fixed vertices. All False for a region
     covering every tetrahedron (no neighbour to attach to: its target is placed as
     the global path's, see the module docstring)."""
     outside = np.ones(mesh.n_tets, dtype=bool)
