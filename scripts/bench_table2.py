@@ -30,9 +30,20 @@ from pathlib import Path
 
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
 from lbshape.pipeline.precompute import precompute
-from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene, speed_error_sweep
+from lbshape.report.bench import (
+    DEFAULT_OUT,
+    DEFAULT_SCENES,
+    bench_scene,
+    paper_setting,
+    speed_error_sweep,
+)
 from lbshape.report.machine import machine_description
-from lbshape.report.realtime import newton_study, newton_study_markdown, newton_study_payload
+from lbshape.report.realtime import (
+    PAPER_TABLE2,
+    newton_study,
+    newton_study_markdown,
+    newton_study_payload,
+)
 from lbshape.report.tables import write_sweep, write_table2
 from lbshape.scene import load_scene
 
@@ -73,7 +84,8 @@ def main(argv: list[str] | None = None) -> list[Path]:
     for name in args.scenes:
         scene = load_scene(name)
         log.info("table 2: %s", name)
-        results.append(bench_scene(scene, steps=args.steps, repeats=args.repeats))
+        results.append(bench_scene(scene, steps=args.steps, repeats=args.repeats,
+                                   paper=paper_setting(scene, PAPER_TABLE2)))
     paths = list(write_table2(results, args.out_dir))
     if not args.no_newton:
         studies = {}
@@ -95,6 +107,7 @@ def main(argv: list[str] | None = None) -> list[Path]:
         points = speed_error_sweep(
             scene, r_values=args.sweep_r, s_values=args.sweep_s, m_values=args.sweep_m,
             steps=args.sweep_steps, repeats=args.sweep_repeats,
+            forces=("polynomial", "cubature"),
         )
         paths += write_sweep(points, args.out_dir, scene=scene.name, steps=args.sweep_steps,
                              repeats=args.sweep_repeats, dt=scene.simulation.dt)

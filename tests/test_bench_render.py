@@ -15,7 +15,7 @@ from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.pipeline.simulate import force_elements
-from lbshape.report.bench import ROW_KEYS, trajectory_error
+from lbshape.report.bench import ROW_EXTRA_KEYS, ROW_KEYS, trajectory_error
 from lbshape.report.realtime import NEWTON_VARIANTS
 
 STEPS = 15  # > the 10 warm-up steps
@@ -105,7 +105,8 @@ def test_bench_command_rows_match_the_contract_and_independent_errors(tmp_path, 
     rows = json.loads(capsys.readouterr().out)["rows"]
     assert [row["method"] for row in rows] == ["full", "euclidean", "reduced"]
     for row in rows:
-        assert tuple(row) == ROW_KEYS, f"keys {list(row)}"
+        assert tuple(row) == ROW_KEYS + ROW_EXTRA_KEYS, f"keys {list(row)}"
+        assert all(row[key] is None for key in ROW_EXTRA_KEYS), row  # a fixed object
         assert row["scene"] == "demo"
         assert 0.0 < row["t_interp_ms"] <= row["t_total_ms"], row
     # sizes from the scene and its meshes
@@ -173,15 +174,17 @@ def test_bench_script_writes_table_and_sweep(tmp_path, load_script):
     lines = (tmp_path / "speed_vs_error.csv").read_text().splitlines()
     assert lines[0].startswith("#")
     points = list(csv.DictReader(lines[1:]))
-    assert [(int(p["r"]), int(p["s_max"])) for p in points] == [(own.r, 10), (own.r, own.s)]
+    # both force models: the polynomial once per r, the cubature at every s
+    assert [(int(p["r"]), int(p["s_max"]), p["forces"]) for p in points] == [
+        (own.r, own.s, "polynomial"), (own.r, 10, "cubature"), (own.r, own.s, "cubature")]
     for p in points:
         assert 0 < int(p["s"]) <= int(p["s_max"]) and float(p["error_vs_full"]) > 0
-    # the sweep point with the scene's own r and s is Table 2's reduced row
+    # the sweep point with the scene's own r, s and force model is Table 2's reduced row
     reduced = next(r for r in json.loads((tmp_path / "table2.json").read_text())["rows"]
                    if r["method"] == "reduced")
-    np.testing.assert_allclose(float(points[1]["error_vs_full"]), reduced["error_vs_full"],
+    np.testing.assert_allclose(float(points[0]["error_vs_full"]), reduced["error_vs_full"],
                                rtol=1e-5)
-    # two points far left of the 1 ms line (the reduced step takes ~0.05 ms): few pixels
+    # three points far left of the 1 ms line (the reduced step takes ~0.05 ms): few pixels
     _assert_not_blank(tmp_path / "speed_vs_error.png", coloured=0.0005)
 
 

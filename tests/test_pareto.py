@@ -4,25 +4,31 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from lbshape.report import pareto
 from lbshape.report.bench import SweepPoint
 
 
-def _point(m, r, s, ms, error):
+def _point(m, r, s, ms, error, forces="cubature"):
     return SweepPoint(m=m, r=r, s_max=s, s=s, t_interp_ms=0.5 * ms, t_total_ms=ms,
                       t_total_min_ms=0.9 * ms, t_total_max_ms=1.1 * ms, error_vs_full=error,
-                      cubature_holdout_error=0.03)
+                      cubature_holdout_error=0.03, forces=forces)
 
 
 POINTS = (
-    _point(10, 10, 30, 1.0, 0.20),   # fastest: on the front
-    _point(10, 20, 30, 2.0, 0.05),   # front
-    _point(10, 20, 60, 2.5, 0.08),   # dominated by (20, 30)
-    _point(10, 30, 60, 4.0, 0.015),  # front, meets 2 % and 5 ms
-    _point(10, 40, 120, 9.0, 0.005),  # front, too slow
-    _point(6, 30, 60, 3.0, None),    # failed run: never on the front
-    _point(14, 30, 60, 9.0, 0.006),  # dominated by (40, 120)
+    _point(10, 10, 30, 0.2, 0.20),   # fastest: on the front
+    _point(10, 20, 30, 0.4, 0.05),   # front
+    _point(10, 20, 60, 0.5, 0.08),   # dominated by (20, 30)
+    _point(10, 30, 60, 0.8, 0.015),  # front, meets 2 % and 1 ms
+    _point(10, 40, 120, 1.8, 0.005),  # front, too slow
+    _point(6, 30, 60, 0.6, None),    # failed run: never on the front
+    _point(14, 30, 60, 1.8, 0.006),  # dominated by (40, 120)
 )
+
+
+def test_the_targets_are_two_percent_at_one_millisecond():
+    assert (pareto.TARGET_ERROR, pareto.TARGET_MS) == (0.02, 1.0)
 
 
 def test_pareto_front_keeps_exactly_the_non_dominated_points():
@@ -38,7 +44,8 @@ def test_target_verdicts_name_the_meeting_setting_or_the_closest_miss():
     good = pareto.meeting(POINTS)
     assert [(p.r, p.s) for p in good] == [(30, 60)]
     sweep = pareto.ParetoSweep("bar", (10, 30, 60), 500, 1e-3, 2, POINTS)
-    assert "**met**" in pareto.verdict(sweep) and "r=30 s=60" in pareto.verdict(sweep)
+    assert "**met**" in pareto.verdict(sweep)
+    assert "cubature m=10 r=30 s=60" in pareto.verdict(sweep)
     assert sweep.paper_point() is POINTS[3]
 
     slow = tuple(p for p in POINTS if p.r != 30)
@@ -46,14 +53,68 @@ def test_target_verdicts_name_the_meeting_setting_or_the_closest_miss():
     # (20, 30): error 2.5x the target; (40, 120): time 1.8x the target -> the latter is closer
     assert (near.r, near.s) == (40, 120)
     text = pareto.verdict(pareto.ParetoSweep("bar", (10, 30, 60), 500, 1e-3, 2, slow))
-    assert "NOT met" in text and "time 1.80×" in text, text
+    assert "NOT met" in text and "time 1.80× the 1 ms target" in text, text
+
+
+POLY = (
+    _point(10, 30, 60, 0.09, 0.018, "polynomial"),  # the scene's own (auto → polynomial)
+    _point(10, 50, 60, 0.45, 0.012, "polynomial"),  # meets, most accurate under 1 ms
+    _point(10, 30, 60, 0.15, 0.034),                # cubature at the same (m, r, s)
+)
+
+
+def test_the_scene_setting_is_found_with_its_force_model():
+    sweep = pareto.ParetoSweep("bar", (10, 30, 60), 500, 1e-3, 2, POLY, "polynomial")
+    assert sweep.paper_point() is POLY[0]
+    assert pareto.ParetoSweep("bar", (10, 30, 60), 500, 1e-3, 2, POLY,
+                              "cubature").paper_point() is POLY[2]
+    text = pareto.verdict(sweep)
+    assert text.startswith("**met** by 2 setting(s); fastest polynomial m=10 r=30: "), text
+    assert "most accurate polynomial m=10 r=50: 0.450 ms/step, error 1.20%" in text
 
 
 def test_write_pareto_writes_table_json_and_plot(tmp_path):
-    sweep = pareto.ParetoSweep("bar", (10, 30, 60), 500, 1e-3, 2, POINTS)
+    sweep = pareto.ParetoSweep("bar", (10, 30, 60), 500, 1e-3, 2, POINTS + POLY[1:2],
+                               "cubature")
     md, js, png = pareto.write_pareto([sweep], tmp_path)
     text = md.read_text()
-    assert "| bar | (10, 30, 60) | 4.00 ms, 1.50% | **met**" in text, text
+    assert "| bar | (10, 30, 60), cubature | 0.800 ms, 1.50% | **met**" in text, text
+    assert "Target: error ≤ 2% at ≤ 1 ms per step." in text
+    # the polynomial forces' s is not a cubature size
+    assert "| polynomial | 10 | 50 | exact (60) | 0.450 " in text
+    assert "| cubature | 10 | 30 | 60 (60) | 0.800 " in text
     payload = json.loads(js.read_text())
-    assert [p["r"] for p in payload["scenes"][0]["pareto"]] == [10, 20, 30, 40]
+    assert payload["target"] == {"error_vs_full": 0.02, "t_total_ms": 1.0}
+    scene = payload["scenes"][0]
+    assert scene["paper_forces"] == "cubature"
+    assert {p["forces"] for p in scene["points"]} == {"cubature", "polynomial"}
+    assert [p["r"] for p in scene["pareto"]] == [10, 20, 50, 40]
     assert png.stat().st_size > 10_000
+
+
+def test_sweep_forces_follow_the_material():
+    import dataclasses
+
+    from lbshape.errors import LbshapeError
+    from lbshape.scene import load_scene
+
+    scene = load_scene("demo")
+    assert pareto.sweep_forces(scene) == ("polynomial", "cubature")
+    rubber = dataclasses.replace(scene, material=dataclasses.replace(
+        scene.material, model="neohookean"))
+    assert pareto.sweep_forces(rubber) == ("cubature",)
+    with pytest.raises(LbshapeError, match="stvk"):
+        pareto.sweep_forces(rubber, ("polynomial",))
+
+
+def test_sweep_runs_the_polynomials_once_per_r_and_the_cubature_per_r_and_s():
+    from lbshape.report.bench import speed_error_sweep
+    from lbshape.scene import load_scene
+
+    scene = load_scene("demo")  # r = 20, s = 40
+    points = speed_error_sweep(scene, r_values=(8,), s_values=(10, 20), steps=15, repeats=1,
+                               forces=("polynomial", "cubature"), polynomial_r_values=(8, 12))
+    got = sorted((p.forces, p.r, p.s_max) for p in points)
+    assert got == [("cubature", 8, 10), ("cubature", 8, 20), ("polynomial", 8, 40),
+                   ("polynomial", 12, 40)]
+    assert all(p.error_vs_full is not None for p in points)

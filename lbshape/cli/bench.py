@@ -1,11 +1,15 @@
-"""``lbshape bench [SCENE…] [--json] [--steps N] [--repeats K] [--out-dir DIR] [-j N] [--sweep]
-[--scaling [--sizes H…] [--ranks N]]``.
+"""``lbshape bench [SCENE…] [--json] [--steps N] [--repeats K] [--out-dir DIR] [-j N]
+[--no-paper-settings] [--sweep] [--scaling [--sizes H…] [--ranks N]]``.
 
 Runs ``full``, ``euclidean`` and ``reduced`` side by side in one process per scene
 (default scenes: bar-cuboid, bar-cylinder; names, TOML paths or globs) and writes
-``table2.md`` and ``table2.json``. Several scenes run in ``-j`` worker processes and
-end with a summary table (on stderr with ``--json``); a failed scene is listed and
-does not stop the others (exit code non-zero at the end).
+``table2.md`` and ``table2.json``. The reduced method also runs at the paper's
+setting (its Table 2 m, r, s with cubature forces,
+:func:`lbshape.report.bench.paper_setting`) beside the scene as written, each with its
+error with and without the examples; ``--no-paper-settings`` leaves that out. Several
+scenes run in ``-j`` worker processes and end with a summary table (on stderr with
+``--json``); a failed scene is listed and does not stop the others (exit code non-zero
+at the end).
 With ``--sweep`` it sweeps r, s and m of the reduced method per scene instead
 (:mod:`lbshape.report.pareto`) and writes ``pareto.md``, ``pareto.json`` and
 ``pareto.png``.
@@ -29,8 +33,9 @@ from lbshape.errors import LbshapeError
 from lbshape.pipeline.batch import expand_scenes, run_jobs, summary_table
 from lbshape.pipeline.simulate import WARMUP_STEPS
 from lbshape.report import pareto, scaling
-from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene
-from lbshape.report.tables import write_table2
+from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene, paper_setting
+from lbshape.report.realtime import PAPER_TABLE2
+from lbshape.report.tables import settings_payload, write_table2
 from lbshape.scene import load_scene
 
 
@@ -49,6 +54,10 @@ def register(subparsers) -> None:
     parser.add_argument("-j", "--jobs", type=int, default=1,
                         help="worker processes for several scenes (default 1; concurrent "
                              "jobs share the machine's cores, which their timings include)")
+    parser.add_argument("--no-paper-settings", dest="paper_settings", action="store_false",
+                        help="leave out the reduced method at the paper's m, r, s with "
+                             "cubature forces (run by default beside the scene as written, "
+                             "with its own precompute)")
     parser.add_argument("--sweep", action="store_true",
                         help="instead: sweep r, s and m per scene (default: bar-cuboid "
                              "bar-cylinder demo) and write pareto.md/.json/.png")
@@ -77,6 +86,9 @@ def run(args) -> int:
         raise LbshapeError("--sweep and --scaling are different benchmarks: give one")
     if (args.sizes is not None or args.ranks != 1) and not args.scaling:
         raise LbshapeError("--sizes and --ranks belong to --scaling")
+    if not args.paper_settings and (args.sweep or args.scaling):
+        raise LbshapeError("--no-paper-settings belongs to the Table 2 benchmark, not to "
+                           "--sweep or --scaling")
     if args.sweep:
         return _sweep(args)
     if args.scaling:
@@ -85,10 +97,11 @@ def run(args) -> int:
     if len(names) == 1 and not unmatched:  # one scene: errors as a one-line error
         jobs = []
         results = [bench_one(names[0], steps=args.steps, repeats=args.repeats,
-                             progress=not args.json)]
+                             paper_settings=args.paper_settings, progress=not args.json)]
     else:
         jobs = unmatched + run_jobs(
-            functools.partial(bench_one, steps=args.steps, repeats=args.repeats),
+            functools.partial(bench_one, steps=args.steps, repeats=args.repeats,
+                              paper_settings=args.paper_settings),
             names, jobs=args.jobs, progress=not args.json, desc="bench")
         results = [job.value for job in jobs if job.ok]
     if not results:
@@ -97,7 +110,10 @@ def run(args) -> int:
     md, js = write_table2(results, args.out_dir or DEFAULT_OUT)
     rows = [row for result in results for row in result.rows]
     if args.json:
-        print_json({"rows": rows})
+        payload = {"rows": rows}
+        if args.paper_settings:
+            payload["paper_vs_lbshape"] = settings_payload(results)
+        print_json(payload)
     else:
         for row in rows:
             error = row["error_vs_full"]
@@ -111,6 +127,12 @@ def run(args) -> int:
                     parts = ", ".join(f"{name} {ms:.3f}" for name, ms in phases.items())
                     print(f"bench {result.scene} [{timing.method}]: step by part (median ms): "
                           f"{parts}")
+            for setting in result.settings:
+                print(f"bench {result.scene} [reduced, {setting.label} setting: m {setting.m}, "
+                      f"r {setting.r}, s {setting.s}, {setting.forces}]: t_total "
+                      f"{_ms((setting.t_total() or {}).get('median'))} ms per step, error vs "
+                      f"full {_percent(setting.error_vs_full)} with examples, "
+                      f"{_percent(setting.error_vs_full_no_examples)} without")
         print(f"bench: {md} and {js}")
     if jobs:
         _print_summary(jobs, file=sys.stderr if args.json else sys.stdout)
@@ -126,9 +148,14 @@ def run(args) -> int:
     return max((job.exit_code for job in errors), default=0)
 
 
-def bench_one(name: str, *, steps: int | None, repeats: int, progress: bool = False):
-    """:func:`~lbshape.report.bench.bench_scene` of one scene argument (a batch job)."""
-    return bench_scene(load_scene(name), steps=steps, repeats=repeats, progress=progress)
+def bench_one(name: str, *, steps: int | None, repeats: int, paper_settings: bool = True,
+              progress: bool = False):
+    """:func:`~lbshape.report.bench.bench_scene` of one scene argument (a batch job), with
+    the settings comparison at :func:`~lbshape.report.bench.paper_setting` unless
+    ``paper_settings`` is False."""
+    scene = load_scene(name)
+    paper = paper_setting(scene, PAPER_TABLE2) if paper_settings else None
+    return bench_scene(scene, steps=steps, repeats=repeats, paper=paper, progress=progress)
 
 
 def _print_summary(jobs, *, file) -> None:
@@ -145,6 +172,10 @@ def _print_summary(jobs, *, file) -> None:
 
 def _ms(value) -> str:
     return "—" if value is None else f"{value:.3f}"
+
+
+def _percent(value) -> str:
+    return "—" if value is None else f"{value:.2%}"
 
 
 def _sweep(args) -> int:

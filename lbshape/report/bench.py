@@ -7,6 +7,12 @@
   evenly over the methods); per-step times are the means after the simulation's
   warm-up steps (:data:`lbshape.pipeline.simulate.WARMUP_STEPS`), summarised by the median
   and the range over repeats; the error of each method against ``full``;
+* the settings comparison of :func:`bench_scene` (``paper=``): the reduced method at
+  the paper's (m, r, s) with its cubature forces (:func:`paper_setting`) beside the
+  scene as written, both timed in the same interleaved repeats, each with its error
+  against ``full`` with and without the scene's examples (:class:`SettingResult`);
+* free bodies: beside the whole-field error, the centre-of-mass path, the rotation
+  and the body-frame deformation errors (:mod:`lbshape.report.free_body_error`);
 * :func:`speed_error_sweep` — the reduced method's per-step time against its error
   versus ``full`` while r, s (and optionally m) vary.
 
@@ -19,18 +25,21 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.elastic.polynomial_forces import check_force_choice
 from lbshape.errors import LbshapeError
 from lbshape.io.paths import RESULTS_DIR
-from lbshape.pipeline.influence import has_example_force
+from lbshape.pipeline.influence import has_example_force, is_free_body, without_examples
 from lbshape.pipeline.meshes import build_mesh
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import METHODS, WARMUP_STEPS, example_influence, simulate
+from lbshape.report.free_body_error import KEYS as FREE_BODY_KEYS
+from lbshape.report.free_body_error import free_body_error
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +48,10 @@ ROW_KEYS: tuple[str, ...] = (
     "scene", "method", "n_vertices", "n_tets", "example_vertices", "m", "r", "s",
     "t_interp_ms", "t_total_ms", "error_vs_full",
 )
+#: the keys every row has after :data:`ROW_KEYS`: a free body's error split into its
+#: centre-of-mass path, rotation (degrees) and body-frame deformation
+#: (:mod:`lbshape.report.free_body_error`; None for a fixed object)
+ROW_EXTRA_KEYS: tuple[str, ...] = FREE_BODY_KEYS
 #: scenes benchmarked by default (the paper's first two Table 2 rows)
 DEFAULT_SCENES: tuple[str, ...] = ("bar-cuboid", "bar-cylinder")
 #: methods benchmarked by default
@@ -49,6 +62,12 @@ DEFAULT_OUT = RESULTS_DIR
 TARGET_T_TOTAL_MS = 1.0
 TARGET_INTERP_SPEEDUP = 20.0
 TARGET_ERROR = 0.10
+#: the error the settings comparison checks each setting against (never asserted)
+SETTINGS_TARGET_ERROR = 0.05
+#: how a setting's (m, r, s) were chosen
+PAPER_SOURCE = "paper's Table 2 m, r, s, cubature"
+SCENE_SOURCE = "scene's m, r, s, cubature"
+LBSHAPE_SOURCE = "the scene as written"
 
 
 # ----------------------------------------------------------------------------- error
@@ -176,8 +195,9 @@ class SceneBenchmark:
         steps: steps per run.
         repeats: runs per method.
         warmup: steps per run left out of the timings.
-        rows: one dict per method with exactly the keys :data:`ROW_KEYS`
-            (times: medians over repeats; ``error_vs_full`` None when undefined).
+        rows: one dict per method with exactly the keys :data:`ROW_KEYS` and then
+            :data:`ROW_EXTRA_KEYS` (times: medians over repeats; ``error_vs_full`` None
+            when undefined; the free-body keys None for a fixed object).
         timings: the spread of the times, one per method (same order as ``rows``).
         influence: ``(method, stats)`` pairs: the example influence keys
             (:data:`lbshape.pipeline.influence.STATS_KEYS`) of the ``reduced`` and
@@ -185,6 +205,8 @@ class SceneBenchmark:
             examples).
         force_model: the reduced elastic force of the reduced methods (``"polynomial"``:
             s counts every element; ``"cubature"``).
+        settings: the settings comparison (``paper`` then ``lbshape``; empty when it was
+            not run): :class:`SettingResult`.
     """
 
     scene: str
@@ -196,10 +218,126 @@ class SceneBenchmark:
     timings: tuple[MethodTiming, ...]
     influence: tuple[tuple[str, dict], ...] = ()
     force_model: str = "cubature"
+    settings: tuple[SettingResult, ...] = ()
 
     def row(self, method: str) -> dict | None:
         """The row of ``method`` (None if it was not run)."""
         return next((row for row in self.rows if row["method"] == method), None)
+
+
+@dataclass(frozen=True)
+class PaperSetting:
+    """The reduced sizes and force model the paper's method runs a scene at.
+
+    Attributes:
+        m, r, s: LB eigenfunctions, reduced coordinates, cubature elements.
+        source: where they come from (:data:`PAPER_SOURCE`: the paper's Table 2;
+            :data:`SCENE_SOURCE`: a scene the paper has no row for, at its own sizes).
+        forces: the reduced elastic force (the paper's: ``"cubature"``).
+    """
+
+    m: int
+    r: int
+    s: int
+    source: str
+    forces: str = "cubature"
+
+
+def paper_setting(scene, paper_table: Mapping[str, Sequence]) -> PaperSetting:
+    """The paper's setting of a scene: its Table 2 (m, r, s) with cubature forces.
+
+    Args:
+        scene: the :class:`~lbshape.scene.schema.Scene`.
+        paper_table: the paper's Table 2 by scene name, each row's columns (DOFs, tets,
+            example vertices, m, r, s, …)
+            (:data:`lbshape.report.realtime.PAPER_TABLE2`).
+
+    Returns:
+        The scene's row's (m, r, s), or for a scene without a row its own (m, r, s)
+        (``source`` :data:`SCENE_SOURCE`); forces ``"cubature"`` in both cases.
+    """
+    row = paper_table.get(scene.name)
+    if row is None:
+        red = scene.reduced
+        return PaperSetting(int(red.m), int(red.r), int(red.s), SCENE_SOURCE)
+    m, r, s = (int(value) for value in row[3:6])
+    return PaperSetting(m, r, s, PAPER_SOURCE)
+
+
+@dataclass(frozen=True)
+class SettingResult:
+    """The reduced method at one setting of a scene, in the settings comparison.
+
+    Attributes:
+        label: ``"paper"`` (:func:`paper_setting`) or ``"lbshape"`` (the scene as written).
+        source: how the setting was chosen (:data:`PAPER_SOURCE`, :data:`SCENE_SOURCE`,
+            :data:`LBSHAPE_SOURCE`; the paper's setting of a scene that already runs it
+            says so and shares the lbshape setting's runs).
+        m, r: LB eigenfunctions and reduced coordinates.
+        s: the elements the reduced force sums over (as Table 2's s: every element for
+            the polynomial forces).
+        s_max: the cubature elements asked for (the setting's ``[reduced] s``).
+        forces: the reduced elastic force (``"polynomial"`` or ``"cubature"``).
+        timing: the reduced runs' per-step times over the repeats (ms).
+        error_vs_full: :func:`trajectory_error` against ``full`` with the examples (None
+            if a run stopped).
+        error_vs_full_no_examples: the same, both runs without the examples (``k_ex = 0``);
+            without an example force the same runs as ``error_vs_full``.
+        examples: whether the scene's examples act on it (False: the "without examples"
+            error is the same run).
+        free_body: a free body's :meth:`~lbshape.report.free_body_error.FreeBodyError.stats`
+            against ``full`` with the examples (None for a fixed object or a stopped run).
+        free_body_no_examples: the same without the examples.
+    """
+
+    label: str
+    source: str
+    m: int
+    r: int
+    s: int
+    s_max: int
+    forces: str
+    timing: MethodTiming
+    error_vs_full: float | None
+    error_vs_full_no_examples: float | None
+    examples: bool
+    free_body: dict | None = None
+    free_body_no_examples: dict | None = None
+
+    def t_total(self) -> dict | None:
+        """``{"median", "min", "max"}`` per-step total time (ms); None without a run."""
+        return self.timing.summary("t_total_ms") if self.timing.t_total_ms else None
+
+    def meets_time(self) -> bool:
+        """Median per-step total time ≤ :data:`TARGET_T_TOTAL_MS`."""
+        total = self.t_total()
+        return total is not None and total["median"] <= TARGET_T_TOTAL_MS
+
+    def meets_error(self) -> bool:
+        """Error against ``full`` with the examples ≤ :data:`SETTINGS_TARGET_ERROR`."""
+        return self.error_vs_full is not None and self.error_vs_full <= SETTINGS_TARGET_ERROR
+
+    def payload(self) -> dict:
+        """The setting's ``table2.json`` entry (times in ms, errors dimensionless)."""
+        total = self.t_total()
+        interp = self.timing.summary("t_interp_ms") if self.timing.t_interp_ms else None
+        free = self.free_body or dict.fromkeys(FREE_BODY_KEYS)
+        free_none = self.free_body_no_examples or dict.fromkeys(FREE_BODY_KEYS)
+        return {
+            "label": self.label, "source": self.source, "m": self.m, "r": self.r,
+            "s": self.s, "s_max": self.s_max, "forces": self.forces,
+            "t_total_ms": None if total is None else total["median"],
+            "t_total_ms_min": None if total is None else total["min"],
+            "t_total_ms_max": None if total is None else total["max"],
+            "t_interp_ms": None if interp is None else interp["median"],
+            "repeats": len(self.timing.t_total_ms), "stable": self.timing.stable,
+            "message": self.timing.message,
+            "error_vs_full": self.error_vs_full,
+            "error_vs_full_no_examples": self.error_vs_full_no_examples,
+            "examples": self.examples,
+            "meets_t_total": self.meets_time(), "meets_error": self.meets_error(),
+            **free, **{f"{key}_no_examples": value for key, value in free_none.items()},
+        }
 
 
 def example_vertex_count(scene) -> int:
@@ -240,6 +378,7 @@ def bench_scene(
     pre=None,
     progress: bool = False,
     influence: bool = True,
+    paper: PaperSetting | None = None,
 ) -> SceneBenchmark:
     """Run the methods side by side on one scene (see the module docstring).
 
@@ -253,46 +392,150 @@ def bench_scene(
         progress: show the precompute's progress bars on stderr.
         influence: with examples, also run ``reduced`` and ``full`` once without
             examples and record the example influence.
+        paper: also run the settings comparison (needs ``full`` and ``reduced``): the
+            reduced method at this setting (:func:`paper_setting`; its own precompute,
+            cached) in the same interleaved repeats as the other methods, beside the
+            scene as written; each setting's error against ``full`` with and without
+            the examples. ``full`` with examples is run once per m (the scene's is
+            reused when the setting has the scene's m), ``full`` and each setting's
+            ``reduced`` without examples once (the example influence's runs when it
+            has them).
 
     Returns:
         The :class:`SceneBenchmark`. A run that stops on a solver failure is kept
         (``stable`` False in its timing, ``error_vs_full`` None) and logged.
     """
     methods = _check_methods(methods)
+    if paper is not None and not {"full", "reduced"} <= set(methods):
+        raise LbshapeError("the settings comparison needs the full and reduced methods")
     steps = scene.simulation.steps if steps is None else steps
     _check_steps_repeats(steps, repeats)
     steps, repeats = int(steps), int(repeats)
     if pre is None:
         pre = precompute(scene, progress=progress)
-    outputs, timings = _run_interleaved(scene, pre, methods, steps=steps, repeats=repeats)
+    jobs = [(method, scene, pre, method) for method in methods]
+    variant = variant_pre = None
+    failure = ""
+    if paper is not None and not _runs_setting(scene, pre, paper):
+        variant = _variant(scene, m=paper.m, r=paper.r, s=paper.s, forces=paper.forces)
+        try:
+            variant_pre = precompute(variant, progress=progress)
+        except LbshapeError as exc:
+            failure = f"precompute at the paper's setting failed: {exc}"
+            log.error("bench %s: %s", scene.name, failure)
+        else:
+            jobs.append((_PAPER_JOB, variant, variant_pre, "reduced"))
+    outputs, timings = _run_jobs(jobs, steps=steps, repeats=repeats, name=scene.name)
     mass = mass_matrix(pre.mesh, pre.material.density)
     examples = example_vertex_count(scene)
+    full = outputs.get("full")
     rows = tuple(
-        _row(scene.name, outputs[timing.method], timing, examples,
-             error=_error_vs_full(outputs[timing.method], outputs.get("full"), mass))
-        for timing in timings
+        _row(scene.name, outputs[method], timings[method], examples,
+             error=_error_vs_full(outputs[method], full, mass),
+             free_body=_free_body_vs_full(outputs[method], full, pre, mass))
+        for method in methods
     )
-    effects = _influence(scene, pre, outputs, steps=steps) if influence else ()
+    effects, references = _influence(scene, pre, outputs, steps=steps) if influence else ((), {})
+    settings = ()
+    if paper is not None:
+        lbshape = _setting("lbshape", LBSHAPE_SOURCE, scene, pre, outputs, timings["reduced"],
+                           outputs["reduced"], full, references, steps=steps, mass=mass)
+        if variant_pre is not None:
+            full_paper = full if variant.reduced.m == scene.reduced.m else _full_reference(
+                variant, variant_pre, steps=steps)
+            paper_result = _setting("paper", paper.source, variant, variant_pre, outputs,
+                                    timings[_PAPER_JOB], outputs[_PAPER_JOB], full_paper,
+                                    references, steps=steps, mass=mass)
+        elif failure:
+            paper_result = SettingResult(
+                "paper", paper.source, paper.m, paper.r, paper.s, paper.s, paper.forces,
+                MethodTiming("reduced", (), (), False, failure), None, None,
+                lbshape.examples)
+        else:  # the scene as written runs the paper's setting: the same runs
+            paper_result = dataclasses.replace(
+                lbshape, label="paper", source=f"{paper.source} ({LBSHAPE_SOURCE})")
+        settings = (paper_result, lbshape)
     return SceneBenchmark(scene.name, float(scene.simulation.dt), steps, repeats, WARMUP_STEPS,
-                          rows, timings, effects, force_model=pre.force_model)
+                          rows, tuple(timings[m] for m in methods), effects,
+                          force_model=pre.force_model, settings=settings)
 
 
-def _influence(scene, pre, outputs: dict, *, steps: int) -> tuple[tuple[str, dict], ...]:
-    """Example influence of the finished ``reduced`` and ``full`` runs (stable ones only)."""
+#: the key of the paper's setting's reduced runs among a benchmark's interleaved jobs
+_PAPER_JOB = "reduced (paper's setting)"
+
+
+def _runs_setting(scene, pre, paper: PaperSetting) -> bool:
+    """True when the scene as written already runs ``paper``'s sizes and force model."""
+    red = scene.reduced
+    return ((int(red.m), int(red.r), int(red.s)) == (paper.m, paper.r, paper.s)
+            and pre.force_model == paper.forces)
+
+
+def _full_reference(scene, pre, *, steps: int):
+    """One ``full`` run with the examples (a setting whose m differs from the scene's)."""
+    log.info("bench %s: full reference at m = %d", scene.name, scene.reduced.m)
+    output = simulate(scene, pre, method="full", steps=steps)
+    if output.message:
+        log.error("bench %s: full reference (m=%d) stopped: %s", scene.name, scene.reduced.m,
+                  output.message)
+    return output
+
+
+def _setting(label: str, source: str, scene, pre, outputs: dict, timing: MethodTiming,
+             reduced, full, references: dict, *, steps: int, mass) -> SettingResult:
+    """The :class:`SettingResult` of one setting's finished reduced runs.
+
+    The runs without examples: ``full`` once per benchmark (the example influence's if
+    it ran, kept in ``references`` for the other setting), ``reduced`` once per setting
+    (the influence's for the scene as written).
+    """
+    examples = has_example_force(scene, pre)
+    if examples:
+        if "full" not in references:
+            references["full"] = simulate(without_examples(scene), pre, method="full",
+                                          steps=steps)
+        full_none = references["full"]
+        reduced_none = references.get("reduced") if label == "lbshape" else None
+        if reduced_none is None:
+            reduced_none = simulate(without_examples(scene), pre, method="reduced",
+                                    steps=steps)
+    else:
+        full_none, reduced_none = full, reduced
+    stats = reduced.stats
+    return SettingResult(
+        label, source, m=int(stats["m"]), r=int(stats["r"]), s=int(stats["s"]),
+        s_max=int(scene.reduced.s), forces=str(stats["forces"]), timing=timing,
+        error_vs_full=_error_vs_full(reduced, full, mass),
+        error_vs_full_no_examples=_error_vs_full(reduced_none, full_none, mass),
+        examples=examples,
+        free_body=_free_body_vs_full(reduced, full, pre, mass),
+        free_body_no_examples=_free_body_vs_full(reduced_none, full_none, pre, mass),
+    )
+
+
+def _influence(scene, pre, outputs: dict, *, steps: int
+               ) -> tuple[tuple[tuple[str, dict], ...], dict]:
+    """Example influence of the finished ``reduced`` and ``full`` runs (stable ones only).
+
+    Returns:
+        ``((method, stats) pairs, {method: its run without examples})``.
+    """
     if not has_example_force(scene, pre):
-        return ()
-    effects = []
+        return (), {}
+    effects, references = [], {}
     for method in ("reduced", "full"):
         output = outputs.get(method)
         if output is None or not output.stats["stable"]:
             continue
         try:
-            effect, _ = example_influence(scene, pre, output, method=method, steps=steps)
+            effect, reference = example_influence(scene, pre, output, method=method,
+                                                  steps=steps)
         except LbshapeError as exc:
             log.error("bench %s: no example influence for %s: %s", scene.name, method, exc)
             continue
         effects.append((method, effect.stats()))
-    return tuple(effects)
+        references[method] = reference
+    return tuple(effects), references
 
 
 def _run_interleaved(scene, pre, methods: tuple[str, ...], *, steps: int, repeats: int):
@@ -301,33 +544,50 @@ def _run_interleaved(scene, pre, methods: tuple[str, ...], *, steps: int, repeat
     Returns:
         ``({method: its first SimulationOutput}, (MethodTiming per method, in order))``.
     """
+    outputs, timings = _run_jobs([(method, scene, pre, method) for method in methods],
+                                 steps=steps, repeats=repeats, name=scene.name)
+    return outputs, tuple(timings[method] for method in methods)
+
+
+def _run_jobs(jobs: Sequence[tuple], *, steps: int, repeats: int, name: str
+              ) -> tuple[dict, dict]:
+    """Each job ``repeats`` times, interleaved (a failed job is not run again).
+
+    Args:
+        jobs: ``(key, scene, pre, method)`` per job, keys unique.
+        name: the scene's name, for the log.
+
+    Returns:
+        ``({key: its first SimulationOutput}, {key: its MethodTiming})``.
+    """
     outputs: dict[str, object] = {}
-    interp: dict[str, list[float]] = {m: [] for m in methods}
-    total: dict[str, list[float]] = {m: [] for m in methods}
-    phases: dict[str, list[dict]] = {m: [] for m in methods}
-    medians: dict[str, list[float]] = {m: [] for m in methods}
+    interp: dict[str, list[float]] = {job[0]: [] for job in jobs}
+    total: dict[str, list[float]] = {job[0]: [] for job in jobs}
+    phases: dict[str, list[dict]] = {job[0]: [] for job in jobs}
+    medians: dict[str, list[float]] = {job[0]: [] for job in jobs}
     for repeat in range(repeats):
-        for method in methods:
-            first = outputs.get(method)
+        for key, scene, pre, method in jobs:
+            first = outputs.get(key)
             if first is not None and not first.stats["stable"]:
                 continue  # deterministic: a failed run fails again
             output = simulate(scene, pre, method=method, steps=steps)
-            log.info("bench %s %s repeat %d: t_interp %.3f ms, t_total %.3f ms", scene.name,
-                     method, repeat + 1, output.stats["t_interp_ms"], output.stats["t_total_ms"])
-            interp[method].append(float(output.stats["t_interp_ms"]))
-            total[method].append(float(output.stats["t_total_ms"]))
+            log.info("bench %s %s repeat %d: t_interp %.3f ms, t_total %.3f ms", name,
+                     key, repeat + 1, output.stats["t_interp_ms"], output.stats["t_total_ms"])
+            interp[key].append(float(output.stats["t_interp_ms"]))
+            total[key].append(float(output.stats["t_total_ms"]))
             if output.phase_ms:
-                phases[method].append(output.phase_ms)
+                phases[key].append(output.phase_ms)
             if output.step_median_ms is not None:
-                medians[method].append(output.step_median_ms)
-            outputs.setdefault(method, output)
+                medians[key].append(output.step_median_ms)
+            outputs.setdefault(key, output)
             if output.message:
-                log.error("bench %s: method %s stopped: %s", scene.name, method, output.message)
-    timings = tuple(
-        MethodTiming(m, tuple(interp[m]), tuple(total[m]), bool(outputs[m].stats["stable"]),
-                     outputs[m].message, tuple(phases[m]), tuple(medians[m]))
-        for m in methods
-    )
+                log.error("bench %s: %s stopped: %s", name, key, output.message)
+    timings = {
+        key: MethodTiming(method, tuple(interp[key]), tuple(total[key]),
+                          bool(outputs[key].stats["stable"]), outputs[key].message,
+                          tuple(phases[key]), tuple(medians[key]))
+        for key, _, _, method in jobs
+    }
     return outputs, timings
 
 
@@ -340,9 +600,20 @@ def _error_vs_full(output, full, mass) -> float | None:
                             times=output.times, times_full=full.times)
 
 
+def _free_body_vs_full(output, full, pre, mass) -> dict | None:
+    """A free body's :func:`~lbshape.report.free_body_error.free_body_error` stats of a run
+    against ``full`` (None for a fixed object, or if either run is missing or stopped)."""
+    if not is_free_body(pre) or full is None or not (full.stats["stable"]
+                                                     and output.stats["stable"]):
+        return None
+    return free_body_error(output.displacements, full.displacements, pre.mesh.points,
+                           mass).stats()
+
+
 def _row(scene: str, output, timing: MethodTiming, examples: int, *,
-         error: float | None) -> dict:
-    """The contract row (keys :data:`ROW_KEYS`) of one method: sizes, median times, error."""
+         error: float | None, free_body: dict | None = None) -> dict:
+    """The row of one method: the contract keys :data:`ROW_KEYS` (sizes, median times,
+    error) and then :data:`ROW_EXTRA_KEYS` (a free body's split error, else None)."""
     stats = output.stats
     return {
         "scene": scene, "method": timing.method,
@@ -352,8 +623,8 @@ def _row(scene: str, output, timing: MethodTiming, examples: int, *,
         "t_interp_ms": timing.summary("t_interp_ms")["median"],
         "t_total_ms": timing.summary("t_total_ms")["median"],
         "error_vs_full": error,
+        **(free_body or dict.fromkeys(ROW_EXTRA_KEYS)),
     }
-
 
 # ---------------------------------------------------------------------------- sweep
 @dataclass(frozen=True)
@@ -386,12 +657,14 @@ class SweepPoint:
     forces: str = "cubature"
 
 
-def _variant(scene, *, m: int, r: int, s: int):
+def _variant(scene, *, m: int, r: int, s: int, forces: str | None = None):
+    """The scene with ``[reduced]`` m, r, s (and ``forces`` unless None: the scene's)."""
     red = scene.reduced
     linear = red.linear_modes if red.linear_modes <= r else 0
     return dataclasses.replace(
         scene, reduced=dataclasses.replace(red, m=int(m), r=int(r), s=int(s),
-                                           linear_modes=linear))
+                                           linear_modes=linear,
+                                           forces=red.forces if forces is None else forces))
 
 
 def speed_error_sweep(
@@ -403,12 +676,21 @@ def speed_error_sweep(
     steps: int | None = None,
     repeats: int = 3,
     progress: bool = False,
+    forces: Sequence[str] = (),
+    polynomial_r_values: Sequence[int] = (),
 ) -> tuple[SweepPoint, ...]:
     """Per-step time and error of the reduced method while r, s (and m) vary.
 
-    The grid is every (r, s) of ``r_values × s_values`` at the scene's m, plus
-    (m, scene r, scene s) for each m of ``m_values``. Each configuration is its own
-    precompute (cached); the ``full`` reference is run once per m.
+    The grid, at the scene's m: with ``forces`` empty (the default) every (r, s) of
+    ``r_values × s_values`` with the scene's force choice; with ``forces`` (reduced force
+    models, ``"polynomial"`` and/or ``"cubature"``) each model's own grid —
+    ``"cubature"``: every (r, s) of ``r_values × s_values``; ``"polynomial"``: every r of
+    ``polynomial_r_values`` (default ``r_values``) at the scene's s alone (s only sizes
+    the cubature trained beside the exact forces, so it is not swept). Plus
+    (m, scene r, scene s, scene force choice) for each other m of ``m_values``. Each
+    configuration is its own precompute (cached); the ``full`` reference is run once
+    per m. Each force value is checked against the material
+    (:func:`lbshape.elastic.polynomial_forces.check_force_choice`).
 
     Args:
         scene: the base scene.
@@ -416,22 +698,36 @@ def speed_error_sweep(
         steps: steps per run (default: the scene's), > the warm-up steps.
         repeats: reduced runs per configuration.
         progress: precompute progress bars on stderr.
+        forces: the force models swept (empty: the scene's choice alone).
+        polynomial_r_values: r values of the polynomial grid (empty: ``r_values``).
     """
     steps = scene.simulation.steps if steps is None else steps
     _check_steps_repeats(steps, repeats)
     steps, repeats = int(steps), int(repeats)
     base = scene.reduced
-    grid = [(base.m, int(r), int(s)) for r in r_values for s in s_values]
-    grid += [(int(m), base.r, base.s) for m in m_values if int(m) != base.m]
+    for choice in forces:
+        check_force_choice(choice, scene.material.model)
+    if not forces:
+        grid = [(base.m, int(r), int(s), base.forces) for r in r_values for s in s_values]
+    else:
+        grid = []
+        for model in dict.fromkeys(forces):
+            if model == "polynomial":
+                grid += [(base.m, int(r), base.s, model)
+                         for r in (polynomial_r_values or r_values)]
+            else:
+                grid += [(base.m, int(r), int(s), model) for r in r_values for s in s_values]
+    grid += [(int(m), base.r, base.s, base.forces) for m in m_values if int(m) != base.m]
+    grid = list(dict.fromkeys(grid))
     if not grid:
         raise LbshapeError("the sweep is empty: give r and s values (or m values)")
-    for value in {v for point in grid for v in point}:
+    for value in {v for point in grid for v in point[:3]}:
         if value < 1:
             raise LbshapeError(f"m, r and s must be >= 1, got {value}")
     references: dict[int, object] = {}
     points = []
-    for m, r, s in grid:
-        variant = _variant(scene, m=m, r=r, s=s)
+    for m, r, s, choice in grid:
+        variant = _variant(scene, m=m, r=r, s=s, forces=choice)
         pre = precompute(variant, progress=progress)
         if m not in references:
             references[m] = simulate(variant, pre, method="full", steps=steps)

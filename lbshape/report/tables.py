@@ -1,8 +1,9 @@
 """The benchmark's written tables: Table 2 (Markdown + JSON) and the sweep (CSV).
 
 * :func:`write_table2` — ``table2.md`` (the paper's Table 2 layout, plus speed-ups,
-  errors, the spread of the times, the conditions of the measurement and the
-  targets) and ``table2.json``;
+  errors, the spread of the times, the paper's settings beside lbshape's, a free
+  body's error split into rigid motion and deformation, the conditions of the
+  measurement and the targets) and ``table2.json``;
 * :func:`write_sweep` — ``speed_vs_error.csv`` and its plot ``speed_vs_error.png``.
 
 Every file is written atomically.
@@ -20,10 +21,13 @@ from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
 from lbshape.report.bench import (
     DEFAULT_OUT,
+    ROW_EXTRA_KEYS,
+    SETTINGS_TARGET_ERROR,
     TARGET_ERROR,
     TARGET_INTERP_SPEEDUP,
     TARGET_T_TOTAL_MS,
     SceneBenchmark,
+    SettingResult,
     SweepPoint,
 )
 from lbshape.report.machine import load_text, machine_description, threads_text
@@ -52,6 +56,30 @@ _INFLUENCE_INTRO = (
     "deformation, the displacement after the mass-weighted best rigid fit (free bodies, "
     "whose world displacement is mostly the rigid motion); the world-displacement "
     "influence at T is listed for every scene."
+)
+_SETTINGS_INTRO = (
+    "Each scene's reduced method at two settings, timed in the same run, the repeats "
+    "interleaved with the other methods: `paper`, the paper's Table 2 m, r, s with its "
+    "cubature forces (a scene the paper has no row for: the scene's m, r, s with "
+    "cubature forces), and `lbshape`, the scene as written (its force model resolved: "
+    "the exact polynomial StVK forces sum over every element). Per setting: the reduced "
+    "per-step total time, median [min, max] over the repeats (ms); the error against "
+    "the full-space reference with the scene's examples, and without them (`k_ex = 0` "
+    "in both runs; each full reference runs once and serves both settings; a scene "
+    "without examples has one run, so both errors are the same); whether "
+    f"≤ {TARGET_T_TOTAL_MS:g} ms per step and an error (with examples) ≤ "
+    f"{SETTINGS_TARGET_ERROR:.0%} are met. Free bodies: the error with examples split "
+    "into the centre-of-mass path, the rotation and the body-frame deformation (next "
+    "section)."
+)
+_FREE_BODY_INTRO = (
+    "A free body's whole-field error is dominated by its rigid motion. Beside it, from "
+    "the same runs: the centre-of-mass path error `max_t |c(t) − c_full(t)| / max_t "
+    "|c_full(t) − c_full(0)|` (c the mass-weighted centre of the deformed mesh), the "
+    "largest rotation between the mass-weighted best rigid fits `max_t angle(R(t) "
+    "R_full(t)ᵀ)` (degrees), and the body-frame deformation error `max_t ‖d − d_full‖_M "
+    "/ max_t ‖d_full‖_M` (d the displacement after the best rigid fit); a difference in "
+    "rigid motion alone leaves the last at 0."
 )
 _COLUMNS = (
     "| model | DOFs | tets | ex. | m | r | s | euclidean t_interp | euclidean t_total "
@@ -159,6 +187,80 @@ def _influence_rows(result: SceneBenchmark) -> list[str]:
     ]
 
 
+def _met(met: bool) -> str:
+    return "yes" if met else "**no**"
+
+
+def _free_body_cell(stats: dict | None) -> str:
+    """``centre path / rotation / deformation`` of a free body's split error, else —."""
+    if stats is None:
+        return "—"
+    return (f"{_fmt(stats['com_path_error'], '.2%')} / "
+            f"{_fmt(stats['rotation_error_deg'], '.2f')}° / "
+            f"{_fmt(stats['body_deformation_error'], '.2%')}")
+
+
+def _setting_row(scene: str, setting: SettingResult) -> str:
+    """One row of the settings comparison."""
+    total = setting.t_total()
+    time = ("—" if total is None else
+            f"{total['median']:.3f} [{total['min']:.3f}, {total['max']:.3f}]")
+    if not setting.timing.stable:
+        time += f" (stopped: {setting.timing.message})"
+    s = f"{setting.s} (every element)" if setting.forces == "polynomial" else f"{setting.s}"
+    none = (_fmt(setting.error_vs_full_no_examples, ".2%") if setting.examples
+            else "same run (no examples)")
+    return (
+        f"| {scene} | {setting.label} ({setting.source}) | {setting.m} | {setting.r} | {s} "
+        f"| {setting.forces} | {time} | {_fmt(setting.error_vs_full, '.2%')} | {none} "
+        f"| {_met(setting.meets_time())} | {_met(setting.meets_error())} "
+        f"| {_free_body_cell(setting.free_body)} |"
+    )
+
+
+def _settings_lines(results: Sequence[SceneBenchmark]) -> list[str]:
+    """The section "Paper settings vs lbshape settings" (empty when none was run)."""
+    if not any(result.settings for result in results):
+        return []
+    lines = ["", "## Paper settings vs lbshape settings", "", _SETTINGS_INTRO, "",
+             "| model | setting | m | r | s | forces | reduced ms/step median [min, max] "
+             "| error, examples | error, no examples "
+             f"| ≤ {TARGET_T_TOTAL_MS:g} ms | ≤ {SETTINGS_TARGET_ERROR:.0%} "
+             "| free body: centre path / rotation / deformation |",
+             "|---|" + "---|" * 11]
+    return lines + [_setting_row(result.scene, setting)
+                    for result in results for setting in result.settings]
+
+
+def _free_body_rows(result: SceneBenchmark) -> list[str]:
+    """The split error of each method but ``full`` (and of each setting) of a free body
+    (none for a fixed one)."""
+    runs = [(row["method"], row["error_vs_full"], {key: row[key] for key in ROW_EXTRA_KEYS})
+            for row in result.rows
+            if row["method"] != "full" and row.get("rotation_error_deg") is not None]
+    for s in result.settings:
+        runs.append((f"reduced, {s.label} setting, examples", s.error_vs_full, s.free_body))
+        if s.examples:
+            runs.append((f"reduced, {s.label} setting, no examples",
+                         s.error_vs_full_no_examples, s.free_body_no_examples))
+    return [
+        f"| {result.scene} | {what} | {_fmt(error, '.2%')} "
+        f"| {_fmt(stats['com_path_error'], '.2%')} | {_fmt(stats['rotation_error_deg'], '.2f')} "
+        f"| {_fmt(stats['body_deformation_error'], '.2%')} |"
+        for what, error, stats in runs if stats is not None
+    ]
+
+
+def _free_body_lines(results: Sequence[SceneBenchmark]) -> list[str]:
+    """The section on free bodies' split errors (empty without a free body)."""
+    rows = [row for result in results for row in _free_body_rows(result)]
+    if not rows:
+        return []
+    return ["", "## Free bodies: rigid motion and deformation apart", "", _FREE_BODY_INTRO,
+            "", "| model | run | error (whole field) | centre-of-mass path | rotation (°) "
+            "| body-frame deformation |", "|---|---|---|---|---|---|", *rows]
+
+
 def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
     """The Markdown of ``table2.md`` (see :func:`write_table2`).
 
@@ -173,6 +275,8 @@ def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
               "| model | method | repeats | t_interp | t_total | stable |",
               "|---|---|---|---|---|---|"]
     lines += [row for result in results for row in _spread_rows(result)]
+    lines += _settings_lines(results)
+    lines += _free_body_lines(results)
     if any(result.influence for result in results):
         lines += ["", "## Example influence", "", _INFLUENCE_INTRO, "",
                   "| model | method | frame | influence at T | influence max over t "
@@ -188,7 +292,11 @@ def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
 
 
 def table2_payload(results: Sequence[SceneBenchmark], machine: dict) -> dict:
-    """The document of ``table2.json``: the contract rows plus spreads and conditions."""
+    """The document of ``table2.json``: the contract rows plus spreads and conditions.
+
+    ``paper_vs_lbshape``: per scene with the settings comparison, ``{"scene",
+    "settings": [paper, lbshape]}``, each :meth:`~lbshape.report.bench.SettingResult.payload`.
+    """
     return {
         "rows": [row for result in results for row in result.rows],
         "timings": [
@@ -206,8 +314,16 @@ def table2_payload(results: Sequence[SceneBenchmark], machine: dict) -> dict:
             {"scene": result.scene, "method": method, **stats}
             for result in results for method, stats in result.influence
         ],
+        "paper_vs_lbshape": settings_payload(results),
         "machine": machine,
     }
+
+
+def settings_payload(results: Sequence[SceneBenchmark]) -> list[dict]:
+    """``[{"scene", "settings": [paper, lbshape]}]`` of the scenes with the settings
+    comparison (the ``paper_vs_lbshape`` of ``table2.json`` and ``lbshape bench --json``)."""
+    return [{"scene": result.scene, "settings": [s.payload() for s in result.settings]}
+            for result in results if result.settings]
 
 
 def write_table2(results: Sequence[SceneBenchmark], out_dir: str | Path = DEFAULT_OUT
