@@ -50,6 +50,8 @@ def test_initial_table_is_validated():
         ({"initial": {"angular_velocity": [1.0, True, 0.0]}}, "'initial.angular_velocity'"),
         ({"initial": {"spin": [0.0, 0.0, 1.0]}}, "unknown key 'initial.spin'"),
         ({"initial": {"velocity": [float("nan"), 0.0, 0.0]}}, "must be finite"),
+        # mass damping would brake the rigid motion in the full reference only
+        ({"damping": {"alpha": 0.5}}, "damping.alpha = 0.5 on a free body"),
     ]
     for change, words in cases:
         with pytest.raises(LbshapeError) as failure:

@@ -225,7 +225,9 @@ def test_unknown_shape_names_are_rejected(write_scene):
 
 
 def test_derived_flags_follow_the_scene(write_scene):
-    free = write_scene(('[fixed]\nregion = "z > 0.999"\n', ""), append=(
+    # a free body damps its deformation only (alpha = 0)
+    free = write_scene(('[fixed]\nregion = "z > 0.999"\n', ""), ("alpha = 0.1", "alpha = 0.0"),
+                       append=(
         "[[planes]]\npoint = [0, 0, 0]\nnormal = [0, 0, 2]\nstiffness = 1e4\n"
         '[[regions]]\nname = "left"\nregion = "x < 0"\nexamples = [1]\n'))
     scene = load_scene(str(free))

@@ -260,10 +260,7 @@ def full_simulation(scene: Scene, pre: Precomputed) -> FullSpaceSimulator:
     if scene.planes:
         contact = FullSpaceContact(list(scene.planes), pre.mesh.points, pre.mesh.tets)
     velocity = None
-    if pre.fixed_vertices.size == 0:  # a free body
-        if scene.damping.alpha > 0:
-            log.warning("scene %s: alpha = %g damps the rigid motion of the free body in the "
-                        "full-space method", scene.name, scene.damping.alpha)
+    if pre.fixed_vertices.size == 0:  # a free body (the reader refuses alpha > 0 for it)
         velocity = rigid_velocity(pre.mesh, pre.material.density, scene.initial.velocity,
                                   scene.initial.angular_velocity)
     return FullSpaceSimulator(

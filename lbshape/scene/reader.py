@@ -137,6 +137,11 @@ def scene_from_dict(
         raise ctx.error(str(exc)) from None
     examples = _examples(top, ctx)
     fixed = _fixed(top, ctx)
+    if fixed is None and damping.alpha > 0:
+        raise ctx.error(
+            f"damping.alpha = {damping.alpha:g} on a free body (no [fixed]): the full-space "
+            "reference would brake its rigid motion while the reduced method damps only the "
+            "deformation; set alpha = 0 and damp the deformation with damping.beta")
     loads = tuple(_load(t, ctx) for t in top.array_of_tables("loads", _LOAD_KEYS))
     planes = tuple(_plane(t, ctx) for t in top.array_of_tables("planes", _PLANE_KEYS))
     return Scene(
