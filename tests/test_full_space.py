@@ -195,8 +195,9 @@ def test_strong_example_force_pulls_a_free_body_to_the_example_shape(bar):
     np.testing.assert_allclose(sim.target_coefficients, c1.ravel(), rtol=0, atol=1e-12 *
                                np.abs(c1).max())
     assert result.stable and result.steps == 60
-    assert result.t_interp_ms.shape == (60,) and np.all(result.t_interp_ms > 0)
-    assert np.all(result.t_total_ms >= result.t_interp_ms)
+    # the interpolation is a part of each step (structure, not speed)
+    assert result.t_interp_ms.shape == result.t_total_ms.shape == (60,)
+    assert np.all(result.t_total_ms >= result.t_interp_ms) and np.all(result.t_interp_ms >= 0)
 
 
 def test_zero_example_stiffness_builds_and_calls_no_example_machinery(bar, monkeypatch):
@@ -324,7 +325,7 @@ def test_scene_adapter_reports_a_divergence_as_unstable_with_the_partial_run(bar
     assert stable and message == ""
     np.testing.assert_array_equal(frames, expected.displacements())
     np.testing.assert_allclose(times, [0.0, 0.02, 0.04, 0.06])
-    assert 0 < t_interp < t_total
+    assert 0 <= t_interp <= t_total  # the interpolation is a part of the step
     # an absurd load: Newton fails, the adapter keeps the run
     scene.loads = (SimpleNamespace(type="gravity", vector=(0.0, 0.0, -1e4), selection=None,
                                    profile=TimeProfile("ramp", 0.0, 0.1)),)

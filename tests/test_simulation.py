@@ -117,9 +117,9 @@ def test_zero_example_stiffness_has_no_effect(demo):
 def test_reduced_error_against_full_falls_as_r_grows(demo):
     """Elastic response (no examples): the reduced space converges to full space.
 
-    Measured (cubature s = 40): r = 4, 8, 24 give 0.425, 0.276, 0.069 (r = 16 still 0.22:
-    the basis, 0.21 with every element). Limits: r = 24 below 0.15 (2.2x margin) and at
-    most half the r = 4 error (measured a sixth: 3x margin)."""
+    Measured (exact polynomial forces, the default): r = 4, 8, 24 give 0.425, 0.253,
+    0.021 (r = 16 still 0.21: the basis). Limits: r = 24 below 0.07 (3.3x margin) and at
+    most a fifth of the r = 4 error (measured a twentieth: 4x margin)."""
     scene, _ = demo
     scene = dataclasses.replace(scene, examples=None)
     steps = 150
@@ -133,8 +133,8 @@ def test_reduced_error_against_full_falls_as_r_grows(demo):
         out = simulate(variant, pre, steps=steps)
         diff = _m_norm(out.displacements - full.displacements, mass).max()
         errors.append(diff / _m_norm(full.displacements, mass).max())
-    assert errors[2] < 0.5 * errors[0], f"errors vs full for r=4,8,24: {errors}"
-    assert errors[2] < 0.15, f"errors vs full for r=4,8,24: {errors}"
+    assert errors[2] < 0.2 * errors[0], f"errors vs full for r=4,8,24: {errors}"
+    assert errors[2] < 0.07, f"errors vs full for r=4,8,24: {errors}"
 
 
 @pytest.mark.parametrize(
@@ -147,7 +147,12 @@ def test_reduced_error_against_full_falls_as_r_grows(demo):
     ],
     ids=["dt-1/60", "twist-180", "stiff-examples", "nu-0.45"],
 )
-def test_hard_cases_are_stable_or_fail_clearly(demo, change):
+def test_hard_cases_follow_the_full_reference(demo, change):
+    """Each hard case runs stable and stays on the full reference's trajectory.
+
+    Measured (120 steps, error ``max_t ‖u − u_full‖_M / max_t ‖u_full‖_M``): dt = 1/60 s
+    3.2 %, examples twisted 180° 4.4 %, k_ex = 1e5 5.5 %, ν = 0.45 5.5 %; limit 15 %
+    (a run that left the physics is ≥ 100 % off: the demo moves ≈ 0.1 m)."""
     scene, _ = demo
     if "dt" in change:
         scene = dataclasses.replace(
@@ -165,12 +170,12 @@ def test_hard_cases_are_stable_or_fail_clearly(demo, change):
             scene, material=dataclasses.replace(scene.material, poisson=change["poisson"]))
     pre = precompute(scene)
     out = simulate(scene, pre, steps=120)
-    assert np.isfinite(out.displacements).all()
-    if out.stats["stable"]:
-        # bounded: nothing moves further than the bar is long
-        assert out.stats["max_displacement"] < 1.0, out.stats
-    else:
-        assert out.message and "step" in out.message
+    full = simulate(scene, pre, method="full", steps=120)
+    assert out.stats["stable"] and full.stats["stable"], (out.message, full.message)
+    mass = mass_matrix(pre.mesh, scene.material.density)
+    error = (_m_norm(out.displacements - full.displacements, mass).max()
+             / _m_norm(full.displacements, mass).max())
+    assert error <= 0.15, error
 
 
 def test_simulate_command_writes_contract_outputs(tmp_path, capsys):
