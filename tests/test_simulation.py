@@ -193,3 +193,18 @@ def test_simulate_command_writes_contract_outputs(tmp_path, capsys):
     assert (out / "trajectory.pvd").exists() and stats["steps"] == 20
     assert main(["simulate", "no-such-scene"]) == 2
     assert capsys.readouterr().err.startswith("error: ")
+
+
+def test_simulate_shows_both_runs_and_can_skip_the_influence(tmp_path, capsys):
+    from lbshape.pipeline.influence import STATS_KEYS
+
+    assert main(["simulate", "demo", "--steps", "20", "--out", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    # a progress bar per run, the second one named for what it is
+    assert "demo [reduced]" in err and "without examples (influence)" in err, err
+    assert main(["simulate", "demo", "--steps", "20", "--out", str(tmp_path / "b"),
+                 "--json", "--no-influence"]) == 0
+    captured = capsys.readouterr()
+    stats = json.loads(captured.out)
+    assert not set(STATS_KEYS) & set(stats) and stats["steps"] == 20
+    assert "without examples" not in captured.err  # no second run, no bars with --json

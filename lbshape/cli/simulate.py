@@ -1,4 +1,8 @@
-"""``lbshape simulate SCENE [--method reduced|euclidean|full] [--steps N] [--out DIR] [--json]``.
+"""``lbshape simulate SCENE [--method reduced|euclidean|full] [--steps N] [--out DIR] [--json]
+[--no-influence]``.
+
+A scene with examples is run a second time without them for the example influence
+(its own progress bar says so); ``--no-influence`` skips that run and its stats keys.
 
 Runs on one process: under ``mpirun`` with several ranks it refuses with one error
 line (printed by rank 0) before reading the scene or writing anything.
@@ -33,6 +37,9 @@ def register(subparsers) -> None:
                         "results/runs/SCENE-METHOD); a run that stops (exit 3) leaves only "
                         "FAILED.txt in it")
     parser.add_argument("--json", action="store_true", help="print stats as JSON")
+    parser.add_argument("--no-influence", action="store_true",
+                        help="skip the second run without examples (the example influence "
+                        "keys are then absent)")
     parser.set_defaults(func=run)
 
 
@@ -45,7 +52,7 @@ def run(args) -> int:
     check_replaceable(out, RUN_FILES)  # before the precompute
     pre = precompute(scene, progress=not args.json)
     result = simulate(scene, pre, method=args.method, steps=args.steps, out=out,
-                      influence=True)
+                      influence=not args.no_influence, progress=not args.json)
     if args.json:
         print_json(result.stats)
     else:

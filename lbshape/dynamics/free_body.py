@@ -71,7 +71,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -651,9 +651,13 @@ class FreeBodySimulation:
         self._L, self._L1 = self._L1, self._L
 
     # ------------------------------------------------------------------- run
-    def run(self, steps: int, *, stride: int = 1) -> FreeBodyRecord:
+    def run(self, steps: int, *, stride: int = 1,
+            on_step: Callable[[int, float, np.ndarray], None] | None = None
+            ) -> FreeBodyRecord:
         """Advance ``steps`` steps keeping every ``stride``-th state (and the initial one);
-        a failure ends the run with ``stable=False`` and the message."""
+        a failure ends the run with ``stable=False`` and the message. ``on_step`` is
+        called after each step (outside its timing) with (step index from 0, time in s,
+        q (r,))."""
         stride = int(stride)
         if int(steps) < 1 or stride < 1:
             raise LbshapeError(f"steps and stride must be >= 1, got {steps} and {stride}")
@@ -689,6 +693,8 @@ class FreeBodySimulation:
             self.phase_seconds = phases[:done]
             if done % stride == 0:
                 sample()
+            if on_step is not None:
+                on_step(index, self.time, self.q)
         arrays = {key: np.asarray(value) for key, value in sampled.items()}
         return FreeBodyRecord(
             times=arrays["times"], states=arrays["states"], t_interp_ms=1e3 * interp[:done],

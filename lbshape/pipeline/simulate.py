@@ -23,9 +23,12 @@ solver failure leaves ``DIR`` holding only ``FAILED.txt`` (:func:`write_outputs`
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
+import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -271,14 +274,17 @@ def full_simulation(scene: Scene, pre: Precomputed) -> FullSpaceSimulator:
     )
 
 
-def run_full_space(scene: Scene, pre: Precomputed, *, steps: int, stride: int = 1) -> RunRecord:
-    """Run the ``full`` method of a scene for ``steps`` steps, keeping every ``stride``-th state.
+def run_full_space(scene: Scene, pre: Precomputed, *, steps: int, stride: int = 1,
+                   on_step: Callable[[int, float, np.ndarray], None] | None = None
+                   ) -> RunRecord:
+    """Run the ``full`` method of a scene for ``steps`` steps, keeping every ``stride``-th state
+    (``on_step``: called after each step, see :meth:`FullSpaceSimulator.run`).
 
     A divergence does not raise: the record of what was computed comes back with
     ``stable`` False and the failure message.
     """
     try:
-        return full_simulation(scene, pre).run(steps, stride=stride)
+        return full_simulation(scene, pre).run(steps, stride=stride, on_step=on_step)
     except FullSpaceDiverged as exc:
         return exc.partial
 
@@ -293,14 +299,17 @@ def run_method(scene: Scene, pre: Precomputed, *, method: str, steps: int,
 
 def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
              steps: int | None = None, out: Path | None = None,
-             influence: bool = False) -> SimulationOutput:
+             influence: bool = False, progress: bool = False,
+             label: str | None = None) -> SimulationOutput:
     """Run ``scene`` with ``method`` for ``steps`` (default: the scene's) steps.
 
     With ``influence`` and a scene whose examples act (``k_ex > 0``), the same
     scene is also run without examples and the stats gain the example influence
     keys (:data:`lbshape.pipeline.influence.STATS_KEYS`). With ``out`` the run's folder
     is written by :func:`write_outputs` (a run that stopped: only ``FAILED.txt``); a
-    folder holding other files is refused before the run.
+    folder holding other files is refused before the run. ``progress``: a progress
+    bar per run on stderr (``label`` names it; default the scene and method), updated
+    outside the steps' timing.
     """
     if method not in METHODS:
         raise LbshapeError(f"method must be one of {METHODS}, got {method!r}")
@@ -311,12 +320,13 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         check_replaceable(out, RUN_FILES)  # refuse a folder of other files before the run
     stride = max(1, math.ceil(steps / MAX_FRAMES))
     phase_ms = None
-    if method == "full":
-        record = run_method(scene, pre, method=method, steps=steps, stride=stride)
-    else:
-        sim = reduced_simulation(scene, pre, method=method)
-        record = sim.run(steps, stride=stride)
-        phase_ms = phase_medians(sim)
+    with _progress_bar(steps, label or f"{scene.name} [{method}]", progress) as on_step:
+        if method == "full":
+            record = run_full_space(scene, pre, steps=steps, stride=stride, on_step=on_step)
+        else:
+            sim = reduced_simulation(scene, pre, method=method)
+            record = sim.run(steps, stride=stride, on_step=on_step)
+            phase_ms = phase_medians(sim)
     if method == "full":
         frames = record.displacements()
         r, s = 3 * (pre.mesh.n_vertices - pre.fixed_vertices.size), pre.mesh.n_tets
@@ -338,19 +348,20 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
     output = SimulationOutput(stats, record.times, frames, record.message, phase_ms=phase_ms,
                               step_median_ms=float(np.median(totals)) if totals.size else None)
     if influence and record.stable and has_example_force(scene, pre):
-        stats.update(example_influence(scene, pre, output, method=method, steps=steps)[0].stats())
+        stats.update(example_influence(scene, pre, output, method=method, steps=steps,
+                                       progress=progress)[0].stats())
     if out is not None:
         write_outputs(Path(out), pre, output)
     return output
 
 
 def example_influence(scene: Scene, pre: Precomputed, output: SimulationOutput, *,
-                      method: str, steps: int | None = None
+                      method: str, steps: int | None = None, progress: bool = False
                       ) -> tuple[Influence, SimulationOutput]:
     """Run ``scene`` without examples and compare with ``output``, its run with examples.
 
     See :mod:`lbshape.pipeline.influence`. The reference uses the same method,
-    steps and precompute with ``k_ex = 0``.
+    steps and precompute with ``k_ex = 0`` (``progress``: its progress bar).
 
     Returns:
         ``(influence, the run without examples)``.
@@ -360,7 +371,9 @@ def example_influence(scene: Scene, pre: Precomputed, output: SimulationOutput, 
     """
     if not has_example_force(scene, pre):
         raise LbshapeError(f"scene {scene.name} has no example force to measure")
-    reference = simulate(without_examples(scene), pre, method=method, steps=steps)
+    reference = simulate(without_examples(scene), pre, method=method, steps=steps,
+                         progress=progress,
+                         label=f"{scene.name} [{method}] without examples (influence)")
     if output.message or reference.message:
         raise LbshapeError(f"example influence of {scene.name} ({method}): a run stopped: "
                            f"{output.message or reference.message}")
@@ -396,3 +409,23 @@ def write_outputs(out: Path, pre: Precomputed, output: SimulationOutput) -> Path
                          displacements=output.displacements)
         write_json_atomic(folder / "stats.json", output.stats)
     return out
+
+
+#: a progress bar is redrawn at most this often (s): the bar costs nothing per step
+PROGRESS_INTERVAL = 0.2
+
+
+@contextlib.contextmanager
+def _progress_bar(steps: int, label: str, enabled: bool):
+    """An ``on_step`` callback that advances a tqdm bar on stderr (None when disabled)."""
+    if not enabled:
+        yield None
+        return
+    from tqdm import tqdm
+
+    with tqdm(total=steps, desc=label, unit="step", file=sys.stderr,
+              mininterval=PROGRESS_INTERVAL) as bar:
+        def on_step(index: int, _time: float, _state) -> None:
+            bar.update(index + 1 - bar.n)
+
+        yield on_step
