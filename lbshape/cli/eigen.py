@@ -6,11 +6,10 @@ solve); only rank 0 prints.
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from lbshape.cli._output import print_json
+from lbshape.cli._output import MESH_HELP, print_json
 from lbshape.fem.mpi import run_collectively
-from lbshape.geometry.mesh import load_mesh
+from lbshape.pipeline.meshes import build_mesh
+from lbshape.scene import mesh_source
 from lbshape.spectral.spectrum import lb_spectrum
 
 DEFAULT_M = 10
@@ -23,7 +22,10 @@ def register(subparsers) -> None:
         description="The m smallest non-zero LB eigenvalues (1/m^2) of the mesh as given: "
         "no rescaling, consistent mass, Neumann boundary, constant mode excluded.",
     )
-    parser.add_argument("mesh", type=Path, metavar="MESH", help="gmsh .msh file")
+    parser.add_argument("mesh", metavar="MESH", help=MESH_HELP)
+    parser.add_argument("--size", type=float, default=None, metavar="H",
+                        help="mesh size h in metres of a shape, script or surface (default: "
+                             "the shape's, the script's DEFAULT_SIZE; a surface as given)")
     parser.add_argument("--m", type=int, default=DEFAULT_M,
                         help=f"number of non-zero eigenvalues (default {DEFAULT_M})")
     parser.add_argument("--json", action="store_true", help="print a JSON object")
@@ -35,7 +37,7 @@ def run(args) -> int:
 
     comm = MPI.COMM_WORLD
     mesh, spectrum = run_collectively(
-        comm, lambda: load_mesh(args.mesh), lambda mesh: lb_spectrum(mesh, args.m, comm=comm))
+        comm, lambda: _mesh(args), lambda mesh: lb_spectrum(mesh, args.m, comm=comm))
     if comm.rank != 0:
         return 0
     payload = {
@@ -55,3 +57,8 @@ def run(args) -> int:
         for i, (value, res) in enumerate(rows, 1):
             print(f"{i:>4}  {value:>18.10g}  {res:>9.1e}")
     return 0
+
+
+def _mesh(args):
+    """The mesh the argument names (a shape, a gmsh script or any mesh file), on rank 0."""
+    return build_mesh(mesh_source(args.mesh, size=args.size))

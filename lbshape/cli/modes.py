@@ -8,14 +8,13 @@ modes …`` distributes the solve); only rank 0 prints.
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from lbshape.cli._output import print_json
+from lbshape.cli._output import MESH_HELP, print_json
 from lbshape.elastic.materials import Material
 from lbshape.elastic.modes import linear_modes
 from lbshape.fem.mpi import run_collectively
-from lbshape.geometry.mesh import load_mesh
 from lbshape.geometry.regions import region_vertices
+from lbshape.pipeline.meshes import build_mesh
+from lbshape.scene import mesh_source
 
 DEFAULT_R = 10
 
@@ -28,7 +27,10 @@ def register(subparsers) -> None:
         description="The K lowest non-rigid vibration frequencies (Hz) of the mesh as given "
         "(SI units, consistent mass). Free body unless --fixed clamps a region.",
     )
-    parser.add_argument("mesh", type=Path, metavar="MESH", help="gmsh .msh file")
+    parser.add_argument("mesh", metavar="MESH", help=MESH_HELP)
+    parser.add_argument("--size", type=float, default=None, metavar="H",
+                        help="mesh size h in metres of a shape, script or surface (default: "
+                             "the shape's, the script's DEFAULT_SIZE; a surface as given)")
     parser.add_argument("--r", type=int, default=DEFAULT_R, metavar="K",
                         help=f"number of non-rigid modes (default {DEFAULT_R})")
     parser.add_argument("--fixed", default=None, metavar="EXPR",
@@ -80,7 +82,12 @@ def run(args) -> int:
 def _inputs(args):
     """(mesh, material, fixed vertices or None) from the arguments, on rank 0."""
     material = Material(young=args.young, poisson=args.poisson, density=args.density)
-    mesh = load_mesh(args.mesh)
+    mesh = _mesh(args)
     fixed = (None if args.fixed is None
              else region_vertices(args.fixed, mesh.points, what="--fixed region"))
     return mesh, material, fixed
+
+
+def _mesh(args):
+    """The mesh the argument names (a shape, a gmsh script or any mesh file), on rank 0."""
+    return build_mesh(mesh_source(args.mesh, size=args.size))

@@ -7,16 +7,25 @@ does not mesh. :func:`build_shape` runs a script in a fresh gmsh model, generate
 the 3D mesh and returns a checked :class:`~lbshape.geometry.mesh.TetMesh`; physical group
 names survive as ``cell_groups`` (volumes) and ``vertex_groups`` (all groups).
 
+A user's own script follows the same convention and is run by path
+(:func:`build_script`, :func:`write_script`): ``build(model, h)`` and, optionally,
+``DEFAULT_SIZE`` (m), the ``h`` used when no size is given. Everything that goes
+wrong in it (missing file, no ``build``, an exception while loading or building, no
+volume, a mesh that fails the checks) is a one-line
+:class:`~lbshape.errors.LbshapeError` naming the script.
+
 The default sizes put the vertex and tetrahedron counts within
 :data:`TARGET_RTOL` of the sizes of the paper's Table 2 (DESIGN.md section 5).
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import logging
 import math
 import numbers
+import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -36,7 +45,8 @@ from lbshape.io.paths import MESHES_DIR
 
 log = logging.getLogger(__name__)
 
-#: folder of the gmsh scripts
+#: the file suffix of a gmsh Python script (built-in or a user's)
+SCRIPT_SUFFIX = ".py"
 #: relative window around the target counts that the default sizes must hit
 TARGET_RTOL = 0.2
 #: refuse sizes whose estimated tetrahedron count exceeds this (protects memory)
@@ -149,9 +159,7 @@ def build_shape(name: str, *, size: float | None = None) -> TetMesh:
         LbshapeError: unknown name, a size that is not a finite positive number or
             is too small to mesh, or a mesh that fails :func:`check_mesh`.
     """
-    with _generated(name, size) as (gmsh, source):
-        mesh = mesh_from_gmsh_model(gmsh.model, source=source)
-    return check_mesh(mesh, source=source)
+    return _build(_registered(name, size))
 
 
 def write_shape(name: str, path: str | Path, *, size: float | None = None) -> TetMesh:
@@ -172,17 +180,42 @@ def write_shape(name: str, path: str | Path, *, size: float | None = None) -> Te
         LbshapeError: as :func:`build_shape`, or a path that is not ``.msh`` or
             cannot be written.
     """
-    path = Path(path)
-    if path.suffix.lower() != ".msh":
-        raise LbshapeError(f"{path}: output must be a .msh file")
-    with _generated(name, size) as (gmsh, source):
-        mesh = check_mesh(mesh_from_gmsh_model(gmsh.model, source=source), source=source)
-        gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
-        gmsh.option.setNumber("Mesh.Binary", 0)
-        gmsh.option.setNumber("Mesh.SaveAll", 0)  # the physical groups cover the body
-        write_gmsh_model(gmsh, path)
-    log.info("wrote %s (%d vertices, %d tets)", path, mesh.n_vertices, mesh.n_tets)
-    return mesh
+    return _write(_registered(name, size), path)
+
+
+def is_script_path(text: str | Path) -> bool:
+    """True if ``text`` names a gmsh Python script (ends in :data:`SCRIPT_SUFFIX`)."""
+    return Path(text).suffix.lower() == SCRIPT_SUFFIX
+
+
+def build_script(path: str | Path, *, size: float | None = None) -> TetMesh:
+    """Mesh a user's gmsh Python script, written as the built-in ones in ``meshes/``.
+
+    The script defines ``build(model, h)`` (the geometry on ``model``, the
+    ``gmsh.model`` module, physical groups and the mesh size from ``h``; it does not
+    initialise gmsh or generate the mesh) and may define ``DEFAULT_SIZE`` (m), the
+    ``h`` used when ``size`` is None. Its folder is on ``sys.path`` while it loads,
+    so it may import modules beside it.
+
+    Args:
+        path: the script (``.py``).
+        size: ``h`` in metres (default: the script's ``DEFAULT_SIZE``).
+
+    Returns:
+        The checked tetrahedral mesh with the script's physical groups.
+
+    Raises:
+        LbshapeError: (one line) a missing file, a script that raises on loading or in
+            ``build``, defines no ``build(model, h)``, has no size, builds no volume,
+            cannot be meshed, or whose mesh fails :func:`check_mesh`.
+    """
+    return _build(_user_script(path, size))
+
+
+def write_script(path: str | Path, out: str | Path, *, size: float | None = None) -> TetMesh:
+    """Mesh a user's gmsh script (:func:`build_script`) and write ``out`` (``.msh``,
+    format 4.1, with the script's physical groups), atomically."""
+    return _write(_user_script(path, size), out)
 
 
 def geometry_volume(name: str, *, size: float | None = None) -> float:
@@ -195,57 +228,116 @@ def geometry_volume(name: str, *, size: float | None = None) -> float:
     Raises:
         LbshapeError: unknown name or bad size.
     """
-    with _geometry(name, size) as (gmsh, _, _):
+    with _geometry(_registered(name, size)) as gmsh:
         return _occ_volume(gmsh)
 
 
-def _check_size(name: str, size: float | None, spec: ShapeSpec) -> float:
+@dataclass(frozen=True)
+class _Script:
+    """A loaded gmsh script with the size to run it at (``source`` names it in messages)."""
+
+    module: ModuleType
+    h: float
+    source: str
+    model_name: str
+
+
+def _check_size(what: str, size: float | None, default: float | None) -> float:
     if size is None:
-        return spec.default_size
+        size = default
     if isinstance(size, bool) or not isinstance(size, numbers.Real):
-        raise LbshapeError(f"shape '{name}': size must be a number in metres, got {size!r}")
+        raise LbshapeError(f"{what}: size must be a number in metres, got {size!r}")
     h = float(size)
     if not math.isfinite(h) or h <= 0.0:
-        raise LbshapeError(f"shape '{name}': size must be a finite positive length, got {h:g}")
+        raise LbshapeError(f"{what}: size must be a finite positive length, got {h:g}")
     return h
 
 
-def _load_script(spec: ShapeSpec) -> ModuleType:
-    path = MESHES_DIR / spec.script
+def _registered(name: str, size: float | None) -> _Script:
+    spec = get_shape(name)
+    h = _check_size(f"shape '{name}'", size, spec.default_size)
+    module = _load_module(MESHES_DIR / spec.script, f"lbshape_meshes_{Path(spec.script).stem}")
+    return _Script(module, h, f"shape '{name}' (h = {h:g} m)", name)
+
+
+def _user_script(path: str | Path, size: float | None) -> _Script:
+    path = Path(path).expanduser()
+    if not is_script_path(path):
+        raise LbshapeError(f"{path}: a gmsh script must be a Python file ending in "
+                           f"{SCRIPT_SUFFIX}")
+    if not path.is_file():
+        raise LbshapeError(f"gmsh script not found: {path}")
+    path = path.resolve()
+    digest = hashlib.sha256(str(path).encode()).hexdigest()[:12]
+    module = _load_module(path, f"lbshape_user_script_{digest}", user=True)
+    default = getattr(module, "DEFAULT_SIZE", None)
+    if size is None and default is None:
+        raise LbshapeError(f"{path}: no mesh size: give one (lbshape mesh/eigen/modes --size H, "
+                           "a scene's size = H, in metres) or define DEFAULT_SIZE in the script")
+    h = _check_size(f"{path}", size, default)
+    return _Script(module, h, f"{path} (h = {h:g} m)", path.stem)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _load_module(path: Path, module_name: str, *, user: bool = False) -> ModuleType:
     if not path.is_file():
         raise LbshapeError(f"shape script not found: {path}")
-    module_spec = importlib.util.spec_from_file_location(f"lbshape_meshes_{path.stem}", path)
+    module_spec = importlib.util.spec_from_file_location(module_name, path)
     module = importlib.util.module_from_spec(module_spec)
-    module_spec.loader.exec_module(module)
+    folder = str(path.parent)
+    added = user and folder not in sys.path
+    if added:
+        sys.path.insert(0, folder)  # a user's script may import its neighbours
+    try:
+        module_spec.loader.exec_module(module)
+    except LbshapeError:
+        raise
+    except Exception as exc:  # a user's script may raise anything, SyntaxError included
+        raise LbshapeError(f"{path}: the script failed while loading ({_one_line(exc)})") from None
+    finally:
+        if added:
+            sys.path.remove(folder)
     if not callable(getattr(module, "build", None)):
-        raise LbshapeError(f"{path}: defines no build(model, h) function")
+        raise LbshapeError(f"{path}: defines no build(model, h) function (the convention of "
+                           "the scripts in meshes/)")
     return module
 
 
 @contextmanager
-def _geometry(name: str, size: float | None) -> Iterator[tuple[ModuleType, float, str]]:
-    """Yield ``(gmsh, h, source)`` with the shape's geometry built in a fresh model.
+def _geometry(script: _Script) -> Iterator[ModuleType]:
+    """Yield ``gmsh`` with the script's geometry built in a fresh model.
 
     The gmsh options a script may touch start from
     :data:`lbshape.geometry.mesh.GMSH_OPTION_BASELINE` and
     are restored to the caller's values afterwards; the model is cleared on exit.
     """
-    spec = get_shape(name)
-    h = _check_size(name, size, spec)
-    script = _load_script(spec)
-    source = f"shape '{name}' (h = {h:g} m)"
-    with gmsh_model(name) as gmsh:
-        script.build(gmsh.model, h)
-        gmsh.model.occ.synchronize()
-        yield gmsh, h, source
+    with gmsh_model(script.model_name) as gmsh:
+        try:
+            script.module.build(gmsh.model, script.h)
+            gmsh.model.occ.synchronize()
+        except LbshapeError:
+            raise
+        except Exception as exc:  # gmsh raises a bare Exception; a script anything
+            raise LbshapeError(f"{script.source}: build(model, h) failed "
+                               f"({_one_line(exc)})") from None
+        if not gmsh.model.getEntities(3):
+            raise LbshapeError(f"{script.source}: the script built no volume (lbshape needs a "
+                               "solid: build(model, h) must add a 3D entity)")
+        yield gmsh
 
 
 @contextmanager
-def _generated(name: str, size: float | None) -> Iterator[tuple[ModuleType, str]]:
-    """Yield ``(gmsh, source)`` with the shape meshed in a fresh model; clean up after."""
+def _generated(script: _Script) -> Iterator[ModuleType]:
+    """Yield ``gmsh`` with the script's geometry meshed in a fresh model; clean up after."""
     started = time.perf_counter()
-    with _geometry(name, size) as (gmsh, h, source):
-        estimate = 6.0 * math.sqrt(2.0) * _occ_volume(gmsh) / h**3  # regular tets of edge h
+    source, h = script.source, script.h
+    with _geometry(script) as gmsh:
+        volume = _occ_volume(gmsh)
+        estimate = 6.0 * math.sqrt(2.0) * volume / h**3  # regular tets of edge h
         if estimate > MAX_ESTIMATED_TETS:
             raise LbshapeError(
                 f"{source}: size too small, about {estimate:.3g} tetrahedra "
@@ -256,10 +348,36 @@ def _generated(name: str, size: float | None) -> Iterator[tuple[ModuleType, str]
         try:
             gmsh.model.mesh.generate(3)
         except Exception as exc:  # gmsh raises a bare Exception with its message
-            raise LbshapeError(f"{source}: gmsh could not mesh it ({exc})") from None
+            raise LbshapeError(f"{source}: gmsh could not mesh it ({_one_line(exc)})") from None
         log.info("meshed %s in %.2f s", source, time.perf_counter() - started)
-        yield gmsh, source
+        yield gmsh
+
+
+def _build(script: _Script) -> TetMesh:
+    with _generated(script) as gmsh:
+        mesh = mesh_from_gmsh_model(gmsh.model, source=script.source)
+    return check_mesh(mesh, source=script.source)
+
+
+def _write(script: _Script, path: str | Path) -> TetMesh:
+    path = Path(path)
+    if path.suffix.lower() != ".msh":
+        raise LbshapeError(f"{path}: output must be a .msh file")
+    with _generated(script) as gmsh:
+        mesh = check_mesh(mesh_from_gmsh_model(gmsh.model, source=script.source),
+                          source=script.source)
+        gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
+        gmsh.option.setNumber("Mesh.Binary", 0)
+        gmsh.option.setNumber("Mesh.SaveAll", 0)  # the physical groups cover the body
+        write_gmsh_model(gmsh, path)
+    log.info("wrote %s (%d vertices, %d tets)", path, mesh.n_vertices, mesh.n_tets)
+    return mesh
 
 
 def _occ_volume(gmsh) -> float:
-    return float(sum(gmsh.model.occ.getMass(d, t) for d, t in gmsh.model.getEntities(3)))
+    """The OCC volume of the model's solids (0 for a script on gmsh's built-in kernel,
+    whose volume OCC cannot measure: the size guard is then skipped)."""
+    try:
+        return float(sum(gmsh.model.occ.getMass(d, t) for d, t in gmsh.model.getEntities(3)))
+    except Exception:  # not OCC entities
+        return 0.0

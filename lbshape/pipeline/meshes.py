@@ -2,7 +2,7 @@
 
 The scene (:mod:`lbshape.scene.schema`) only says where meshes come from and which
 vertices a region or group names; this module does the work: it runs the gmsh
-script of a built-in shape or reads a mesh file (any format of
+script of a built-in shape or of a user (``.py``) or reads a mesh file (any format of
 :func:`lbshape.geometry.mesh_files.read_mesh_file`, surfaces tetrahedralised at the
 source's size), gives an example's rest and posed meshes (an analytic pose of
 :mod:`lbshape.geometry.poses` applied, or a posed file paired with its rest), poses a
@@ -12,24 +12,55 @@ part of an example (a local-example region) and evaluates a selection on a mesh.
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
-from lbshape.geometry.mesh_files import is_surface_file, posed_surface_pair, read_mesh_file
+from lbshape.geometry.mesh_files import (
+    is_surface_file,
+    posed_surface_pair,
+    read_mesh_file,
+    write_msh,
+)
 from lbshape.geometry.poses import apply_pose
 from lbshape.geometry.regions import region_vertices
-from lbshape.geometry.shapes import build_shape
+from lbshape.geometry.shapes import build_script, build_shape, write_script, write_shape
 from lbshape.scene.schema import ExamplePose, MeshSource, Selection
 
 
 def build_mesh(source: MeshSource) -> TetMesh:
-    """The mesh of a source: the built-in shape's gmsh script run, or the file read
-    (a surface file tetrahedralised at ``source.size``)."""
+    """The mesh of a source: the built-in shape's or the user's gmsh script run, or the
+    file read (a surface file tetrahedralised at ``source.size``)."""
     if source.shape is not None:
         return build_shape(source.shape, size=source.size)
+    if source.script is not None:
+        return build_script(source.script, size=source.size)
     return read_mesh_file(source.mesh_file, size=source.size)
+
+
+def write_mesh(source: MeshSource, path: str | Path) -> TetMesh:
+    """Build ``source`` (:func:`build_mesh`) and write it as gmsh ``.msh`` (format 4.1),
+    atomically; a gmsh script's physical groups are kept. Returns the mesh.
+
+    Raises:
+        LbshapeError: as :func:`build_mesh`, an output that is not ``.msh`` or would
+            overwrite the input file, or a path that cannot be written.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".msh":
+        raise LbshapeError(f"{path}: output must be a .msh file")
+    inputs = [f for f in (source.script, source.mesh_file) if f is not None]
+    if any(path.resolve() == Path(f).resolve() for f in inputs):
+        raise LbshapeError(f"{path}: output would overwrite the input file")
+    if source.shape is not None:
+        return write_shape(source.shape, path, size=source.size)
+    if source.script is not None:
+        return write_script(source.script, path, size=source.size)
+    mesh = read_mesh_file(source.mesh_file, size=source.size)
+    write_msh(mesh, path)
+    return mesh
 
 
 def posed_example(pose: ExamplePose, rest: TetMesh) -> TetMesh:

@@ -72,7 +72,6 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
@@ -739,7 +738,7 @@ def _train_lb_cubatures(scene: Scene, mesh: TetMesh, eigenvectors, eigenvalues,
 
 
 def _example_label(pose) -> str:
-    source = pose.source.shape or Path(pose.source.mesh_file).name
+    source = pose.source.label
     return f"{source}:{pose.pose}" if pose.pose else str(source)
 
 

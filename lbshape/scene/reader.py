@@ -33,7 +33,7 @@ from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh_files import SURFACE_FORMATS, is_surface_file
 from lbshape.geometry.poses import POSE_CHOICES, POSE_PARAMETERS, POSES
 from lbshape.geometry.regions import parse_region
-from lbshape.geometry.shapes import SHAPES
+from lbshape.geometry.shapes import SHAPES, is_script_path
 from lbshape.scene.schema import (
     LOAD_TYPES,
     Damping,
@@ -51,7 +51,7 @@ from lbshape.scene.schema import (
 )
 from lbshape.shapespace.interpolation import ROUTE_CHOICES
 
-__all__ = ["builtin_scene_names", "load_scene", "scene_from_dict"]
+__all__ = ["builtin_scene_names", "load_scene", "mesh_source", "scene_from_dict"]
 
 
 def builtin_scene_names() -> tuple[str, ...]:
@@ -243,18 +243,59 @@ def _simulation(top: _Table) -> Simulation:
     )
 
 
+def mesh_source(text: str | Path, *, size: float | None = None,
+                base_dir: str | Path | None = None) -> MeshSource:
+    """The :class:`MeshSource` a command-line argument names: a built-in shape name, a
+    user's gmsh script (``.py``) or a mesh file (any format of
+    :func:`lbshape.geometry.mesh_files.read_mesh_file`), paths relative to
+    ``base_dir`` (default: the current folder). The one resolver of ``lbshape mesh``,
+    ``eigen`` and ``modes``; build the mesh with
+    :func:`lbshape.pipeline.meshes.build_mesh`.
+
+    Raises:
+        LbshapeError: an unknown name (listing the shapes), a missing file or script,
+            or a size that is not a finite positive length.
+    """
+    text = str(text)
+    if size is not None and not (isinstance(size, int | float) and not isinstance(size, bool)
+                                 and math.isfinite(size) and size > 0):
+        raise LbshapeError(f"{text}: size must be a finite positive length in metres, "
+                           f"got {size!r}")
+    if text in SHAPES:
+        return MeshSource(shape=text, size=size)
+    path = Path(text).expanduser()
+    if not path.is_absolute():
+        path = Path(base_dir if base_dir is not None else Path.cwd()) / path
+    if is_script_path(path):
+        if not path.is_file():
+            raise LbshapeError(f"gmsh script not found: {path}")
+        return MeshSource(script=path.resolve(), size=size)
+    if Path(text).suffix or path.exists():
+        if not path.is_file():
+            raise LbshapeError(f"mesh file not found: {path}")
+        return MeshSource(mesh_file=path.resolve(), size=size)
+    raise LbshapeError(f"unknown shape '{text}' and no such file; give a built-in shape "
+                       f"({', '.join(SHAPES)}), a gmsh script (.py) or a mesh file")
+
+
 def _mesh_source(t: _Table, ctx: _Context) -> MeshSource:
     if ("shape" in t.data) == ("mesh" in t.data):
         raise ctx.error(f"'{t.path}' needs exactly one of 'shape' or 'mesh'")
     if "shape" in t.data:
         shape = t.string("shape")
+        size = t.number("size", None, low=0.0, open_low=True, unit="m")
+        if is_script_path(shape):
+            return MeshSource(script=_existing_path(t, "shape", ctx, what="gmsh script"),
+                              size=size)
         if shape not in SHAPES:
             raise ctx.error(
                 f"'{t.key('shape')}': unknown shape '{shape}' (built-in shapes: "
-                f"{', '.join(sorted(SHAPES))})"
+                f"{', '.join(sorted(SHAPES))}; or a gmsh script ending in .py)"
             )
-        size = t.number("size", None, low=0.0, open_low=True, unit="m")
         return MeshSource(shape=shape, size=size)
+    if is_script_path(t.string("mesh")):
+        raise ctx.error(f"'{t.key('mesh')}': {t.string('mesh')} is a gmsh script; give it as "
+                        f"'{t.key('shape')}'")
     path = _mesh_path(t, "mesh", ctx)
     size = t.number("size", None, low=0.0, open_low=True, unit="m")
     if size is not None and not is_surface_file(path) and not _rest_is_surface(t, ctx):
@@ -264,10 +305,14 @@ def _mesh_source(t: _Table, ctx: _Context) -> MeshSource:
 
 
 def _mesh_path(t: _Table, key: str, ctx: _Context) -> Path:
+    return _existing_path(t, key, ctx, what="mesh file")
+
+
+def _existing_path(t: _Table, key: str, ctx: _Context, *, what: str) -> Path:
     path = Path(t.string(key)).expanduser()
     path = path if path.is_absolute() else ctx.base_dir / path
     if not path.is_file():
-        raise ctx.error(f"'{t.key(key)}': mesh file not found: {path}")
+        raise ctx.error(f"'{t.key(key)}': {what} not found: {path}")
     return path.resolve()
 
 

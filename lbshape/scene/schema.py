@@ -10,12 +10,16 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
     description = "..."        # str ("")
 
     [object]                   # required; exactly one of shape / mesh
-    shape = "bar-cuboid"       # built-in shape name (lbshape.geometry.shapes.SHAPES)
+    shape = "bar-cuboid"       # built-in shape name (lbshape.geometry.shapes.SHAPES), or
+                               # a gmsh script "my_part.py" (relative to the TOML file's
+                               # folder) defining build(model, h) as the scripts in
+                               # meshes/ do, and optionally DEFAULT_SIZE (m)
     mesh = "part.msh"          # mesh file, relative to the TOML file's folder: .msh, a
                                # meshio volume (.vtu .vtk .mesh …) or a closed surface
                                # (.stl .obj .ply .off) tetrahedralised by gmsh
-    size = 0.07                # m, > 0; gmsh size: shape override (shape default) or the
-                               # surface's remeshing size (surface kept as given)
+    size = 0.07                # m, > 0; gmsh size: shape or script override (shape default,
+                               # script's DEFAULT_SIZE) or the surface's remeshing size
+                               # (surface kept as given)
 
     [material]                 # lbshape.elastic.materials.Material
     model = "stvk"             # "stvk" | "neohookean" ("stvk")
@@ -41,7 +45,7 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
     stiffness = 200.0          # k_ex, 1/s^2, >= 0 (required): force k_ex (q* - q)
                                # in mass-normalised reduced coordinates
     [[examples.pose]]          # one table per example, at least one
-    shape = "bar-cylinder"     # built-in shape, OR
+    shape = "bar-cylinder"     # built-in shape or gmsh script (.py), OR
     mesh = "example.msh"       # a mesh file (relative to the TOML file), any format above
     size = 0.05                # m, > 0, shape or surface file (also used for 'rest')
     pose = "twist"             # a key of lbshape.geometry.poses.POSES; omit if the mesh is posed
@@ -135,24 +139,40 @@ PoseValue = float | str
 
 @dataclass(frozen=True)
 class MeshSource:
-    """Where a mesh comes from: a built-in shape (with optional size) or a file.
+    """Where a mesh comes from: a built-in shape, a user's gmsh script (each with an
+    optional size) or a mesh file; exactly one of ``shape``, ``script``, ``mesh_file``.
 
     Attributes:
         shape: built-in shape name, or ``None``.
         mesh_file: absolute path of a mesh file (any format of
             :func:`lbshape.geometry.mesh_files.read_mesh_file`), or ``None``.
-        size: gmsh size (m): a shape's override, or a surface file's remeshing
-            size; ``None`` for the shape's default or the surface as given.
+        size: gmsh size (m): a shape's or script's override, or a surface file's
+            remeshing size; ``None`` for the shape's (script's ``DEFAULT_SIZE``)
+            default or the surface as given.
+        script: absolute path of a user's gmsh Python script
+            (:func:`lbshape.geometry.shapes.build_script`), or ``None``.
     """
 
     shape: str | None = None
     mesh_file: Path | None = None
     size: float | None = None
+    script: Path | None = None
+
+    @property
+    def label(self) -> str:
+        """A short name for captions: the shape's name or the file's name."""
+        if self.shape is not None:
+            return self.shape
+        return Path(self.script if self.script is not None else self.mesh_file).name
 
     def key(self) -> dict:
-        """What identifies the mesh: shape and size, or the file's SHA-256."""
+        """What identifies the mesh: shape and size, or the script's or file's SHA-256."""
         if self.shape is not None:
             return {"shape": self.shape, "size": self.size}
+        if self.script is not None:
+            if not self.script.is_file():
+                raise LbshapeError(f"gmsh script not found: {self.script}")
+            return {"script_sha256": file_digest(self.script), "size": self.size}
         if not self.mesh_file.is_file():
             raise LbshapeError(f"mesh file not found: {self.mesh_file}")
         key = {"mesh_sha256": file_digest(self.mesh_file)}
