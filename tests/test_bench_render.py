@@ -193,13 +193,17 @@ def test_render_command_writes_non_blank_pngs(tmp_path):
     out = tmp_path / "figures"
     assert main(["render", "demo", "--out", str(out), "--steps", "30"]) == 0
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["eigenfunctions.png", "examples_on_object.png", "examples_raw.png",
-                     "simulation.png", "summary.json"], names
-    for name in ("eigenfunctions.png", "examples_on_object.png", "simulation.png"):
+    assert names == ["comparison.json", "comparison.png", "eigenfunctions.png",
+                     "examples_on_object.png", "examples_raw.png", "simulation.png",
+                     "summary.json"], names
+    for name in ("eigenfunctions.png", "examples_on_object.png", "simulation.png",
+                 "comparison.png"):
         _assert_not_blank(out / name, coloured=0.01)
     _assert_not_blank(out / "examples_raw.png")
     summary = json.loads((out / "summary.json").read_text())
     assert summary["simulation"]["steps"] == 30 and summary["message"] == ""
+    comparison = json.loads((out / "comparison.json").read_text())
+    assert "no examples" in comparison["panels"][1] and comparison["example_influence"] > 0
 
 
 def test_figure3_panels_for_a_same_and_other_topology_pair(tmp_path):

@@ -9,7 +9,9 @@ from lbshape.report.demo import run_demo
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser("demo", help="run the default job on the demo scene")
-    parser.add_argument("--out", type=Path, default=None, help="output folder (results/demo)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="output folder (default: results/demo when run from the lbshape "
+                             "repository's root, else ./lbshape-results/demo)")
     parser.set_defaults(func=run)
 
 

@@ -42,13 +42,38 @@ class _ArgumentParserError(LbshapeError):
     pass
 
 
+class ProgressAwareHandler(logging.Handler):
+    """Log records on stderr through ``tqdm.write``: a warning raised while a progress
+    bar is drawn (a mesh's re-oriented tetrahedra during the precompute's mesh stage)
+    gets a line of its own and the bar is redrawn below it, instead of the message
+    being glued into the bar's line."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            from tqdm import tqdm
+
+            tqdm.write(self.format(record), file=sys.stderr)
+        except Exception:  # never let logging break a run
+            self.handleError(record)
+
+
+def configure_logging(*, verbose: bool = False) -> None:
+    """The command line's logging: ``LEVEL: message`` lines on stderr through
+    :class:`ProgressAwareHandler`; lbshape at INFO with ``verbose``, else WARNING;
+    Python warnings (``warnings.warn``) go the same way."""
+    handler = ProgressAwareHandler()
+    handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
+    # the root logger stays at WARNING: the form compiler's build log goes there
+    logging.basicConfig(level=logging.WARNING, handlers=[handler], force=True)
+    logging.getLogger("lbshape").setLevel(logging.INFO if verbose else logging.WARNING)
+    logging.captureWarnings(True)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``lbshape`` console script; returns the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    # the root logger stays at WARNING: the form compiler's build log goes there
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s", force=True)
-    logging.getLogger("lbshape").setLevel(logging.INFO if args.verbose else logging.WARNING)
+    configure_logging(verbose=args.verbose)
     try:
         result = args.func(args)
     except LbshapeError as exc:

@@ -13,7 +13,13 @@ from pathlib import Path
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.simulate import METHODS
 from lbshape.report.animation import simulation_movie
-from lbshape.report.figures import DEFAULT_OUT, FIGURE3_SCENES, FIGURE3_STEPS, figure3, render_scene
+from lbshape.report.figures import (
+    FIGURE3_SCENES,
+    FIGURE3_STEPS,
+    default_out,
+    figure3,
+    render_scene,
+)
 from lbshape.scene import load_scene
 
 
@@ -22,7 +28,9 @@ def register(subparsers) -> None:
         "render", help="off-screen PNGs: simulation, examples, eigenfunctions (and Figure 3)")
     parser.add_argument("scene", help="built-in scene name or path to a TOML file")
     parser.add_argument("--out", type=Path, default=None,
-                        help="output folder (default: results/figures/SCENE)")
+                        help="output folder (default: results/figures/SCENE when run "
+                             "from the lbshape repository's root, else "
+                             "./lbshape-results/figures/SCENE)")
     parser.add_argument("--steps", type=int, default=None,
                         help="steps of the runs (default: the scene's; Figure 3: "
                              "at most 400)")
@@ -41,7 +49,7 @@ def run(args) -> int:
     if not args.fps > 0:
         raise LbshapeError(f"--fps must be > 0, got {args.fps}")
     scene = load_scene(args.scene)
-    out = args.out or DEFAULT_OUT / scene.name
+    out = args.out or default_out(scene.name)
     created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)

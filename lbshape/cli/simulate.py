@@ -22,6 +22,7 @@ from lbshape.cli._mpi import require_one_rank
 from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import FAILED_MARKER, check_replaceable
+from lbshape.io.paths import output_root
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import METHODS, RUN_FILES, simulate
 from lbshape.scene import load_scene
@@ -34,8 +35,9 @@ def register(subparsers) -> None:
     parser.add_argument("--steps", type=int, default=None, help="override the scene's steps")
     parser.add_argument("--out", type=Path, default=None,
                         help="output folder, replaced as a whole (default: "
-                        "results/runs/SCENE-METHOD); a run that stops (exit 3) leaves only "
-                        "FAILED.txt in it")
+                        "results/runs/SCENE-METHOD when run from the lbshape repository's "
+                        "root, else ./lbshape-results/runs/SCENE-METHOD); a run that stops "
+                        "(exit 3) leaves only FAILED.txt in it")
     parser.add_argument("--json", action="store_true", help="print stats as JSON")
     parser.add_argument("--no-influence", action="store_true",
                         help="skip the second run without examples (the example influence "
@@ -48,7 +50,7 @@ def run(args) -> int:
     if args.steps is not None and args.steps < 1:
         raise LbshapeError(f"--steps must be >= 1, got {args.steps}")
     scene = load_scene(args.scene)
-    out = args.out or Path("results") / "runs" / f"{scene.name}-{args.method}"
+    out = args.out or output_root() / "runs" / f"{scene.name}-{args.method}"
     check_replaceable(out, RUN_FILES)  # before the precompute
     pre = precompute(scene, progress=not args.json)
     result = simulate(scene, pre, method=args.method, steps=args.steps, out=out,

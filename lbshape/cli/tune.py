@@ -19,7 +19,7 @@ from pathlib import Path
 from lbshape.errors import LbshapeError
 from lbshape.report.tune import (
     DEFAULT_BUDGET_MS,
-    DEFAULT_OUT,
+    default_out,
     tune_scene,
     verdict_line,
     write_tune,
@@ -66,7 +66,8 @@ def register(subparsers) -> None:
     parser.add_argument("--repeats", type=int, default=3,
                         help="reduced runs per candidate (default 3)")
     parser.add_argument("--out", type=Path, default=None,
-                        help="output folder (default: results/tune)")
+                        help="output folder (default: results/tune when run from the "
+                             "lbshape repository's root, else ./lbshape-results/tune)")
     parser.set_defaults(func=run)
 
 
@@ -80,7 +81,7 @@ def run(args) -> int:
     result = tune_scene(scene, error=args.error, budget_ms=args.budget_ms,
                         m_values=values["m"], r_values=values["r"], s_values=values["s"],
                         forces=forces, steps=args.steps, repeats=args.repeats, progress=True)
-    toml, table = write_tune(result, scene, args.out or DEFAULT_OUT)
+    toml, table = write_tune(result, scene, args.out or default_out())
     print(f"tune {scene.name}: {len(result.trials)} candidates, table {table}")
     if result.best is None:
         raise LbshapeError(verdict_line(result))

@@ -24,7 +24,7 @@ from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import METHODS, simulate
 from lbshape.report.movie import DEFAULT_FPS, Movie, write_movie
-from lbshape.report.render import animation_frames
+from lbshape.report.render import animation_frames, scene_planes
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +115,7 @@ def simulation_movie(scene, out: str | Path, *, method: str = "reduced",
     times = max((t for t, _ in states), key=len)
     fields = [_hold_last(u, len(times)) for _, u in states]
     labels = [f"{scene.name}: {name}" for name in methods]
-    frames = animation_frames(pre.mesh, fields, labels, times, progress=progress)
+    frames = animation_frames(pre.mesh, fields, labels, times, progress=progress,
+                              planes=scene_planes(scene))
     movies = write_movie(frames, out / f"{MOVIE_STEM}.gif", fps=fps, mp4=mp4)
     return SceneMovie(movies, methods, tuple(runs), int(frames.shape[0]), "; ".join(messages))

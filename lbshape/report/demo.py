@@ -1,7 +1,8 @@
 """The default job: ``lbshape demo`` / ``make demo``.
 
 Runs the built-in ``demo`` scene end to end and writes pictures and a short
-summary to ``results/demo/`` (atomically):
+summary to ``results/demo/`` when run from the repository's root, else to
+``./lbshape-results/demo/`` (:func:`lbshape.io.paths.output_root`), atomically:
 
 1. precompute (cached): LB shape space with different-topology examples (a cuboid
    bar guided by twisted cylinders), nonlinear modal basis, cubature;
@@ -17,8 +18,9 @@ summary to ``results/demo/`` (atomically):
    the free end, where the twist shows best), ``demo.gif`` (the three runs animated side by
    side), ``examples_on_object.png`` / ``examples_raw.png`` (the examples as the
    method sees them on the object, and as given), ``demo_reduced.png`` /
-   ``demo_full.png`` (frames over time) and the interior LB eigenfunctions of the
-   teddy (the paper's Figure 2).
+   ``demo_full.png`` (frames over time) and ``eigenfunctions.png``, the demo bar's
+   interior LB eigenfunctions (its shape space; the teddy's, the paper's Figure 2, are
+   drawn by ``lbshape render teddy-global`` into that scene's figures folder).
 
 The summary's ``headline`` states speed, error versus full and influence in one
 line; :data:`SUMMARY_KEYS` are the keys of its ``simulation`` part.
@@ -34,7 +36,7 @@ from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.geometry.shapes import build_shape
 from lbshape.io.atomic import write_json_atomic
-from lbshape.io.paths import RESULTS_DIR
+from lbshape.io.paths import output_root
 from lbshape.pipeline.influence import compare_runs, end_twist_degrees, without_examples
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
@@ -42,17 +44,15 @@ from lbshape.report.bench import trajectory_error
 from lbshape.report.figures import (
     comparison_animation,
     comparison_figure,
+    eigenfunctions_figure,
     examples_figures,
     simulation_figure,
 )
-from lbshape.report.render import render_eigenfunctions
 from lbshape.scene import load_scene
 from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
 
-#: repository-relative default output folder
-DEFAULT_OUT = RESULTS_DIR / "demo"
 #: keys of the ``simulation`` part of ``summary.json``
 SUMMARY_KEYS: tuple[str, ...] = (
     "scene", "headline", "precompute_seconds", "precompute_from_cache", "stage_seconds",
@@ -68,10 +68,10 @@ ANIMATION_FRAMES = 40
 END_VIEW = (0.0, -0.25, -1.0)
 
 
-def spectra_figure(out: Path, *, m: int = 6) -> dict:
-    """Eigenfunctions on the teddy's interior (Figure 2) and the demo meshes' spectra."""
+def spectra_summary(*, m: int = 6) -> dict:
+    """The LB spectra of the demo's meshes (the object and its examples' mesh)."""
     summary = {}
-    for name in ("demo-bar", "demo-cylinder", "teddy"):
+    for name in ("demo-bar", "demo-cylinder"):
         started = time.perf_counter()
         mesh = build_shape(name)
         spectrum = lb_spectrum(mesh, m)
@@ -82,13 +82,13 @@ def spectra_figure(out: Path, *, m: int = 6) -> dict:
             "eigenvalues": [float(v) for v in spectrum.eigenvalues],
             "seconds": time.perf_counter() - started,
         }
-        if name == "teddy":
-            render_eigenfunctions(
-                mesh, spectrum.eigenvectors, spectrum.eigenvalues,
-                out / "teddy_eigenfunctions.png", indices=(0, 1, 2, 3),
-                clip_normal=(0.0, 1.0, 0.0),
-            )
     return summary
+
+
+def default_out() -> Path:
+    """The demo's default folder: ``demo/`` under :func:`lbshape.io.paths.output_root`
+    (``results/demo`` in the repository's root, else ``./lbshape-results/demo``)."""
+    return output_root() / "demo"
 
 
 def headline(summary: dict) -> str:
@@ -150,6 +150,7 @@ def simulation_figures(out: Path) -> dict:
         *examples_figures(scene, pre, out),
         simulation_figure(pre, runs["reduced"], out / "demo_reduced.png"),
         simulation_figure(pre, runs["full"], out / "demo_full.png"),
+        eigenfunctions_figure(scene, pre, out / "eigenfunctions.png"),
     ]
     summary = {
         "scene": scene.name,
@@ -178,10 +179,10 @@ def simulation_figures(out: Path) -> dict:
 
 def run_demo(out: Path | None = None) -> Path:
     """Run the demo; return the summary file path."""
-    out = Path(out) if out is not None else DEFAULT_OUT
+    out = Path(out) if out is not None else default_out()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise LbshapeError(f"cannot create output folder {out}: {exc.strerror}") from None
-    summary = {"simulation": simulation_figures(out), "spectra": spectra_figure(out)}
+    summary = {"simulation": simulation_figures(out), "spectra": spectra_summary()}
     return write_json_atomic(out / "summary.json", summary)

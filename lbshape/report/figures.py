@@ -1,7 +1,11 @@
 """Scene-level pictures composed from :mod:`lbshape.report.render` (``lbshape render``).
 
 * :func:`simulation_figure` — a few frames of a run side by side, coloured by the
-  displacement magnitude;
+  displacement magnitude (free bodies: one fixed camera over the whole trajectory and
+  the scene's contact planes as translucent rectangles);
+* :func:`examples_comparison` — rest | no examples | examples, final frames, for any
+  scene whose examples act on the whole object (``comparison.png``; the built-in bars
+  also get Figure 3, the demo its own comparison, local examples ``local_result.png``);
 * :func:`examples_figures` — the examples reconstructed on the object's mesh (what
   the method sees) and the raw example meshes posed (what the user gave);
 * :func:`eigenfunctions_figure` — the object's LB eigenfunctions on its interior;
@@ -35,17 +39,23 @@ import numpy as np
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic
-from lbshape.io.paths import RESULTS_DIR
-from lbshape.pipeline.influence import body_deformations, compare_runs, end_twist_degrees
+from lbshape.io.paths import output_root
+from lbshape.pipeline.influence import (
+    body_deformations,
+    compare_runs,
+    end_twist_degrees,
+    has_example_force,
+)
 from lbshape.pipeline.meshes import example_mesh
 from lbshape.pipeline.precompute import precompute
-from lbshape.pipeline.simulate import simulate
+from lbshape.pipeline.simulate import example_influence, simulate
 from lbshape.report.bench import m_norms
 from lbshape.report.render import (
     render_animation,
     render_eigenfunctions,
     render_shape_grid,
     render_shapes,
+    scene_planes,
 )
 from lbshape.scene.schema import Examples
 from lbshape.shapespace.local_examples import anchor_fit, region_example_distance
@@ -53,12 +63,20 @@ from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
 
-#: repository-relative default output root (one folder per scene)
-DEFAULT_OUT = RESULTS_DIR / "figures"
 #: built-in scenes for the Figure 3 comparison: (same-topology, other-topology examples)
 FIGURE3_SCENES: tuple[str, str] = ("bar-cuboid", "bar-cylinder")
+#: zoom of a fixed camera framing a whole trajectory: its bounding sphere, which the
+#: camera fits, leaves a wide margin around the trajectory's box
+TRAJECTORY_ZOOM = 1.2
 #: steps of the Figure 3 runs (0.4 s at dt = 1 ms: the 0.3 s torque ramp is over)
 FIGURE3_STEPS = 400
+
+
+def default_out(scene_name: str) -> Path:
+    """The default folder of a scene's pictures: ``figures/SCENE`` under
+    :func:`lbshape.io.paths.output_root` (``results/`` in the repository's root,
+    else ``./lbshape-results/``)."""
+    return output_root() / "figures" / scene_name
 
 
 @dataclass(frozen=True)
@@ -102,8 +120,18 @@ def _deformed(pre, u: np.ndarray):
     return pre.mesh.with_points(pre.mesh.points + np.asarray(u).reshape(-1, 3))
 
 
+def trajectory_points(pre, outputs) -> np.ndarray:
+    """(p, 3) the rest shape and every sampled frame of the runs ``outputs``: what a
+    fixed camera frames and contact planes are sized to."""
+    rest = pre.mesh.points
+    frames = [rest[None] + np.asarray(o.displacements).reshape(-1, *rest.shape)
+              for o in outputs]
+    return np.vstack([rest, *(f.reshape(-1, 3) for f in frames)])
+
+
 def simulation_figure(pre, output, path: str | Path, *, frames: int = 4,
-                      method: str | None = None) -> Path:
+                      method: str | None = None, planes=(), fixed_camera: bool = False
+                      ) -> Path:
     """A few frames of a run side by side, coloured by |u| (m), the last frame included.
 
     Args:
@@ -113,6 +141,11 @@ def simulation_figure(pre, output, path: str | Path, *, frames: int = 4,
         path: output PNG.
         frames: how many frames (evenly spaced after t = 0).
         method: caption prefix (default: the run's method).
+        planes: (point, normal) contact planes, drawn as translucent rectangles sized to
+            the whole trajectory (:func:`lbshape.report.render.scene_planes`).
+        fixed_camera: one camera for every panel framing the whole trajectory (a free
+            body moves across the picture) instead of one framing the first panel's
+            shape; implied by ``planes``.
     """
     count = len(output.times)
     if count < 2:
@@ -124,13 +157,17 @@ def simulation_figure(pre, output, path: str | Path, *, frames: int = 4,
     meshes = [_deformed(pre, output.displacements[i]) for i in picks]
     labels = [f"{method} t={output.times[i]:.3f} s" for i in picks]
     values = [np.linalg.norm(output.displacements[i], axis=1) for i in picks]
-    return render_shapes(meshes, labels, path, scalars=values)
+    extent = trajectory_points(pre, [output]) if fixed_camera or len(planes) else None
+    wide = {} if extent is None else {"zoom": TRAJECTORY_ZOOM,
+                                      "window_size": (460 * len(meshes), 440)}
+    return render_shapes(meshes, labels, path, scalars=values, planes=planes, extent=extent,
+                         **wide)
 
 
 def example_caption(index: int, pose) -> str:
     """``example k: SOURCE POSE p=v …`` for an :class:`~lbshape.scene.schema.ExamplePose`
     (k from 0, as the scene's ``[[regions]]`` number the examples)."""
-    source = pose.source.shape or Path(pose.source.mesh_file).name
+    source = pose.source.label
     words = [f"example {index}: {source}"]
     if pose.pose is not None:
         words.append(pose.pose)
@@ -305,7 +342,7 @@ def eigenfunctions_figure(scene, pre, path: str | Path, *, count: int = 4) -> Pa
 
 def _examples_label(scene) -> str:
     source = scene.examples.poses[0].source
-    return source.shape or Path(source.mesh_file).stem
+    return source.shape or Path(source.label).stem
 
 
 def figure3(same_topology, other_topology, path: str | Path, *,
@@ -424,7 +461,7 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
         single = Examples(scene.examples.stiffness, (pose,))
         variants.append((f"{pose.pose or 'posed'} example", dataclasses.replace(
             scene, examples=single)))
-    rows, labels, scalars, finals, messages = [], [], [], [], []
+    rows, labels, scalars, finals, messages, outputs = [], [], [], [], [], []
     pre = None
     for name, variant in variants:
         pre = precompute(variant, progress=progress)
@@ -438,16 +475,17 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
                                    np.asarray(output.displacements)[picks])
         scalars.append(list(np.linalg.norm(picked, axis=2)))
         finals.append(output.displacements[-1])
+        outputs.append(output)
     mass = mass_matrix(pre.mesh, pre.material.density)
     body = body_deformations(mass[0::3, 0::3], pre.mesh.points, np.asarray(finals))
     world = [float(m_norms((u - finals[0])[None], mass)[0] / m_norms(finals[0][None], mass)[0])
              for u in finals[1:]]
     deformation = [float(m_norms((b - body[0])[None], mass)[0] / m_norms(body[0][None], mass)[0])
                    for b in body[1:]]
-    planes = [(np.asarray(p.point), np.asarray(p.normal)) for p in scene.planes]
-    path = render_shape_grid(rows, labels, path, scalars=scalars, planes=planes,
-                             view_vector=(0.3, -1.0, 0.35), zoom=1.3,
-                             scalar_name="deformation (m)")
+    path = render_shape_grid(rows, labels, path, scalars=scalars, planes=scene_planes(scene),
+                             view_vector=(0.3, -1.0, 0.35), zoom=1.1,
+                             scalar_name="deformation (m)",
+                             extent=trajectory_points(pre, outputs))
     result = Figure5(Path(path), tuple(n for n, _ in variants), tuple(world),
                      tuple(deformation), tuple(messages))
     write_json_atomic(Path(path).with_suffix(".json"), {
@@ -471,7 +509,7 @@ def comparison_figure(pre, runs: Sequence[tuple[str, object]], path: str | Path,
                       frame: int = -1, twist: bool = False,
                       view_vector: tuple[float, float, float] = (1.0, -1.0, 0.5),
                       view_up: tuple[float, float, float] | None = None,
-                      zoom: float = 1.0) -> Path:
+                      zoom: float = 1.0, planes=(), fixed_camera: bool = False) -> Path:
     """One frame of several runs of a scene side by side, after the rest shape.
 
     Args:
@@ -482,6 +520,10 @@ def comparison_figure(pre, runs: Sequence[tuple[str, object]], path: str | Path,
         twist: add the twist of the end section (for a bar along z) to the captions.
         view_vector: direction from the object to the camera; ``view_up`` its up
             direction and ``zoom`` a zoom factor.
+        planes: (point, normal) contact planes drawn as translucent rectangles sized to
+            the runs' whole trajectories.
+        fixed_camera: one camera framing the runs' whole trajectories (free bodies);
+            implied by ``planes``.
 
     Each panel shows the rest shape as a faint wireframe and is coloured by |u| on
     one shared scale; its caption gives the time (and the twist).
@@ -496,9 +538,13 @@ def comparison_figure(pre, runs: Sequence[tuple[str, object]], path: str | Path,
                                                                          else ""))
     meshes = [pre.mesh, *(_deformed(pre, u) for u in finals)]
     scalars = [None, *(np.linalg.norm(u, axis=1) for u in finals)]
+    extent = (trajectory_points(pre, [output for _, output in runs])
+              if fixed_camera or len(planes) else None)
+    size = (330 * len(meshes), 560) if extent is None else (460 * len(meshes), 440)
     return render_shapes(meshes, labels, path, scalars=scalars, ghost=pre.mesh,
-                         scalar_name="displacement (m)", window_size=(330 * len(meshes), 560),
-                         view_vector=view_vector, view_up=view_up, zoom=zoom)
+                         scalar_name="displacement (m)", window_size=size,
+                         view_vector=view_vector, view_up=view_up, zoom=zoom, planes=planes,
+                         extent=extent)
 
 
 def comparison_animation(pre, runs: Sequence[tuple[str, object]], path: str | Path, *,
@@ -521,16 +567,51 @@ def comparison_animation(pre, runs: Sequence[tuple[str, object]], path: str | Pa
                             notes=notes, window_size=(280 * len(runs), 470))
 
 
+def examples_comparison(scene, pre, output, path: str | Path, *,
+                        steps: int | None = None) -> Path:
+    """The rest shape, the final frame of the same run without examples (``k_ex = 0``) and
+    ``output``'s final frame, side by side (a scene with examples acting on the whole
+    object); the numbers (the example influence of
+    :mod:`lbshape.pipeline.influence`) go to ``<path stem>.json`` beside the PNG.
+
+    Free bodies and scenes with planes: the contact planes and one camera framing both
+    whole runs. A fixed bar along z: the end twist in the captions.
+
+    Raises:
+        LbshapeError: no example force in the scene, or a run that stopped.
+    """
+    method = output.stats.get("method", "reduced")
+    influence, none = example_influence(scene, pre, output, method=method, steps=steps)
+    final = "undefined" if influence.final is None else f"{influence.final:.2f}"
+    frame = " (deformation)" if influence.frame == "body" else ""
+    runs = [(f"{scene.name}: no examples ({method})", none),
+            (f"examples ({method}), influence{frame} {final}", output)]
+    extent = np.ptp(pre.mesh.points, axis=0)
+    bar = not scene.is_free and extent[2] >= 2.5 * max(extent[0], extent[1])
+    free = {"fixed_camera": True, "zoom": TRAJECTORY_ZOOM} if scene.is_free else {}
+    png = comparison_figure(pre, runs, path, twist=bar, planes=scene_planes(scene), **free)
+    write_json_atomic(Path(path).with_suffix(".json"), {
+        "scene": scene.name, "method": method, "steps": output.stats["steps"],
+        "time_s": float(output.times[-1]), "panels": ["rest", *(c for c, _ in runs)],
+        **influence.stats(),
+    })
+    return png
+
+
 def render_scene(scene, out: str | Path, *, steps: int | None = None, method: str = "reduced",
                  frames: int = 4, progress: bool = False) -> RenderedScene:
     """Every picture of one scene into ``out`` (see the module docstring).
 
     Writes ``simulation.png`` (``method``'s run; a run that stopped is drawn up to its
     stop as ``simulation-STOPPED.png`` instead, labelled so, and an earlier
-    ``simulation.png`` is removed), ``eigenfunctions.png`` and, with
-    examples, ``examples_on_object.png`` and ``examples_raw.png`` (with local
-    examples: ``local_regions.png``, ``local_examples.png``, ``local_result.png``
-    and ``local_examples.json``); plus ``summary.json`` (the run's stats and the files).
+    ``simulation.png`` is removed; a free body's frames share one camera framing its
+    whole trajectory, and the scene's contact planes are drawn), ``eigenfunctions.png``
+    and, with examples, ``examples_on_object.png`` and ``examples_raw.png``; with
+    examples acting on the whole object ``comparison.png`` (rest | no examples |
+    examples, :func:`examples_comparison`, and ``comparison.json``); with local
+    examples ``local_regions.png``, ``local_examples.png``, ``local_result.png``
+    (there the no-examples comparison) and ``local_examples.json``; plus
+    ``summary.json`` (the run's stats and the files).
 
     Args:
         scene: the scene.
@@ -545,16 +626,20 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
     output = simulate(scene, pre, method=method, steps=steps)
     if output.message:
         log.error("render %s: the %s run stopped: %s", scene.name, method, output.message)
+    view = {"planes": scene_planes(scene), "fixed_camera": scene.is_free}
     if output.message:  # no picture of a stopped run may pass for a result
         (out / "simulation.png").unlink(missing_ok=True)
         paths = [simulation_figure(pre, output, out / "simulation-STOPPED.png", frames=frames,
-                                   method=f"STOPPED {output.stats.get('method', '')}")]
+                                   method=f"STOPPED {output.stats.get('method', '')}", **view)]
     else:
         (out / "simulation-STOPPED.png").unlink(missing_ok=True)
-        paths = [simulation_figure(pre, output, out / "simulation.png", frames=frames)]
+        paths = [simulation_figure(pre, output, out / "simulation.png", frames=frames, **view)]
     paths.append(eigenfunctions_figure(scene, pre, out / "eigenfunctions.png"))
     if pre.has_examples:
         paths.extend(examples_figures(scene, pre, out))
+        if not output.message and has_example_force(scene, pre):
+            paths.append(examples_comparison(scene, pre, output, out / "comparison.png",
+                                             steps=steps))
     if pre.has_local_examples:
         paths.extend(local_examples_figures(scene, pre, output, out)[:3])
     if pre.has_examples and scene.is_free:

@@ -63,6 +63,78 @@ def to_grid(mesh: TetMesh, point_data: dict[str, np.ndarray] | None = None):
     return grid
 
 
+#: colour and opacity of contact planes (drawn unlit, so the colour is exact)
+PLANE_COLOR = "#8c6d46"
+PLANE_OPACITY = 0.35
+#: a plane's rectangle reaches this fraction of the trajectory's size beyond it
+PLANE_MARGIN = 0.15
+
+Planes = Sequence[tuple[np.ndarray, np.ndarray]]
+
+
+def plane_rectangles(planes: Planes, points: np.ndarray, *,
+                     margin: float = PLANE_MARGIN) -> list[np.ndarray]:
+    """Finite rectangles of infinite contact planes, sized to what they are drawn with.
+
+    Each rectangle lies in its plane, centred on the plane's point nearest the centre
+    of ``points``, and covers the projection of ``points`` on the plane plus ``margin``
+    times their bounding-box diagonal on every side.
+
+    Args:
+        planes: (point (3,), normal (3,)) pairs (the normal need not be unit).
+        points: (p, 3) what the picture shows, e.g. every frame of a trajectory.
+
+    Returns:
+        One (4, 3) array of corners per plane, in order around the rectangle.
+    """
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+    diagonal = float(np.linalg.norm(np.ptp(points, axis=0))) or 1.0
+    rectangles = []
+    for point, normal in planes:
+        n = np.asarray(normal, dtype=float)
+        n = n / np.linalg.norm(n)
+        origin = centre - ((centre - np.asarray(point, dtype=float)) @ n) * n
+        helper = np.eye(3)[int(np.argmin(np.abs(n)))]
+        e1 = np.cross(n, helper)
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        a, b = (points - origin) @ e1, (points - origin) @ e2
+        pad = margin * diagonal
+        (a0, a1), (b0, b1) = (a.min() - pad, a.max() + pad), (b.min() - pad, b.max() + pad)
+        rectangles.append(np.array([origin + a0 * e1 + b0 * e2, origin + a1 * e1 + b0 * e2,
+                                    origin + a1 * e1 + b1 * e2, origin + a0 * e1 + b1 * e2]))
+    return rectangles
+
+
+def scene_planes(scene) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The (point, normal) pairs of a scene's contact planes (``[[planes]]``)."""
+    return [(np.asarray(p.point, dtype=float), np.asarray(p.normal, dtype=float))
+            for p in scene.planes]
+
+
+def _add_rectangles(plotter, pv, rectangles: Sequence[np.ndarray]) -> None:
+    for corners in rectangles:
+        quad = pv.PolyData(np.asarray(corners, dtype=float), faces=np.array([4, 0, 1, 2, 3]))
+        plotter.add_mesh(quad, color=PLANE_COLOR, opacity=PLANE_OPACITY, lighting=False,
+                         show_edges=True, edge_color="#5a4630", line_width=1.0)
+
+
+def _bounds(points: np.ndarray) -> tuple[float, ...]:
+    low, high = points.min(axis=0), points.max(axis=0)
+    return (low[0], high[0], low[1], high[1], low[2], high[2])
+
+
+def _set_camera(plotter, view_vector, *, view_up=None, bounds=None, zoom: float = 1.0) -> None:
+    """Point the current panel's camera along ``view_vector``; frame ``bounds`` (fixed,
+    the same for every panel given them) or else what the panel shows."""
+    plotter.view_vector(view_vector, viewup=view_up)
+    if bounds is not None:
+        plotter.reset_camera(bounds=bounds)
+    if zoom != 1.0:
+        plotter.camera.zoom(zoom)
+
+
 def _save(plotter, path: Path) -> Path:
     """Screenshot ``plotter`` to the PNG ``path`` atomically, then close it."""
     try:
@@ -138,6 +210,8 @@ def render_shapes(
     ghost: TetMesh | None = None,
     view_up: tuple[float, float, float] | None = None,
     zoom: float = 1.0,
+    planes: Planes = (),
+    extent: np.ndarray | None = None,
 ) -> Path:
     """Several solids side by side (one panel each), sharing one camera direction.
 
@@ -150,10 +224,22 @@ def render_shapes(
         ghost: a shape drawn as a faint wireframe in every panel (e.g. the rest shape).
         view_up: the camera's up direction (default: pyvista's).
         zoom: camera zoom factor after framing the shape.
+        planes: (point, normal) contact planes, drawn in every panel as translucent
+            rectangles sized to ``extent`` (:func:`plane_rectangles`).
+        extent: (p, 3) points (e.g. every frame of a free body's trajectory): every
+            panel gets one fixed camera framing them and the planes; default with
+            planes: the panels' shapes; without either, the first panel's framing.
     """
     pv = _pyvista()
     k = len(meshes)
     window_size = window_size or (380 * k, 520)
+    if extent is None and len(planes):
+        extent = np.vstack([m.points for m in meshes])
+    rectangles = plane_rectangles(planes, extent) if len(planes) else []
+    bounds = None
+    if extent is not None:
+        bounds = _bounds(np.vstack([np.asarray(extent, dtype=float).reshape(-1, 3),
+                                    *rectangles]))
     plotter = _plotter(pv, shape=(1, k), window_size=window_size, border=False)
     scalars = list(scalars) if scalars is not None else [None] * k
     finite = [np.max(s) for s in scalars if s is not None and len(s)]
@@ -179,10 +265,9 @@ def render_shapes(
         if ghost is not None and mesh is not ghost:
             plotter.add_mesh(to_grid(ghost).extract_surface(algorithm="dataset_surface"),
                              style="wireframe", color="#888888", opacity=0.25, line_width=0.5)
+        _add_rectangles(plotter, pv, rectangles)
         plotter.add_text(label, font_size=10)
-        plotter.view_vector(view_vector, viewup=view_up)
-        if zoom != 1.0:
-            plotter.camera.zoom(zoom)
+        _set_camera(plotter, view_vector, view_up=view_up, bounds=bounds, zoom=zoom)
     plotter.link_views()
     return _save(plotter, Path(path))
 
@@ -195,27 +280,33 @@ def render_shape_grid(
     scalars: Sequence[Sequence[np.ndarray]] | None = None,
     scalar_name: str = "|u| (m)",
     view_vector: tuple[float, float, float] = (1.0, -1.0, 0.5),
-    planes: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+    planes: Planes = (),
     zoom: float = 1.0,
+    extent: np.ndarray | None = None,
 ) -> Path:
-    """A grid of solids (rows × columns), one camera, shared colour range.
+    """A grid of solids (rows × columns), one fixed camera, shared colour range.
 
     Args:
         rows: ``rows[i][j]`` the mesh of panel (i, j).
         labels: captions, same layout.
         path: output PNG.
         scalars: optional per-vertex values (n,), same layout.
-        planes: (point (3,), unit normal (3,)) contact planes drawn as grey squares.
+        planes: (point (3,), normal (3,)) contact planes, drawn as translucent rectangles
+            sized to ``extent`` (:func:`plane_rectangles`).
         zoom: camera zoom factor.
+        extent: (p, 3) points every panel's camera frames (default: all panels' shapes).
     """
     pv = _pyvista()
     n_rows, n_cols = len(rows), max(len(r) for r in rows)
-    plotter = pv.Plotter(off_screen=True, shape=(n_rows, n_cols),
-                         window_size=(330 * n_cols, 300 * n_rows), border=False)
+    plotter = _plotter(pv, shape=(n_rows, n_cols), window_size=(330 * n_cols, 300 * n_rows),
+                       border=False)
     values = [v for row in (scalars or []) for v in row]
     clim = (0.0, float(max(np.max(v) for v in values)) or 1.0) if values else None
-    everything = np.vstack([m.points for row in rows for m in row])
-    centre, size = everything.mean(axis=0), float(np.ptp(everything, axis=0).max())
+    if extent is None:
+        extent = np.vstack([m.points for row in rows for m in row])
+    extent = np.asarray(extent, dtype=float).reshape(-1, 3)
+    rectangles = plane_rectangles(planes, extent) if len(planes) else []
+    bounds = _bounds(np.vstack([extent, *rectangles]))
     for i, row in enumerate(rows):
         for j, mesh in enumerate(row):
             plotter.subplot(i, j)
@@ -228,15 +319,9 @@ def render_shape_grid(
             else:
                 plotter.add_mesh(surface, color="#c8d2e0", show_edges=True,
                                  edge_color="#333333", line_width=0.2)
-            for point, normal in planes:
-                normal = np.asarray(normal, dtype=float)
-                # the plane's point closest to the scene's centre
-                shifted = centre - ((centre - np.asarray(point)) @ normal) * normal
-                plotter.add_mesh(pv.Plane(center=shifted, direction=normal, i_size=0.8 * size,
-                                          j_size=0.8 * size), color="#999999", opacity=0.35)
+            _add_rectangles(plotter, pv, rectangles)
             plotter.add_text(labels[i][j], font_size=8)
-            plotter.view_vector(view_vector)
-            plotter.camera.zoom(zoom)
+            _set_camera(plotter, view_vector, bounds=bounds, zoom=zoom)
     if clim is not None:
         plotter.add_text(f"colour: {scalar_name} {clim[0]:.3g} (dark) to {clim[1]:.3g} "
                          "(yellow)", position="lower_right", font_size=7)
@@ -257,6 +342,7 @@ def animation_frames(
     ghost: bool = False,
     notes: Sequence[Sequence[str]] | None = None,
     progress: bool = False,
+    planes: Planes = (),
 ) -> np.ndarray:
     """Frames of deforming copies of one mesh side by side (one panel per run), for a movie.
 
@@ -276,6 +362,8 @@ def animation_frames(
         ghost: draw the rest shape as a faint wireframe in every panel.
         notes: optional (f, panels) second caption lines, one per frame and panel.
         progress: a progress bar over the frames on stderr.
+        planes: (point, normal) contact planes, drawn in every panel as translucent
+            rectangles sized to all frames (:func:`plane_rectangles`).
 
     Returns:
         (f, height, width, 3) uint8 RGB frames.
@@ -299,8 +387,8 @@ def animation_frames(
     if clim is None:
         clim = (0.0, float(max(v.max() for v in norms)) or 1.0)
     moved = np.vstack([rest.points, *((rest.points[None] + u).reshape(-1, 3) for u in runs)])
-    low, high = moved.min(axis=0), moved.max(axis=0)
-    bounds = (low[0], high[0], low[1], high[1], low[2], high[2])
+    rectangles = plane_rectangles(planes, moved) if len(planes) else []
+    bounds = _bounds(np.vstack([moved, *rectangles]))
     width, height = window_size or (360 * k, 420)
     pv = _pyvista()
     plotter = _plotter(pv, shape=(1, k), window_size=(width, height), border=False)
@@ -316,8 +404,9 @@ def animation_frames(
         if ghost:
             plotter.add_mesh(base.copy(), style="wireframe", color="#888888", opacity=0.25,
                              line_width=0.5)
-        plotter.view_vector(view_vector)
-        plotter.reset_camera(bounds=bounds)  # every frame in view; the camera then stays
+        _add_rectangles(plotter, pv, rectangles)
+        # every frame in view; the camera then stays
+        _set_camera(plotter, view_vector, bounds=bounds)
         surfaces.append(surface)
     plotter.link_views()
     plotter.subplot(0, k - 1)
@@ -360,6 +449,7 @@ def render_animation(
     view_vector: tuple[float, float, float] = (1.0, -1.0, 0.5),
     ghost: bool = True,
     notes: Sequence[Sequence[str]] | None = None,
+    planes: Planes = (),
 ) -> Path:
     """An animated GIF of several runs of one mesh side by side (one panel per run).
 
@@ -368,5 +458,6 @@ def render_animation(
     """
     frames = animation_frames(rest, displacements, labels, times, scalar_name=scalar_name,
                               clim=clim, window_size=window_size or (330 * len(labels), 520),
-                              view_vector=view_vector, ghost=ghost, notes=notes)
+                              view_vector=view_vector, ghost=ghost, notes=notes,
+                              planes=planes)
     return write_gif(frames, path, fps=fps).path

@@ -60,7 +60,7 @@ from lbshape.elastic.polynomial_forces import (
 )
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_text_atomic
-from lbshape.io.paths import RESULTS_DIR
+from lbshape.io.paths import output_root
 from lbshape.io.toml_writer import dumps
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import WARMUP_STEPS, force_elements, simulate
@@ -69,8 +69,6 @@ from lbshape.report.machine import load_text, machine_description, machine_text
 
 log = logging.getLogger(__name__)
 
-#: repository-relative default output folder
-DEFAULT_OUT = RESULTS_DIR / "tune"
 #: default per-step time budget (ms): a reduced step must fit in it
 DEFAULT_BUDGET_MS = 1.0
 #: default candidate values as fractions of the scene's own r, s and m
@@ -80,6 +78,12 @@ M_FRACTIONS = (1 / 2, 1.0)
 #: an optimistic rate (multiply-adds per second) of the polynomial force product, for
 #: skipping candidates whose product alone cannot fit in the budget
 POLYNOMIAL_RATE = 1e10
+
+
+def default_out() -> Path:
+    """Tune's default folder: ``tune/`` under :func:`lbshape.io.paths.output_root`
+    (``results/tune`` in the repository's root, else ``./lbshape-results/tune``)."""
+    return output_root() / "tune"
 
 
 class Candidate(NamedTuple):
