@@ -88,7 +88,10 @@ def subspace_error(u_full: np.ndarray, U: np.ndarray, mass, *, free: bool,
     return float(m_norms(flat - projected, mass).max() / m_norms(flat, mass).max())
 
 
-def error(u: np.ndarray, u_full: np.ndarray, mass) -> float:
+def error(u: np.ndarray | None, u_full: np.ndarray | None, mass) -> float | None:
+    """The trajectory error; None when either run stopped."""
+    if u is None or u_full is None:
+        return None
     return trajectory_error(_flat(u), _flat(u_full), mass)
 
 
@@ -161,8 +164,14 @@ def diagnose(name: str) -> dict:
                     "s": int(pre.cubature_elements.size), "n_vertices": pre.mesh.n_vertices}
     started = time.perf_counter()
 
-    def reduced(sc, model=pre, **kw):
+    stops: dict[str, str] = {}
+
+    def reduced(sc, model=pre, what="reduced", **kw):
+        """(displacements, times); a run that stopped gives (None, None), its message kept."""
         record = reduced_simulation(sc, model, **kw).run(steps, stride=STRIDE)
+        if not record.stable:
+            stops[what] = record.message
+            return None, None
         return record.displacements(pre.U), record.times
 
     cubature = dataclasses.replace(pre, force_model="cubature")  # the trained cubature
@@ -177,22 +186,26 @@ def diagnose(name: str) -> dict:
     variants = [("examples", scene)] + ([("no_examples", without_examples(scene))]
                                         if has_examples else [])
     for label, sc in variants:
+        stops.clear()
         u_full, times = full(sc)
         u_red, _ = reduced(sc)
         row = {"subspace": subspace_error(u_full, pre.U, mass, free=free,
                                           points=pre.mesh.points),
                "reduced": error(u_red, u_full, mass)}
         if not free:
-            u_conv, _ = reduced(sc, rtol=CONVERGED_RTOL)
+            u_conv, _ = reduced(sc, what="converged", rtol=CONVERGED_RTOL)
             row["reduced_converged_newton"] = error(u_conv, u_full, mass)
-            u_exact, _ = reduced(sc, rtol=CONVERGED_RTOL, exact_forces=True)
+            u_exact, _ = reduced(sc, what="exact forces", rtol=CONVERGED_RTOL,
+                                 exact_forces=True)
         else:
-            u_exact, _ = reduced(sc, exact_forces=True)
-        u_cub, _ = reduced(sc, model=cubature)
+            u_exact, _ = reduced(sc, what="exact forces", exact_forces=True)
+        u_cub, _ = reduced(sc, model=cubature, what="cubature")
         row["reduced_exact_forces"] = error(u_exact, u_full, mass)
         row["reduced_cubature"] = error(u_cub, u_full, mass)
         row["cubature_vs_exact"] = error(u_cub, u_exact, mass)
-        if free:
+        if stops:
+            row["stopped"] = dict(stops)
+        if free and u_red is not None:
             v_full = centre_velocity(u_full, times, pre.mesh.points, mass)
             v_red = centre_velocity(u_red, times, pre.mesh.points, mass)
             row["final_centre_velocity_full"] = v_full[-1].tolist()
@@ -245,6 +258,11 @@ def markdown(payload: dict) -> str:
                     f"{_pct(row['reduced_exact_forces'])} | "
                     f"{_pct(row.get('reduced_cubature'))} | {_pct(row['cubature_vs_exact'])} |")
         lines.append("")
+        for name, res in variant["scenes"].items():
+            for key in ("examples", "no_examples"):
+                for what, message in res.get(key, {}).get("stopped", {}).items():
+                    lines += [f"{name} ({key.replace('_', ' ')}): the {what} run stopped "
+                              f"('–' in the table): {message}", ""]
         for name, res in variant["scenes"].items():
             row = res.get("examples", {})
             if "local_forces" in row:
