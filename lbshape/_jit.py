@@ -20,7 +20,7 @@ except ImportError:  # pragma: no cover - exercised only on machines without num
 #: True when the kernels are compiled
 HAVE_NUMBA = _numba is not None
 
-__all__ = ["HAVE_NUMBA", "njit"]
+__all__ = ["HAVE_NUMBA", "njit", "py_func"]
 
 
 def njit(function):
@@ -28,3 +28,8 @@ def njit(function):
     if _numba is None:  # pragma: no cover
         return function
     return _numba.njit(cache=True, nogil=True)(function)
+
+
+def py_func(function):
+    """The plain Python function behind a compiled one (without numba: itself)."""
+    return getattr(function, "py_func", function)

@@ -24,10 +24,9 @@ from lbshape.dynamics.free_body import (
     MAX_CONTACT_SWEEPS,
     PHASES,
     SWEEP_RTOL,
-    _lu_solve,
-    _max_symmetric_eigenvalue,
     contact_theta,
 )
+from lbshape.dynamics.kernels import lu_solve, max_symmetric_eigenvalue
 from lbshape.dynamics.rigid_frame import cayley, orthonormality_error, rotate
 from lbshape.errors import SolverError
 
@@ -368,14 +367,14 @@ def test_small_dense_kernels_match_lapack():
     for n in (3, 8, 30):
         base, K = rng.standard_normal((n, n)), rng.standard_normal((n, n))
         rhs, x, J = rng.standard_normal(n), np.zeros(n), np.zeros((n, n))
-        assert _lu_solve(base, K, rhs, J, x)
+        assert lu_solve(base, K, rhs, J, x)
         np.testing.assert_allclose(x, np.linalg.solve(base + K, rhs), rtol=1e-9, atol=1e-12)
         S = rng.standard_normal((n, n))
         S = S + S.T
-        assert _max_symmetric_eigenvalue(S.copy()) == pytest.approx(
+        assert max_symmetric_eigenvalue(S.copy()) == pytest.approx(
             np.linalg.eigvalsh(S).max(), rel=1e-12)
     singular = np.zeros((4, 4))
-    assert not _lu_solve(singular, singular, np.ones(4), np.zeros((4, 4)), np.zeros(4))
+    assert not lu_solve(singular, singular, np.ones(4), np.zeros((4, 4)), np.zeros(4))
     for scale in (1e-2, 1.0, 1e2, 1e4):  # θ in all three regimes
         A = rng.standard_normal((6, 6))
         M6 = A @ A.T + 6 * np.eye(6)

@@ -35,17 +35,22 @@ The Euler–Lagrange equations of the deformation (body frame) then read
 because ``Σ M U = 0``. Every run-time quantity is an r- or r²-sized contraction,
 computed by the compiled kernels of this module (:func:`inertia_momentum_into`,
 :func:`fictitious_into`, :func:`coriolis_into`) into arrays the caller owns; the
-methods of :class:`FrameTensors` return new arrays from the same kernels.
+methods of :class:`FrameTensors` return new arrays from the same kernels. The kernels
+take the tensors as one :class:`FrameArrays` (named views of one buffer,
+:attr:`FrameTensors.kernel_arrays`; a kernel called from Python takes its ``data`` and
+rebuilds the views with :func:`frame_arrays`, see :mod:`lbshape.dynamics.kernels`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
 
-from lbshape._jit import njit
+from lbshape._jit import njit, py_func
+from lbshape.dynamics.kernels import check_size, take
 from lbshape.errors import LbshapeError
 
 #: largest accepted ``‖Σ M U_j‖ / √m_tot`` (translation content of the basis)
@@ -82,15 +87,20 @@ class FrameTensors:
     translation: np.ndarray
 
     def __post_init__(self):
-        # flattened views: the run-time contractions become small matrix products
+        # the kernels' buffer: flattened tensors, so the run-time contractions become
+        # small matrix products
         r = self.G.shape[0]
-        object.__setattr__(self, "_G9", np.ascontiguousarray(self.G.reshape(r, 9)))
-        object.__setattr__(self, "_C9", np.ascontiguousarray(self.C.reshape(r * r, 9)))
-        object.__setattr__(self, "_S3", np.ascontiguousarray(self.S.reshape(r * r, 3)))
-        object.__setattr__(self, "_H", np.ascontiguousarray(self.H, dtype=float))
-        object.__setattr__(self, "_Y0", np.ascontiguousarray(self.Y0, dtype=float))
-        object.__setattr__(self, "_G_trace", np.einsum("jaa->j", self.G))
-        object.__setattr__(self, "_C_trace", np.ascontiguousarray(np.einsum("jkaa->jk", self.C)))
+        data = np.zeros(FrameArrays.size(r))
+        arrays = py_func(frame_arrays)(data, r)
+        arrays.mass[0] = self.mass
+        arrays.Y0[:] = self.Y0
+        arrays.G9[:] = self.G.reshape(r, 9)
+        arrays.C9[:] = self.C.reshape(r * r, 9)
+        arrays.S3[:] = self.S.reshape(r * r, 3)
+        arrays.H[:] = self.H
+        arrays.G_trace[:] = np.einsum("jaa->j", self.G)
+        arrays.C_trace[:] = np.einsum("jkaa->jk", self.C)
+        object.__setattr__(self, "_data", data)
 
     @property
     def r(self) -> int:
@@ -102,26 +112,23 @@ class FrameTensors:
         return np.trace(self.Y0) * np.eye(3) - self.Y0
 
     @property
-    def kernel_arrays(self) -> tuple[np.ndarray, ...]:
-        """``(Y0, G9, C9, S3, H, G_trace, C_trace)``: the contiguous arrays the kernels take
-        (``G9`` (r, 9), ``C9`` (r², 9), ``S3`` (r², 3) the flattened G, C, S; the traces
-        ``tr G_j`` (r,) and ``tr C_jk`` (r, r))."""
-        return (self._Y0, self._G9, self._C9, self._S3, self._H, self._G_trace, self._C_trace)
+    def kernel_arrays(self) -> FrameArrays:
+        """The tensors as the compiled kernels take them (:class:`FrameArrays`)."""
+        return py_func(frame_arrays)(self._data, self.r)
 
     # ------------------------------------------------------------- run time
     def inertia(self, q: np.ndarray) -> np.ndarray:
         """(3, 3) body-frame inertia tensor ``I(q)`` about the centre of mass (kg·m²)."""
         inertia, h = np.zeros((3, 3)), np.zeros(3)
         q = np.asarray(q, dtype=float)
-        inertia_momentum_into(q, np.zeros_like(q), self._Y0, self._G9, self._C9, self._S3,
-                              self._H, inertia, h)
+        _inertia_momentum(q, np.zeros_like(q), self._data, inertia, h)
         return inertia
 
     def relative_momentum(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """(3,) body-frame angular momentum of the deformation ``h(q, q̇)`` (kg·m²/s)."""
         inertia, h = np.zeros((3, 3)), np.zeros(3)
-        inertia_momentum_into(np.asarray(q, dtype=float), np.asarray(qd, dtype=float),
-                              self._Y0, self._G9, self._C9, self._S3, self._H, inertia, h)
+        _inertia_momentum(np.asarray(q, dtype=float), np.asarray(qd, dtype=float), self._data,
+                          inertia, h)
         return h
 
     def euler(self, q: np.ndarray, omega_dot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -132,7 +139,7 @@ class FrameTensors:
         """(r, r) skew matrix Γ(ω) of the Coriolis force ``Γ q̇`` (ω body frame, rad/s)."""
         r = self.r
         out = np.zeros((r, r))
-        coriolis_into(np.asarray(omega, dtype=float), self._S3, np.zeros((r, r)), out)
+        _coriolis(np.asarray(omega, dtype=float), self._data, np.zeros((r, r)), out)
         return out
 
     def centrifugal(self, q: np.ndarray, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -142,16 +149,63 @@ class FrameTensors:
     def _forces(self, q, omega, omega_dot) -> tuple[np.ndarray, np.ndarray]:
         r = self.r
         f, K = np.zeros(r), np.zeros((r, r))
-        fictitious_into(np.asarray(q, dtype=float), np.asarray(omega, dtype=float),
-                        np.asarray(omega_dot, dtype=float), self._G9, self._C9, self._S3,
-                        self._H, self._G_trace, self._C_trace, f, K)
+        _fictitious(np.asarray(q, dtype=float), np.asarray(omega, dtype=float),
+                    np.asarray(omega_dot, dtype=float), self._data, f, K)
         return f, K
+
+
+class FrameArrays(NamedTuple):
+    """The frame tensors as the compiled kernels take them: views of the one buffer
+    ``data`` (:func:`frame_arrays`), G, C and S flattened."""
+
+    #: the buffer every field below views
+    data: np.ndarray
+    #: (1,) total mass m_tot (kg)
+    mass: np.ndarray
+    #: (3, 3) rest second moment
+    Y0: np.ndarray
+    #: (r, 9) ``G`` flattened, ``G9[j, 3a + b] = G_j[a, b]``
+    G9: np.ndarray
+    #: (r², 9) ``C`` flattened, row ``j r + k``
+    C9: np.ndarray
+    #: (r², 3) ``S`` flattened, row ``j r + k``
+    S3: np.ndarray
+    #: (3, r) ``H``
+    H: np.ndarray
+    #: (r,) ``tr G_j``
+    G_trace: np.ndarray
+    #: (r, r) ``tr C_jk``
+    C_trace: np.ndarray
+
+    @staticmethod
+    def size(r: int) -> int:
+        """Floats in the buffer of a basis of r columns."""
+        return 1 + 9 + 9 * r + 9 * r * r + 3 * r * r + 3 * r + r + r * r
 
 
 # ------------------------------------------------------------------ compiled kernels
 @njit
-def inertia_momentum_into(q, qd, Y0, G9, C9, S3, H, inertia, h):
-    """Write ``I(q)`` (3, 3) into ``inertia`` and ``h(q, q̇)`` (3,) into ``h``."""
+def frame_arrays(data, r):
+    """The :class:`FrameArrays` views of a buffer of :meth:`FrameArrays.size` floats."""
+    mass, at = take(data, 0, 1)
+    Y0, at = take(data, at, 9)
+    G9, at = take(data, at, 9 * r)
+    C9, at = take(data, at, 9 * r * r)
+    S3, at = take(data, at, 3 * r * r)
+    H, at = take(data, at, 3 * r)
+    G_trace, at = take(data, at, r)
+    C_trace, at = take(data, at, r * r)
+    check_size(data, at)
+    return FrameArrays(data, mass, Y0.reshape((3, 3)), G9.reshape((r, 9)),
+                       C9.reshape((r * r, 9)), S3.reshape((r * r, 3)), H.reshape((3, r)),
+                       G_trace, C_trace.reshape((r, r)))
+
+
+@njit
+def inertia_momentum_into(q, qd, frame, inertia, h):
+    """Write ``I(q)`` (3, 3) into ``inertia`` and ``h(q, q̇)`` (3,) into ``h`` (``frame``
+    a :class:`FrameArrays`)."""
+    Y0, G9, C9, S3, H = frame.Y0, frame.G9, frame.C9, frame.S3, frame.H
     r = q.shape[0]
     Y = inertia  # Y(q) first, then I = tr(Y) I₃ − Y in place
     for a in range(3):
@@ -191,12 +245,15 @@ def inertia_momentum_into(q, qd, Y0, G9, C9, S3, H, inertia, h):
 
 
 @njit
-def fictitious_into(q, omega, omega_dot, G9, C9, S3, H, G_trace, C_trace, f, K):
-    """Add the Euler and centrifugal forces (r,) to ``f`` and their tangents (r, r) to ``K``.
+def fictitious_into(q, omega, omega_dot, frame, f, K):
+    """Add the Euler and centrifugal forces (r,) to ``f`` and their tangents (r, r) to ``K``
+    (``frame`` a :class:`FrameArrays`).
 
     Euler: ``H_jᵀ ω̇ + Σ_k q_k (−ω̇ · S_jk)``, tangent ``−ω̇ · S_jk``; centrifugal:
     ``G_j : ωωᵀ − |ω|² tr G_j + Σ_k q_k T_jk``, ``T_jk = C_jk : ωωᵀ − |ω|² tr C_jk``.
     """
+    G9, C9, S3, H = frame.G9, frame.C9, frame.S3, frame.H
+    G_trace, C_trace = frame.G_trace, frame.C_trace
     r = q.shape[0]
     w2 = omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2]
     for j in range(r):
@@ -220,14 +277,32 @@ def fictitious_into(q, omega, omega_dot, G9, C9, S3, H, G_trace, C_trace, f, K):
 
 
 @njit
-def coriolis_into(omega, S3, damping, out):
-    """``out = damping + Γ(ω)`` (r, r), ``Γ_jk = −2 ω · S_jk`` (the Coriolis matrix)."""
+def coriolis_into(omega, frame, damping, out):
+    """``out = damping + Γ(ω)`` (r, r), ``Γ_jk = −2 ω · S_jk`` (the Coriolis matrix;
+    ``frame`` a :class:`FrameArrays`)."""
+    S3 = frame.S3
     r = out.shape[0]
     for j in range(r):
         for k in range(r):
             row = j * r + k
             out[j, k] = damping[j, k] - 2.0 * (S3[row, 0] * omega[0] + S3[row, 1] * omega[1]
                                                 + S3[row, 2] * omega[2])
+
+
+# the kernels above for the methods of FrameTensors: the buffer in, the views rebuilt
+@njit
+def _inertia_momentum(q, qd, data, inertia, h):
+    inertia_momentum_into(q, qd, frame_arrays(data, q.shape[0]), inertia, h)
+
+
+@njit
+def _fictitious(q, omega, omega_dot, data, f, K):
+    fictitious_into(q, omega, omega_dot, frame_arrays(data, q.shape[0]), f, K)
+
+
+@njit
+def _coriolis(omega, data, damping, out):
+    coriolis_into(omega, frame_arrays(data, out.shape[0]), damping, out)
 
 
 def frame_tensors(points: np.ndarray, tets: np.ndarray, mass: sp.spmatrix,

@@ -52,17 +52,24 @@ and computes the exact elastic energy when the estimated total reaches
 failure while a normal step stays free of the allocating energy evaluation.
 
 **The step path** is compiled and allocation-free, as in :mod:`lbshape.dynamics.reduced`:
-state and work arrays are preallocated and swapped, the weights and target are written
-in place, the elastic force and tangent come from
+state and work arrays are preallocated in a few named structures
+(:mod:`lbshape.dynamics.free_body_kernels`: the state at t₀ and the state being
+computed, :class:`~lbshape.dynamics.free_body_kernels.BodyState`, swap when a step is
+accepted), the weights and target are written in place, the elastic force and tangent
+come from
 :meth:`~lbshape.elastic.reduced_forces.ReducedForceModel.force_and_tangent_into`, and
-numba kernels do the rest: the loads (:func:`loads_into`), the rigid update
-(:func:`_rigid_update`, with :func:`~lbshape.dynamics.rigid_frame.rotate_into`), the
-frame tensors and fictitious forces (:mod:`lbshape.dynamics.fictitious`), the contact
+numba kernels do the rest: the loads
+(:func:`~lbshape.dynamics.free_body_kernels.loads_into`), the rigid update
+(:func:`~lbshape.dynamics.free_body_kernels.rigid_update`, with
+:func:`~lbshape.dynamics.rigid_frame.rotate_into`), the frame tensors and fictitious
+forces (:mod:`lbshape.dynamics.fictitious`), the contact
 (:meth:`~lbshape.dynamics.contact.PlaneContact.evaluate_into`, once per Newton
 evaluation; the contact at the start of a step is the last evaluation of the previous
-step — same configuration, same numbers — and is reused), the Newmark residual and
-the LU solve of the Newton system (non-symmetric: the Euler and Coriolis terms are
-skew). Each step's wall time is split into :data:`PHASES`
+step — same configuration, same numbers — and is reused), the Newmark residual
+(:func:`~lbshape.dynamics.free_body_kernels.deformation_residual`, the scheme's
+coefficients from :data:`~lbshape.dynamics.integrators.SCHEMES`) and the LU solve of
+the Newton system (:func:`~lbshape.dynamics.kernels.lu_solve`; non-symmetric: the Euler
+and Coriolis terms are skew). Each step's wall time is split into :data:`PHASES`
 (:attr:`FreeBodySimulation.phase_seconds`).
 """
 
@@ -76,27 +83,35 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lbshape._jit import njit
 from lbshape.dynamics.contact import PlaneContact
-from lbshape.dynamics.fictitious import (
-    FrameTensors,
-    coriolis_into,
-    fictitious_into,
-    inertia_momentum_into,
+from lbshape.dynamics.fictitious import FrameTensors
+from lbshape.dynamics.free_body_kernels import (
+    KICK_ROTATION_FAILED,
+    KICK_SINGULAR,
+    BodyState,
+    DeformationSolve,
+    RigidKick,
+    Scratch,
+    commit_energy,
+    contact_theta_into,
+    deformation_residual,
+    loads_into,
+    newton_base,
+    rigid_update,
+    trial,
 )
+from lbshape.dynamics.integrators import Scheme, get_scheme
+from lbshape.dynamics.kernels import axpy, lu_solve, predict
 from lbshape.dynamics.loads import TimeProfile
 from lbshape.dynamics.record import RunRecord
 from lbshape.dynamics.reduced import PHASES as FIXED_PHASES
-from lbshape.dynamics.reduced import _axpy, _predict, cholesky_in_place, cholesky_solve_in_place
-from lbshape.dynamics.rigid_frame import RigidState, inverse3_into, rotate_into, rotation_error
+from lbshape.dynamics.rigid_frame import RigidState, rotation_error
 from lbshape.dynamics.sanity import DeformationBound
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
 
 log = logging.getLogger(__name__)
 
-#: Newmark / backward-Euler coefficients (c_a, c_v) of dR/dΔq = c_a/Δt² + c_v/Δt D + K
-_SCHEMES = {"newmark": (4.0, 2.0), "backward-euler": (1.0, 1.0)}
 #: contact sweeps of a step stop when the end momenta move by less than this share of
 #: the momenta and the step's impulse
 SWEEP_RTOL = 1e-6
@@ -106,6 +121,8 @@ MAX_CONTACT_SWEEPS = 12
 ENERGY_FACTOR = 1e3
 #: the monitor computes the exact elastic energy from this fraction of the limit on
 EXACT_ENERGY_FRACTION = 0.1
+#: 64 ε: the round-off level of the residual, relative to its terms
+_EPS64 = 64 * np.finfo(float).eps
 #: the parts of a free-body step timed in :attr:`FreeBodySimulation.phase_seconds`: the
 #: fixed-object phases (:data:`lbshape.dynamics.reduced.PHASES`, same meaning: the
 #: example force is the step's generalized load ``k_ex q* + Uᵀ Rᵀ f_ext``, the internal
@@ -242,6 +259,7 @@ class FreeBodySimulation:
 
     Attributes:
         q, qd, qa: (r,) deformation, its rate and acceleration at :attr:`time`.
+        damping: (r, r) the deformation's Rayleigh damping ``α I + β K₀``.
         phase_seconds: (steps, len(PHASES)) wall time of each part of each step of the
             last :meth:`run` (s).
     """
@@ -270,8 +288,7 @@ class FreeBodySimulation:
         deformation_bound: DeformationBound | None = None,
     ):
         self.rest_points = None if rest_points is None else np.asarray(rest_points, dtype=float)
-        if integrator not in _SCHEMES:
-            raise LbshapeError(f"integrator must be one of {tuple(_SCHEMES)}, got {integrator!r}")
+        scheme = get_scheme(integrator)
         if not (np.isfinite(dt) and dt > 0):
             raise LbshapeError(f"time step dt must be > 0 s, got {dt}")
         r = frame.r
@@ -289,8 +306,6 @@ class FreeBodySimulation:
         self.rtol, self.max_iterations = float(newton_rtol), int(max_iterations)
         self._into = hasattr(elastic, "force_and_tangent_into")
         self.q_target = np.zeros(r)
-        _, K0 = elastic.force_and_tangent(np.zeros(r))
-        self.damping = alpha * np.eye(r) + beta * np.asarray(K0, dtype=float)
         q = np.zeros(r) if q0 is None else np.array(q0, dtype=float)
         qd = np.zeros(r) if qd0 is None else np.array(qd0, dtype=float)
         if q.shape != (r,) or qd.shape != (r,):
@@ -300,77 +315,94 @@ class FreeBodySimulation:
         if omega_world.shape != (3,) or velocity.shape != (3,):
             raise LbshapeError("initial velocity and angular velocity must be 3-vectors")
         self._allocate(r)
-        self.q[:], self.qd[:] = q, qd
-        self._c[:] = frame.center
-        self._p[:] = frame.mass * velocity
-        self._R[:] = np.eye(3)
-        self._L[:] = frame.inertia(q) @ omega_world + frame.relative_momentum(q, qd)
+        self._set_scheme(scheme)
+        _, K0 = elastic.force_and_tangent(np.zeros(r))
+        self._solve.D[:] = alpha * np.eye(r) + beta * np.asarray(K0, dtype=float)
         self.time = 0.0
         self.steps_taken = 0
         self.phase_seconds = np.zeros((0, len(PHASES)))
         self._contact_calls = -1  # contact calls when the last evaluation was committed
         self.sweeps = 0  # rigid kick + deformation solve passes of the last step (1: no sweep)
         self.total_sweeps = 0  # the same, summed over every step taken
-        # initial acceleration: q̈ = b − (D + Γ(ω)) q̇ − f(q) (no contact, ω̇ = 0)
+        self._initial_state(q, qd, velocity, omega_world)
+
+    def _allocate(self, r: int) -> None:
+        """The structures of the step (:mod:`lbshape.dynamics.free_body_kernels`) and the
+        few arrays outside them."""
+        #: the state at :attr:`time` and the state the step computes (swapped on accept)
+        self._now, self._next = BodyState.allocate(r), BodyState.allocate(r)
+        self._kick_arrays = RigidKick.allocate()
+        self._solve = DeformationSolve.allocate(r)
+        self._scratch = Scratch.allocate(r)
+        self._frame_arrays = self.frame.kernel_arrays
+        self._dq, self._dqt = np.zeros(r), np.zeros(r)  # accepted and trial increments
+        self._gen = np.zeros(r)  # the loads' generalized force at t₀ (not used by the step)
+        #: [internal force, contact, rigid, generalized load, solve] seconds of a step
+        self._seconds = np.zeros(5)
+        self._marks = np.zeros(len(PHASES) + 1)
+        self._clock = time.perf_counter
+
+    def _set_scheme(self, scheme: Scheme) -> None:
+        """The scheme's coefficients (:class:`~lbshape.dynamics.integrators.Scheme`) in the
+        Newton solve, and the factors of the Newton matrix and the round-off level."""
+        dt = self.dt
+        self._solve.scheme[:] = scheme.array
+        self._solve.rates[:] = scheme.step_rates(dt)
+        self._ca_dt2, self._ca_dt, self._cv_dt = scheme.ca / dt**2, scheme.ca / dt, scheme.cv / dt
+
+    def _initial_state(self, q: np.ndarray, qd: np.ndarray, velocity: np.ndarray,
+                       omega_world: np.ndarray) -> None:
+        """The state at t = 0: rest frame at the centre of mass, the given velocities and
+        the initial acceleration ``q̈ = b − (D + Γ(ω)) q̇ − f(q)`` (no contact, ω̇ = 0)."""
+        frame, state = self.frame, self._now
+        state.q[:], state.qd[:] = q, qd
+        state.c[:] = frame.center
+        state.p[:] = frame.mass * velocity
+        state.R[:] = np.eye(3)
+        state.L[:] = frame.inertia(q) @ omega_world + frame.relative_momentum(q, qd)
         omega = self.omega()
-        f, _ = elastic.force_and_tangent(q)
-        self._f_elastic0[:] = f
+        f, _ = self.elastic.force_and_tangent(q)
+        state.f_elastic[:] = f
         f = np.array(f, dtype=float) + self.k_ex * q
         fe, _ = frame.centrifugal(q, omega)
-        self._load_q(self._R, 0.0, self._b)
-        self.qa[:] = self._b - (self.damping + frame.coriolis(omega)) @ qd - (f + fe)
+        self._load_q(state.R, 0.0, self._solve.b)
+        state.qa[:] = self._solve.b - (self.damping + frame.coriolis(omega)) @ qd - (f + fe)
         self._elastic_energy = 0.0  # the monitor's elastic energy at the committed state (J)
         self.energy0 = self.energy()
         self.work = 0.0
 
-    def _allocate(self, r: int) -> None:
-        """The state, its next-step copy and every work array of the step."""
-        self.q, self.qd, self.qa = np.zeros(r), np.zeros(r), np.zeros(r)
-        self._q1, self._v1, self._a1 = np.zeros(r), np.zeros(r), np.zeros(r)
-        self._c, self._p, self._R, self._L = np.zeros(3), np.zeros(3), np.zeros((3, 3)), np.zeros(3)
-        self._c1, self._p1, self._R1, self._L1 = (np.zeros(3), np.zeros(3), np.zeros((3, 3)),
-                                                  np.zeros(3))
-        self._dq, self._dqt = np.zeros(r), np.zeros(r)  # accepted and trial increments
-        self._delta, self._b = np.zeros(r), np.zeros(r)
-        self._f, self._K, self._res = np.zeros(r), np.zeros((r, r)), np.zeros(r)
-        # elastic force at q₁ (last evaluation) and at q (the committed state)
-        self._f_elastic, self._f_elastic0 = np.zeros(r), np.zeros(r)
-        self._J = np.zeros((r, r))
-        self._base = np.zeros((r, r))  # c_a/Δt² I + c_v/Δt (D + Γ(ω₁))
-        self._damping1 = np.zeros((r, r))  # D + Γ(ω₁)
-        self._force, self._torque, self._gen = np.zeros(3), np.zeros(3), np.zeros(r)
-        #: rigid update outputs: ω₀, ω₁ (body, end of step), ω̇, ω_mid, Δp, ΔL, v₀, [θ, 0, 0]
-        self._rigid_out = np.zeros((8, 3))
-        #: contact sweeps: contact (force, torque) at t₀ and at the end of the last sweep,
-        #: the contact stiffness K₆ of the kick, ν₁ of the last sweep, its (p₁, L₁ / radius)
-        self._contact0_force, self._contact0_torque = np.zeros(3), np.zeros(3)
-        self._contact1, self._K6 = np.zeros(6), np.zeros((6, 6))
-        self._nu1, self._momentum1 = np.zeros(6), np.zeros(6)
-        self._work33, self._work6 = np.zeros((8, 3, 3)), np.zeros((4, 6))
-        self._work66 = np.zeros((4, 6, 6))
-        self._contact_zero6 = np.zeros((6, 6))
-        #: [‖f‖, max(‖f_elastic‖, ‖contact force‖)] of the last evaluation
-        self._norms = np.zeros(2)
-        #: [internal force, contact, rigid, generalized load, solve] seconds of a step
-        self._seconds = np.zeros(5)
-        self._energies = np.zeros(3)
-        self._marks = np.zeros(len(PHASES) + 1)
-        self._clock = time.perf_counter
-        self._predictor = np.array([0.0, 0.0, 1.0 if self.scheme == "newmark" else 0.0])
-        self._scheme_code = 0 if self.scheme == "newmark" else 1
-        self._frame_arrays = self.frame.kernel_arrays
-
     # ------------------------------------------------------------ quantities
+    @property
+    def q(self) -> np.ndarray:
+        """(r,) deformation at :attr:`time` (body frame)."""
+        return self._now.q
+
+    @property
+    def qd(self) -> np.ndarray:
+        """(r,) its rate."""
+        return self._now.qd
+
+    @property
+    def qa(self) -> np.ndarray:
+        """(r,) its acceleration."""
+        return self._now.qa
+
+    @property
+    def damping(self) -> np.ndarray:
+        """(r, r) Rayleigh damping of the deformation ``α I + β K₀``."""
+        return self._solve.D
+
     @property
     def rigid(self) -> RigidState:
         """A copy of the rigid state (centre of mass, momenta, rotation) at :attr:`time`."""
-        return RigidState(self._c.copy(), self._p.copy(), self._R.copy(), self._L.copy())
+        state = self._now
+        return RigidState(state.c.copy(), state.p.copy(), state.R.copy(), state.L.copy())
 
     def omega(self) -> np.ndarray:
         """(3,) current body angular velocity (rad/s)."""
         inertia = self.frame.inertia(self.q)
         h = self.frame.relative_momentum(self.q, self.qd)
-        return np.linalg.solve(inertia, self._R.T @ self._L - h)
+        return np.linalg.solve(inertia, self._now.R.T @ self._now.L - h)
 
     def energy(self, contact_energy: float | None = None) -> float:
         """Total energy (J): rigid and relative kinetic, elastic, example spring, contact
@@ -378,7 +410,7 @@ class FreeBodySimulation:
         omega = self.omega()
         inertia = self.frame.inertia(self.q)
         h = self.frame.relative_momentum(self.q, self.qd)
-        p = self._p
+        p = self._now.p
         kinetic = (0.5 * float(p @ p) / self.frame.mass + 0.5 * float(omega @ inertia @ omega)
                    + float(omega @ h) + 0.5 * float(self.qd @ self.qd))
         self._elastic_energy = float(self.elastic.energy(self.q))
@@ -388,17 +420,19 @@ class FreeBodySimulation:
                 if self._contact_fresh():
                     contact_energy = float(self.contact.scalars[0])
                 else:
-                    contact_energy = self.contact.evaluate(self._c, self._R, self.q,
+                    contact_energy = self.contact.evaluate(self._now.c, self._now.R, self.q,
                                                            rigid=False).energy
             potential += contact_energy
         return kinetic + potential
 
     # ---------------------------------------------------------------- pieces
     def _load_q(self, rotation: np.ndarray, t: float, out: np.ndarray) -> None:
-        """The generalized load ``k_ex q* + Σ Uᵀ Rᵀ f_l(t)`` (r,) into ``out``."""
-        self._loads.evaluate_into(rotation, self.q, t, self._force, self._torque, out)
+        """The generalized load ``k_ex q* + Σ Uᵀ Rᵀ f_l(t)`` (r,) into ``out`` (the loads'
+        force and torque into the kick's ``force``, ``torque``)."""
+        kick = self._kick_arrays
+        self._loads.evaluate_into(rotation, self._now.q, t, kick.force, kick.torque, out)
         if self.k_ex:
-            _axpy(self.k_ex, self.q_target, out)
+            axpy(self.k_ex, self.q_target, out)
 
     def _contact_fresh(self) -> bool:
         """The contact's arrays hold the evaluation at the current state (c, R, q)."""
@@ -406,33 +440,63 @@ class FreeBodySimulation:
         return (self.reuse_contact and contact is not None
                 and contact.evaluated + contact.skipped == self._contact_calls)
 
+    def _interpolate(self, marks: np.ndarray) -> None:
+        """Step 1: the example weights and target ``q*`` from q (``marks[1]`` after the
+        weights, ``marks[2]`` after the target)."""
+        clock = self._clock
+        if self._in_place:
+            self.driver.weights_into(self._now.q)
+            marks[1] = clock()
+            self.driver.target_from_weights_into(self.q_target)
+        elif self.driver is not None:  # a driver without the in-place methods
+            marks[1] = marks[0]
+            self.q_target[:] = self.driver.target(self._now.q).q_target
+        else:
+            marks[1] = marks[0]
+        marks[2] = clock()
+
+    def _start_of_step(self) -> tuple[bool, float]:
+        """The loads and the contact at t₀ into the kick's inputs; returns (the contact
+        acts, the seconds the contact took)."""
+        kick, state = self._kick_arrays, self._now
+        self._loads.evaluate_into(state.R, state.q, self.time, kick.force, kick.torque,
+                                  self._gen)
+        started = self._clock()
+        contact = self.contact
+        active = False
+        if contact is not None:
+            if not self._contact_fresh():
+                contact.evaluate_into(state.c, state.R, state.q, True)
+            active = contact.scalars[1] > 0
+            kick.contact_force[:] = contact.force
+            kick.contact_torque[:] = contact.torque
+            kick.K6[:] = contact.stiffness_rigid
+        return active, self._clock() - started
+
     def _evaluate(self, index: int, t1: float, times: np.ndarray) -> float:
-        """Deformation force, tangent and residual at ``q₁ = q + Δq`` (``self._q1``) and the
-        new pose; returns ‖residual‖. ``times`` accumulates [internal, contact] seconds."""
+        """Deformation force, tangent and residual at ``q₁ = q + Δq`` (the next state's q)
+        and the new pose; returns ‖residual‖. ``times`` accumulates [internal, contact]
+        seconds."""
         clock = self._clock
         started = clock()
+        end, solve = self._next, self._solve
         if self._into:
-            self.elastic.force_and_tangent_into(self._q1, self._f, self._K)
+            self.elastic.force_and_tangent_into(end.q, solve.f, solve.K)
         else:
-            f, K = self.elastic.force_and_tangent(self._q1)
-            self._f[:] = f
-            self._K[:] = K
+            f, K = self.elastic.force_and_tangent(end.q)
+            solve.f[:] = f
+            solve.K[:] = K
         middle = clock()
         active = False
         contact = self.contact
         if contact is not None:
-            active = contact.evaluate_into(self._c1, self._R1, self._q1, True) > 0
+            active = contact.evaluate_into(end.c, end.R, end.q, True) > 0
         after = clock()
-        frame_arrays = self._frame_arrays
-        out = self._rigid_out
-        norm = _deformation_residual(
-            self._q1, self._dqt, self.qd, self.qa, self.dt, self._scheme_code, self.k_ex,
-            out[1], out[2], frame_arrays[1], frame_arrays[2], frame_arrays[3], frame_arrays[4],
-            frame_arrays[5], frame_arrays[6], active,
+        norm = deformation_residual(
+            self.r, self.dt, self.k_ex, active, self._frame_arrays.data, self._now.data,
+            end.data, self._kick_arrays.data, solve.data, self._dqt,
             contact.generalized if contact is not None else self._gen,
-            contact.stiffness_q if contact is not None else self._K,
-            self._damping1, self._b, self._f, self._K, self._v1, self._a1, self._res,
-            self._norms, self._f_elastic)
+            contact.stiffness_q if contact is not None else solve.K)
         finished = clock()
         times[0] += (middle - started) + (finished - after)
         times[1] += after - middle
@@ -443,27 +507,19 @@ class FreeBodySimulation:
 
     def _kick(self, index: int, t1: float, active: bool, *, sweep: bool,
               times: np.ndarray) -> None:
-        """The rigid update (:func:`_rigid_update`) to (c₁, p₁, R₁, L₁) and the deformation
-        damping D + Γ(ω₁); a ``sweep`` uses the contact at the end of the previous sweep."""
+        """The rigid update (:func:`~lbshape.dynamics.free_body_kernels.rigid_update`) to
+        (c₁, p₁, R₁, L₁), the deformation damping D + Γ(ω₁) and the generalized load at
+        t₁; a ``sweep`` uses the contact at the end of the previous sweep."""
         started = self._clock()
-        frame, arrays = self.frame, self._frame_arrays
-        contact = self.contact
-        cforce = self._contact0_force if contact is not None else self._force
-        ctorque = self._contact0_torque if contact is not None else self._torque
-        K6 = self._K6 if contact is not None else self._contact_zero6
-        state = _rigid_update(
-            self.dt, frame.mass, self.q, self.qd, self.qa, self._c, self._p, self._R, self._L,
-            self._force, self._torque, active or sweep, cforce, ctorque, K6, sweep,
-            self._contact1, self._nu1, arrays[0], arrays[1], arrays[2], arrays[3], arrays[4],
-            self._c1, self._p1, self._R1, self._L1, self._rigid_out, self._work33, self._work6,
-            self._work66, self._q1, self._v1)
-        if state == 1:
-            raise rotation_error(self.dt, self._rigid_out[3], index, t1)
-        if state == 2:
+        result = rigid_update(self.r, self.dt, active or sweep, sweep, self._frame_arrays.data,
+                              self._now.data, self._next.data, self._kick_arrays.data,
+                              self._solve.data, self._scratch.data)
+        if result == KICK_ROTATION_FAILED:
+            raise rotation_error(self.dt, self._kick_arrays.omega_mid, index, t1)
+        if result == KICK_SINGULAR:
             raise SolverError(f"singular inertia at step {index} (t = {t1:.6g} s)")
-        coriolis_into(self._rigid_out[1], arrays[3], self.damping, self._damping1)
         rigid_done = self._clock()
-        self._load_q(self._R1, t1, self._b)
+        self._load_q(self._next.R, t1, self._solve.b)
         times[2] += rigid_done - started
         times[3] += self._clock() - rigid_done
 
@@ -472,41 +528,39 @@ class FreeBodySimulation:
         the iterations. ``times`` accumulates [internal force, contact, -, -, solve] s."""
         started = self._clock()
         before = times[0] + times[1]
-        dt = self.dt
-        ca, cv = _SCHEMES[self.scheme]
-        _newton_base(self._damping1, ca / dt**2, cv / dt, self._base)
-        _predict(self.q, self.qd, self.qa, dt, self._dqt, self._predictor)
-        np.add(self.q, self._dqt, out=self._q1)
-        b_norm, qa_norm, qd_norm = _norm(self._b), _norm(self.qa), _norm(self.qd)
+        dt, state, solve = self.dt, self._now, self._solve
+        newton_base(solve.damping, self._ca_dt2, self._cv_dt, solve.base)
+        predict(state.qd, state.qa, dt, self._dqt, solve.rates)
+        np.add(state.q, self._dqt, out=self._next.q)
+        b_norm, qa_norm, qd_norm = _norm(solve.b), _norm(state.qa), _norm(state.qd)
         scale = max(b_norm, qa_norm)
         norm = self._evaluate(index, t1, times)
         self._dq, self._dqt = self._dqt, self._dq
-        scale = max(scale, norm, self._norms[0], self._norms[1])
-        eps64 = 64 * np.finfo(float).eps
+        scale = max(scale, norm, solve.norms[0], solve.norms[1])
         iteration = 0
         while True:
-            noise = eps64 * (ca / dt**2 * _norm(self._dq) + self._norms[0] + b_norm
-                             + ca / dt * qd_norm + qa_norm)
+            noise = _EPS64 * (self._ca_dt2 * _norm(self._dq) + solve.norms[0] + b_norm
+                              + self._ca_dt * qd_norm + qa_norm)
             if norm <= self.rtol * scale or norm <= noise:
                 break
             if iteration == self.max_iterations:
                 raise SolverError(
                     f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
                     f"residual {norm / scale:.3e} after {iteration} iterations")
-            if not _lu_solve(self._base, self._K, self._res, self._J, self._delta):
+            if not lu_solve(solve.base, solve.K, solve.residual, solve.J, solve.delta):
                 raise SolverError(f"singular Newton matrix at step {index} "
                                   f"(t = {t1:.6g} s)")
             # backtracking: contact makes the residual only piecewise smooth; the last
             # trial is the accepted one
             fraction = 1.0
             while True:
-                _trial(self.q, self._dq, self._delta, fraction, self._dqt, self._q1)
-                trial = self._evaluate(index, t1, times)
-                if trial < norm or fraction <= 1.0 / 64:
+                trial(state.q, self._dq, solve.delta, fraction, self._dqt, self._next.q)
+                trial_norm = self._evaluate(index, t1, times)
+                if trial_norm < norm or fraction <= 1.0 / 64:
                     break
                 fraction *= 0.5
             self._dq, self._dqt = self._dqt, self._dq
-            norm = trial
+            norm = trial_norm
             iteration += 1
         times[4] += self._clock() - started - (times[0] + times[1] - before)
         return iteration
@@ -517,33 +571,82 @@ class FreeBodySimulation:
         since the last sweep by more than :data:`SWEEP_RTOL` of the size of the momenta and
         the step's impulse (Δp, ΔL / radius) together (stops after
         :data:`MAX_CONTACT_SWEEPS`). Stores the contact and ν₁ the next sweep uses."""
-        contact = self.contact
-        if contact is None or contact.scalars[1] == 0 or self._rigid_out[7, 0] != 0.5:
+        contact, kick, end = self.contact, self._kick_arrays, self._next
+        if contact is None or contact.scalars[1] == 0 or kick.theta[0] != 0.5:
             return False
-        momentum, radius = self._momentum1, contact.radius0
-        dp, dL = self._rigid_out[4], self._rigid_out[5]
+        momentum, radius = kick.momentum_end, contact.radius0
+        p1, L1, dp, dL = end.p, end.L, kick.dp, kick.dL
         change = 0.0
         size = 0.0
         for a in range(3):
-            change += (self._p1[a] - momentum[a]) ** 2 + ((self._L1[a] / radius
-                                                           - momentum[3 + a]) ** 2)
-            size += (self._p1[a] ** 2 + (self._L1[a] / radius) ** 2 + dp[a] ** 2
-                     + (dL[a] / radius) ** 2)
-            momentum[a], momentum[3 + a] = self._p1[a], self._L1[a] / radius
+            change += (p1[a] - momentum[a]) ** 2 + ((L1[a] / radius - momentum[3 + a]) ** 2)
+            size += (p1[a] ** 2 + (L1[a] / radius) ** 2 + dp[a] ** 2 + (dL[a] / radius) ** 2)
+            momentum[a], momentum[3 + a] = p1[a], L1[a] / radius
         if sweeps > 1 and change <= (SWEEP_RTOL**2) * size:
             return False
         if sweeps >= MAX_CONTACT_SWEEPS:
             return False
-        self._contact1[:3] = contact.force
-        self._contact1[3:] = contact.torque
-        if sweeps == 1 and not np.any(self._K6):  # the contact began within the step
-            self._K6[:] = contact.stiffness_rigid
-        omega_body, R1, nu1 = self._rigid_out[1], self._R1, self._nu1
+        kick.contact_end[:3] = contact.force
+        kick.contact_end[3:] = contact.torque
+        if sweeps == 1 and not np.any(kick.K6):  # the contact began within the step
+            kick.K6[:] = contact.stiffness_rigid
+        omega_body, R1, nu1 = kick.omega1, end.R, kick.nu_end
         for a in range(3):
-            nu1[a] = self._p1[a] / self.frame.mass
+            nu1[a] = p1[a] / self.frame.mass
             nu1[3 + a] = (R1[a, 0] * omega_body[0] + R1[a, 1] * omega_body[1]
                           + R1[a, 2] * omega_body[2])
         return True
+
+    def _sweeps(self, index: int, t1: float, active: bool, times: np.ndarray) -> int:
+        """Steps 2–5: the rigid kick and the deformation solve, repeated while contact
+        sweeps are needed; returns the Newton iterations of all sweeps."""
+        iterations = sweeps = 0
+        while True:
+            self._kick(index, t1, active, sweep=sweeps > 0, times=times)
+            iterations += self._solve_deformation(index, t1, times)
+            sweeps += 1
+            if not self._sweep_again(sweeps):
+                break
+        self.sweeps = sweeps
+        self.total_sweeps += sweeps
+        contact = self.contact
+        self._depth = depth = float(contact.scalars[2]) if contact is not None else 0.0
+        if contact is not None and depth > contact.radius0:
+            raise SolverError(f"contact failed at step {index} (t = {t1:.6g} s): a vertex is "
+                              f"{depth:.3g} m behind a plane (the body's radius is "
+                              f"{contact.radius0:.3g} m); lower dt or raise the stiffness")
+        return iterations
+
+    def _commit(self, index: int, t1: float) -> None:
+        """Check the new state (finite, deformation bound, energy monitor) and make it the
+        current one."""
+        contact = self.contact
+        contact_energy = float(contact.scalars[0]) if contact is not None else 0.0
+        finite = commit_energy(self.r, self.k_ex, contact_energy, self._frame_arrays.data,
+                               self._now.data, self._next.data, self._kick_arrays.data,
+                               self._solve.data, self._scratch.data)
+        energies = self._scratch.energies
+        work = self.work + energies[1]
+        budget = abs(self.energy0) + work
+        if not finite:
+            raise SolverError(f"non-finite state at step {index} (t = {t1:.6g} s)")
+        if self.deformation_bound is not None:
+            self.deformation_bound.check(self._next.q, index, t1)
+        elastic = max(self._elastic_energy + energies[2], 0.0)
+        energy = energies[0] + elastic
+        limit = ENERGY_FACTOR * budget
+        if not math.isfinite(energy) or (budget > 0 and energy > EXACT_ENERGY_FRACTION * limit):
+            elastic = float(self.elastic.energy(self._next.q))
+            energy = energies[0] + elastic
+            if not math.isfinite(energy) or (budget > 0 and energy > limit):
+                raise SolverError(f"energy blew up ({energy:.3e} J > {ENERGY_FACTOR:g} x "
+                                  f"budget {budget:.3e} J) at step {index} (t = {t1:.6g} s)")
+        self._elastic_energy = elastic
+        self.work = work
+        self._now, self._next = self._next, self._now
+        if contact is not None:
+            self._contact_calls = contact.evaluated + contact.skipped
+        self.time, self.steps_taken = t1, index
 
     # ------------------------------------------------------------------ step
     def step(self, index: int | None = None) -> int:
@@ -556,82 +659,15 @@ class FreeBodySimulation:
         clock, marks = self._clock, self._marks
         marks[0] = clock()
         index = self.steps_taken + 1 if index is None else index
-        frame, t1 = self.frame, self.time + self.dt
-        if self._in_place:
-            self.driver.weights_into(self.q)
-            marks[1] = clock()
-            self.driver.target_from_weights_into(self.q_target)
-        elif self.driver is not None:  # a driver without the in-place methods
-            marks[1] = marks[0]
-            self.q_target[:] = self.driver.target(self.q).q_target
-        else:
-            marks[1] = marks[0]
-        marks[2] = clock()
-
-        # --- rigid update (loads and contact at t₀, impulse, rotation), then the
-        # deformation solve (contact implicit at the new pose); in contact, sweeps
-        self._loads.evaluate_into(self._R, self.q, self.time, self._force, self._torque,
-                                  self._gen)
-        rigid_started = clock()
-        contact = self.contact
-        active = False
-        if contact is not None:
-            if not self._contact_fresh():
-                contact.evaluate_into(self._c, self._R, self.q, True)
-            active = contact.scalars[1] > 0
-            self._contact0_force[:] = contact.force
-            self._contact0_torque[:] = contact.torque
-            self._K6[:] = contact.stiffness_rigid
-        contact_t0 = clock() - rigid_started
+        t1 = self.time + self.dt
+        self._interpolate(marks)
+        # rigid update (loads and contact at t₀, impulse, rotation), then the deformation
+        # solve (contact implicit at the new pose); in contact, sweeps
+        active, contact_t0 = self._start_of_step()
         times = self._seconds
         times[:] = 0.0  # [internal force, contact, rigid, generalized load, solve] seconds
-        iterations = sweeps = 0
-        while True:
-            self._kick(index, t1, active, sweep=sweeps > 0, times=times)
-            iterations += self._solve_deformation(index, t1, times)
-            sweeps += 1
-            if not self._sweep_again(sweeps):
-                break
-        self.sweeps = sweeps
-        self.total_sweeps += sweeps
-        depth = float(contact.scalars[2]) if contact is not None else 0.0
-        self._depth = depth
-        if contact is not None and depth > contact.radius0:
-            raise SolverError(f"contact failed at step {index} (t = {t1:.6g} s): a vertex is "
-                              f"{depth:.3g} m behind a plane (the body's radius is "
-                              f"{contact.radius0:.3g} m); lower dt or raise the stiffness")
-
-        # --- commit and monitor
-        arrays = self._frame_arrays
-        energies = self._energies
-        contact_energy = float(contact.scalars[0]) if contact is not None else 0.0
-        finite = _commit_energy(frame.mass, self._p1, self._R1, self._L1, self._q1, self._v1,
-                                self._c1, self.k_ex, contact_energy, self._rigid_out, self.q,
-                                self._b, self._f_elastic0, self._f_elastic, arrays[0],
-                                arrays[1], arrays[2], arrays[3], arrays[4], self._work33,
-                                energies)
-        work = self.work + energies[1]
-        budget = abs(self.energy0) + work
-        if not finite:
-            raise SolverError(f"non-finite state at step {index} (t = {t1:.6g} s)")
-        if self.deformation_bound is not None:
-            self.deformation_bound.check(self._q1, index, t1)
-        elastic = max(self._elastic_energy + energies[2], 0.0)
-        energy = energies[0] + elastic
-        limit = ENERGY_FACTOR * budget
-        if not math.isfinite(energy) or (budget > 0 and energy > EXACT_ENERGY_FRACTION * limit):
-            elastic = float(self.elastic.energy(self._q1))
-            energy = energies[0] + elastic
-            if not math.isfinite(energy) or (budget > 0 and energy > limit):
-                raise SolverError(f"energy blew up ({energy:.3e} J > {ENERGY_FACTOR:g} x "
-                                  f"budget {budget:.3e} J) at step {index} (t = {t1:.6g} s)")
-        self._elastic_energy = elastic
-        self._f_elastic0, self._f_elastic = self._f_elastic, self._f_elastic0
-        self.work = work
-        self._swap()
-        if contact is not None:
-            self._contact_calls = contact.evaluated + contact.skipped
-        self.time, self.steps_taken = t1, index
+        iterations = self._sweeps(index, t1, active, times)
+        self._commit(index, t1)
         finished = clock()
         marks[3] = marks[2] + times[3]  # example force (generalized load)
         marks[4] = marks[3] + times[2]  # rigid update
@@ -640,15 +676,6 @@ class FreeBodySimulation:
         marks[7] = marks[6] + times[4]
         marks[8] = finished
         return iterations
-
-    def _swap(self) -> None:
-        self.q, self._q1 = self._q1, self.q
-        self.qd, self._v1 = self._v1, self.qd
-        self.qa, self._a1 = self._a1, self.qa
-        self._c, self._c1 = self._c1, self._c
-        self._p, self._p1 = self._p1, self._p
-        self._R, self._R1 = self._R1, self._R
-        self._L, self._L1 = self._L1, self._L
 
     # ------------------------------------------------------------------- run
     def run(self, steps: int, *, stride: int = 1,
@@ -670,9 +697,10 @@ class FreeBodySimulation:
         self.phase_seconds = phases[:0]
 
         def sample() -> None:
-            for key, value in (("times", self.time), ("states", self.q), ("centers", self._c),
-                               ("rotations", self._R), ("momenta", self._p),
-                               ("angular_momenta", self._L), ("energies", self.energy())):
+            state = self._now
+            for key, value in (("times", self.time), ("states", state.q), ("centers", state.c),
+                               ("rotations", state.R), ("momenta", state.p),
+                               ("angular_momenta", state.L), ("energies", self.energy())):
                 sampled[key].append(np.array(value, dtype=float))
 
         sample()
@@ -716,366 +744,10 @@ def contact_theta(mass6: np.ndarray, stiffness6: np.ndarray, dt: float) -> float
     ω_c² is the largest eigenvalue of ``K₆ v = ω² M₆ v`` (6 × 6, M₆ positive definite).
     """
     work = np.zeros((2, 6, 6))
-    return float(_contact_theta(np.asarray(mass6, dtype=float),
-                                np.asarray(stiffness6, dtype=float), float(dt), work[0], work[1]))
+    return float(contact_theta_into(np.asarray(mass6, dtype=float),
+                                    np.asarray(stiffness6, dtype=float), float(dt), work[0],
+                                    work[1]))
 
 
 def _norm(vector: np.ndarray) -> float:
     return math.sqrt(float(vector @ vector))
-
-
-# ------------------------------------------------------------------ compiled kernels
-@njit
-def loads_into(rotation, q, scales, forces, P, Z0, Z1, force, torque, generalized, work):
-    """Σ_l scale_l · (force (3,) world, torque about c (3,) world, generalized (r,)) of the
-    stacked loads (:class:`FreeLoad` fields with a leading load axis) at (R, q).
-
-    ``Uᵀ Rᵀ f = Σ_ab R_ab P[:, b, a]``; torque ``R (ε : (W Rᵀ... ))``: body torque
-    ``τ_c = ε_cde Σ_a W_da R_ae`` with ``W = Z0 + Σ_j q_j Z1_j``. ``work`` (2, 3, 3).
-    """
-    r = generalized.shape[0]
-    force[:] = 0.0
-    torque[:] = 0.0
-    generalized[:] = 0.0
-    W, B = work[0], work[1]
-    for load in range(scales.shape[0]):
-        s = scales[load]
-        if s == 0.0:
-            continue
-        for a in range(3):
-            force[a] += s * forces[load, a]
-        for j in range(r):
-            value = 0.0
-            for a in range(3):
-                for b in range(3):
-                    value += rotation[a, b] * P[load, j, b, a]
-            generalized[j] += s * value
-        for d in range(3):
-            for a in range(3):
-                value = Z0[load, d, a]
-                for j in range(r):
-                    value += q[j] * Z1[load, j, d, a]
-                W[d, a] = value
-        for d in range(3):
-            for e in range(3):
-                B[d, e] = W[d, 0] * rotation[0, e] + W[d, 1] * rotation[1, e] + \
-                    W[d, 2] * rotation[2, e]
-        t0, t1, t2 = B[1, 2] - B[2, 1], B[2, 0] - B[0, 2], B[0, 1] - B[1, 0]
-        for a in range(3):
-            torque[a] += s * (rotation[a, 0] * t0 + rotation[a, 1] * t1 + rotation[a, 2] * t2)
-
-
-@njit
-def _max_symmetric_eigenvalue(A):
-    """Largest eigenvalue of the symmetric matrix A (n, n) by cyclic Jacobi (A destroyed)."""
-    n = A.shape[0]
-    for _ in range(50):
-        off = 0.0
-        total = 0.0
-        for i in range(n):
-            for j in range(n):
-                total += A[i, j] * A[i, j]
-                if i != j:
-                    off += A[i, j] * A[i, j]
-        if off <= 1e-30 * total:
-            break
-        for p in range(n - 1):
-            for q in range(p + 1, n):
-                apq = A[p, q]
-                if apq == 0.0:
-                    continue
-                tau = (A[q, q] - A[p, p]) / (2.0 * apq)
-                t = (1.0 if tau >= 0.0 else -1.0) / (abs(tau) + np.sqrt(1.0 + tau * tau))
-                c = 1.0 / np.sqrt(1.0 + t * t)
-                s = t * c
-                for k in range(n):  # columns p, q
-                    akp, akq = A[k, p], A[k, q]
-                    A[k, p] = c * akp - s * akq
-                    A[k, q] = s * akp + c * akq
-                for k in range(n):  # rows p, q
-                    apk, aqk = A[p, k], A[q, k]
-                    A[p, k] = c * apk - s * aqk
-                    A[q, k] = s * apk + c * aqk
-    largest = A[0, 0]
-    for i in range(1, n):
-        largest = max(largest, A[i, i])
-    return largest
-
-
-@njit
-def _contact_theta(M6, K6, dt, L, A):
-    """:func:`contact_theta` with work arrays L, A (6, 6): ω_c² = λ_max(L⁻¹ K₆ L⁻ᵀ),
-    ``M₆ = L Lᵀ``."""
-    n = M6.shape[0]
-    for i in range(n):
-        for j in range(n):
-            L[i, j] = M6[i, j]
-    if not cholesky_in_place(L):
-        return 1.0
-    for j in range(n):  # A = L⁻¹ K₆ (column by column), then A ← L⁻¹ Aᵀ
-        for i in range(n):
-            value = K6[i, j]
-            for k in range(i):
-                value -= L[i, k] * A[k, j]
-            A[i, j] = value / L[i, i]
-    for i in range(n):
-        for j in range(i):
-            A[i, j], A[j, i] = A[j, i], A[i, j]
-    for j in range(n):
-        for i in range(n):
-            value = A[i, j]
-            for k in range(i):
-                value -= L[i, k] * A[k, j]
-            A[i, j] = value / L[i, i]
-    omega2 = _max_symmetric_eigenvalue(A)
-    resolved = np.sqrt(max(omega2, 0.0)) * dt
-    return 0.5 + 0.5 * min(max(resolved - 0.5, 0.0), 1.0)
-
-
-@njit
-def _rigid_update(dt, mass, q, qd, qa, c0, p0, R0, L0, force, torque, active, cforce, ctorque,
-                  K6, sweep, end6, nu_end, Y0, G9, C9, S3, H, c1, p1, R1, L1, out, w33, w6, w66,
-                  q_mid, qd_mid):
-    """Step 2 of the module docstring. ``out`` rows: ω₀, ω₁, ω̇ (body), ω_mid, Δp, ΔL, v₀,
-    [θ, 0, 0]. With ``sweep`` (a contact sweep of :meth:`FreeBodySimulation.step`) the
-    kick is ``(M₆ + θ² Δt² K₆) Δν = Δt F_loads + ½ Δt (C₀ + C₁) + θ² Δt² K₆ (ν₁ − ν₀)``
-    with the contact (force, torque) C₀ = (cforce, ctorque) at t₀, C₁ = ``end6`` (6,) and
-    ν₁ = ``nu_end`` (6,) at the end of the previous sweep: its fixed point is the
-    trapezoidal rule ``M₆ Δν = Δt F_loads + ½ Δt (C₀ + C₁)``. ``q_mid``, ``qd_mid`` (r,)
-    are scratch. Returns 0, 1 (rotation did not converge) or 2 (singular inertia or rigid
-    system)."""
-    inertia, inverse, world = w33[0], w33[1], w33[2]
-    h, tmp = w6[0, :3], w6[0, 3:]
-    inertia_momentum_into(q, qd, Y0, G9, C9, S3, H, inertia, h)
-    if not inverse3_into(inertia, inverse):
-        return 2
-    for a in range(3):
-        tmp[a] = R0[0, a] * L0[0] + R0[1, a] * L0[1] + R0[2, a] * L0[2] - h[a]
-    omega0, dp, dL, v0 = out[0], out[4], out[5], out[6]
-    for a in range(3):
-        omega0[a] = inverse[a, 0] * tmp[0] + inverse[a, 1] * tmp[1] + inverse[a, 2] * tmp[2]
-        v0[a] = p0[a] / mass
-    F6, nu0 = w6[1], w6[2]
-    for a in range(3):
-        F6[a] = force[a] + (cforce[a] if active else 0.0)
-        F6[3 + a] = torque[a] + (ctorque[a] if active else 0.0)
-    out[7, 0] = 0.5
-    if not active:
-        for a in range(3):
-            dp[a] = dt * F6[a]
-            dL[a] = dt * F6[3 + a]
-    else:
-        M6, A = w66[0], w66[1]
-        for a in range(3):  # I_world = R I Rᵀ
-            for b in range(3):
-                value = 0.0
-                for k in range(3):
-                    for m in range(3):
-                        value += R0[a, k] * inertia[k, m] * R0[b, m]
-                world[a, b] = value
-        M6[:, :] = 0.0
-        for a in range(3):
-            M6[a, a] = mass
-            for b in range(3):
-                M6[3 + a, 3 + b] = world[a, b]
-            nu0[a] = v0[a]
-            nu0[3 + a] = R0[a, 0] * omega0[0] + R0[a, 1] * omega0[1] + R0[a, 2] * omega0[2]
-        theta = _contact_theta(M6, K6, dt, w66[2], w66[3])
-        out[7, 0] = theta
-        rhs = w6[3]
-        k = theta * theta * dt * dt
-        for i in range(6):
-            value = 0.0
-            for j in range(6):
-                if sweep:
-                    value += K6[i, j] * (nu_end[j] - nu0[j])
-                else:
-                    value += K6[i, j] * nu0[j]
-                A[i, j] = M6[i, j] + k * K6[i, j]
-            if sweep:
-                contact0 = cforce[i] if i < 3 else ctorque[i - 3]
-                rhs[i] = dt * F6[i] + 0.5 * dt * (end6[i] - contact0) + k * value
-            else:
-                rhs[i] = dt * F6[i] - theta * dt * dt * value
-        if not cholesky_in_place(A):
-            return 2
-        cholesky_solve_in_place(A, rhs)
-        for i in range(3):  # impulse M₆ Δν
-            dp[i] = mass * rhs[i]
-            dL[i] = world[i, 0] * rhs[3] + world[i, 1] * rhs[4] + world[i, 2] * rhs[5]
-    for a in range(3):
-        p1[a] = p0[a] + dp[a]
-        c1[a] = c0[a] + 0.5 * dt * (p0[a] + p1[a]) / mass
-        L1[a] = L0[a] + dL[a]
-    # inertia and relative momentum at the predicted mid-step deformation
-    for j in range(q.shape[0]):
-        q_mid[j] = q[j] + 0.5 * dt * qd[j] + 0.125 * dt * dt * qa[j]
-        qd_mid[j] = qd[j] + 0.5 * dt * qa[j]
-    inertia_momentum_into(q_mid, qd_mid, Y0, G9, C9, S3, H, inertia, h)
-    body = w6[1, :3]  # Π = R₀ᵀ L₁
-    for a in range(3):
-        body[a] = R0[0, a] * L1[0] + R0[1, a] * L1[1] + R0[2, a] * L1[2]
-    body1 = w6[1, 3:]
-    if not rotate_into(R0, body, inertia, h, dt, R1, body1, out[3], w33[3:5]):
-        return 1
-    if not inverse3_into(inertia, inverse):
-        return 2
-    omega1, omega_dot = out[1], out[2]
-    for a in range(3):
-        omega1[a] = (inverse[a, 0] * (body1[0] - h[0]) + inverse[a, 1] * (body1[1] - h[1])
-                     + inverse[a, 2] * (body1[2] - h[2]))
-        before = (inverse[a, 0] * (body[0] - h[0]) + inverse[a, 1] * (body[1] - h[1])
-                  + inverse[a, 2] * (body[2] - h[2]))
-        omega_dot[a] = (omega1[a] - before) / dt
-    return 0
-
-
-@njit
-def _deformation_residual(q1, dq, qd, qa, dt, scheme, k_ex, omega1, omega_dot, G9, C9, S3, H,
-                          G_trace, C_trace, active, cgen, cKq, damping1, b, f, K, v1, a1, res,
-                          norms, f_elastic):
-    """Complete f, K (the elastic force and tangent on entry) with the example spring, the
-    Euler and centrifugal forces and the contact; kinematics v₁, a₁ of Δq (Newmark or
-    backward Euler); residual ``a₁ + (D + Γ) v₁ + f − b`` into ``res``; returns its norm.
-    norms ← [‖f‖, max(‖f_elastic‖, ‖f_contact‖)]; the elastic force is copied to
-    ``f_elastic``."""
-    r = q1.shape[0]
-    elastic2 = 0.0
-    for j in range(r):
-        elastic2 += f[j] * f[j]
-        f_elastic[j] = f[j]
-    if k_ex != 0.0:
-        for j in range(r):
-            f[j] += k_ex * q1[j]
-            K[j, j] += k_ex
-    fictitious_into(q1, omega1, omega_dot, G9, C9, S3, H, G_trace, C_trace, f, K)
-    contact2 = 0.0
-    if active:
-        for j in range(r):
-            f[j] -= cgen[j]
-            contact2 += cgen[j] * cgen[j]
-            for k in range(r):
-                K[j, k] += cKq[j, k]
-    total2 = 0.0
-    for j in range(r):
-        total2 += f[j] * f[j]
-    norms[0] = np.sqrt(total2)
-    norms[1] = np.sqrt(max(elastic2, contact2))
-    for j in range(r):
-        if scheme == 0:
-            v1[j] = 2.0 / dt * dq[j] - qd[j]
-            a1[j] = 4.0 / (dt * dt) * (dq[j] - dt * qd[j]) - qa[j]
-        else:
-            v1[j] = dq[j] / dt
-            a1[j] = (v1[j] - qd[j]) / dt
-    norm2 = 0.0
-    for j in range(r):
-        value = a1[j] + f[j] - b[j]
-        for k in range(r):
-            value += damping1[j, k] * v1[k]
-        res[j] = value
-        norm2 += value * value
-    return np.sqrt(norm2)
-
-
-@njit
-def _newton_base(damping1, ca_dt2, cv_dt, base):
-    """base = c_a/Δt² I + c_v/Δt (D + Γ)."""
-    r = base.shape[0]
-    for j in range(r):
-        for k in range(r):
-            base[j, k] = cv_dt * damping1[j, k]
-        base[j, j] += ca_dt2
-
-
-@njit
-def _trial(q, dq, delta, fraction, dq_trial, q1):
-    """Δq_trial = Δq − fraction δ, q₁ = q + Δq_trial."""
-    for j in range(q.shape[0]):
-        dq_trial[j] = dq[j] - fraction * delta[j]
-        q1[j] = q[j] + dq_trial[j]
-
-
-@njit
-def _lu_solve(base, K, rhs, J, x):
-    """x = (base + K)⁻¹ rhs by LU with partial pivoting in J; False if singular."""
-    n = rhs.shape[0]
-    for i in range(n):
-        x[i] = rhs[i]
-        for j in range(n):
-            J[i, j] = base[i, j] + K[i, j]
-    for k in range(n):
-        pivot, big = k, abs(J[k, k])
-        for i in range(k + 1, n):
-            if abs(J[i, k]) > big:
-                pivot, big = i, abs(J[i, k])
-        if not (big > 0.0 and np.isfinite(big)):
-            return False
-        if pivot != k:
-            for j in range(n):
-                J[k, j], J[pivot, j] = J[pivot, j], J[k, j]
-            x[k], x[pivot] = x[pivot], x[k]
-        for i in range(k + 1, n):
-            factor = J[i, k] / J[k, k]
-            J[i, k] = factor
-            for j in range(k + 1, n):
-                J[i, j] -= factor * J[k, j]
-            x[i] -= factor * x[k]
-    for i in range(n - 1, -1, -1):
-        value = x[i]
-        for j in range(i + 1, n):
-            value -= J[i, j] * x[j]
-        x[i] = value / J[i, i]
-    return True
-
-
-@njit
-def _commit_energy(mass, p1, R1, L1, q1, v1, c1, k_ex, contact_energy, out, q0, b, f0, f1,
-                   Y0, G9, C9, S3, H, w33, energies):
-    """Energies of the new state: energies ← [kinetic + example spring + contact (J),
-    work of the step (J), trapezoidal work of the elastic force ½ (f₀ + f₁)·(q₁ − q₀) (J)];
-    False if the state or the first energy is not finite."""
-    finite = True
-    for a in range(3):
-        finite = finite and np.isfinite(p1[a]) and np.isfinite(L1[a]) and np.isfinite(c1[a])
-        for b_ in range(3):
-            finite = finite and np.isfinite(R1[a, b_])
-    for j in range(q1.shape[0]):
-        finite = finite and np.isfinite(q1[j]) and np.isfinite(v1[j])
-    if not finite:
-        return False
-    inertia, inverse, tmp = w33[5], w33[6], w33[7]
-    h = tmp[0]
-    inertia_momentum_into(q1, v1, Y0, G9, C9, S3, H, inertia, h)
-    if not inverse3_into(inertia, inverse):
-        return False
-    body, omega = tmp[1], tmp[2]
-    for a in range(3):
-        body[a] = R1[0, a] * L1[0] + R1[1, a] * L1[1] + R1[2, a] * L1[2] - h[a]
-    for a in range(3):
-        omega[a] = inverse[a, 0] * body[0] + inverse[a, 1] * body[1] + inverse[a, 2] * body[2]
-    kinetic = 0.0
-    for a in range(3):
-        kinetic += 0.5 * p1[a] * p1[a] / mass + omega[a] * h[a]
-        for b_ in range(3):
-            kinetic += 0.5 * omega[a] * inertia[a, b_] * omega[b_]
-    spring = 0.0
-    for j in range(q1.shape[0]):
-        kinetic += 0.5 * v1[j] * v1[j]
-        spring += 0.5 * k_ex * q1[j] * q1[j]
-    dp, dL, v0, omega_mid = out[4], out[5], out[6], out[3]
-    rigid_work = 0.0
-    turn_work = 0.0
-    for a in range(3):
-        rigid_work += dp[a] * (v0[a] + p1[a] / mass)
-        turn_work += dL[a] * (R1[a, 0] * omega_mid[0] + R1[a, 1] * omega_mid[1]
-                              + R1[a, 2] * omega_mid[2])
-    load_work = 0.0
-    elastic_work = 0.0
-    for j in range(q1.shape[0]):
-        load_work += b[j] * (q1[j] - q0[j])
-        elastic_work += 0.5 * (f0[j] + f1[j]) * (q1[j] - q0[j])
-    energies[0] = kinetic + spring + contact_energy
-    energies[1] = 0.5 * abs(rigid_work) + abs(turn_work) + abs(load_work)
-    energies[2] = elastic_work
-    return np.isfinite(energies[0])

@@ -383,10 +383,10 @@ class FullSpaceSimulator:
         stepper = getattr(self, "stepper", None)  # None while the stepper is set up
         if self._corotated_beta and stepper is not None:
             # β R K₀ Rᵀ v₁(x), v₁ the scheme's end-of-step velocity, linear in x
-            v1, _ = stepper._kinematics(x - stepper.x)
+            v1, _ = stepper.kinematics(x - stepper.x)
             damping = self._corotated_beta * self._damping_now
             f = f + damping @ v1
-            K = (K + (stepper._cv / stepper.dt) * damping).tocsr()
+            K = (K + (stepper.scheme.cv / stepper.dt) * damping).tocsr()
         return f, K
 
     def _corotate(self) -> None:

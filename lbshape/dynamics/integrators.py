@@ -20,7 +20,10 @@ Newton matrix below is exact, linear mode i is damped with the textbook ratio
 ``ζ_i = α/(2ω_i) + βω_i/2``, and damping never turns into an energy source when
 the current tangent becomes indefinite under large deformation.
 
-**Schemes.** With the displacement increment ``Δx = x_{n+1} − x_n`` unknown:
+**Schemes.** :data:`SCHEMES` holds each scheme's coefficients once (:class:`Scheme`);
+every engine reads them from there (this stepper, :mod:`lbshape.dynamics.reduced`,
+:mod:`lbshape.dynamics.free_body`). With the displacement increment
+``Δx = x_{n+1} − x_n`` unknown:
 
 * ``newmark`` (average acceleration, β = ¼, γ = ½; second order, unconditionally
   stable, no numerical damping; period elongation
@@ -72,11 +75,68 @@ from lbshape.errors import LbshapeError, SolverError
 
 log = logging.getLogger(__name__)
 
-#: time integrators by scene name
-INTEGRATORS: tuple[str, ...] = ("newmark", "backward-euler")
-
 Matrix = np.ndarray | sp.spmatrix
 ForceAndTangent = Callable[[np.ndarray], tuple[np.ndarray, Matrix]]
+
+
+@dataclass(frozen=True)
+class Scheme:
+    """The coefficients of one implicit scheme: the one table every engine reads.
+
+    With ``h = Δt`` and the step's displacement increment ``Δx = x₁ − x₀``:
+
+    * predictor (the first guess of Δx): ``Δx = h v₀ + ½ k_a h² a₀``;
+    * end-of-step kinematics: ``a₁ = c_a/h² Δx − k_v/h v₀ − k_a a₀``,
+      ``v₁ = c_v/h Δx − j_v v₀``;
+    * hence the Newton matrix ``dR/dΔx = c_a/h² M + c_v/h D + K``.
+
+    A second-order scheme (``k_a ≠ 0``; Newmark, where ``k_v = c_a``) is also written
+    ``a₁ = c_a/h² (Δx − h v₀) − k_a a₀``; the first-order one (``k_a = 0``; backward
+    Euler, ``c_a = k_v = c_v = 1``, ``j_v = 0``) as the difference quotients
+    ``v₁ = Δx/h``, ``a₁ = (v₁ − v₀)/h``. The same numbers to round-off; which form an
+    engine evaluates is its own (the forms round differently).
+
+    Attributes:
+        name: the scene's name of the scheme (:data:`INTEGRATORS`).
+        ca, kv, ka, cv, jv: ``c_a``, ``k_v``, ``k_a``, ``c_v``, ``j_v`` above.
+    """
+
+    name: str
+    ca: float
+    kv: float
+    ka: float
+    cv: float
+    jv: float
+
+    @property
+    def array(self) -> np.ndarray:
+        """(5,) ``[c_a, k_v, k_a, c_v, j_v]`` (for compiled kernels)."""
+        return np.array([self.ca, self.kv, self.ka, self.cv, self.jv])
+
+    def step_rates(self, dt: float) -> tuple[float, float, float, float, float]:
+        """``(c_a/h², k_v/h, k_a, c_v/h, j_v)`` for the step ``h = dt`` (s): the factors of
+        Δx, v₀ and a₀ in a₁ and v₁."""
+        h = float(dt)
+        return (self.ca / h**2, self.kv / h, self.ka, self.cv / h, self.jv)
+
+
+#: the schemes by scene name: Newmark average acceleration (β = ¼, γ = ½) and backward
+#: Euler
+SCHEMES: dict[str, Scheme] = {
+    "newmark": Scheme("newmark", ca=4.0, kv=4.0, ka=1.0, cv=2.0, jv=1.0),
+    "backward-euler": Scheme("backward-euler", ca=1.0, kv=1.0, ka=0.0, cv=1.0, jv=0.0),
+}
+#: time integrators by scene name
+INTEGRATORS: tuple[str, ...] = tuple(SCHEMES)
+
+
+def get_scheme(integrator: str) -> Scheme:
+    """The :class:`Scheme` named ``integrator``; :class:`LbshapeError` for an unknown name."""
+    try:
+        return SCHEMES[integrator]
+    except KeyError:
+        raise LbshapeError(
+            f"integrator must be one of {INTEGRATORS}, got {integrator!r}") from None
 
 
 @dataclass(frozen=True)
@@ -104,7 +164,8 @@ class StepInfo:
 class ImplicitStepper:
     """Implicit stepper for ``M a + D v + f(x) = f_ext(t)`` (see the module docstring).
 
-    Subclasses fix the scheme through :meth:`_predict` and :meth:`_kinematics`.
+    Subclasses fix the scheme: its coefficients (:attr:`scheme`, a :class:`Scheme` of
+    :data:`SCHEMES`), :meth:`_predict` and :meth:`kinematics`.
 
     Args:
         mass: (N, N) symmetric positive definite mass, dense or scipy sparse.
@@ -129,11 +190,8 @@ class ImplicitStepper:
             set ``False`` for non-symmetric tangents (follower forces).
     """
 
-    #: scheme name, as in :data:`INTEGRATORS`
-    scheme = ""
-    #: dR/dΔx = c_a M + c_v D + K, as multiples of 1/dt² and 1/dt
-    _ca = 1.0
-    _cv = 1.0
+    #: the scheme's coefficients (one of :data:`SCHEMES`)
+    scheme: Scheme
 
     def __init__(
         self,
@@ -188,7 +246,7 @@ class ImplicitStepper:
             damping = damping + beta * self._as_type(damping_stiffness)
         self.damping = damping
         self._alpha, self._beta = float(alpha), float(beta)
-        ca, cv = self._ca / self.dt**2, self._cv / self.dt
+        ca, cv = self.scheme.ca / self.dt**2, self.scheme.cv / self.dt
         self._newton_base = ca * self.mass + cv * self.damping
         if self._sparse:
             self._newton_base = sp.csc_matrix(self._newton_base)
@@ -271,7 +329,7 @@ class ImplicitStepper:
         for iteration in range(self.max_iterations + 1):
             x1 = self._x + dx
             f, K = self._evaluate(x1, index, t1)
-            v1, a1 = self._kinematics(dx)
+            v1, a1 = self.kinematics(dx)
             R = self.mass @ a1 + self.damping @ v1 + f - fext
             norm = float(_norm(R))
             if not np.isfinite(norm):
@@ -304,7 +362,9 @@ class ImplicitStepper:
     def _predict(self) -> np.ndarray:
         raise NotImplementedError
 
-    def _kinematics(self, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def kinematics(self, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(v₁, a₁)`` at the end of a step of displacement increment ``dx`` from the
+        current state (the scheme's kinematics, :class:`Scheme`)."""
         raise NotImplementedError
 
     # --------------------------------------------------------------- helpers
@@ -375,10 +435,9 @@ class ImplicitStepper:
     def _noise(self, dx: np.ndarray, f: np.ndarray, fext: np.ndarray) -> float:
         """Round-off level (force units, 2-norm) of evaluating the residual."""
         h, norm = self.dt, _norm
-        inertia = self._mass_norm * (
-            self._ca / h**2 * norm(dx) + self._ca / h * norm(self._v) + norm(self._a)
-        )
-        damping = self._damping_norm * (self._cv / h * norm(dx) + norm(self._v))
+        ca, cv = self.scheme.ca, self.scheme.cv
+        inertia = self._mass_norm * (ca / h**2 * norm(dx) + ca / h * norm(self._v) + norm(self._a))
+        damping = self._damping_norm * (cv / h * norm(dx) + norm(self._v))
         return 64.0 * np.finfo(float).eps * float(inertia + damping + norm(f) + norm(fext))
 
     def _check_energy(self, energy: float, work: float, index: int, t: float) -> None:
@@ -397,41 +456,40 @@ class ImplicitStepper:
 class NewmarkStepper(ImplicitStepper):
     """Average-acceleration Newmark (β = ¼, γ = ½); see :class:`ImplicitStepper`."""
 
-    scheme = "newmark"
-    _ca = 4.0
-    _cv = 2.0
+    scheme = SCHEMES["newmark"]
 
     def _predict(self) -> np.ndarray:
-        # constant-acceleration predictor
-        return self.dt * self._v + 0.5 * self.dt**2 * self._a
+        # constant-acceleration predictor: h v + ½ k_a h² a
+        return self.dt * self._v + 0.5 * self.scheme.ka * self.dt**2 * self._a
 
-    def _kinematics(self, dx):
-        h = self.dt
-        a1 = (4.0 / h**2) * (dx - h * self._v) - self._a
-        v1 = (2.0 / h) * dx - self._v
+    def kinematics(self, dx):
+        # second order: a₁ = c_a/h² (Δx − h v) − a, v₁ = c_v/h Δx − v (k_a = j_v = 1)
+        h, c = self.dt, self.scheme
+        a1 = (c.ca / h**2) * (dx - h * self._v) - self._a
+        v1 = (c.cv / h) * dx - self._v
         return v1, a1
 
 
 class BackwardEulerStepper(ImplicitStepper):
     """Backward (implicit) Euler; see :class:`ImplicitStepper`."""
 
-    scheme = "backward-euler"
-    _ca = 1.0
-    _cv = 1.0
+    scheme = SCHEMES["backward-euler"]
 
     def _predict(self) -> np.ndarray:
+        # constant-velocity predictor: h v (k_a = 0)
         return self.dt * self._v
 
-    def _kinematics(self, dx):
+    def kinematics(self, dx):
+        # first order: the difference quotients
         v1 = dx / self.dt
         a1 = (v1 - self._v) / self.dt
         return v1, a1
 
 
 _STEPPERS: dict[str, type[ImplicitStepper]] = {
-    NewmarkStepper.scheme: NewmarkStepper,
-    BackwardEulerStepper.scheme: BackwardEulerStepper,
+    stepper.scheme.name: stepper for stepper in (NewmarkStepper, BackwardEulerStepper)
 }
+assert set(_STEPPERS) == set(SCHEMES)
 
 
 def make_stepper(
@@ -441,13 +499,7 @@ def make_stepper(
 
     ``options`` are the keyword arguments of :class:`ImplicitStepper`.
     """
-    try:
-        cls = _STEPPERS[integrator]
-    except KeyError:
-        raise LbshapeError(
-            f"integrator must be one of {INTEGRATORS}, got {integrator!r}"
-        ) from None
-    return cls(mass, force_and_tangent, **options)
+    return _STEPPERS[get_scheme(integrator).name](mass, force_and_tangent, **options)
 
 
 def _check_settings(*, dt, alpha, beta, energy_budget, rtol, atol, max_iterations,

@@ -20,13 +20,15 @@ it writes is preallocated, the weights and the tabulated target are written in p
 force and tangent come from the compiled element kernel
 (:meth:`~lbshape.elastic.reduced_forces.ReducedForceModel.force_and_tangent_into`), and
 one compiled kernel forms the Newmark (or backward Euler) residual and Newton matrix
-and solves it by Cholesky. **Newton runs until the relative residual, measured at the
-state the step accepts, is below** ``rtol`` (:data:`REALTIME_RTOL` for real time). Its
-first update solves the step with the elastic force linearised at the start of the
-step — whose force and tangent are the previous step's last evaluation — so a step
-that meets the tolerance after one update costs one force and tangent evaluation, at
-the new state, and that evaluation starts the next step (updates per step and the
-error at 1 ms and at 20–60 Hz: ``results/large_steps.md``).
+— the scheme's coefficients from :data:`~lbshape.dynamics.integrators.SCHEMES` — and
+solves it by Cholesky (:mod:`lbshape.dynamics.kernels`). **Newton runs until the
+relative residual, measured at the state the step accepts, is below** ``rtol``
+(:data:`REALTIME_RTOL` for real time). Its first update solves the step with the
+elastic force linearised at the start of the step — whose force and tangent are the
+previous step's last evaluation — so a step that meets the tolerance after one update
+costs one force and tangent evaluation, at the new state, and that evaluation starts
+the next step (updates per step and the error at 1 ms and at 20–60 Hz:
+``results/large_steps.md``).
 ``newton_iterations`` instead fixes the updates per step from the predictor, residual
 unchecked (only for studies of that choice). Each step's wall time is split into
 :data:`PHASES` (:attr:`ReducedSimulation.phase_seconds`).
@@ -51,7 +53,8 @@ import scipy.linalg as sla
 
 from lbshape._jit import njit
 from lbshape.dynamics.contact import PlaneContact
-from lbshape.dynamics.integrators import INTEGRATORS
+from lbshape.dynamics.integrators import get_scheme
+from lbshape.dynamics.kernels import axpy, cholesky_in_place, cholesky_solve_in_place, predict
 from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.dynamics.sanity import DeformationBound
@@ -69,9 +72,6 @@ REALTIME_RTOL = 1e-5
 #: the parts of a step timed in :attr:`ReducedSimulation.phase_seconds`
 PHASES: tuple[str, ...] = ("weights", "target", "example_force", "internal_force_tangent",
                            "solve", "overhead")
-#: (c_a h², k_v h, k_a, c_v h, j_v) of the schemes: a₁ = c_a Δx − k_v v − k_a a,
-#: v₁ = c_v Δx − j_v v (Δx the step's displacement increment)
-_SCHEMES = {"newmark": (4.0, 4.0, 1.0, 2.0, 1.0), "backward-euler": (1.0, 1.0, 0.0, 1.0, 0.0)}
 
 
 class ReducedSimulation:
@@ -131,8 +131,7 @@ class ReducedSimulation:
         energy_factor: float | None = 1e3,
         deformation_bound: DeformationBound | None = None,
     ):
-        if integrator not in _SCHEMES:
-            raise LbshapeError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+        scheme = get_scheme(integrator)
         if not (np.isfinite(dt) and dt > 0):
             raise LbshapeError(f"time step dt must be > 0 s, got {dt}")
         if newton_iterations is not None and int(newton_iterations) < 1:
@@ -149,12 +148,13 @@ class ReducedSimulation:
         self.rtol, self.max_iterations = float(rtol), int(max_iterations)
         self.energy_factor = energy_factor
         self.deformation_bound = deformation_bound
-        ca, kv, ka, cv, jv = _SCHEMES[integrator]
-        self._coefficients = np.array([ca / h**2, kv / h, ka, cv / h, jv, self.k_ex])
+        # [c_a/h², k_v/h, k_a, c_v/h, j_v, k_ex]: the scheme's step rates and the spring
+        rates = scheme.step_rates(h)
+        self._coefficients = np.array([*rates, self.k_ex])
 
         _, K0 = elastic.force_and_tangent(np.zeros(r))
         self.damping = alpha * np.eye(r) + beta * np.asarray(K0)
-        self._base = (ca / h**2) * np.eye(r) + (cv / h) * self.damping
+        self._base = rates[0] * np.eye(r) + rates[3] * self.damping
         self._patterns = [np.ascontiguousarray(load.pattern, dtype=float) for load in self.loads]
         self._profiles = [load.profile for load in self.loads]
         self._into = hasattr(elastic, "force_and_tangent_into")
@@ -213,7 +213,7 @@ class ReducedSimulation:
         for pattern, profile in zip(self._patterns, self._profiles, strict=True):
             scale = profile(t)
             if scale:
-                _axpy(scale, pattern, out)
+                axpy(scale, pattern, out)
 
     def _force_and_tangent(self, q: np.ndarray) -> None:
         if self._into:
@@ -261,7 +261,7 @@ class ReducedSimulation:
         self._external_into(t1, self._fext)
         marks[3] = clock()
         coefficients = self._coefficients
-        _predict(self.x, self.v, self.a, self.dt, self._dx, coefficients)
+        predict(self.v, self.a, self.dt, self._dx, coefficients)
         if self.newton_iterations is None:
             forces, solves, updates = self._solve_to_tolerance(index, t1)
         else:
@@ -429,17 +429,6 @@ class ReducedSimulation:
 
 
 # ---------------------------------------------------------------- compiled kernels
-def _axpy(scale: float, x: np.ndarray, out: np.ndarray) -> None:
-    """out += scale · x without a temporary."""
-    _axpy_kernel(float(scale), x, out)
-
-
-@njit
-def _axpy_kernel(scale, x, out):
-    for i in range(out.shape[0]):
-        out[i] += scale * x[i]
-
-
 @njit
 def _linear_force(f0, K0, dx, out):
     """out = f0 + K0 dx: the elastic force linearised at the start of the step."""
@@ -452,15 +441,9 @@ def _linear_force(f0, K0, dx, out):
 
 
 @njit
-def _predict(x, v, a, h, dx, c):
-    """The scheme's predictor Δx: h v + ½h² a (Newmark, k_a = 1) or h v (backward Euler)."""
-    half = 0.5 * h * h * c[2]
-    for i in range(dx.shape[0]):
-        dx[i] = h * v[i] + half * a[i]
-
-
-@njit
 def _kinematics(dx, x, v, a, c, x1, v1, a1):
+    """x₁ = x + Δx and the end-of-step a₁, v₁ from the step rates ``c`` =
+    ``[c_a/h², k_v/h, k_a, c_v/h, j_v, k_ex]`` (:class:`~lbshape.dynamics.integrators.Scheme`)."""
     for i in range(dx.shape[0]):
         x1[i] = x[i] + dx[i]
         a1[i] = c[0] * dx[i] - c[1] * v[i] - c[2] * a[i]
@@ -510,43 +493,6 @@ def _newton_update(base, K, S, c, R, J, dx):
     for i in range(n):
         dx[i] -= R[i]
     return True
-
-
-@njit
-def cholesky_in_place(J):
-    """Lower Cholesky factor of the symmetric matrix J (n, n), read from and written to its
-    lower triangle; False if J is not positive definite."""
-    n = J.shape[0]
-    for j in range(n):
-        d = J[j, j]
-        for k in range(j):
-            d -= J[j, k] * J[j, k]
-        if not d > 0.0:
-            return False
-        d = np.sqrt(d)
-        J[j, j] = d
-        for i in range(j + 1, n):
-            value = J[i, j]
-            for k in range(j):
-                value -= J[i, k] * J[j, k]
-            J[i, j] = value / d
-    return True
-
-
-@njit
-def cholesky_solve_in_place(L, b):
-    """b ← (L Lᵀ)⁻¹ b with the factor of :func:`cholesky_in_place` (lower triangle of L)."""
-    n = b.shape[0]
-    for i in range(n):
-        value = b[i]
-        for k in range(i):
-            value -= L[i, k] * b[k]
-        b[i] = value / L[i, i]
-    for i in range(n - 1, -1, -1):
-        value = b[i]
-        for k in range(i + 1, n):
-            value -= L[k, i] * b[k]
-        b[i] = value / L[i, i]
 
 
 @njit

@@ -1,0 +1,180 @@
+"""Compiled dense kernels both reduced engines share, and named views of one buffer.
+
+The fixed-object step (:mod:`lbshape.dynamics.reduced`) and the free-body step
+(:mod:`lbshape.dynamics.free_body`) run on small dense arrays (r, r × r, 3, 6) and
+allocate nothing per step. What both use is here, compiled when numba is present
+(:mod:`lbshape._jit`):
+
+* :func:`axpy` (``out += s x``) and :func:`predict` (the scheme's predictor
+  ``Δx = h v + ½ k_a h² a``, k_a from :class:`~lbshape.dynamics.integrators.Scheme`);
+* :func:`cholesky_in_place` / :func:`cholesky_solve_in_place` (symmetric positive
+  definite systems: the fixed object's Newton matrix, the free body's 6 × 6 rigid
+  kick), :func:`lu_solve` (the free body's non-symmetric Newton matrix) and
+  :func:`max_symmetric_eigenvalue` (cyclic Jacobi);
+* :func:`take` and :func:`check_size`, with which a kernel cuts one float buffer into
+  named views.
+
+**Named views of one buffer.** A kernel that takes many arrays is easy to call with
+two of them swapped, and every array it takes costs a little to pass from Python. So
+the free body keeps its step's arrays in a few structures (``NamedTuple`` classes
+whose first field ``data`` is one float buffer and whose other fields are views of
+it). Python passes the buffer, ``x.data``; the kernel rebuilds the named views from it
+with the structure's view function (``body_state(data, r)``: :func:`take` after
+:func:`take`, then :func:`check_size`), and a kernel it calls takes the views. Python
+gets the same views from the same function run as plain Python
+(:func:`lbshape._jit.py_func`), so the layout is written once. Never call a compiled
+view function from Python: numba does not return a ``NamedTuple`` class to Python
+reliably (it can crash the interpreter); compiled code only passes the views on.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lbshape._jit import njit
+
+__all__ = ["axpy", "check_size", "cholesky_in_place", "cholesky_solve_in_place", "lu_solve",
+           "max_symmetric_eigenvalue", "predict", "take"]
+
+
+def axpy(scale: float, x: np.ndarray, out: np.ndarray) -> None:
+    """out += scale · x without a temporary."""
+    _axpy_kernel(float(scale), x, out)
+
+
+@njit
+def _axpy_kernel(scale, x, out):
+    for i in range(out.shape[0]):
+        out[i] += scale * x[i]
+
+
+@njit
+def predict(v, a, h, dx, c):
+    """The scheme's predictor Δx = h v + ½ k_a h² a into ``dx`` (k_a = ``c[2]``: Newmark
+    1, backward Euler 0; ``c`` the step rates of
+    :meth:`~lbshape.dynamics.integrators.Scheme.step_rates`)."""
+    half = 0.5 * h * h * c[2]
+    for i in range(dx.shape[0]):
+        dx[i] = h * v[i] + half * a[i]
+
+
+@njit
+def cholesky_in_place(J):
+    """Lower Cholesky factor of the symmetric matrix J (n, n), read from and written to its
+    lower triangle; False if J is not positive definite."""
+    n = J.shape[0]
+    for j in range(n):
+        d = J[j, j]
+        for k in range(j):
+            d -= J[j, k] * J[j, k]
+        if not d > 0.0:
+            return False
+        d = np.sqrt(d)
+        J[j, j] = d
+        for i in range(j + 1, n):
+            value = J[i, j]
+            for k in range(j):
+                value -= J[i, k] * J[j, k]
+            J[i, j] = value / d
+    return True
+
+
+@njit
+def cholesky_solve_in_place(L, b):
+    """b ← (L Lᵀ)⁻¹ b with the factor of :func:`cholesky_in_place` (lower triangle of L)."""
+    n = b.shape[0]
+    for i in range(n):
+        value = b[i]
+        for k in range(i):
+            value -= L[i, k] * b[k]
+        b[i] = value / L[i, i]
+    for i in range(n - 1, -1, -1):
+        value = b[i]
+        for k in range(i + 1, n):
+            value -= L[k, i] * b[k]
+        b[i] = value / L[i, i]
+
+
+@njit
+def lu_solve(base, K, rhs, J, x):
+    """x = (base + K)⁻¹ rhs by LU with partial pivoting in J; False if singular."""
+    n = rhs.shape[0]
+    for i in range(n):
+        x[i] = rhs[i]
+        for j in range(n):
+            J[i, j] = base[i, j] + K[i, j]
+    for k in range(n):
+        pivot, big = k, abs(J[k, k])
+        for i in range(k + 1, n):
+            if abs(J[i, k]) > big:
+                pivot, big = i, abs(J[i, k])
+        if not (big > 0.0 and np.isfinite(big)):
+            return False
+        if pivot != k:
+            for j in range(n):
+                J[k, j], J[pivot, j] = J[pivot, j], J[k, j]
+            x[k], x[pivot] = x[pivot], x[k]
+        for i in range(k + 1, n):
+            factor = J[i, k] / J[k, k]
+            J[i, k] = factor
+            for j in range(k + 1, n):
+                J[i, j] -= factor * J[k, j]
+            x[i] -= factor * x[k]
+    for i in range(n - 1, -1, -1):
+        value = x[i]
+        for j in range(i + 1, n):
+            value -= J[i, j] * x[j]
+        x[i] = value / J[i, i]
+    return True
+
+
+@njit
+def max_symmetric_eigenvalue(A):
+    """Largest eigenvalue of the symmetric matrix A (n, n) by cyclic Jacobi (A destroyed)."""
+    n = A.shape[0]
+    for _ in range(50):
+        off = 0.0
+        total = 0.0
+        for i in range(n):
+            for j in range(n):
+                total += A[i, j] * A[i, j]
+                if i != j:
+                    off += A[i, j] * A[i, j]
+        if off <= 1e-30 * total:
+            break
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                apq = A[p, q]
+                if apq == 0.0:
+                    continue
+                tau = (A[q, q] - A[p, p]) / (2.0 * apq)
+                t = (1.0 if tau >= 0.0 else -1.0) / (abs(tau) + np.sqrt(1.0 + tau * tau))
+                c = 1.0 / np.sqrt(1.0 + t * t)
+                s = t * c
+                for k in range(n):  # columns p, q
+                    akp, akq = A[k, p], A[k, q]
+                    A[k, p] = c * akp - s * akq
+                    A[k, q] = s * akp + c * akq
+                for k in range(n):  # rows p, q
+                    apk, aqk = A[p, k], A[q, k]
+                    A[p, k] = c * apk - s * aqk
+                    A[q, k] = s * apk + c * aqk
+    largest = A[0, 0]
+    for i in range(1, n):
+        largest = max(largest, A[i, i])
+    return largest
+
+
+# ------------------------------------------------------ named views of one buffer
+@njit
+def take(data, at, size):
+    """``(data[at:at + size], at + size)``: the next view of a buffer and where the one
+    after it starts."""
+    return data[at:at + size], at + size
+
+
+@njit
+def check_size(data, used):
+    """Raise ``ValueError`` unless the views cut from ``data`` cover it exactly."""
+    if used != data.shape[0]:
+        raise ValueError("a structure's views do not cover its buffer")
