@@ -24,9 +24,11 @@ from lbshape.dynamics.free_body import (
     MAX_CONTACT_SWEEPS,
     PHASES,
     SWEEP_RTOL,
+    FreeLoad,
     contact_theta,
 )
 from lbshape.dynamics.kernels import lu_solve, max_symmetric_eigenvalue
+from lbshape.dynamics.loads import TimeProfile
 from lbshape.dynamics.rigid_frame import cayley, orthonormality_error, rotate
 from lbshape.errors import SolverError
 
@@ -384,12 +386,25 @@ def test_small_dense_kernels_match_lapack():
                                                             rel=1e-12, abs=1e-15)
 
 
-def _scenario(body: Body, *, integrator: str):
+def _push(body: Body) -> FreeLoad:
+    """A force ramped up over 0.4 s on the vertices of one end, off the centre: a load
+    whose force and torque change within every step."""
+    points = body.mesh.points
+    pattern = np.zeros_like(points)
+    end = points[:, 2] >= points[:, 2].max() - 1e-9
+    pattern[end] = np.array([0.5, -0.3, 0.2]) / end.sum()
+    return FreeLoad.from_pattern(pattern.ravel(), body.U, points - body.frame.center,
+                                 TimeProfile("ramp", 0.0, 0.4))
+
+
+def _scenario(body: Body, *, integrator: str, push: bool = False):
     """Spinning, falling, example-pulled bar onto a tilted floor: loads, examples, rigid
-    kick with θ, contact in the Newton solve, fictitious forces."""
+    kick with θ, contact in the Newton solve, fictitious forces (``push``: and a load
+    that changes in time, whose start-of-step value every contact sweep uses)."""
     target = 0.02 * np.linspace(-1.0, 1.0, 8)
     planes = [ContactPlane((0.0, 0.0, -0.02), (0.05, 0.1, 1.0), 2e4)]
-    options = dict(dt=2e-3, integrator=integrator, beta=0.002, loads=[_gravity(body)],
+    loads = [_gravity(body)] + ([_push(body)] if push else [])
+    options = dict(dt=2e-3, integrator=integrator, beta=0.002, loads=loads,
                    k_ex=400.0, velocity=(0.3, 0.0, -0.5), angular_velocity=(1.0, 2.0, 3.0))
     reference = ReferenceFreeBody(
         body.elastic, body.frame, target=target,
@@ -401,11 +416,13 @@ def _scenario(body: Body, *, integrator: str):
     return reference, body.simulation(driver=driver, contact=contact, **options), contact
 
 
-@pytest.mark.parametrize("integrator", ["newmark", "backward-euler"])
-def test_compiled_step_matches_the_reference_step(soft, integrator):
+@pytest.mark.parametrize(("integrator", "push"), [("newmark", False),
+                                                  ("backward-euler", False),
+                                                  ("newmark", True)])
+def test_compiled_step_matches_the_reference_step(soft, integrator, push):
     """200 steps (free flight, impact, rolling contact): the compiled path follows the
     numpy reference to round-off, with the same Newton iterations."""
-    reference, sim, contact = _scenario(soft, integrator=integrator)
+    reference, sim, contact = _scenario(soft, integrator=integrator, push=push)
     worst = dict(q=0.0, c=0.0, R=0.0, p=0.0, L=0.0)
     touched = 0
     for _ in range(200):

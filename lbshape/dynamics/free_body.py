@@ -337,6 +337,8 @@ class FreeBodySimulation:
         self._frame_arrays = self.frame.kernel_arrays
         self._dq, self._dqt = np.zeros(r), np.zeros(r)  # accepted and trial increments
         self._gen = np.zeros(r)  # the loads' generalized force at t₀ (not used by the step)
+        # the loads' force and torque at the end of the step (not used by the step)
+        self._end_force, self._end_torque = np.zeros(3), np.zeros(3)
         #: [internal force, contact, rigid, generalized load, solve] seconds of a step
         self._seconds = np.zeros(5)
         self._marks = np.zeros(len(PHASES) + 1)
@@ -427,10 +429,11 @@ class FreeBodySimulation:
 
     # ---------------------------------------------------------------- pieces
     def _load_q(self, rotation: np.ndarray, t: float, out: np.ndarray) -> None:
-        """The generalized load ``k_ex q* + Σ Uᵀ Rᵀ f_l(t)`` (r,) into ``out`` (the loads'
-        force and torque into the kick's ``force``, ``torque``)."""
-        kick = self._kick_arrays
-        self._loads.evaluate_into(rotation, self._now.q, t, kick.force, kick.torque, out)
+        """The generalized load ``k_ex q* + Σ Uᵀ Rᵀ f_l(t)`` (r,) into ``out``. The loads'
+        force and torque at t go to scratch: the kick's ``force``, ``torque`` stay those
+        at the step's start, which every contact sweep of the step uses."""
+        self._loads.evaluate_into(rotation, self._now.q, t, self._end_force,
+                                  self._end_torque, out)
         if self.k_ex:
             axpy(self.k_ex, self.q_target, out)
 
