@@ -54,7 +54,8 @@ import numpy as np
 
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_text_atomic
-from lbshape.pipeline.precompute import Precomputed, precompute
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.routes import BOUNDARIES, ROUTES, target_solver
 from lbshape.report.machine import machine_description
 from lbshape.report.plots import pyplot, save_figure

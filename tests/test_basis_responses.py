@@ -159,7 +159,7 @@ def test_a_free_body_gets_no_responses():
 def test_cache_key_follows_what_the_responses_depend_on():
     import dataclasses
 
-    from lbshape.pipeline.precompute import scene_cache_key
+    from lbshape.pipeline.precompute_key import scene_cache_key
 
     scene = load_scene("demo")
     key = scene_cache_key(scene)

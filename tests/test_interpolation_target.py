@@ -25,10 +25,10 @@ from lbshape.elastic.modal_derivatives import modal_derivatives
 from lbshape.elastic.modes import linear_modes
 from lbshape.geometry.poses import twist
 from lbshape.geometry.primitives import structured_box
-from lbshape.pipeline.precompute import Precomputed
+from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.routes import ROUTES, example_driver, target_solver
-from lbshape.shapespace.projections import direct_projection, lb_coefficients
-from lbshape.shapespace.target_table import tabulate_examples
+from lbshape.shapespace.example_targets import tabulate_examples
+from lbshape.shapespace.projections import lb_coefficients, reduced_projection
 from lbshape.spectral.spectrum import lb_spectrum
 
 MATERIAL = Material("stvk", young=1e6, poisson=0.3, density=1000.0)
@@ -67,7 +67,7 @@ def base() -> tuple[Precomputed, object]:
         cubature_weights=cubature.weights,
         cubature_errors={"train": cubature.train_error, "holdout": cubature.holdout_error},
         eigenvalues=eigenvalues, eigenvectors=phi, example_coefficients=np.zeros((1, M_MODES, 3)),
-        projection=direct_projection(math.sqrt(MATERIAL.density) * basis.U, phi, spectrum.mass),
+        projection=reduced_projection(basis.U, phi, spectrum.mass, MATERIAL.density),
         alignment_residuals=np.zeros(1), example_names=("rest",),
     )
     lb = train_cubature(mesh, MATERIAL, pre.lb_basis(), rng=np.random.default_rng(12),
@@ -97,7 +97,7 @@ def _with_twists(base, angles) -> Precomputed:
     key = (id(pre), tuple(angles))
     if key not in _TABLES:
         _TABLES[key] = tabulate_examples(points, pre.mesh.tets, pre.material, pre.eigenvectors,
-                                         coefficients, mass=lb_mass)[0]
+                                         coefficients, mass=lb_mass).table
     return dataclasses.replace(
         pre, example_coefficients=coefficients, alignment_residuals=np.zeros(len(angles)),
         example_names=tuple(f"twist {a:+.2f}" for a in angles), target_table=_TABLES[key],

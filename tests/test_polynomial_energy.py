@@ -54,7 +54,7 @@ def _tensors(model):
 def test_streamed_chunks_and_the_lb_basis_path_give_the_same_tensors(setup, poisson):
     """Many element chunks (byte bound of one element) equal one chunk; for ``B = Φ ⊗ I₃``
     the m-sized path equals the general one; both match the all-element energy."""
-    from lbshape.shapespace.target_table import block_basis
+    from lbshape.shapespace.projections import block_basis
 
     mesh, rest, _ = setup
     material = Material("stvk", young=1e5, poisson=poisson, density=1000.0)

@@ -16,7 +16,8 @@ from lbshape.shapespace.alignment import align_bases, pose_basis_map
 from lbshape.shapespace.frames import align_to_object, body_frame
 from lbshape.shapespace.projections import (
     ShapeSpace,
-    block_eigenfunctions,
+    block_basis,
+    descriptor_matrix,
     descriptors,
     direct_projection,
     embed_example,
@@ -26,6 +27,7 @@ from lbshape.shapespace.projections import (
     make_shape_space,
     offered_spectrum,
     reconstruct,
+    reduced_projection,
 )
 from lbshape.spectral.spectrum import lb_spectrum
 
@@ -153,15 +155,15 @@ def test_direct_projection_matches_explicit_products(bar, bar_spectrum):
     U, M3 = _mass_orthonormal_basis(rng, M, n, r)
     T = direct_projection(U, phi, M)
     assert T.shape == (r, 3 * m)
-    L = block_eigenfunctions(phi)
-    np.testing.assert_allclose(T, U.T @ (M3 @ L.toarray()), rtol=0, atol=1e-12 * np.abs(T).max())
+    L = block_basis(phi)
+    np.testing.assert_allclose(T, U.T @ (M3 @ L), rtol=0, atol=1e-12 * np.abs(T).max())
     # Tᵀ q equals the LB coefficients of u = U q computed directly
     q = rng.normal(size=r)
     u = (U @ q).reshape(n, 3)
     direct = lb_coefficients(u, phi, M).ravel()
     np.testing.assert_allclose(T.T @ q, direct, rtol=0, atol=1e-12 * np.abs(direct).max())
     # with U = L itself the projection is the identity
-    T_self = direct_projection(L.toarray(), phi, M)
+    T_self = direct_projection(L, phi, M)
     err = np.abs(T_self - np.eye(3 * m)).max()
     assert err < 1e-12, f"T(L) deviates from I by {err:.2e}"
     with pytest.raises(LbshapeError, match="basis must have shape"):
@@ -170,12 +172,14 @@ def test_direct_projection_matches_explicit_products(bar, bar_spectrum):
 
 def test_shape_space_runtime_matrices(bar, bar_spectrum):
     rng = np.random.default_rng(5)
-    n, m, r = bar.n_vertices, M_MODES, 10
+    n, m, r, rho = bar.n_vertices, M_MODES, 10, 1000.0
     phi, M, lam = bar_spectrum.eigenvectors, bar_spectrum.mass, bar_spectrum.eigenvalues
     U, _ = _mass_orthonormal_basis(rng, M, n, r)
+    U = U / np.sqrt(rho)  # orthonormal in the elastic mass ρ M₃
     examples = rng.normal(size=(2, m, 3))
     fake = [type("A", (), {"residual": 0.1})(), type("A", (), {"residual": 0.2})()]
-    space = make_shape_space(lam, phi, M, bar.points, U, examples, fake, ["a", "b"])
+    space = make_shape_space(lam, phi, M, bar.points, U, examples, fake, ["a", "b"],
+                             density=rho)
     assert (space.m, space.r) == (m, r)
     q = rng.normal(size=r)
     expected = (lam[:, None] * lb_coefficients((U @ q).reshape(n, 3), phi, M)).ravel()
@@ -188,7 +192,39 @@ def test_shape_space_runtime_matrices(bar, bar_spectrum):
     np.testing.assert_allclose(space.alignment_residuals, [0.1, 0.2])
     with pytest.raises(LbshapeError, match="example coefficients must be"):
         ShapeSpace(lam, examples[:, :3], space.projection, space.rest_coefficients,
-                   space.alignment_residuals, ("a", "b"))
+                   space.alignment_residuals, ("a", "b"), rho)
+
+
+@pytest.mark.parametrize("rho", [1.0, 1000.0, 7.5])
+def test_reduced_projection_is_the_mass_projection_onto_the_basis(bar, bar_spectrum, rho):
+    """The density convention, checked against explicit full-space products: for U
+    orthonormal in the elastic mass M = ρ M₃, ``U (T c)`` is the M-orthogonal projection
+    of ``L c`` onto span U, and ``D q`` the λ-weighted LB coefficients of ``U q``. A
+    missed or doubled density factor (×√ρ, ×ρ) fails both for ρ ≠ 1."""
+    rng = np.random.default_rng(3)
+    n, m, r = bar.n_vertices, M_MODES, 12
+    phi, M1, lam = bar_spectrum.eigenvectors, bar_spectrum.mass, bar_spectrum.eigenvalues
+    U3, M3 = _mass_orthonormal_basis(rng, M1, n, r)
+    U = U3 / np.sqrt(rho)
+    M = rho * M3  # the elastic mass (kg)
+    np.testing.assert_allclose(U.T @ (M @ U), np.eye(r), atol=1e-12)
+    T = reduced_projection(U, phi, M1, rho)
+    L = block_basis(phi)
+    c = rng.normal(size=3 * m)
+    target = L @ c
+    # the M-projection onto span U, solved from its normal equations (not from UᵀMU = I)
+    gram = U.T @ (M @ U)
+    projected = U @ np.linalg.solve(gram, U.T @ (M @ target))
+    np.testing.assert_allclose(U @ (T @ c), projected, rtol=0,
+                               atol=1e-10 * np.abs(projected).max())
+    # the residual is M-orthogonal to the basis
+    residual = target - U @ (T @ c)
+    assert np.abs(U.T @ (M @ residual)).max() < 1e-10 * np.abs(U.T @ (M @ target)).max()
+    # the descriptor of U q, computed on the full-space field
+    q = rng.normal(size=r)
+    expected = (lam[:, None] * lb_coefficients((U @ q).reshape(n, 3), phi, M1)).ravel()
+    np.testing.assert_allclose(descriptor_matrix(lam, T, rho) @ q, expected, rtol=0,
+                               atol=1e-10 * np.abs(expected).max())
 
 
 def test_bad_shapes_are_refused(bar, bar_spectrum):

@@ -39,7 +39,7 @@ def test_precompute_is_cached_and_runtime_changes_reuse_it(demo, caplog):
     assert precompute(faster).key == pre.key
     # a precompute field changes it
     other = dataclasses.replace(scene, reduced=dataclasses.replace(scene.reduced, s=10))
-    from lbshape.pipeline.precompute import scene_cache_key
+    from lbshape.pipeline.precompute_key import scene_cache_key
 
     assert scene_cache_key(other) != pre.key
 

@@ -14,8 +14,8 @@ import sys
 _PROBE = r"""
 import json, time
 import numpy as np
-from lbshape.pipeline.precompute import _Stages, resident_mb
-stages = _Stages(["small", "large", "after"], show=False)
+from lbshape.pipeline.stages import StageRecorder, resident_mb
+stages = StageRecorder(["small", "large", "after"], show=False)
 base = resident_mb()
 with stages.stage("small"):
     time.sleep(0.05)

@@ -17,6 +17,7 @@ from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.routes import exact_route, example_driver, target_solver
 from lbshape.scene import scene_from_dict
+from lbshape.shapespace.clamped_basis import clamp_profile
 from lbshape.shapespace.example_driver import ExampleDriver
 from lbshape.shapespace.interpolation import (
     SimplexWeights,
@@ -28,7 +29,6 @@ from lbshape.shapespace.target_table import (
     TableRefused,
     TargetTable,
     build_target_table,
-    clamp_profile,
     target_slope,
 )
 

@@ -180,7 +180,7 @@ def test_tune_picks_the_cheapest_candidate_within_the_error():
 
 
 def test_tune_command_writes_a_loadable_scene_beside_its_table(tmp_path, capsys):
-    from lbshape.pipeline.precompute import scene_cache_key
+    from lbshape.pipeline.precompute_key import scene_cache_key
     from lbshape.report.tune import _variant
     from lbshape.scene import load_scene
 

@@ -88,6 +88,7 @@ from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_shapes import energy_elements, example_rest_shapes
 from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
 from lbshape.shapespace.local_examples import FullSpaceLocalForce
+from lbshape.shapespace.projections import block_basis
 
 log = logging.getLogger(__name__)
 
@@ -328,7 +329,7 @@ class FullSpaceSimulator:
         # descriptor of the free displacement x: d = D_f x, D = diag(λ ⊗ 1₃)(Φᵀ M₁ ⊗ I₃)
         D = np.kron(lam[:, None] * np.asarray((volume_mass @ phi).T), np.eye(3))
         self._descriptor = np.ascontiguousarray(D[:, self.free_dofs])  # (3m, nf)
-        L = np.kron(phi, np.eye(3))  # (3n, 3m) node-major, column 3i + comp
+        L = block_basis(phi)  # (3n, 3m) node-major, column 3i + comp
         self._lb_basis = L
         ML = np.asarray(self.mass @ L)
         self._mass_target = np.ascontiguousarray(ML[self.free_dofs])  # (nf, 3m): (M L)_free

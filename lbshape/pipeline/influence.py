@@ -58,7 +58,7 @@ import numpy as np
 from lbshape.dynamics.rigid_frame import best_rigid_frame
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
-from lbshape.pipeline.precompute import Precomputed
+from lbshape.pipeline.precomputed import Precomputed
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.interpolation import simplex_weights
 from lbshape.shapespace.local_examples import region_example_distance

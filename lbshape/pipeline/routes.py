@@ -39,13 +39,13 @@ route's cubature keeps its elements among them, the ``lb`` cubature is trained o
 clamped there, so the examples' LB displacements ``Φ c_k`` keep a part at the fixed
 vertices that no reduced coordinate can represent. With ``boundary="clamped"`` (the
 default when the precompute found it safe, see
-:attr:`~lbshape.pipeline.precompute.Precomputed.target_boundary`) every route uses
+:attr:`~lbshape.pipeline.precomputed.Precomputed.target_boundary`) every route uses
 the clamped basis ``L_F = Φ_F ⊗ I₃`` (Φ faded to zero at the fixed vertices,
-:func:`lbshape.shapespace.target_table.clamped_eigenvectors`) for the examples' rest
+:func:`lbshape.shapespace.clamped_basis.clamped_eigenvectors`) for the examples' rest
 shapes, the target coordinates and the direct projection; ``boundary="free"`` keeps Φ
 (the paper's construction, for comparison).
 
-Set-up is per run from a :class:`~lbshape.pipeline.precompute.Precomputed` and cheap (the
+Set-up is per run from a :class:`~lbshape.pipeline.precomputed.Precomputed` and cheap (the
 cubatures come from the precompute and its cache); nothing is cached here. The
 returned objects are m/r/s-sized at run time (``euclidean`` by design is not;
 ``lb-exact`` costs O((3m)⁴) per evaluation and its set-up is n-sized).
@@ -62,7 +62,7 @@ import numpy as np
 from lbshape.elastic.polynomial_energy import StVKPolynomialEnergy
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
-from lbshape.pipeline.precompute import Precomputed
+from lbshape.pipeline.precomputed import Precomputed
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_driver import ExampleDriver
 from lbshape.shapespace.interpolation import ROUTES, TargetSolver
@@ -157,7 +157,7 @@ def target_solver(
         tracking: ``max_iterations`` warm-started Newton steps per call by design (see
             :class:`~lbshape.shapespace.interpolation.TargetSolver`).
         boundary: ``"clamped"`` or ``"free"`` LB basis; default: the precompute's
-            :attr:`~lbshape.pipeline.precompute.Precomputed.target_boundary` (``lb-table``:
+            :attr:`~lbshape.pipeline.precomputed.Precomputed.target_boundary` (``lb-table``:
             that one only).
 
     Returns:

@@ -66,7 +66,7 @@ from lbshape.pipeline.influence import (
     has_example_force,
     without_examples,
 )
-from lbshape.pipeline.precompute import Precomputed
+from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.responses import mesh_load_patterns
 from lbshape.pipeline.routes import example_driver
 from lbshape.scene.schema import Scene

@@ -387,7 +387,7 @@ def bench_scene(
         steps: steps per run (default: the scene's), > the warm-up steps.
         methods: which of ``full``, ``euclidean``, ``reduced`` to run.
         repeats: runs per method (interleaved); times are medians over them.
-        pre: the scene's :class:`~lbshape.pipeline.precompute.Precomputed` (default: built or
+        pre: the scene's :class:`~lbshape.pipeline.precomputed.Precomputed` (default: built or
             loaded from the cache).
         progress: show the precompute's progress bars on stderr.
         influence: with examples, also run ``reduced`` and ``full`` once without

@@ -135,7 +135,7 @@ def simulation_figure(pre, output, path: str | Path, *, frames: int = 4,
     """A few frames of a run side by side, coloured by |u| (m), the last frame included.
 
     Args:
-        pre: the scene's :class:`~lbshape.pipeline.precompute.Precomputed` (rest mesh).
+        pre: the scene's :class:`~lbshape.pipeline.precomputed.Precomputed` (rest mesh).
         output: a :class:`~lbshape.pipeline.simulate.SimulationOutput`
             (``displacements (k, n, 3)``, ``times (k,)``).
         path: output PNG.

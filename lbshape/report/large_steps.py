@@ -25,7 +25,7 @@ from lbshape.dynamics.reduced import REALTIME_RTOL
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.geometry.mesh_files import write_msh
 from lbshape.geometry.shapes import build_shape
-from lbshape.pipeline.precompute import Precomputed
+from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.simulate import WARMUP_STEPS, reduced_simulation, run_full_space
 from lbshape.report.bench import trajectory_error
 from lbshape.report.machine import load_text, threads_text

@@ -9,7 +9,7 @@ vertices:
   fresh subprocess, so the peak memory is that size's own: wall time, the peak resident
   memory of the process (``wait4``'s ``ru_maxrss``; under MPI the largest rank), and the
   per-stage seconds and peak memory the precompute records
-  (:attr:`~lbshape.pipeline.precompute.Precomputed.stage_seconds`, ``stage_peak_mb``,
+  (:attr:`~lbshape.pipeline.precomputed.Precomputed.stage_seconds`, ``stage_peak_mb``,
   rank 0's). With ``ranks > 1`` the subprocess is
   ``mpirun --allow-run-as-root -n ranks``.
 * **per-step time** — the reduced simulation of every size in this process (threads as

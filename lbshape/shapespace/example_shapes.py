@@ -77,7 +77,7 @@ def clamp_is_safe(points: np.ndarray, tets: np.ndarray, eigenvectors: np.ndarray
     """Whether the clamped examples' rest shapes keep their elements healthy.
 
     Fading the LB displacement to zero near the fixed vertices
-    (:func:`lbshape.shapespace.target_table.clamped_eigenvectors`) adds strain there; on
+    (:func:`lbshape.shapespace.clamped_basis.clamped_eigenvectors`) adds strain there; on
     a coarse mesh it can flatten or invert an element of an example's rest shape
     ``X + Φ_F c_k``. Safe: every element keeps at least half of the smallest volume
     ratio that the free reconstruction ``X + Φ c_k`` has.

@@ -97,6 +97,7 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -111,14 +112,15 @@ from lbshape.geometry.regions import evaluate_region
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_driver import ExampleDriver, TargetInfo
 from lbshape.shapespace.example_shapes import energy_elements, example_rest_shapes
+from lbshape.shapespace.example_targets import tabulate_examples
 from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
-from lbshape.shapespace.projections import block_eigenfunctions, direct_projection, embed_example
-from lbshape.shapespace.target_table import (
-    DEFAULT_TOLERANCE,
-    TableSolver,
-    TargetTable,
-    tabulate_examples,
+from lbshape.shapespace.projections import (
+    block_basis,
+    descriptor_matrix,
+    embed_example,
+    reduced_projection,
 )
+from lbshape.shapespace.target_table import DEFAULT_TOLERANCE, TableSolver, TargetTable
 from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
@@ -324,7 +326,7 @@ class RegionSpace:
         T = self.to_reduced.T
         if free_rigid:
             T = T - self.rigid_lb @ self.anchor_reduced.T
-        return np.repeat(self.eigenvalues, 3)[:, None] * T / density
+        return descriptor_matrix(self.eigenvalues, T.T, density)
 
     def example_descriptors(self, density: float, *, free_rigid: bool = True) -> np.ndarray:
         """(k_R, 3m) λ-weighted example coefficients (relative to the anchor's rigid
@@ -494,58 +496,19 @@ def build_local_space(
              for s in specs]
     covered = check_partition(names, cells, mesh.n_tets)
     volumes = np.abs(mesh.signed_volumes())
-    rho = float(material.density)
     U = np.asarray(U, dtype=float)
     r = U.shape[1]
     spring = np.zeros((r, r))
     regions, errors = [], {}
     for spec, selected in zip(specs, cells, strict=True):
-        label = f"region '{spec.name}'"
-        sub, vertices = submesh(mesh, selected, what=label)
-        if sub.n_vertices <= m + 1:
-            raise LbshapeError(f"{label}: m={m} needs more than {m + 1} vertices, it has "
-                               f"{sub.n_vertices}")
-        spec_R = spectrum(sub, m)
-        rows = (3 * vertices[:, None] + np.arange(3)).ravel()
-        U_R = U[rows]
-        mass_R = mass_matrix(sub, rho)  # (3n_R, 3n_R) kg
-        spring += U_R.T @ (mass_R @ U_R)
-        volume_mass = mass_R[0::3, 0::3] / rho  # (n_R, n_R) m³
-        to_reduced = rho * direct_projection(U_R, spec_R.eigenvectors, volume_mass)
-        anchor = region_anchor(mesh, selected, vertices, fixed_vertices)
-        Q, F, anchor_rows = anchor_fit(sub.points, mass_R, anchor)
-        L_R = block_eigenfunctions(spec_R.eigenvectors).toarray()
-        coefficients, residuals = [], []
-        for k in spec.examples:
-            what = f"{label}, example {k}"
-            rest_part, posed_points = example_part(k, spec)
-            try:
-                embedded = embed(sub, spec_R, rest_part, [posed_points])
-            except LbshapeError as exc:
-                raise LbshapeError(f"{what}: {exc}") from None
-            coefficients.append(embedded.coefficients[0])
-            residuals.append(embedded.alignment.residual)
-            log.info("%s: alignment residual %.3g", what, embedded.alignment.residual)
-            _warn_at_rest(what, embedded.coefficients[0], sub)
+        built = _build_region(mesh, material, U, spec, selected, example_part, m=m,
+                              spectrum=spectrum, embed=embed, fixed_vertices=fixed_vertices)
+        spring += built.spring
         if object_pose is not None:
-            try:  # a pose may not fit the coarser object mesh: then nothing is measured
-                posed = object_pose(spec.examples[0], sub, vertices)
-            except LbshapeError as exc:
-                log.info("%s: representation not measured (%s)", label, exc)
-            else:
-                errors[spec.name] = _representation_errors(
-                    sub, vertices, volume_mass, spec_R.eigenvectors, posed, global_eigenvectors)
-        region = RegionSpace(
-            name=spec.name, cells=selected, vertices=vertices,
-            examples=np.asarray(spec.examples, dtype=np.int64),
-            eigenvalues=np.asarray(spec_R.eigenvalues, dtype=float),
-            eigenvectors=np.asarray(spec_R.eigenvectors, dtype=float),
-            example_coefficients=np.asarray(coefficients, dtype=float).reshape(-1, m, 3),
-            alignment_residuals=np.asarray(residuals, dtype=float),
-            to_reduced=to_reduced, rigid_reduced=U_R.T @ (mass_R @ Q),
-            rigid_coefficients=(F @ L_R[anchor_rows]).T,
-            anchor_reduced=(F @ U_R[anchor_rows]).T, anchor=anchor,
-            rigid_lb=L_R.T @ (mass_R @ Q))
+            measured = _measure_representation(built, spec, object_pose, global_eigenvectors)
+            if measured is not None:
+                errors[spec.name] = measured
+        region = built.region
         if tabulate:
             region = dataclasses.replace(region, table=region_target_table(mesh, material,
                                                                            region))
@@ -555,6 +518,85 @@ def build_local_space(
         log.info("local examples: %.1f %% of the volume is in no region (no example force "
                  "there)", 100 * (1 - covered_fraction))
     return LocalShapeSpace(tuple(regions), 0.5 * (spring + spring.T), covered_fraction, errors)
+
+
+class _BuiltRegion(NamedTuple):
+    """One region as :func:`build_local_space` assembles it."""
+
+    region: RegionSpace  #: its shape space (no table yet)
+    spring: np.ndarray  #: (r, r) its share ``U_Rᵀ M^(R) U_R`` of the spring matrix
+    mesh: TetMesh  #: its own mesh
+    volume_mass: sp.spmatrix  #: (n_R, n_R) M_R in m³
+
+
+def _build_region(mesh: TetMesh, material: Material, U: np.ndarray, spec: RegionSpec,
+                  selected: np.ndarray, example_part, *, m: int, spectrum, embed,
+                  fixed_vertices: np.ndarray | None) -> _BuiltRegion:
+    """A region's spectrum, its examples' coefficients and its small matrices (see the
+    module docstring and :class:`RegionSpace`)."""
+    label = f"region '{spec.name}'"
+    rho = float(material.density)
+    sub, vertices = submesh(mesh, selected, what=label)
+    if sub.n_vertices <= m + 1:
+        raise LbshapeError(f"{label}: m={m} needs more than {m + 1} vertices, it has "
+                           f"{sub.n_vertices}")
+    spec_R = spectrum(sub, m)
+    rows = (3 * vertices[:, None] + np.arange(3)).ravel()
+    U_R = U[rows]
+    mass_R = mass_matrix(sub, rho)  # (3n_R, 3n_R) kg
+    spring = U_R.T @ (mass_R @ U_R)
+    volume_mass = mass_R[0::3, 0::3] / rho  # (n_R, n_R) m³
+    to_reduced = reduced_projection(U_R, spec_R.eigenvectors, volume_mass, rho)
+    anchor = region_anchor(mesh, selected, vertices, fixed_vertices)
+    Q, F, anchor_rows = anchor_fit(sub.points, mass_R, anchor)
+    L_R = block_basis(spec_R.eigenvectors)
+    coefficients, residuals = _region_examples(label, spec, sub, spec_R, example_part, embed)
+    region = RegionSpace(
+        name=spec.name, cells=selected, vertices=vertices,
+        examples=np.asarray(spec.examples, dtype=np.int64),
+        eigenvalues=np.asarray(spec_R.eigenvalues, dtype=float),
+        eigenvectors=np.asarray(spec_R.eigenvectors, dtype=float),
+        example_coefficients=np.asarray(coefficients, dtype=float).reshape(-1, m, 3),
+        alignment_residuals=np.asarray(residuals, dtype=float),
+        to_reduced=to_reduced, rigid_reduced=U_R.T @ (mass_R @ Q),
+        rigid_coefficients=(F @ L_R[anchor_rows]).T,
+        anchor_reduced=(F @ U_R[anchor_rows]).T, anchor=anchor,
+        rigid_lb=L_R.T @ (mass_R @ Q))
+    return _BuiltRegion(region, spring, sub, volume_mass)
+
+
+def _region_examples(label: str, spec: RegionSpec, sub: TetMesh, spectrum, example_part,
+                     embed) -> tuple[list[np.ndarray], list[float]]:
+    """The region's examples embedded in its shape space: (coefficients (m, 3) per
+    example, alignment residuals)."""
+    coefficients, residuals = [], []
+    for k in spec.examples:
+        what = f"{label}, example {k}"
+        rest_part, posed_points = example_part(k, spec)
+        try:
+            embedded = embed(sub, spectrum, rest_part, [posed_points])
+        except LbshapeError as exc:
+            raise LbshapeError(f"{what}: {exc}") from None
+        coefficients.append(embedded.coefficients[0])
+        residuals.append(embedded.alignment.residual)
+        log.info("%s: alignment residual %.3g", what, embedded.alignment.residual)
+        _warn_at_rest(what, embedded.coefficients[0], sub)
+    return coefficients, residuals
+
+
+def _measure_representation(built: _BuiltRegion, spec: RegionSpec, object_pose,
+                            global_eigenvectors: np.ndarray | None) -> dict | None:
+    """The two variants' representation errors of the region's first example pose
+    applied to the object's own region (:func:`_representation_errors`), or None when
+    that pose does not fit the object's mesh."""
+    region = built.region
+    try:  # a pose may not fit the coarser object mesh: then nothing is measured
+        posed = object_pose(spec.examples[0], built.mesh, region.vertices)
+    except LbshapeError as exc:
+        log.info("region '%s': representation not measured (%s)", spec.name, exc)
+        return None
+    return _representation_errors(built.mesh, region.vertices, built.volume_mass,
+                                  region.eigenvectors, posed, global_eigenvectors)
 
 
 def _warn_at_rest(what: str, coefficients: np.ndarray, region: TetMesh) -> None:
@@ -600,7 +642,7 @@ def region_energy_models(mesh: TetMesh, material: Material, region: RegionSpace,
     if route not in LOCAL_ROUTES:
         raise LbshapeError(f"local examples support the routes {', '.join(LOCAL_ROUTES)}, "
                            f"got {route!r}")
-    basis = block_eigenfunctions(region.eigenvectors).toarray()
+    basis = block_basis(region.eigenvectors)
     energy = StVKPolynomialEnergy if route == "lb-exact" else EuclideanExampleEnergy
     rests, tets = region.example_energy_shapes(mesh)
     return [energy(x, tets, material, basis) for x in rests]
@@ -617,7 +659,7 @@ def region_target_table(mesh: TetMesh, material: Material, region: RegionSpace, 
                         tolerance: float = DEFAULT_TOLERANCE) -> TargetTable | None:
     """The region's exact target ``c*_R(w)`` (3m,) tabulated over its weight simplex.
 
-    :func:`lbshape.shapespace.target_table.tabulate_examples` on the region's mesh,
+    :func:`lbshape.shapespace.example_targets.tabulate_examples` on the region's mesh,
     eigenvectors Φ_R and example coefficients: the exact example energies (the
     quartic polynomial for StVK, else all of R's elements), the table and its check
     at held-out weights, the error measured in ``‖L_R Δc‖_{M_R}`` as a share of the
@@ -630,9 +672,9 @@ def region_target_table(mesh: TetMesh, material: Material, region: RegionSpace, 
     started = time.perf_counter()
     sub = region.submesh(mesh)
     volume_mass = mass_matrix(sub, 1.0)[0::3, 0::3]  # M_R (n_R, n_R), m³
-    table, _, _ = tabulate_examples(sub.points, sub.tets, material, region.eigenvectors,
-                                    region.example_coefficients, mass=volume_mass,
-                                    tolerance=tolerance)
+    table = tabulate_examples(sub.points, sub.tets, material, region.eigenvectors,
+                              region.example_coefficients, mass=volume_mass,
+                              tolerance=tolerance).table
     if table is not None and table.check is not None:
         log.info("region %s: target table (%s, N=%d), error max %.2g / median %.2g of the "
                  "example separation at %d held-out weights, %.2f s", region.name, table.kind,
@@ -788,7 +830,7 @@ class FullSpaceLocalForce:
             place = sp.csr_matrix((np.ones(rows.size), (rows, np.arange(rows.size))),
                                   shape=(3 * n, rows.size))
             blocks.append(place @ mass_R @ place.T)
-            L = block_eigenfunctions(region.eigenvectors).toarray()
+            L = block_basis(region.eigenvectors)
             ML = np.asarray(mass_R @ L)  # (3n_R, 3m) kg
             Q, F, anchor_rows = anchor_fit(sub.points, mass_R, region.anchor)
             mass_QF = np.asarray(mass_R @ Q) @ F  # (3n_R, anchor rows)
@@ -796,7 +838,7 @@ class FullSpaceLocalForce:
             if self.free_rigid:
                 relative[:, anchor_rows] -= L.T @ mass_QF
                 ML = ML - mass_QF @ L[anchor_rows]
-            descriptor = np.repeat(region.eigenvalues, 3)[:, None] * relative / rho
+            descriptor = descriptor_matrix(region.eigenvalues, relative.T, rho)
             k = region.example_coefficients.shape[0]
             rests, tets = region.example_energy_shapes(mesh)
             models = [EuclideanExampleEnergy(x, tets, material, L) for x in rests]

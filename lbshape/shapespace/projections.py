@@ -24,11 +24,18 @@ eigenvalues, constant mode excluded):
   ``c_flat[3 i + k]`` (mode i, component k), matching node-major fields
   ``u[3 j + k]``; the block eigenfunction matrix is ``L = Φ ⊗ I₃`` (3n, 3m) with
   ``u = L c_flat`` and ``Lᵀ M₃ L = I`` (``M₃ = M ⊗ I₃``).
-* **Direct projections** (paper §4.2 (3)). For a basis U (3n, r) with
-  ``Uᵀ M₃ U = I``: ``T = Uᵀ M₃ L`` (r, 3m) maps LB displacement coefficients to
-  reduced coordinates (``q = T c``, the M₃-projection of ``L c`` on U) and ``Tᵀ``
-  maps reduced coordinates to the LB coefficients of ``U q`` exactly
-  (``Lᵀ M₃ U q``). Neither L nor any 3n × 3n matrix is formed.
+* **Direct projections** (paper §4.2 (3)). :func:`direct_projection` is the
+  geometric product ``Uᵀ M₃ L`` (r, 3m) for any basis U. Neither L nor any 3n × 3n
+  matrix is formed.
+* **Density: one convention.** The elastic basis U (3n, r) is orthonormal in the
+  elastic mass ``M = ρ M₃`` (kg), the LB eigenvectors in the volume mass M₃ (m³).
+  Every map between the two spaces is stored and used in the reduced coordinates of
+  the dynamics (:func:`reduced_projection`): ``T = Uᵀ M L = ρ Uᵀ M₃ L`` (r, 3m), so
+  ``q = T c`` is the M-projection of ``L c`` onto span U (``U T c = P_U(L c)``), and
+  the LB coefficients of ``U q`` are ``Lᵀ M₃ U q = Tᵀ q / ρ``
+  (:func:`descriptor_matrix`, with the λ weights of the descriptor). These two
+  functions are the only places where ρ enters the shape space's maps; the
+  precompute stores T as they give it (global and per-region alike).
 """
 
 from __future__ import annotations
@@ -263,9 +270,41 @@ def direct_projection(basis: np.ndarray, eigenvectors: np.ndarray,
     return np.einsum("jkr,ji->rik", MU, eigenvectors).reshape(r, 3 * m)
 
 
-def block_eigenfunctions(eigenvectors: np.ndarray) -> sp.csr_matrix:
-    """``L = Φ ⊗ I₃`` (3n, 3m) as a sparse matrix (for checks and rendering only)."""
-    return sp.kron(sp.csr_matrix(eigenvectors), sp.identity(3), format="csr")
+def reduced_projection(basis: np.ndarray, eigenvectors: np.ndarray, volume_mass: sp.spmatrix,
+                       density: float) -> np.ndarray:
+    """``T = Uᵀ M L = ρ Uᵀ M₃ L`` (r, 3m): LB displacement coefficients c (3m,) to the
+    reduced coordinates ``q = T c`` of the M-projection of ``L c`` onto span U.
+
+    Args:
+        basis: (3n, r) U, node-major rows, ``Uᵀ M U = I`` with ``M = ρ M₃`` (kg).
+        eigenvectors: (n, m) Φ (or the clamped Φ_F).
+        volume_mass: (n, n) M₁ in m³ (``M₃ = M₁ ⊗ I₃``).
+        density: ρ in kg/m³.
+    """
+    return density * direct_projection(basis, eigenvectors, volume_mass)
+
+
+def descriptor_matrix(eigenvalues: np.ndarray, projection: np.ndarray,
+                      density: float) -> np.ndarray:
+    """(3m, r) ``D = diag(λ ⊗ 1₃) Tᵀ / ρ``: the descriptor (λ-weighted LB coefficients)
+    of the displacement ``U q`` is ``D q``, for T of :func:`reduced_projection`."""
+    return np.repeat(eigenvalues, 3)[:, None] * np.asarray(projection).T / density
+
+
+def example_descriptors(eigenvalues: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    """(k, 3m) λ-weighted example displacement coefficients (k, m, 3), flattened row-major."""
+    k = coefficients.shape[0]
+    return coefficients.reshape(k, -1) * np.repeat(eigenvalues, 3)
+
+
+def block_basis(eigenvectors: np.ndarray) -> np.ndarray:
+    """Dense ``L = Φ ⊗ I₃`` (3n, 3m), node-major rows, column ``3i + c`` (the one builder
+    of the block basis)."""
+    n, m = eigenvectors.shape
+    L = np.zeros((n, 3, m, 3))
+    for c in range(3):
+        L[:, c, :, c] = eigenvectors
+    return L.reshape(3 * n, 3 * m)
 
 
 @dataclass(frozen=True)
@@ -276,10 +315,11 @@ class ShapeSpace:
         eigenvalues: (m,) the object's λ in 1/m².
         example_coefficients: (k, m, 3) example displacement coefficients c_k in
             the object's basis.
-        projection: (r, 3m) ``T = Uᵀ M₃ L``.
-        rest_coefficients: (m, 3) ``Φᵀ M p_rest`` of the object.
+        projection: (r, 3m) ``T = Uᵀ M L`` (:func:`reduced_projection`).
+        rest_coefficients: (m, 3) ``Φᵀ M₃ p_rest`` of the object.
         alignment_residuals: (k,) each example's basis alignment residual.
         names: (k,) example names.
+        density: ρ (kg/m³) of the elastic mass ``M = ρ M₃`` U is orthonormal in.
     """
 
     eigenvalues: np.ndarray
@@ -288,6 +328,7 @@ class ShapeSpace:
     rest_coefficients: np.ndarray
     alignment_residuals: np.ndarray
     names: tuple[str, ...]
+    density: float
 
     def __post_init__(self):
         m = self.eigenvalues.shape[0]
@@ -310,20 +351,14 @@ class ShapeSpace:
         return int(self.projection.shape[0])
 
     @property
-    def descriptor_weights(self) -> np.ndarray:
-        """(3m,) λ repeated per component: descriptor = weights ⊙ coefficients."""
-        return np.repeat(self.eigenvalues, 3)
-
-    @property
     def descriptor_matrix(self) -> np.ndarray:
-        """(3m, r) ``D = diag(λ ⊗ 1₃) Tᵀ``: the displacement descriptor of ``U q`` is ``D q``."""
-        return self.descriptor_weights[:, None] * self.projection.T
+        """(3m, r) ``D``: the descriptor of ``U q`` is ``D q`` (:func:`descriptor_matrix`)."""
+        return descriptor_matrix(self.eigenvalues, self.projection, self.density)
 
     @property
     def example_descriptors(self) -> np.ndarray:
         """(k, 3m) flattened λ-weighted displacement coefficients of the examples."""
-        k = self.example_coefficients.shape[0]
-        return self.example_coefficients.reshape(k, -1) * self.descriptor_weights
+        return example_descriptors(self.eigenvalues, self.example_coefficients)
 
     @property
     def example_reduced(self) -> np.ndarray:
@@ -341,8 +376,11 @@ def make_shape_space(
     example_coefficients: Sequence[np.ndarray],
     alignments: Sequence[BasisAlignment],
     names: Sequence[str],
+    *,
+    density: float,
 ) -> ShapeSpace:
-    """Assemble a :class:`ShapeSpace` from the object's spectrum and basis U (3n, r)."""
+    """Assemble a :class:`ShapeSpace` from the object's spectrum (``mass``: its volume
+    mass M₁, m³) and the elastic basis U (3n, r), ``Uᵀ M U = I`` with ``M = ρ M₃``."""
     coefficients = np.asarray(example_coefficients, dtype=float)
     m = eigenvectors.shape[1]
     coefficients = coefficients.reshape(len(names), m, 3) if coefficients.size \
@@ -350,10 +388,11 @@ def make_shape_space(
     return ShapeSpace(
         eigenvalues=np.asarray(eigenvalues, dtype=float).copy(),
         example_coefficients=coefficients,
-        projection=direct_projection(basis, eigenvectors, mass),
+        projection=reduced_projection(basis, eigenvectors, mass, density),
         rest_coefficients=lb_coefficients(rest_points, eigenvectors, mass),
         alignment_residuals=np.array([a.residual for a in alignments], dtype=float),
         names=tuple(names),
+        density=float(density),
     )
 
 

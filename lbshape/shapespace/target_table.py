@@ -26,6 +26,9 @@ refused (:class:`TableRefused`) and the caller falls back to solving the target.
 Run time (:meth:`TargetTable.reduced_into`): locate the cell, evaluate 4 or 10 basis
 functions and combine as many stored vectors of the reduced dimension r — no Newton,
 nothing n-sized, no allocation (a JIT kernel when numba is present).
+
+The example energies behind the table and the path of exact targets the precompute
+trains on are built by :mod:`lbshape.shapespace.example_targets`.
 """
 
 from __future__ import annotations
@@ -37,15 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lbshape._jit import njit
-from lbshape.elastic.materials import Material
-from lbshape.elastic.polynomial_energy import StVKPolynomialEnergy
 from lbshape.errors import LbshapeError
-from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
-from lbshape.shapespace.example_shapes import (
-    MIN_VOLUME_RATIO,
-    energy_elements,
-    example_rest_shapes,
-)
 from lbshape.shapespace.interpolation import TargetResult, TargetSolver
 
 log = logging.getLogger(__name__)
@@ -196,19 +191,6 @@ class TargetTable:
 
 
 # ---------------------------------------------------------------------- building
-def exact_example_energies(rest_points: Sequence[np.ndarray], tets: np.ndarray,
-                           material: Material, basis: np.ndarray) -> list:
-    """The exact (all-element) energy model per example rest shape X_k (n, 3).
-
-    StVK: the quartic polynomial
-    (:class:`~lbshape.elastic.polynomial_energy.StVKPolynomialEnergy`, O(p⁴) per call);
-    other materials: the all-element kernel
-    (:class:`~lbshape.shapespace.euclidean_energy.EuclideanExampleEnergy`). Basis B (3n, p).
-    """
-    Energy = StVKPolynomialEnergy if material.model == "stvk" else EuclideanExampleEnergy
-    return [Energy(x, tets, material, basis) for x in rest_points]
-
-
 def separation(offsets: np.ndarray, metric: np.ndarray | None = None) -> float:
     """``max_ij ‖z_i − z_j‖`` over the examples' coordinates (k, p); 0 for one example.
 
@@ -469,139 +451,6 @@ def _evaluate(code, n, w, cells, basis, out):
         coefficient = basis[m]
         for c in range(d):
             out[c] += coefficient * cells[cell, m, c]
-
-
-# ------------------------------------------------------------- precompute stage
-#: length of the blend from the fixed vertices to the free LB basis, a share of the
-#: object's size (largest edge of its bounding box)
-CLAMP_BLEND = 0.2
-
-
-def clamp_profile(points: np.ndarray, fixed_vertices: np.ndarray, *,
-                  blend: float = CLAMP_BLEND) -> np.ndarray:
-    """χ (n,): 0 at the fixed vertices, 1 beyond ``blend × size`` from them, smoothstep between.
-
-    Distances are Euclidean to the nearest fixed vertex; without fixed vertices χ = 1.
-    """
-    points = np.asarray(points, dtype=float)
-    fixed = np.asarray(fixed_vertices, dtype=np.int64)
-    if fixed.size == 0:
-        return np.ones(points.shape[0])
-    from scipy.spatial import cKDTree
-
-    length = blend * float(np.ptp(points, axis=0).max())
-    distance, _ = cKDTree(points[fixed]).query(points)
-    s = np.clip(distance / length, 0.0, 1.0)
-    chi = s * s * (3.0 - 2.0 * s)
-    chi[fixed] = 0.0
-    return chi
-
-
-def clamped_eigenvectors(eigenvectors: np.ndarray, fixed_vertices: np.ndarray,
-                         points: np.ndarray, *, blend: float = CLAMP_BLEND) -> np.ndarray:
-    """Φ_F = diag(χ) Φ (n, m): the LB basis faded to zero at the fixed vertices.
-
-    The LB eigenfunctions are free (natural boundary) while the elastic basis U is
-    clamped: an example's LB displacement ``Φ c_k`` keeps part of its amplitude at the
-    fixed vertices, which no reduced coordinate can represent. Target coordinates in
-    the clamped basis ``L_F = Φ_F ⊗ I₃`` describe displacements that vanish there, like
-    every displacement the reduced dynamics can take. The fade χ
-    (:func:`clamp_profile`) spreads the removed part over a blend length instead of one
-    element layer, which on coarse meshes would nearly collapse the examples' first
-    layer of elements.
-    """
-    chi = clamp_profile(points, fixed_vertices, blend=blend)
-    return np.asarray(eigenvectors, dtype=float) * chi[:, None]
-
-
-def block_basis(eigenvectors: np.ndarray) -> np.ndarray:
-    """Dense ``Φ ⊗ I₃`` (3n, 3m), node-major rows, column ``3i + c``."""
-    n, m = eigenvectors.shape
-    L = np.zeros((n, 3, m, 3))
-    for c in range(3):
-        L[:, c, :, c] = eigenvectors
-    return L.reshape(3 * n, 3 * m)
-
-
-def example_path(solver: TargetSolver, table: TargetTable | None, *,
-                 points_per_edge: int = 9) -> np.ndarray:
-    """(P, p) exact targets spread over the weight simplex: the table's nodes, or
-    without a table the exact targets along every edge between two examples."""
-    if table is not None and table.nodes.shape[0] >= 4:
-        return table.nodes
-    offsets = solver.offsets
-    k = offsets.shape[0]
-    exact = TargetSolver(solver.models, offsets, tolerance=1e-8, max_iterations=100)
-    path = [offsets[i] for i in range(k)]
-    for i in range(k):
-        for j in range(i + 1, k):
-            z = offsets[i].copy()
-            for t in np.linspace(0.0, 1.0, points_per_edge)[1:-1]:
-                w = np.zeros(k)
-                w[i], w[j] = 1.0 - t, t
-                z = exact.solve(w, start=z).z
-                path.append(z)
-    while len(path) < 4:
-        path.append(offsets[0])
-    return np.asarray(path)
-
-
-def tabulate_examples(
-    rest_points: np.ndarray,
-    tets: np.ndarray,
-    material: Material,
-    eigenvectors: np.ndarray,
-    coefficients: np.ndarray,
-    *,
-    mass=None,
-    tolerance: float = DEFAULT_TOLERANCE,
-) -> tuple[TargetTable | None, np.ndarray, list]:
-    """The precompute's table stage: exact example energies, table, path.
-
-    The energies sum over the elements of
-    :func:`~lbshape.shapespace.example_shapes.energy_elements` (a warning names how many
-    the examples squeeze).
-
-    Args:
-        rest_points: (n, 3) the object's rest shape.
-        tets: (t, 4) tetrahedra.
-        material: the material.
-        eigenvectors: (n, m) the target basis' Φ (free or clamped, see
-            :func:`clamped_eigenvectors`).
-        coefficients: (k, m, 3) the examples' displacement coefficients.
-        mass: (n, n) the volume mass matrix M (m³): the table's error is measured in
-            ``‖Φ ⊗ I₃ · Δz‖_M`` (when None, in the coefficients' Euclidean norm, which
-            is the same for an M-orthonormal Φ).
-        tolerance: the table's accepted error (share of the separation).
-
-    Returns:
-        (the table or None when k > 3 or it was refused, the path (P, 3m) of exact
-        targets for training, the exact energy models).
-    """
-    k = coefficients.shape[0]
-    offsets = coefficients.reshape(k, -1)
-    rests = example_rest_shapes(rest_points, eigenvectors, coefficients)
-    kept = energy_elements(rest_points, tets, rests)
-    if kept.size < len(tets):
-        log.warning("the examples' reconstructions (m=%d) squeeze %d of %d elements below "
-                    "%g %% of their volume: the example energies leave them out",
-                    eigenvectors.shape[1], len(tets) - kept.size, len(tets),
-                    100 * MIN_VOLUME_RATIO)
-    models = exact_example_energies(rests, np.asarray(tets)[kept], material,
-                                    block_basis(eigenvectors))
-    solver = TargetSolver(models, offsets)
-    metric = None
-    if mass is not None:
-        metric = np.kron(eigenvectors.T @ (mass @ eigenvectors), np.eye(3))
-    table = None
-    if k in KINDS:
-        try:
-            table = build_target_table(solver, tolerance=tolerance, metric=metric)
-        except TableRefused as exc:
-            log.warning("no target table: %s; the target is solved at run time", exc)
-    else:
-        log.info("%d examples: no target table (at most 3); the target is solved at run time", k)
-    return table, example_path(solver, table), models
 
 
 class TableSolver:
