@@ -40,14 +40,12 @@ excites a shape that is a mix of many higher modes (a leg curled about its hip w
 the head stays put), which r of those vectors miss. A response enters only if
 the plain basis (modes and derivatives, r vectors) leaves more than
 ``RESPONSE_MIN_OUTSIDE`` (5 %) of it outside its span: one it already holds would
-only take a derivative's place (on the demo bar the twist examples' responses lie
-0.6 % outside; taking derivative columns for them raised the demo's error against
-the full reference from 3.3 % to 23 %, while the torque's response, 7 % outside,
-lowers it to 2.7 %). The entering responses are kept exactly, after the linear modes
-(made M-orthogonal to them, then their own M-PCA), and the derivatives' PCA fills
-the remaining columns. Measured on the teddy with local examples (r = 30): the full
-trajectory lies 44 % outside span U without responses, 8.5 % with them
-(``scripts/diagnose_accuracy.py``).
+only take a derivative's place and cost accuracy. The entering responses are kept
+exactly, after the linear modes (made M-orthogonal to them, then their own M-PCA),
+and the derivatives' PCA fills the remaining columns. What the threshold and the
+responses change on the demo bar and the teddy is measured in
+``docs/architecture.md`` ("Response vectors in the basis";
+``scripts/diagnose_accuracy.py``, ``results/accuracy_diagnosis.md``).
 
 After the PCA, U is re-orthonormalised once in the M inner product (the Gram route
 squares the condition number) and ``UᵀMU = I`` is checked to ``ORTHONORMALITY_TOL``.

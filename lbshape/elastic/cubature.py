@@ -30,7 +30,8 @@ on random training poses:
    is optimal on its set, so the error never increases. Only when no candidate of a
    batch helps is a wider set scanned (in chunks): every element when at most
    :data:`FALLBACK_ELEMENTS` remain (every built-in scene but the 100k-vertex one),
-   else that many drawn at random (one scan of 575k elements cost ~50 s). The greedy steps are the
+   else that many drawn at random (a full scan of a large mesh costs tens of seconds,
+   ``docs/architecture.md``). The greedy steps are the
    same on every rank (same seed, same draws); memory is O(P·r·(s + batch)) besides
    one chunk.
 
@@ -44,6 +45,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import nnls
@@ -321,12 +323,7 @@ def train_cubature(
     if not isinstance(mesh, TetMesh):
         raise LbshapeError(f"mesh must be a TetMesh, got {type(mesh).__name__}")
     U = _check_basis(U, n_vertices=mesh.n_vertices)
-    n_tets = mesh.n_tets
-    _check_int("max_elements", max_elements, minimum=1)
-    if max_elements > n_tets:
-        raise LbshapeError(
-            f"max_elements (s = {max_elements}) exceeds the number of tetrahedra ({n_tets})"
-        )
+    _check_max_elements(max_elements, mesh.n_tets)
     if isinstance(tol, bool) or not isinstance(tol, int | float) or not 0 <= tol < np.inf:
         raise LbshapeError(f"tol must be a finite number >= 0, got {tol!r}")
     _check_int("n_train", n_train, minimum=1)
@@ -395,71 +392,26 @@ def train_cubature_on_poses(
     tets = np.asarray(tets)
     U = _check_basis(U, n_vertices=rest_points.shape[0])
     n_tets = tets.shape[0]
-    _check_int("max_elements", max_elements, minimum=1)
-    if max_elements > n_tets:
-        raise LbshapeError(
-            f"max_elements (s = {max_elements}) exceeds the number of tetrahedra ({n_tets})"
-        )
-    train = np.atleast_2d(np.asarray(train, dtype=np.float64))
-    holdout = np.atleast_2d(np.asarray(holdout, dtype=np.float64))
-    for name, poses in (("train", train), ("holdout", holdout)):
-        if poses.ndim != 2 or poses.shape[1] != U.shape[1] or poses.shape[0] < 1:
-            raise LbshapeError(f"{name} poses must have shape (P >= 1, {U.shape[1]}), "
-                               f"got {poses.shape}")
-    all_poses = np.concatenate([train, holdout])
-    forces, strains = exact_pose_forces(rest_points, tets, material, U, all_poses,
+    _check_max_elements(max_elements, n_tets)
+    train, holdout = _checked_poses(train, holdout, U.shape[1])
+    forces, strains = exact_pose_forces(rest_points, tets, material, U,
+                                        np.concatenate([train, holdout]),
                                         max_bytes=max_bytes, comm=comm)
-    n_train = train.shape[0]
+    poses = _PoseForces(train, holdout, forces, strains)
     if drop_forceless:
-        norms = np.linalg.norm(forces, axis=1)
-        finite = np.isfinite(norms) & np.isfinite(strains)
-        largest = norms[finite].max(initial=0.0)
-        keep = finite & (norms > 1e-12 * largest) & (strains > 1e-9 * strains[finite].max(
-            initial=0.0))
-        if not keep.all():
-            log.warning("cubature: %d of %d poses without a finite elastic force left out",
-                        int((~keep).sum()), keep.size)
-        if not keep[:n_train].any() or not keep[n_train:].any():
-            raise LbshapeError("no training or held-out pose has an elastic force")
-        forces, strains = forces[keep], strains[keep]
-        train, holdout = train[keep[:n_train]], holdout[keep[n_train:]]
-        n_train = train.shape[0]
-    if peak_strain is None:
-        peak_strain = float(strains.max())
-    if (strains <= 1e-9 * peak_strain).any():
-        raise LbshapeError(
-            "a training pose has no elastic force: the basis only translates the "
-            "mesh rigidly (or not at all) for some poses"
-        )
-    b, factor = _normalised_forces(forces[:n_train])
-    b_hold, factor_hold = _normalised_forces(forces[n_train:])
-    columns = _Columns(rest_points, tets, material, U, train, factor, max_bytes=max_bytes)
-    hold_columns = _Columns(rest_points, tets, material, U, holdout, factor_hold,
+        poses = _drop_forceless(poses)
+    _check_strains(poses.strains, peak_strain)
+    n_train = poses.train.shape[0]
+    b, factor = _normalised_forces(poses.forces[:n_train])
+    b_hold, factor_hold = _normalised_forces(poses.forces[n_train:])
+    columns = _Columns(rest_points, tets, material, U, poses.train, factor, max_bytes=max_bytes)
+    hold_columns = _Columns(rest_points, tets, material, U, poses.holdout, factor_hold,
                             max_bytes=max_bytes)
     elements, weights, history = _greedy_nnls(
         columns, b, hold_columns, b_hold, n_elements=n_tets, s=max_elements, tol=float(tol),
         candidates=candidates_per_iter, rng=rng, progress=progress, comm=comm,
     )
-    train_error, holdout_error = (float(v) for v in history[-1, 1:])
-    reached = train_error <= tol
-    log.info(
-        "cubature: %d of %d elements, training error %.3g (tol %.3g%s), held-out error %.3g",
-        elements.size, n_tets, train_error, tol, "" if reached else ", not reached",
-        holdout_error,
-    )
-    for array in (elements, weights, history):
-        array.setflags(write=False)
-    return Cubature(
-        elements=elements,
-        weights=weights,
-        train_error=train_error,
-        holdout_error=holdout_error,
-        errors_by_size=history,
-        tol=float(tol),
-        reached_tol=bool(reached),
-        n_train=int(train.shape[0]),
-        n_holdout=int(holdout.shape[0]),
-    )
+    return _rule(elements, weights, history, tol=float(tol), n_tets=n_tets, poses=poses)
 
 
 def train_example_cubatures(
@@ -500,9 +452,8 @@ def train_example_cubatures(
         path: (P, p) exact targets along the example path (P >= 4).
         rng: generator of the perturbations and candidate batches.
         scales: (p,) per-coordinate perturbation scales (default all 1).
-        perturbation: RMS perturbation size as a share of the separation (on the cuboid
-            bar, 1 % with 4 copies gave the lb route 1.7 % of the separation at worst along
-            the example path, 10 % with 2 copies 3 %).
+        perturbation: RMS perturbation size as a share of the separation (the default
+            and ``copies`` measured in docs/architecture.md, "Interpolation routes").
         copies: perturbations per path pose.
         max_elements, tol, max_bytes, comm: as in :func:`train_cubature`.
         max_path: at most this many path targets are used, evenly spaced along the path
@@ -520,6 +471,24 @@ def train_example_cubatures(
         raise LbshapeError(f"need {k} rest shapes and a path of >= 4 targets with {p} "
                            f"coordinates, got {len(rest_points)} and {path.shape}")
     _check_int("max_path", max_path, minimum=4)
+    path = _path_targets(path, max_path)
+    spread = _separation(offsets)
+    scales = np.ones(p) if scales is None else np.asarray(scales, dtype=np.float64)
+    unit = scales / np.sqrt(np.mean(scales**2) * p)  # E|δ|² = 1 for δ = unit ⊙ N(0, I)
+    rules = []
+    for index in range(k):
+        train, holdout = _example_poses(path - offsets[index], copies=copies, unit=unit,
+                                        size=perturbation * spread, spread=spread, rng=rng)
+        rules.append(train_cubature_on_poses(
+            rest_points[index], tets, material, basis, train=train, holdout=holdout, rng=rng,
+            max_elements=max_elements, tol=tol, max_bytes=max_bytes, comm=comm,
+            drop_forceless=True))
+    return rules
+
+
+def _path_targets(path: np.ndarray, max_path: int) -> np.ndarray:
+    """The finite path targets (P, p), at most ``max_path`` of them evenly spaced (first
+    and last kept)."""
     finite = np.isfinite(path).all(axis=1)
     if not finite.all():
         log.warning("example cubature: %d non-finite path targets left out",
@@ -527,28 +496,112 @@ def train_example_cubatures(
         path = path[finite]
     if path.shape[0] > max_path:
         path = path[np.unique(np.round(np.linspace(0, path.shape[0] - 1, max_path)).astype(int))]
+    return path
+
+
+def _separation(offsets: np.ndarray) -> float:
+    """``max_ij ‖z_i − z_j‖`` of the examples' coordinates (k, p); for one example its
+    norm, and 1 when that is zero too."""
+    k = offsets.shape[0]
     spread = max((float(np.linalg.norm(offsets[i] - offsets[j]))
                   for i in range(k) for j in range(i + 1, k)), default=0.0)
-    spread = spread or float(np.linalg.norm(offsets, axis=1).max()) or 1.0
-    scales = np.ones(p) if scales is None else np.asarray(scales, dtype=np.float64)
-    unit = scales / np.sqrt(np.mean(scales**2) * p)  # E|δ|² = 1 for δ = unit ⊙ N(0, I)
-    rules = []
-    for index in range(k):
-        base = path - offsets[index]
-        noise = rng.standard_normal((copies * base.shape[0], p)) * unit * (perturbation * spread)
-        poses = np.concatenate([base, np.repeat(base, copies, axis=0) + noise])
-        owner = np.concatenate([np.arange(base.shape[0]),
-                                np.repeat(np.arange(base.shape[0]), copies)])
-        moving = np.linalg.norm(poses, axis=1) > 1e-12 * spread  # drop the rest pose
-        held = (owner % 2 == 1) & moving
-        rules.append(train_cubature_on_poses(
-            rest_points[index], tets, material, basis, train=poses[~held & moving],
-            holdout=poses[held], rng=rng, max_elements=max_elements, tol=tol,
-            max_bytes=max_bytes, comm=comm, drop_forceless=True))
-    return rules
+    return spread or float(np.linalg.norm(offsets, axis=1).max()) or 1.0
+
+
+def _example_poses(base: np.ndarray, *, copies: int, unit: np.ndarray, size: float,
+                   spread: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(training, held-out) poses of one example: the path poses ``base`` (P, p) and
+    ``copies`` perturbations of each (``unit`` (p,) per-coordinate scales of RMS 1 over
+    the coordinates, times ``size``); every other path pose and its perturbations are
+    held out, the rest pose left out."""
+    p = base.shape[1]
+    perturbations = rng.standard_normal((copies * base.shape[0], p)) * unit * size
+    poses = np.concatenate([base, np.repeat(base, copies, axis=0) + perturbations])
+    owner = np.concatenate([np.arange(base.shape[0]),
+                            np.repeat(np.arange(base.shape[0]), copies)])
+    moving = np.linalg.norm(poses, axis=1) > 1e-12 * spread  # drop the rest pose
+    held = (owner % 2 == 1) & moving
+    return poses[~held & moving], poses[held]
 
 
 # -- internals ---------------------------------------------------------------------------
+class _PoseForces(NamedTuple):
+    """Training and held-out poses with the exact forces and strains of both (training
+    rows first)."""
+
+    train: np.ndarray  #: (P, k)
+    holdout: np.ndarray  #: (P', k)
+    forces: np.ndarray  #: (P + P', k) exact reduced forces
+    strains: np.ndarray  #: (P + P',) largest element strain of each pose
+
+
+def _checked_poses(train, holdout, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The training and held-out poses as (P >= 1, k) arrays."""
+    train = np.atleast_2d(np.asarray(train, dtype=np.float64))
+    holdout = np.atleast_2d(np.asarray(holdout, dtype=np.float64))
+    for name, poses in (("train", train), ("holdout", holdout)):
+        if poses.ndim != 2 or poses.shape[1] != k or poses.shape[0] < 1:
+            raise LbshapeError(f"{name} poses must have shape (P >= 1, {k}), "
+                               f"got {poses.shape}")
+    return train, holdout
+
+
+def _drop_forceless(poses: _PoseForces) -> _PoseForces:
+    """The poses with a finite, non-negligible exact force (logged when some are left
+    out); an error when no training or held-out pose remains."""
+    forces, strains = poses.forces, poses.strains
+    n_train = poses.train.shape[0]
+    norms = np.linalg.norm(forces, axis=1)
+    finite = np.isfinite(norms) & np.isfinite(strains)
+    largest = norms[finite].max(initial=0.0)
+    keep = finite & (norms > 1e-12 * largest) & (strains > 1e-9 * strains[finite].max(
+        initial=0.0))
+    if not keep.all():
+        log.warning("cubature: %d of %d poses without a finite elastic force left out",
+                    int((~keep).sum()), keep.size)
+    if not keep[:n_train].any() or not keep[n_train:].any():
+        raise LbshapeError("no training or held-out pose has an elastic force")
+    return _PoseForces(poses.train[keep[:n_train]], poses.holdout[keep[n_train:]],
+                       forces[keep], strains[keep])
+
+
+def _check_strains(strains: np.ndarray, peak_strain: float | None) -> None:
+    """Refuse a pose that only moves the mesh rigidly (strain ≤ 1e-9 of the peak;
+    default peak: the largest of ``strains``)."""
+    if peak_strain is None:
+        peak_strain = float(strains.max())
+    if (strains <= 1e-9 * peak_strain).any():
+        raise LbshapeError(
+            "a training pose has no elastic force: the basis only translates the "
+            "mesh rigidly (or not at all) for some poses"
+        )
+
+
+def _rule(elements: np.ndarray, weights: np.ndarray, history: np.ndarray, *, tol: float,
+          n_tets: int, poses: _PoseForces) -> Cubature:
+    """The trained :class:`Cubature` (logged; its arrays read-only)."""
+    train_error, holdout_error = (float(v) for v in history[-1, 1:])
+    reached = train_error <= tol
+    log.info(
+        "cubature: %d of %d elements, training error %.3g (tol %.3g%s), held-out error %.3g",
+        elements.size, n_tets, train_error, tol, "" if reached else ", not reached",
+        holdout_error,
+    )
+    for array in (elements, weights, history):
+        array.setflags(write=False)
+    return Cubature(
+        elements=elements,
+        weights=weights,
+        train_error=train_error,
+        holdout_error=holdout_error,
+        errors_by_size=history,
+        tol=tol,
+        reached_tol=bool(reached),
+        n_train=int(poses.train.shape[0]),
+        n_holdout=int(poses.holdout.shape[0]),
+    )
+
+
 def _normalised_forces(forces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Stacked exact forces (P, r) divided per pose by their norm: (b (P·r,), factor (P·r,)),
     the factor dividing every pose block of A and b."""
@@ -711,6 +764,14 @@ def _check_basis(U: np.ndarray, *, n_vertices: int | None = None) -> np.ndarray:
     if not np.isfinite(U).all():
         raise LbshapeError("basis U contains NaN or infinite entries")
     return U
+
+
+def _check_max_elements(max_elements, n_tets: int) -> None:
+    _check_int("max_elements", max_elements, minimum=1)
+    if max_elements > n_tets:
+        raise LbshapeError(
+            f"max_elements (s = {max_elements}) exceeds the number of tetrahedra ({n_tets})"
+        )
 
 
 def _check_int(name: str, value, *, minimum: int) -> None:

@@ -18,8 +18,8 @@ Solving. One sparse Cholesky factorisation (PETSc KSP ``preonly`` + Cholesky: CH
 serially, MUMPS over several ranks; options prefix ``md_``) serves every right-hand side.
 It also solves the basis's **static responses** ``K x = f`` (keyword ``static_loads``,
 clamped bodies only; :mod:`lbshape.pipeline.responses`) in the same block solve: K at
-rest is the same for both material models, and a second factorisation of K cost
-≈ 50 s and 2.8 GB at 104.6k vertices.
+rest is the same for both material models, and a second factorisation of K would
+cost as much as this one (measured in ``docs/architecture.md``).
 
 * **Clamped body:** the system is restricted to the free DOFs; Ψ is zero at the
   fixed vertices.
@@ -224,40 +224,19 @@ def modal_derivatives(
     p = pairs.shape[0]
     with elastic_matrices(mesh, stvk, fixed_vertices=fixed, comm=comm) as mats:
         rows = mats.local_rows  # input DOF of each local row of K, M (free DOFs)
-        rigid = solve_rows = None
-        if not fixed.size:
-            full = compute_on_root(comm, lambda: rigid_body_modes(mesh.points, mats.mass),
-                                   share=False)
-            pinned = compute_on_root(comm, lambda: _pinned_dofs(full))
-            rigid = scatter_rows(full, rows, comm=comm)  # (l, 6) local rows of R
-            solve_rows = np.flatnonzero(~np.isin(rows, pinned))
+        rigid, solve_rows = _rigid_null_space(mesh, mats, free=not fixed.size, comm=comm)
         hessian = ForceHessian(None, stvk, space=mats.space)
         directions = scatter_rows(modes.vectors, hessian.local_dofs, comm=comm)
         system = _DistributedSystem(mats, rigid, solve_rows)
-        vectors, rhs = np.zeros((rows.size, p + c)), np.zeros((rows.size, p + c))
+        rhs = np.zeros((rows.size, p + c))
         if c:
             rhs[:, p:] = scatter_rows(static_loads, rows, comm=comm)
         with system:
-            for q, (i, j) in enumerate(pairs):
-                h = hessian.assemble(directions[:, i], directions[:, j])[mats.owned_free]
-                if rigid is not None:
-                    h -= system.mass_times(rigid @ sum_over_ranks(comm, rigid.T @ h))
-                rhs[:, q] = -h
-            nonzero = np.flatnonzero(sum_over_ranks(comm, np.any(rhs, axis=0).astype(np.int64)))
-            if nonzero.size:  # all right-hand sides in one block solve
-                vectors[:, nonzero] = system.solve(rhs[:, nonzero])
-            if rigid is not None:
-                masses = np.column_stack([system.mass_times(x) for x in vectors.T])
-                vectors -= rigid @ sum_over_ranks(comm, rigid.T @ masses)
-            # residuals on every equation that must hold (all DOFs of a free body)
-            misfit = np.column_stack([system.stiffness_times(x) for x in vectors.T]) - rhs
+            _hessian_right_hand_sides(rhs, hessian, directions, pairs, mats, system, rigid,
+                                      comm)
+            vectors, misfit = _solve_block(system, rhs, rigid, comm)
         hessian.destroy()
-        misfit_norms = np.sqrt(sum_over_ranks(comm, np.sum(misfit**2, axis=0)))
-        norms = np.sqrt(sum_over_ranks(comm, np.sum(rhs**2, axis=0)))
-        residuals = np.divide(misfit_norms, norms, out=np.zeros(p + c), where=norms > 0)
-        check_residuals(residuals, RESIDUAL_RTOL, what="modal derivative solves",
-                        describe=lambda q: f"pair {tuple(pairs[q])}" if q < p
-                        else f"static load {q - p}")
+        residuals = _checked_residuals(misfit, rhs, pairs, comm)
         vectors = gather_rows(vectors, rows, comm=comm, size=3 * n)
     seconds = time.perf_counter() - started
     log.info("modal derivatives: n=%d pairs=%d static loads=%d free=%s ranks=%d max "
@@ -267,6 +246,62 @@ def modal_derivatives(
     return ModalDerivatives(vectors=None if vectors is None else vectors[:, :p], pairs=pairs,
                             residuals=residuals[:p], seconds=seconds,
                             static_responses=responses)
+
+
+def _rigid_null_space(mesh: TetMesh, mats, *, free: bool, comm: MPI.Comm
+                      ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """A free body's rigid modes R on the local rows (l, 6) and the local rows solved for
+    (all but the 6 pinned DOFs, :func:`_pinned_dofs`); (None, None) for a clamped body."""
+    if not free:
+        return None, None
+    rows = mats.local_rows
+    full = compute_on_root(comm, lambda: rigid_body_modes(mesh.points, mats.mass),
+                           share=False)
+    pinned = compute_on_root(comm, lambda: _pinned_dofs(full))
+    rigid = scatter_rows(full, rows, comm=comm)  # (l, 6) local rows of R
+    return rigid, np.flatnonzero(~np.isin(rows, pinned))
+
+
+def _hessian_right_hand_sides(rhs: np.ndarray, hessian: ForceHessian, directions: np.ndarray,
+                              pairs: np.ndarray, mats, system: _DistributedSystem,
+                              rigid: np.ndarray | None, comm: MPI.Comm) -> None:
+    """Column q of ``rhs`` (local rows) ← ``−H(ψ_i, ψ_j)`` for ``pairs[q] = (i, j)``, a
+    free body's projected onto the consistent range (``h ← (I − M R Rᵀ) h``)."""
+    for q, (i, j) in enumerate(pairs):
+        h = hessian.assemble(directions[:, i], directions[:, j])[mats.owned_free]
+        if rigid is not None:
+            h -= system.mass_times(rigid @ sum_over_ranks(comm, rigid.T @ h))
+        rhs[:, q] = -h
+
+
+def _solve_block(system: _DistributedSystem, rhs: np.ndarray, rigid: np.ndarray | None,
+                 comm: MPI.Comm) -> tuple[np.ndarray, np.ndarray]:
+    """(X, K X − rhs) on the local rows: every non-zero right-hand side in one block
+    solve, a free body's solutions made M-orthogonal to its rigid modes; the misfit is
+    over every equation that must hold (all DOFs of a free body)."""
+    vectors = np.zeros_like(rhs)
+    nonzero = np.flatnonzero(sum_over_ranks(comm, np.any(rhs, axis=0).astype(np.int64)))
+    if nonzero.size:  # all right-hand sides in one block solve
+        vectors[:, nonzero] = system.solve(rhs[:, nonzero])
+    if rigid is not None:
+        masses = np.column_stack([system.mass_times(x) for x in vectors.T])
+        vectors -= rigid @ sum_over_ranks(comm, rigid.T @ masses)
+    misfit = np.column_stack([system.stiffness_times(x) for x in vectors.T]) - rhs
+    return vectors, misfit
+
+
+def _checked_residuals(misfit: np.ndarray, rhs: np.ndarray, pairs: np.ndarray,
+                       comm: MPI.Comm) -> np.ndarray:
+    """(p + c,) relative residuals ``‖K x − rhs‖ / ‖rhs‖`` over the ranks (0 for a zero
+    right-hand side), checked against :data:`RESIDUAL_RTOL`."""
+    p = pairs.shape[0]
+    misfit_norms = np.sqrt(sum_over_ranks(comm, np.sum(misfit**2, axis=0)))
+    norms = np.sqrt(sum_over_ranks(comm, np.sum(rhs**2, axis=0)))
+    residuals = np.divide(misfit_norms, norms, out=np.zeros(rhs.shape[1]), where=norms > 0)
+    check_residuals(residuals, RESIDUAL_RTOL, what="modal derivative solves",
+                    describe=lambda q: f"pair {tuple(pairs[q])}" if q < p
+                    else f"static load {q - p}")
+    return residuals
 
 
 def _checked_size(mesh: TetMesh, modes: LinearModes) -> int:

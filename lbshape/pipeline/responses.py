@@ -18,10 +18,9 @@ whose static responses the basis keeps (:mod:`lbshape.elastic.basis`).
   Neither depends on a load's size or profile nor on k_ex (only on whether it is > 0),
   so runtime changes keep the precompute; a load's type, region and direction are part
   of the cache key (:func:`response_key`). Fixed objects only: a free body's loads move
-  it rigidly, and on the car the full trajectory's deformation lies 1.4 % outside the
-  plain basis while its error against full (37 %) comes from the free-body dynamics;
-  the one example response above the threshold (the S-bend, 12 % outside) took a
-  derivative's place and raised that error to 40 %.
+  it rigidly, its deformation is already held by the plain basis, and an example
+  response would take a derivative's place (measured on the car in
+  ``docs/architecture.md``, "Response vectors in the basis").
 """
 
 from __future__ import annotations

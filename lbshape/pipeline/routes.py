@@ -56,6 +56,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -73,9 +74,8 @@ log = logging.getLogger(__name__)
 #: the boundary treatments of the LB basis (see the module docstring)
 BOUNDARIES = ("clamped", "free")
 #: Newton steps per call (per time step, warm-started) of the lb-table route's fallback
-#: when there is no table: measured on the cuboid bar with 4 twist examples along a
-#: 1000-step run, one step per time step stays within 0.66 % of the example separation
-#: of the converged target (2 steps: 0.08 %)
+#: when there is no table: the target follows the weights closely enough with one
+#: (measured in docs/architecture.md, "Interpolation routes")
 FALLBACK_ITERATIONS = 1
 
 
@@ -186,58 +186,81 @@ def target_solver(
             return target_solver(pre, fallback, tolerance=tolerance,
                                  max_iterations=FALLBACK_ITERATIONS, boundary=boundary,
                                  tracking=True)
+        return _table_route(pre, clamped=clamped)
     started = time.perf_counter()
+    energies = _route_energies(pre, route, clamped=clamped)
+    solver = TargetSolver(energies.models, energies.offsets, tolerance=tolerance,
+                          max_iterations=max_iterations, tracking=tracking)
+    seconds = time.perf_counter() - started
+    log.info("interpolation route %s: p=%d coordinates, %d elements, set up in %.3f s",
+             route, energies.offsets.shape[1], np.size(energies.elements), seconds)
+    return InterpolationRoute(
+        route=route, solver=solver, to_reduced=energies.to_reduced, basis=energies.basis,
+        elements=np.asarray(energies.elements, dtype=np.int64),
+        weights=np.asarray(energies.weights, dtype=float),
+        cubature_errors=energies.errors, seconds=seconds,
+    )
+
+
+def _table_route(pre: Precomputed, *, clamped: bool) -> InterpolationRoute:
+    """The ``lb-table`` route: the precompute's table, mapped to reduced coordinates."""
+    started = time.perf_counter()
+    k = pre.example_coefficients.shape[0]
+    lb_to_reduced = pre.lb_to_reduced_for(clamped=clamped)
+    table = pre.target_table
+    table.set_reduced_map(lb_to_reduced)
+    solver = TableSolver(table, [None] * k, pre.example_coefficients.reshape(k, -1))
+    check = table.check
+    return InterpolationRoute(
+        route="lb-table", solver=solver, to_reduced=lb_to_reduced,
+        basis=pre.lb_basis(clamped=clamped), elements=np.zeros(0, dtype=np.int64),
+        weights=np.zeros(0), seconds=time.perf_counter() - started,
+        cubature_errors={} if check is None else {"table_max_error": check.max_error})
+
+
+class _RouteEnergies(NamedTuple):
+    """The example energies of a solved route and what maps its coordinates z."""
+
+    models: list  #: k energy models in z
+    offsets: np.ndarray  #: (k, p) the examples' own coordinates z_k
+    to_reduced: np.ndarray | None  #: (r, p) ``q = R z``, None when z = q
+    basis: np.ndarray  #: (3n, p) B
+    elements: np.ndarray  #: (s,) the elements the energies sum over
+    weights: np.ndarray  #: (s,) their weights
+    errors: dict  #: the cubature's recorded errors
+
+
+def _route_energies(pre: Precomputed, route: str, *, clamped: bool) -> _RouteEnergies:
+    """The example energies of ``route`` (not ``lb-table``) on the examples' rest shapes,
+    over the example energies' elements (see the module docstring)."""
     k = pre.example_coefficients.shape[0]
     coefficients = pre.example_coefficients.reshape(k, -1)
     tets, material = pre.mesh.tets, pre.material
     lb_to_reduced = pre.lb_to_reduced_for(clamped=clamped)
-    if route == "lb-table":
-        table = pre.target_table
-        table.set_reduced_map(lb_to_reduced)
-        solver = TableSolver(table, [None] * k, coefficients)
-        check = table.check
-        seconds = time.perf_counter() - started
-        return InterpolationRoute(
-            route=route, solver=solver, to_reduced=lb_to_reduced,
-            basis=pre.lb_basis(clamped=clamped), elements=np.zeros(0, dtype=np.int64),
-            weights=np.zeros(0), seconds=seconds,
-            cubature_errors={} if check is None else {"table_max_error": check.max_error})
     rests = [pre.example_rest_points(i, clamped=clamped) for i in range(k)]
     kept = pre.example_energy_elements(clamped=clamped)  # n-sized: set-up only
     if route in ("euclidean", "lb-exact"):
         energy = EuclideanExampleEnergy if route == "euclidean" else StVKPolynomialEnergy
         basis = pre.lb_basis(clamped=clamped)
-        elements, weights = kept, np.ones(kept.size)
         models = [energy(x, tets[kept], material, basis) for x in rests]
-        offsets, to_reduced, errors = coefficients, lb_to_reduced, {}
-    else:
-        if route == "modal":
-            inside = np.isin(pre.cubature_elements, kept)
-            basis = pre.U
-            elements, weights = pre.cubature_elements[inside], pre.cubature_weights[inside]
-            offsets, to_reduced = coefficients @ lb_to_reduced.T, None
-            errors = dict(pre.cubature_errors)
-            models = [ReducedForceModel(x, tets, material, basis, elements, weights)
-                      for x in rests]
-        else:
-            rules = _lb_cubature(pre, k)
-            basis = pre.lb_basis(clamped=clamped)
-            offsets, to_reduced = coefficients, lb_to_reduced
-            errors = dict(getattr(pre, "lb_cubature_errors", {}) or {})
-            models = [ReducedForceModel(x, tets, material, basis, e, w)
-                      for x, (e, w) in zip(rests, rules, strict=True)]
-            elements = np.unique(np.concatenate([e for e, _ in rules]))
-            weights = np.ones(elements.size)
-    solver = TargetSolver(models, offsets, tolerance=tolerance, max_iterations=max_iterations,
-                          tracking=tracking)
-    seconds = time.perf_counter() - started
-    log.info("interpolation route %s: p=%d coordinates, %d elements, set up in %.3f s",
-             route, offsets.shape[1], np.size(elements), seconds)
-    return InterpolationRoute(
-        route=route, solver=solver, to_reduced=to_reduced, basis=basis,
-        elements=np.asarray(elements, dtype=np.int64), weights=np.asarray(weights, dtype=float),
-        cubature_errors=errors, seconds=seconds,
-    )
+        return _RouteEnergies(models, coefficients, lb_to_reduced, basis, kept,
+                              np.ones(kept.size), {})
+    if route == "modal":
+        inside = np.isin(pre.cubature_elements, kept)
+        basis = pre.U
+        elements, weights = pre.cubature_elements[inside], pre.cubature_weights[inside]
+        models = [ReducedForceModel(x, tets, material, basis, elements, weights)
+                  for x in rests]
+        return _RouteEnergies(models, coefficients @ lb_to_reduced.T, None, basis, elements,
+                              weights, dict(pre.cubature_errors))
+    rules = _lb_cubature(pre, k)
+    basis = pre.lb_basis(clamped=clamped)
+    models = [ReducedForceModel(x, tets, material, basis, e, w)
+              for x, (e, w) in zip(rests, rules, strict=True)]
+    elements = np.unique(np.concatenate([e for e, _ in rules]))
+    return _RouteEnergies(models, coefficients, lb_to_reduced, basis, elements,
+                          np.ones(elements.size),
+                          dict(getattr(pre, "lb_cubature_errors", {}) or {}))
 
 
 def example_driver(pre: Precomputed, *, route: str, **options):

@@ -6,18 +6,13 @@ eigenvectors or the clamped Φ_F). Every target energy ``E_k`` of the shape spac
 elastic energy of deforming X_k (:mod:`lbshape.shapespace.interpolation`).
 
 **Squeezed elements.** With few eigenfunctions the reconstruction of a large pose can
-squeeze elements: the built-in bar's +90° twist example reconstructed with m = 10
-leaves 2.4 % of the object's elements (at its free end) below 30 % of their volume at
-every mesh size from 18.6k vertices on, and finer meshes resolve the squeeze down to
-inversion (smallest volume ratio 0.36 at 332 vertices, 0.02 at 18.6k, −0.02 at
-43.9k, −0.07 at 104.6k). StVK resists compression less and less (the force of a
-uniaxial compression peaks at stretch 1/√3 and falls to zero), so where another
-example pulls such an element back towards its own volume the target energy has
-several minima and the exact target jumps between them as the weights move: the
-target table's check found errors of 1270 % of the example separation at 43.9k
-vertices (737 % with only the inverted elements left out, 0.34 % at N = 128 intervals
-with the elements below 10 % left out, 0.47 % at N = 16 — like the coarse meshes —
-below 30 %; at 104.6k vertices 0.47 % at N = 16 below 30 %).
+squeeze elements, and on fine meshes invert them. StVK resists compression less and
+less (the force of a uniaxial compression peaks at stretch 1/√3 and falls to zero),
+so where another example pulls such an element back towards its own volume the
+target energy has several minima and the exact target jumps between them as the
+weights move; the target table's check then refuses the table. Measured on the
+built-in bar's twist example at several mesh sizes in ``docs/architecture.md``
+("Example energy elements").
 
 **Rule** (:func:`energy_elements`): an element enters the example energies only if
 every example's rest shape keeps at least :data:`MIN_VOLUME_RATIO` of its volume on
