@@ -66,8 +66,9 @@ def run(args) -> int:
         if "example_influence" in s:
             final, peak = (("undefined" if s[k] is None else f"{s[k]:.3f}")
                            for k in ("example_influence", "example_influence_max"))
-            print(f"simulate {s['scene']}: example influence {final} (max over time {peak}, "
-                  f"{s['influence_frame']} frame) against the same scene without examples")
+            print(f"simulate {s['scene']}: example influence {final} (ratio of the maxima "
+                  f"over time {peak}, {s['influence_frame']} frame) against the same scene "
+                  "without examples")
     if result.message:
         print(f"error: simulation stopped: {result.message}", file=sys.stderr)
         return 3

@@ -279,7 +279,7 @@ def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
     lines += _free_body_lines(results)
     if any(result.influence for result in results):
         lines += ["", "## Example influence", "", _INFLUENCE_INTRO, "",
-                  "| model | method | frame | influence at T | influence max over t "
+                  "| model | method | frame | influence at T | ratio of maxima over t "
                   "| world influence at T "
                   "| eq. 5 residual, examples | eq. 5 residual, no examples |",
                   "|---|---|---|---|---|---|---|---|"]
