@@ -247,6 +247,11 @@ def _route_energies(pre: Precomputed, route: str, *, clamped: bool) -> _RouteEne
                               np.ones(kept.size), {})
     if route == "modal":
         inside = np.isin(pre.cubature_elements, kept)
+        if not inside.all():  # none on the built-in scenes (docs/architecture.md)
+            share = pre.cubature_weights[~inside].sum() / pre.cubature_weights.sum()
+            log.warning("modal route: %d of %d cubature elements are squeezed by the "
+                        "examples and left out (%.1f %% of the weight); the others keep "
+                        "their weights", int((~inside).sum()), inside.size, 100 * share)
         basis = pre.U
         elements, weights = pre.cubature_elements[inside], pre.cubature_weights[inside]
         models = [ReducedForceModel(x, tets, material, basis, elements, weights)

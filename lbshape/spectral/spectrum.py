@@ -78,10 +78,9 @@ from lbshape.geometry.mesh import TetMesh
 
 log = logging.getLogger(__name__)
 
-#: PETSc/SLEPc options prefix of the LB eigensolver
 #: seed of the eigensolver's start vector (deterministic eigenvectors)
 START_SEED = 1234
-
+#: PETSc/SLEPc options prefix of the LB eigensolver
 OPTIONS_PREFIX = "lb_"
 #: the target is ``-TARGET_FRACTION (π/D)²``
 TARGET_FRACTION = 0.01
