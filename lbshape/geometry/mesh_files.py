@@ -193,6 +193,19 @@ def check_surface(points: np.ndarray, triangles: np.ndarray, *,
         raise LbshapeError(f"{source}: surface has NaN or infinite vertex coordinates")
 
     points, tris = _merge_vertices(points, tris)
+    _check_triangles(points, tris, source)
+    edges, edge_id = _check_edges(tris, source)
+    _check_vertex_fans(points, tris, edges, edge_id, source)
+
+    pieces = _count_pieces(tris, points.shape[0])
+    if pieces > 1:
+        raise LbshapeError(f"{source}: surface has {pieces} disconnected pieces; "
+                           "one closed body is required")
+    return points, tris
+
+
+def _check_triangles(points: np.ndarray, tris: np.ndarray, source: str) -> None:
+    """No zero-area triangle (relative to the bounding-box diagonal) and no duplicate."""
     diag = float(np.linalg.norm(np.ptp(points, axis=0)))
     p = points[tris]
     area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
@@ -206,11 +219,13 @@ def check_surface(points: np.ndarray, triangles: np.ndarray, *,
         raise LbshapeError(f"{source}: {int((counts > 1).sum())} duplicate triangles "
                            f"(first: triangle {int(first[counts > 1][0])})")
 
-    # edges: each must be shared by exactly two triangles
+
+def _check_edges(tris: np.ndarray, source: str) -> tuple[np.ndarray, np.ndarray]:
+    """Every edge on exactly two triangles; returns the edges (e, 2) (sorted vertex
+    pairs) and each triangle side's edge (3f,) (sides ab, then bc, then ca)."""
     half = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
     edges, edge_id, counts = np.unique(np.sort(half, axis=1), axis=0, return_inverse=True,
                                        return_counts=True)
-    edge_id = edge_id.ravel()
     if (counts == 1).any():
         a, b = edges[counts == 1][0]
         raise LbshapeError(
@@ -221,9 +236,13 @@ def check_surface(points: np.ndarray, triangles: np.ndarray, *,
         raise LbshapeError(
             f"{source}: surface is non-manifold: {int((counts > 2).sum())} edges on more "
             f"than two triangles (e.g. between vertices {a} and {b})")
+    return edges, edge_id.ravel()
 
-    # vertices: the triangles around each must form one fan. Nodes of the graph are
-    # (vertex, incident edge) pairs; triangle (a, b, c) links (a, ab)-(a, ca) etc.
+
+def _check_vertex_fans(points: np.ndarray, tris: np.ndarray, edges: np.ndarray,
+                       edge_id: np.ndarray, source: str) -> None:
+    """The triangles around each vertex form one fan. Nodes of the graph are (vertex,
+    incident edge) pairs; triangle (a, b, c) links (a, ab)-(a, ca) etc."""
     f = tris.shape[0]
     e_ab, e_bc, e_ca = edge_id[:f], edge_id[f:2 * f], edge_id[2 * f:]
     n_edges = edges.shape[0]
@@ -245,12 +264,6 @@ def check_surface(points: np.ndarray, triangles: np.ndarray, *,
         raise LbshapeError(
             f"{source}: surface is non-manifold: {int((per_vertex > 1).sum())} vertices "
             f"where separate sheets touch (e.g. vertex {v} at {points[v].round(6).tolist()})")
-
-    pieces = _count_pieces(tris, points.shape[0])
-    if pieces > 1:
-        raise LbshapeError(f"{source}: surface has {pieces} disconnected pieces; "
-                           "one closed body is required")
-    return points, tris
 
 
 def _merge_vertices(points: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -375,14 +375,7 @@ def animation_frames(
 
     runs = [np.asarray(u, dtype=float) for u in displacements]
     k, count = len(runs), len(times)
-    if k == 0 or len(labels) != k:
-        raise LbshapeError(f"give one label per panel: {k} panels, {len(labels)} labels")
-    expected = (count, rest.n_vertices, 3)
-    if count == 0 or any(u.shape != expected for u in runs):
-        raise LbshapeError(f"each panel needs displacements of shape {expected}, got "
-                           f"{[u.shape for u in runs]}")
-    if notes is not None and (len(notes) != count or any(len(n) != k for n in notes)):
-        raise LbshapeError(f"notes must be {count} frames x {k} panels of captions")
+    _check_panels(rest, runs, labels, count, notes)
     norms = [np.linalg.norm(u, axis=2) for u in runs]
     if clim is None:
         clim = (0.0, float(max(v.max() for v in norms)) or 1.0)
@@ -394,20 +387,9 @@ def animation_frames(
     plotter = _plotter(pv, shape=(1, k), window_size=(width, height), border=False)
     base = to_grid(rest).extract_surface(algorithm="dataset_surface")
     ids = np.asarray(base.point_data["vtkOriginalPointIds"])
-    surfaces = []
-    for panel in range(k):
-        plotter.subplot(0, panel)
-        surface = base.copy()
-        surface.point_data[scalar_name] = norms[panel][0][ids]
-        plotter.add_mesh(surface, scalars=scalar_name, cmap="viridis", clim=clim, show_edges=True,
-                         edge_color="#333333", line_width=0.3, show_scalar_bar=False)
-        if ghost:
-            plotter.add_mesh(base.copy(), style="wireframe", color="#888888", opacity=0.25,
-                             line_width=0.5)
-        _add_rectangles(plotter, pv, rectangles)
-        # every frame in view; the camera then stays
-        _set_camera(plotter, view_vector, bounds=bounds)
-        surfaces.append(surface)
+    surfaces = [_animation_panel(plotter, pv, panel, base, norms[panel][0][ids], scalar_name,
+                                 clim, ghost, rectangles, view_vector, bounds)
+                for panel in range(k)]
     plotter.link_views()
     plotter.subplot(0, k - 1)
     plotter.add_text(f"colour: {scalar_name} {clim[0]:.3g} (dark) to {clim[1]:.3g} (yellow)",
@@ -433,6 +415,39 @@ def animation_frames(
     finally:
         plotter.close()
     return out
+
+
+def _check_panels(rest: TetMesh, runs: Sequence[np.ndarray], labels: Sequence[str],
+                  count: int, notes) -> None:
+    """Raise a one-line :class:`LbshapeError` unless there is one label and one
+    (count, n, 3) displacement array per panel (and, with ``notes``, count × panels)."""
+    k = len(runs)
+    if k == 0 or len(labels) != k:
+        raise LbshapeError(f"give one label per panel: {k} panels, {len(labels)} labels")
+    expected = (count, rest.n_vertices, 3)
+    if count == 0 or any(u.shape != expected for u in runs):
+        raise LbshapeError(f"each panel needs displacements of shape {expected}, got "
+                           f"{[u.shape for u in runs]}")
+    if notes is not None and (len(notes) != count or any(len(n) != k for n in notes)):
+        raise LbshapeError(f"notes must be {count} frames x {k} panels of captions")
+
+
+def _animation_panel(plotter, pv, panel: int, base, first_values: np.ndarray, scalar_name: str,
+                     clim, ghost: bool, rectangles, view_vector, bounds):
+    """Panel ``panel`` of :func:`animation_frames`: a copy of the surface ``base`` coloured
+    by ``first_values`` (its vertices' |u| in the first frame), the rest shape as a ghost,
+    the planes, and the camera that frames every frame; returns the surface to move."""
+    plotter.subplot(0, panel)
+    surface = base.copy()
+    surface.point_data[scalar_name] = first_values
+    plotter.add_mesh(surface, scalars=scalar_name, cmap="viridis", clim=clim, show_edges=True,
+                     edge_color="#333333", line_width=0.3, show_scalar_bar=False)
+    if ghost:
+        plotter.add_mesh(base.copy(), style="wireframe", color="#888888", opacity=0.25,
+                         line_width=0.5)
+    _add_rectangles(plotter, pv, rectangles)
+    _set_camera(plotter, view_vector, bounds=bounds)  # every frame in view; the camera stays
+    return surface
 
 
 def render_animation(
