@@ -289,14 +289,6 @@ def run_full_space(scene: Scene, pre: Precomputed, *, steps: int, stride: int = 
         return exc.partial
 
 
-def run_method(scene: Scene, pre: Precomputed, *, method: str, steps: int,
-               stride: int = 1) -> RunRecord:
-    """Run ``scene`` with one of :data:`METHODS`; a solver failure gives ``stable`` False."""
-    if method == "full":
-        return run_full_space(scene, pre, steps=steps, stride=stride)
-    return reduced_simulation(scene, pre, method=method).run(steps, stride=stride)
-
-
 def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
              steps: int | None = None, out: Path | None = None,
              influence: bool = False, progress: bool = False,
