@@ -42,6 +42,21 @@ Examples equal to the rest shape are not "no examples": the example force
 influence is ``k_ex / (ω² + k_ex)`` for a mode of angular frequency ω (a stiffer
 object); without loads they leave the object at rest (influence 0).
 
+**What a person sees.** The influence is relative to the no-example motion and can
+be large while nothing visible changes (a run that barely moves). Two measures read
+like the picture:
+
+* ``visible_change = max_i ‖u_ex,i(T) − u_none,i(T)‖ / D``: the largest vertex
+  distance between the final shapes with and without examples over the rest
+  bounding-box diagonal D (a free body: deformations, best rigid fit removed);
+* ``closest_example``: which shape the final shape ends closest to in shape space,
+  the rest shape (``"rest"``) or an example (its index in the scene's ``[examples]``):
+  the smallest ``‖d − e_k‖`` over the example descriptors e_k and ``‖d‖`` for rest
+  (``example_distances`` lists them, relative to ``max_k ‖e_k‖``). With local
+  examples, per region (``{region: …}``), on the region's descriptors
+  (:func:`lbshape.shapespace.local_examples.region_descriptor`), among the rest and
+  the region's own examples.
+
 The twist of a bar's end (:func:`end_twist_degrees`) is the number a reader of
 the paper's Figure 3 looks for; it is reported next to the influence by the
 pictures and the demo.
@@ -51,6 +66,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,7 +77,7 @@ from lbshape.errors import LbshapeError
 from lbshape.pipeline.precomputed import Precomputed
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.interpolation import simplex_weights
-from lbshape.shapespace.local_examples import region_example_distance
+from lbshape.shapespace.local_examples import region_descriptor, region_example_distance
 
 #: M-norm differences below ROUNDOFF × sqrt(mass) × bounding-box diagonal count as none
 ROUNDOFF = 1e-12
@@ -69,7 +85,10 @@ ROUNDOFF = 1e-12
 STATS_KEYS: tuple[str, ...] = (
     "example_influence", "example_influence_max", "example_residual", "example_residual_none",
     "influence_frame", "example_influence_world", "example_influence_world_max",
+    "visible_change", "closest_example", "example_distances",
 )
+#: the label of the rest shape among the candidates of ``closest_example``
+REST = "rest"
 #: what ``example_influence`` measures: world displacement (fixed) or deformation (free)
 FRAMES: tuple[str, ...] = ("world", "body")
 
@@ -89,6 +108,13 @@ class Influence:
         world_final: ``final`` of the world displacements (None if undefined; the
             same as ``final`` when ``frame == "world"``).
         world_maximum: ``maximum`` of the world displacements.
+        visible_change: largest vertex distance between the final shapes (m) over the
+            rest bounding-box diagonal (free bodies: deformations).
+        closest_example: ``"rest"`` or the index of the example the final shape with
+            examples is closest to in shape space; local examples: ``{region: …}``.
+        example_distances: the descriptor distances behind ``closest_example``
+            (``{"rest": …, "0": …}``, relative to the largest example; local examples:
+            per region).
     """
 
     final: float | None
@@ -98,6 +124,9 @@ class Influence:
     frame: str = "world"
     world_final: float | None = None
     world_maximum: float | None = None
+    visible_change: float | None = None
+    closest_example: object = None
+    example_distances: dict | None = None
 
     def __post_init__(self):
         if self.frame not in FRAMES:
@@ -107,7 +136,9 @@ class Influence:
         """The :data:`STATS_KEYS` entries of ``stats.json``."""
         return dict(zip(STATS_KEYS, (self.final, self.maximum, self.residual,
                                      self.residual_none, self.frame, self.world_final,
-                                     self.world_maximum), strict=True))
+                                     self.world_maximum, self.visible_change,
+                                     self.closest_example, self.example_distances),
+                        strict=True))
 
 
 def mass_norms(u: np.ndarray, mass) -> np.ndarray:
@@ -196,6 +227,64 @@ def local_residual(pre: Precomputed, u: np.ndarray) -> float:
                for region in pre.local.regions)
 
 
+def visible_change(points: np.ndarray, shape_ex: np.ndarray, shape_none: np.ndarray) -> float:
+    """Largest vertex distance between two shapes over the rest bounding-box diagonal.
+
+    Args:
+        points: (n, 3) rest positions X (m).
+        shape_ex, shape_none: (n, 3) displacements (m) of the same vertices (a free
+            body's deformations, :func:`body_deformations`).
+    """
+    points = np.asarray(points, dtype=float)
+    diagonal = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    distance = np.linalg.norm(np.asarray(shape_ex) - np.asarray(shape_none), axis=1)
+    return float(distance.max()) / diagonal
+
+
+def nearest_shape(d: np.ndarray, examples: np.ndarray,
+                  labels: Sequence[int] | None = None) -> tuple[object, dict]:
+    """Which of the rest shape (descriptor 0) and the examples a descriptor is closest to.
+
+    Args:
+        d: (3m,) a shape's descriptor.
+        examples: (k, 3m) the example descriptors e_k.
+        labels: (k,) the examples' indices in the scene (default 0…k−1).
+
+    Returns:
+        ``(closest, distances)``: ``"rest"`` or the closest example's label, and
+        ``{"rest": ‖d‖/s, "<label>": ‖d − e_k‖/s}`` with s = ``max_k ‖e_k‖``.
+    """
+    examples = np.atleast_2d(np.asarray(examples, dtype=float))
+    labels = list(range(len(examples))) if labels is None else [int(k) for k in labels]
+    scale = float(np.linalg.norm(examples, axis=1).max()) or 1.0
+    distances = {REST: float(np.linalg.norm(d)) / scale}
+    for label, e in zip(labels, examples, strict=True):
+        distances[str(label)] = float(np.linalg.norm(d - e)) / scale
+    closest = min(distances, key=distances.get)
+    return (closest if closest == REST else int(closest)), distances
+
+
+def closest_example(pre: Precomputed, u: np.ndarray, example_descriptors=None
+                    ) -> tuple[object, dict]:
+    """:func:`nearest_shape` of the shape u (n, 3) (a free body's deformation) among the
+    rest and the scene's examples; local examples: per region (``{region: …}``).
+
+    ``example_descriptors`` (k, 3m) replaces ``pre``'s, e.g. those of the whole
+    scene's examples for a run with one of them (same object, same LB basis).
+    """
+    if pre.has_local_examples and example_descriptors is None:
+        closest, distances = {}, {}
+        for region in pre.local.regions:
+            d = region_descriptor(pre.mesh, region, u)
+            E = region.example_descriptors(pre.material.density)
+            closest[region.name], distances[region.name] = nearest_shape(d, E, region.examples)
+        return closest, distances
+    examples = pre.example_descriptors if example_descriptors is None else example_descriptors
+    if examples is None:
+        raise LbshapeError(f"scene {pre.scene!r} has no examples to be closest to")
+    return nearest_shape(descriptor(pre, u), examples)
+
+
 def has_example_force(scene: Scene, pre: Precomputed) -> bool:
     """True when the scene's examples act on its motion (examples and ``k_ex > 0``)."""
     active = pre.has_examples or pre.has_local_examples
@@ -243,14 +332,19 @@ def compare_runs(pre: Precomputed, with_ex, without, mass=None) -> Influence:
         shape_ex = body_deformations(scalar_mass, points, shape_ex)
         shape_none = body_deformations(scalar_mass, points, shape_none)
         final, maximum = trajectory_influence(shape_ex, shape_none, mass, atol=atol)
-    residual = residual_none = None  # of the final shape (a free body's deformation)
-    if pre.has_examples:
+    residual = residual_none = closest = distances = None
+    change = visible_change(points, shape_ex[-1], shape_none[-1])
+    if pre.has_examples or pre.has_local_examples:
+        closest, distances = closest_example(pre, shape_ex[-1])
+    if pre.has_examples:  # residuals of the final shape (a free body's deformation)
         residual = manifold_residual(pre, shape_ex[-1])
         residual_none = manifold_residual(pre, shape_none[-1])
     elif pre.has_local_examples:
         residual = local_residual(pre, shape_ex[-1])
         residual_none = local_residual(pre, shape_none[-1])
-    return Influence(final, maximum, residual, residual_none, frame, *world)
+    return Influence(final, maximum, residual, residual_none, frame, *world,
+                     visible_change=change, closest_example=closest,
+                     example_distances=distances)
 
 
 def end_twist_degrees(points: np.ndarray, u: np.ndarray, *, axis: int = 2,

@@ -41,10 +41,13 @@ from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import output_root
 from lbshape.pipeline.influence import (
+    REST,
     body_deformations,
+    closest_example,
     compare_runs,
     end_twist_degrees,
     has_example_force,
+    visible_change,
 )
 from lbshape.pipeline.meshes import example_mesh
 from lbshape.pipeline.precompute import precompute
@@ -218,14 +221,16 @@ def _region_labels(pre) -> np.ndarray:
     return labels
 
 
-def _local_example_shape(pre, index: int) -> np.ndarray | None:
+def _local_example_shape(pre, index: int | Sequence[int]) -> np.ndarray | None:
     """(n, 3) the object with every region that example ``index`` guides in that
     example's region shape, attached at the region's anchor as the runtime attaches
-    its targets (the rest state's rigid fit); None if no region uses it."""
+    its targets (the rest state's rigid fit); None if no region uses it. Several
+    indices: each region in the first of them that it uses."""
     mesh = pre.mesh
+    indices = [index] if np.isscalar(index) else list(index)
     u, count = np.zeros((mesh.n_vertices, 3)), np.zeros(mesh.n_vertices)
     for region in pre.local.regions:
-        hits = np.flatnonzero(region.examples == index)
+        hits = np.flatnonzero(np.isin(region.examples, indices))
         if hits.size == 0:
             continue
         shape = region.displacement(region.example_coefficients[hits[0]]).reshape(-1)
@@ -286,21 +291,24 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
         scalar_name="|x_k - X| (m)", window_size=(480 * (len(shapes) + 1), 560),
         view_vector=view)
     method = output.stats.get("method", "reduced")
-    none_scene = dataclasses.replace(
-        scene, examples=dataclasses.replace(scene.examples, stiffness=0.0))
-    none = simulate(none_scene, pre, method=method, steps=output.stats["steps"])
+    effect, none = example_influence(scene, pre, output, method=method,
+                                     steps=output.stats["steps"])
     u_none, u_ex = none.displacements[-1], output.displacements[-1]
-    mass = mass_matrix(pre.mesh, pre.material.density)
-    diff, ref = (u_ex - u_none).reshape(-1), u_none.reshape(-1)
-    influence = float(np.sqrt(diff @ (mass @ diff)) / np.sqrt(ref @ (mass @ ref)))
+    influence = effect.final
     t = output.times[-1]
+    strongest = [int(region.examples[0]) for region in pre.local.regions]
+    closest = ", ".join(f"{name} {'rest' if k == REST else k}"
+                        for name, k in effect.closest_example.items())
     result_png = render_shapes(
-        [pre.mesh, _deformed(pre, u_none), _deformed(pre, u_ex)],
-        ["rest", f"no examples ({method}) t={t:.2f} s",
-         f"local examples ({method}) t={t:.2f} s, influence {influence:.2f}"],
+        [pre.mesh, _deformed(pre, _local_example_shape(pre, strongest)),
+         _deformed(pre, u_none), _deformed(pre, u_ex)],
+        ["rest", f"examples {sorted(set(strongest))} on their regions",
+         f"no examples ({method}) t={t:.2f} s",
+         f"local examples ({method}) t={t:.2f} s, influence {influence:.2f}\n"
+         f"visible change {100 * effect.visible_change:.1f} %\nclosest: {closest}"],
         out_dir / "local_result.png",
-        scalars=[None, np.linalg.norm(u_none, axis=1), np.linalg.norm(u_ex, axis=1)],
-        window_size=(1500, 640), view_vector=view)
+        scalars=[None, None, np.linalg.norm(u_none, axis=1), np.linalg.norm(u_ex, axis=1)],
+        window_size=(1800, 640), view_vector=view)
     regions = {}
     for region in pre.local.regions:
         d_none, w_none = region_example_distance(pre.mesh, region, u_none,
@@ -316,7 +324,9 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
         }
     summary = write_json_atomic(out_dir / "local_examples.json", {
         "scene": scene.name, "method": method, "steps": output.stats["steps"],
-        "time_s": float(t), "example_influence": influence, "regions": regions,
+        "time_s": float(t), "example_influence": influence,
+        "visible_change": effect.visible_change, "closest_example": effect.closest_example,
+        "example_distances": effect.example_distances, "regions": regions,
         "covered_volume_fraction": pre.local.covered,
         "representation_errors": pre.local.representation_errors,
     })
@@ -425,12 +435,19 @@ class Figure5:
     """The paper's Figure 5: a free body's reaction with no example and each example alone.
 
     Attributes:
-        path: the PNG (rows: runs; columns: times).
+        path: the PNG (rows: runs; first column: the row's example on the object, then
+            times).
         labels: (k+1,) run names, the first without examples.
         influence_world: (k,) ``‖u_ex(T) − u_none(T)‖_M / ‖u_none(T)‖_M`` of the world
             displacements at the last frame.
         influence_body: (k,) the same on the body-frame deformation (best rigid fit
             removed), what the examples act on.
+        visible_change: (k,) largest vertex distance between the final deformations
+            with the example and without, over the rest bounding-box diagonal
+            (:func:`lbshape.pipeline.influence.visible_change`).
+        closest: (k+1,) per run, ``"rest"`` or the index of the scene's example its
+            final deformation is closest to in shape space (among all the scene's
+            examples; :func:`lbshape.pipeline.influence.closest_example`).
         messages: per run, the solver failure message ('' if it finished).
     """
 
@@ -438,6 +455,8 @@ class Figure5:
     labels: tuple[str, ...]
     influence_world: tuple[float, ...]
     influence_body: tuple[float, ...]
+    visible_change: tuple[float, ...]
+    closest: tuple[object, ...]
     messages: tuple[str, ...]
 
 
@@ -446,52 +465,84 @@ def _scalar_mass(pre):
     return mass_matrix(pre.mesh, pre.material.density)[0::3, 0::3]
 
 
+def _closest_caption(closest, names: Sequence) -> str:
+    """``closest: rest`` / ``closest: arc`` (a name) / ``closest: example 1`` (an index)
+    for :func:`closest_example`'s answer, ``names[k]`` naming example k."""
+    if closest == REST:
+        return "closest: rest"
+    name = names[int(closest)]
+    return f"closest: example {name}" if isinstance(name, int | np.integer) else \
+        f"closest: {name}"
+
+
 def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 4,
             progress: bool = False) -> Figure5:
     """Runs a free scene with no example and with each of its examples alone, side by side.
 
     Each variant has its own precompute (the example set is part of the cache key).
-    Panels are coloured by the body-frame deformation (best rigid fit removed).
-    Numbers go to ``<path stem>.json`` next to the PNG.
+    Row k starts with example k reconstructed on the object (grey; the first row: the
+    rest shape), then ``frames`` times of the run, coloured by the body-frame
+    deformation (best rigid fit removed) on one colour range, under one fixed camera,
+    with the contact planes. Each row's last caption gives the shape the run ends
+    closest to (among the rest shape and *all* the scene's examples, on the whole
+    scene's LB descriptors) and its visible change. Numbers go to
+    ``<path stem>.json`` next to the PNG.
     """
     if not scene.has_examples or not scene.is_free:
         raise LbshapeError(f"scene {scene.name}: Figure 5 needs a free body with examples")
+    every = precompute(scene, progress=progress)  # all examples: the candidates of 'closest'
+    names = [pose.pose or f"posed {k}" for k, pose in enumerate(scene.examples.poses)]
     variants = [("no example", dataclasses.replace(scene, examples=None))]
     for pose in scene.examples.poses:
         single = Examples(scene.examples.stiffness, (pose,))
         variants.append((f"{pose.pose or 'posed'} example", dataclasses.replace(
             scene, examples=single)))
-    rows, labels, scalars, finals, messages, outputs = [], [], [], [], [], []
-    pre = None
-    for name, variant in variants:
+    scalar_mass = _scalar_mass(every)
+    rest = every.mesh.points
+    rows, labels, scalars, bodies, messages, outputs, closest = [], [], [], [], [], [], []
+    for index, (name, variant) in enumerate(variants):
         pre = precompute(variant, progress=progress)
         output = simulate(variant, pre, method="reduced", steps=steps)
         messages.append(output.message)
         count = len(output.times)
         picks = np.unique(np.linspace(0, count - 1, frames + 1).round().astype(int)[1:])
-        rows.append([_deformed(pre, output.displacements[i]) for i in picks])
-        labels.append([f"{name} t={output.times[i]:.2f} s" for i in picks])
-        picked = body_deformations(_scalar_mass(pre), pre.mesh.points,
-                                   np.asarray(output.displacements)[picks])
-        scalars.append(list(np.linalg.norm(picked, axis=2)))
-        finals.append(output.displacements[-1])
+        shown = rest if index == 0 else every.example_rest_points(index - 1)
+        picked = body_deformations(scalar_mass, rest, np.asarray(output.displacements)[picks])
+        final = picked[-1]
+        closest.append(closest_example(every, final, every.example_descriptors)[0])
+        rows.append([every.mesh.with_points(shown),
+                     *(_deformed(pre, output.displacements[i]) for i in picks)])
+        captions = [f"{name} t={output.times[i]:.2f} s" for i in picks]
+        captions[-1] += f"\n{_closest_caption(closest[-1], names)}"
+        labels.append(["rest shape" if index == 0 else f"example: {names[index - 1]}",
+                       *captions])
+        scalars.append([None, *np.linalg.norm(picked, axis=2)])
+        bodies.append(final)
         outputs.append(output)
-    mass = mass_matrix(pre.mesh, pre.material.density)
-    body = body_deformations(mass[0::3, 0::3], pre.mesh.points, np.asarray(finals))
+    mass = mass_matrix(every.mesh, every.material.density)
+    finals = [output.displacements[-1] for output in outputs]
     world = [float(m_norms((u - finals[0])[None], mass)[0] / m_norms(finals[0][None], mass)[0])
              for u in finals[1:]]
-    deformation = [float(m_norms((b - body[0])[None], mass)[0] / m_norms(body[0][None], mass)[0])
-                   for b in body[1:]]
+    deformation = [float(m_norms((b - bodies[0])[None], mass)[0]
+                         / m_norms(bodies[0][None], mass)[0]) for b in bodies[1:]]
+    visible = [visible_change(rest, b, bodies[0]) for b in bodies[1:]]
+    for row, change in zip(labels[1:], visible, strict=True):
+        row[-1] += f", visible change {100 * change:.1f} %"
     path = render_shape_grid(rows, labels, path, scalars=scalars, planes=scene_planes(scene),
                              view_vector=(0.3, -1.0, 0.35), zoom=1.1,
                              scalar_name="deformation (m)",
-                             extent=trajectory_points(pre, outputs))
+                             extent=trajectory_points(every, outputs))
     result = Figure5(Path(path), tuple(n for n, _ in variants), tuple(world),
-                     tuple(deformation), tuple(messages))
+                     tuple(deformation), tuple(visible), tuple(closest), tuple(messages))
+    runs = list(result.labels)
     write_json_atomic(Path(path).with_suffix(".json"), {
-        "scene": scene.name, "runs": list(result.labels), "steps": steps,
-        "influence_world_final": dict(zip(result.labels[1:], world, strict=True)),
-        "influence_body_frame_final": dict(zip(result.labels[1:], deformation, strict=True)),
+        "scene": scene.name, "runs": runs, "steps": steps,
+        "examples": names,
+        "influence_world_final": dict(zip(runs[1:], world, strict=True)),
+        "influence_body_frame_final": dict(zip(runs[1:], deformation, strict=True)),
+        "visible_change": dict(zip(runs[1:], visible, strict=True)),
+        "closest_example": dict(zip(runs, closest, strict=True)),
+        "each_run_closest_to_its_example": all(c == k for k, c in enumerate(closest[1:])),
         "messages": list(messages),
     })
     return result
@@ -509,7 +560,8 @@ def comparison_figure(pre, runs: Sequence[tuple[str, object]], path: str | Path,
                       frame: int = -1, twist: bool = False,
                       view_vector: tuple[float, float, float] = (1.0, -1.0, 0.5),
                       view_up: tuple[float, float, float] | None = None,
-                      zoom: float = 1.0, planes=(), fixed_camera: bool = False) -> Path:
+                      zoom: float = 1.0, planes=(), fixed_camera: bool = False,
+                      examples: Sequence[tuple[str, np.ndarray]] = ()) -> Path:
     """One frame of several runs of a scene side by side, after the rest shape.
 
     Args:
@@ -524,6 +576,9 @@ def comparison_figure(pre, runs: Sequence[tuple[str, object]], path: str | Path,
             the runs' whole trajectories.
         fixed_camera: one camera framing the runs' whole trajectories (free bodies);
             implied by ``planes``.
+        examples: ``(caption, points (n, 3))`` shapes drawn plain grey after the rest
+            shape (e.g. the examples reconstructed on the object), so that the runs can
+            be compared with them.
 
     Each panel shows the rest shape as a faint wireframe and is coloured by |u| on
     one shared scale; its caption gives the time (and the twist).
@@ -536,8 +591,10 @@ def comparison_figure(pre, runs: Sequence[tuple[str, object]], path: str | Path,
         words = _twist_caption(pre, u) if twist else ""
         labels.append(f"{caption}\nt = {output.times[frame]:.2f} s" + (f", {words}" if words
                                                                          else ""))
-    meshes = [pre.mesh, *(_deformed(pre, u) for u in finals)]
-    scalars = [None, *(np.linalg.norm(u, axis=1) for u in finals)]
+    labels[1:1] = [caption for caption, _ in examples]
+    meshes = [pre.mesh, *(pre.mesh.with_points(points) for _, points in examples),
+              *(_deformed(pre, u) for u in finals)]
+    scalars = [None, *(None for _ in examples), *(np.linalg.norm(u, axis=1) for u in finals)]
     extent = (trajectory_points(pre, [output for _, output in runs])
               if fixed_camera or len(planes) else None)
     size = (330 * len(meshes), 560) if extent is None else (460 * len(meshes), 440)
@@ -584,12 +641,18 @@ def examples_comparison(scene, pre, output, path: str | Path, *,
     influence, none = example_influence(scene, pre, output, method=method, steps=steps)
     final = "undefined" if influence.final is None else f"{influence.final:.2f}"
     frame = " (deformation)" if influence.frame == "body" else ""
+    names = [example_caption(k, pose) for k, pose in enumerate(scene.examples.poses)]
     runs = [(f"{scene.name}: no examples ({method})", none),
-            (f"examples ({method}), influence{frame} {final}", output)]
+            (f"examples ({method}), influence{frame} {final}\n"
+             f"visible change {100 * influence.visible_change:.1f} %, "
+             f"{_closest_caption(influence.closest_example, range(len(names)))}", output)]
+    shown = [(f"{names[k]} (on object)", pre.example_rest_points(k))
+             for k in range(len(pre.example_names))]
     extent = np.ptp(pre.mesh.points, axis=0)
     bar = not scene.is_free and extent[2] >= 2.5 * max(extent[0], extent[1])
     free = {"fixed_camera": True, "zoom": TRAJECTORY_ZOOM} if scene.is_free else {}
-    png = comparison_figure(pre, runs, path, twist=bar, planes=scene_planes(scene), **free)
+    png = comparison_figure(pre, runs, path, twist=bar, planes=scene_planes(scene),
+                            examples=shown, **free)
     write_json_atomic(Path(path).with_suffix(".json"), {
         "scene": scene.name, "method": method, "steps": output.stats["steps"],
         "time_s": float(output.times[-1]), "panels": ["rest", *(c for c, _ in runs)],

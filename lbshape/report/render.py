@@ -290,7 +290,8 @@ def render_shape_grid(
         rows: ``rows[i][j]`` the mesh of panel (i, j).
         labels: captions, same layout.
         path: output PNG.
-        scalars: optional per-vertex values (n,), same layout.
+        scalars: optional per-vertex values (n,), same layout; a None panel is drawn
+            plain grey (e.g. an example's shape beside the runs).
         planes: (point (3,), normal (3,)) contact planes, drawn as translucent rectangles
             sized to ``extent`` (:func:`plane_rectangles`).
         zoom: camera zoom factor.
@@ -300,7 +301,7 @@ def render_shape_grid(
     n_rows, n_cols = len(rows), max(len(r) for r in rows)
     plotter = _plotter(pv, shape=(n_rows, n_cols), window_size=(330 * n_cols, 300 * n_rows),
                        border=False)
-    values = [v for row in (scalars or []) for v in row]
+    values = [v for row in (scalars or []) for v in row if v is not None]
     clim = (0.0, float(max(np.max(v) for v in values)) or 1.0) if values else None
     if extent is None:
         extent = np.vstack([m.points for row in rows for m in row])
@@ -310,9 +311,10 @@ def render_shape_grid(
     for i, row in enumerate(rows):
         for j, mesh in enumerate(row):
             plotter.subplot(i, j)
-            data = {scalar_name: scalars[i][j]} if scalars is not None else None
+            value = scalars[i][j] if scalars is not None else None
+            data = {scalar_name: value} if value is not None else None
             surface = to_grid(mesh, data).extract_surface(algorithm="dataset_surface")
-            if scalars is not None:
+            if value is not None:
                 plotter.add_mesh(surface, scalars=scalar_name, cmap="viridis", clim=clim,
                                  show_edges=True, edge_color="#333333", line_width=0.2,
                                  show_scalar_bar=False)
