@@ -78,7 +78,7 @@ from lbshape.dynamics.contact import ContactPlane, surface_vertices
 from lbshape.dynamics.integrators import make_stepper
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.record import RunRecord, RunRecorder
-from lbshape.dynamics.rigid_frame import best_rigid_frame, cayley
+from lbshape.dynamics.rigid_frame import best_rigid_frame
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.modes import rigid_body_modes
@@ -295,6 +295,9 @@ class FullSpaceSimulator:
         self._b = np.zeros(self.free_dofs.size)
         self.target_coefficients: np.ndarray | None = None
         self.weights: np.ndarray | None = None
+        #: free body, global examples: the target shape Y (n, 3) of the step and its centre
+        self._target_body: np.ndarray | None = None
+        self._target_center: np.ndarray | None = None
         if examples is None:
             return
         try:
@@ -378,7 +381,11 @@ class FullSpaceSimulator:
             if Kc is not None:
                 f = f + fc[self.free_dofs]
                 K = (K + Kc[self.free_dofs][:, self.free_dofs]).tocsr()
-        if self._k_ex:
+        if self._k_ex and self._target_body is not None:  # free body, global examples
+            gap = self._free_gap(x)
+            f = f + self._k_ex * (self._spring_ff @ gap)
+            K = K + self._kM_ff
+        elif self._k_ex:
             f = f + self._k_ex * (self._spring_ff @ x)
             K = K + self._kM_ff
         stepper = getattr(self, "stepper", None)  # None while the stepper is set up
@@ -406,9 +413,21 @@ class FullSpaceSimulator:
         energy = self.elastic.energy(self.full_displacement(x).reshape(-1))
         if self.contact is not None:
             energy += self.contact.evaluate(self.full_displacement(x).reshape(-1))[2]
-        if self._k_ex:
+        if self._k_ex and self._target_body is not None:
+            gap = self._free_gap(x)
+            energy += 0.5 * self._k_ex * float(gap @ (self._spring_ff @ gap))
+        elif self._k_ex:
             energy += 0.5 * self._k_ex * float(x @ (self._spring_ff @ x))
         return energy
+
+    def _free_gap(self, x: np.ndarray) -> np.ndarray:
+        """(3n,) ``x_world − T(x)``: a free body's positions minus the target shape placed
+        by its mass-weighted best rigid fit onto them (see :meth:`_update_free_target`)."""
+        n = self.n_vertices
+        positions = self.mesh.points + x.reshape(n, 3)
+        center, R, _ = best_rigid_frame(self._scalar_mass, self._target_body, positions)
+        placed = center + (self._target_body - self._target_center) @ R.T
+        return (positions - placed).ravel()
 
     def _external(self, t: float) -> np.ndarray:
         scales = np.array([profile(t) for profile in self._load_profiles])
@@ -438,27 +457,32 @@ class FullSpaceSimulator:
         self._rigid_modes = (rigid, np.asarray(self.mass @ rigid))
 
     def _update_free_target(self, u: np.ndarray) -> None:
-        """Free body: the shape is compared in the best-fitting rigid frame.
+        """Free body: the shape is compared in the best-fitting rigid frame, and the
+        example force acts on the deformation only.
 
         With the scalar mass M₁, the centre of mass ``c = Σ M₁ x / m`` and the rotation
         R of the polar decomposition of ``Σ M₁ (x − c) X̄ᵀ`` (mass-weighted Kabsch fit of
         the rest shape X̄ = X − X_cm to x; then ``Σ M X̄ × u_b = 0``, the frame of the
         reduced method's rigid-free basis), the body-frame displacement
-        ``u_b = Rᵀ (x − c) − X̄`` gives the weights and the target ``c*``. The target
-        shape ``L c*`` loses its rigid content (M-orthogonal projection on the rest
-        shape's rigid motions, as the projection on U does in the reduced method) and
-        the target world displacement ``c + R (X̄ + Π L c*) − X`` is pulled towards by
-        k_ex M, with c and R carried to the end of the step by the body's rigid velocity
-        (the pull is held fixed in the implicit step: a frame lagging by one step
-        would brake a moving body by ``k_ex m v Δt``).
+        ``u_b = Rᵀ (x − c) − X̄`` gives the weights and the target ``c*`` (held for the
+        step). The target shape ``Y = X̄ + Π L c*`` loses its rigid content (M-orthogonal
+        projection Π on the rest shape's rigid motions, as the projection on U does in
+        the reduced method). The example energy is rigid-invariant,
+        ``½ k_ex min_{c,R} ‖x − (c + R Y)‖²_M``: its force ``k_ex M (x − T(x))``, with
+        ``T(x) = c(x) + R(x) Y`` the target placed by its best rigid fit onto the
+        current positions (:meth:`_free_gap`, evaluated at every Newton iterate), has
+        no net force and no net torque — an internal force, as ``k_ex (q* − q)`` on the
+        rigid-free basis is in the reduced method. (A pull towards a frame fixed during
+        the step would hold the body's rigid motion with stiffness k_ex; at the car's
+        k_ex that changed its angular momentum in free flight.) The Newton tangent
+        keeps ``k_ex M``, exact but for the fit's motion, so Newton converges.
         """
         n = self.n_vertices
         if not hasattr(self, "_scalar_mass"):
             self._init_rigid_fit()
         rest = self.mesh.points
         x = rest + u.reshape(n, 3)
-        center, R, body = best_rigid_frame(self._scalar_mass, rest, x)
-        Xbar = (x - center) @ R - body  # rest shape about its centre of mass
+        _, _, body = best_rigid_frame(self._scalar_mass, rest, x)
         weights = simplex_weights(self._example_descriptors, self._descriptor @ body.ravel())
         c_star = self._target_solver.solve(weights).z
         self.weights = weights
@@ -466,21 +490,10 @@ class FullSpaceSimulator:
         shape = self._lb_basis @ c_star
         rigid, mass_rigid = self._rigid_modes
         shape = shape - rigid @ (mass_rigid.T @ shape)  # no rigid content, as U in reduced
-        target_body = Xbar + shape.reshape(n, 3)
-        # the pull acts at the end of the step: carry the frame along with the body's
-        # rigid velocity (centre-of-mass velocity, ω = I⁻¹ L), else it drags the body
-        v = self.stepper.v.reshape(n, 3) if self.stepper.v.size == 3 * n else None
-        if v is not None:
-            arm = x - center
-            Mv = np.asarray(self._scalar_mass @ v)
-            mass_total = float(self._scalar_mass.sum())
-            Y = arm.T @ np.asarray(self._scalar_mass @ arm)
-            inertia = np.trace(Y) * np.eye(3) - Y
-            omega = np.linalg.solve(inertia, np.cross(arm, Mv).sum(axis=0))
-            center = center + self.stepper.dt * Mv.sum(axis=0) / mass_total
-            R = cayley(self.stepper.dt * omega) @ R
-        target = (center + target_body @ R.T - rest).ravel()
-        self._b = self._k_ex * (self.mass @ target)
+        self._target_body = rest + shape.reshape(n, 3)
+        weights_m = np.asarray(self._scalar_mass.sum(axis=1)).ravel()
+        self._target_center = weights_m @ self._target_body / weights_m.sum()
+        self._b = np.zeros(self.free_dofs.size)
 
     # ------------------------------------------------------------------- run
     def run(

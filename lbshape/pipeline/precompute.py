@@ -64,6 +64,7 @@ import scipy.sparse as sp
 from mpi4py import MPI
 
 from lbshape.dynamics.fictitious import frame_tensors
+from lbshape.dynamics.rigid_frame import best_rigid_frame
 from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
 from lbshape.elastic.cubature import (
     Cubature,
@@ -396,14 +397,34 @@ def _embed_examples(scene: Scene, mesh: TetMesh, spectrum: LBSpectrum) -> Embedd
     return EmbeddedExamples(coefficients, alignments)
 
 
+def deformation_coefficients(points: np.ndarray, eigenvectors: np.ndarray, volume_mass,
+                             coefficients: np.ndarray) -> np.ndarray:
+    """(m, 3) LB coefficients of an example's *deformation*: the displacement ``Φ c``
+    (n, 3) (m) with its best rigid fit removed
+    (:func:`~lbshape.dynamics.rigid_frame.best_rigid_frame`, the frame a free body's
+    runtime and its measures use), ``Φᵀ M₁ u_body`` (Φ (n, m), M₁ the volume mass).
+
+    A free body's shape space: its basis U holds no rigid motion and its state is
+    compared in the body frame, so an example posed with a rotation (an arc keeping
+    one end in place) must pull towards its shape, not towards that rotation.
+    """
+    u = eigenvectors @ np.asarray(coefficients, dtype=float).reshape(eigenvectors.shape[1], 3)
+    body = best_rigid_frame(volume_mass, points, points + u)[2]
+    return eigenvectors.T @ (volume_mass @ body)
+
+
 def _projections(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.ndarray,
                  spectrum: LBSpectrum, embedded: EmbeddedExamples) -> Projections:
     """The ``projections`` stage: the shape space and the clamped basis' projection,
     both ``T = Uᵀ M L`` (:func:`~lbshape.shapespace.projections.reduced_projection`)."""
     density = scene.material.density
+    coefficients = embedded.coefficients
+    if scene.is_free:
+        coefficients = [deformation_coefficients(mesh.points, spectrum.eigenvectors,
+                                                 spectrum.mass, c) for c in coefficients]
     space = make_shape_space(
         spectrum.eigenvalues, spectrum.eigenvectors, spectrum.mass, mesh.points, U,
-        embedded.coefficients, embedded.alignments,
+        coefficients, embedded.alignments,
         [example_label(p) for p in scene.examples.poses], density=density,
     )
     phi_clamped = clamped_eigenvectors(spectrum.eigenvectors, fixed, mesh.points)
