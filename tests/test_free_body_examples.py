@@ -15,9 +15,9 @@ import pytest
 
 from lbshape.dynamics.rigid_frame import best_rigid_frame, cayley
 from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.geometry.primitives import structured_box
 from lbshape.pipeline.precompute import deformation_coefficients, precompute
 from lbshape.pipeline.simulate import simulate
-from lbshape.geometry.primitives import structured_box
 from lbshape.scene.reader import scene_from_dict
 from lbshape.spectral.spectrum import lb_spectrum
 
