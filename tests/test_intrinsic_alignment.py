@@ -30,7 +30,6 @@ from lbshape.shapespace.functional_map import (
     coupling_problem,
     descriptor_functions,
     normalised_coordinates,
-    polar,
     solve_map,
     spectral_distortion,
 )
@@ -79,8 +78,8 @@ KNOWN_MAPS = {
     "stretched 2x": (lambda: structured_box((0.2, 0.2, 2.0), (4, 4, 24)), "intrinsic", 0.19,
                      0.03),  # 0.093, 0.014
     "cylinder 5:1": (lambda: cylinder(0.1128, 1.0, 0.06), "overlay", 0.21, 0.23),  # 0.102, 0.112
-    "cylinder 8:1": (lambda: cylinder(0.1128, 1.8, 0.06), "intrinsic", 0.36, 0.3),  # 0.176, 0.147
-    "cylinder 2:1": (lambda: cylinder(0.2, 0.8, 0.08), "intrinsic", 0.5, 0.15),  # 0.266, 0.072
+    "cylinder 8:1": (lambda: cylinder(0.1128, 1.8, 0.06), "intrinsic", 0.36, 0.3),  # 0.160, 0.140
+    "cylinder 2:1": (lambda: cylinder(0.2, 0.8, 0.08), "intrinsic", 0.5, 0.16),  # 0.274, 0.079
     "finer": (lambda: structured_box((0.2, 0.2, 1.0), (6, 6, 24)), "overlay", 0.07, 0.12),
     "coarser": (lambda: structured_box((0.2, 0.2, 1.0), (3, 3, 10)), "overlay", 0.19, 0.2),
 }
@@ -180,7 +179,7 @@ def test_example_of_other_proportions_asks_for_the_same_twist(bar, spectrum):
 
 @pytest.mark.parametrize("pair", ["cube for a bar", "ball for an L-beam"])
 def test_unrelated_shapes_are_refused_in_one_line(bar, spectrum, pair):
-    """Measured: cube vs bar distortion 1.88, ball vs L-beam 1.76 (limit 1.5; accepted
+    """Measured: cube vs bar distortion 1.88, ball vs L-beam 1.67 (limit 1.5; accepted
     pairs ≤ 0.98)."""
     if pair == "cube for a bar":
         obj, obj_spectrum, example = bar, spectrum, structured_box((1, 1, 1), (6, 6, 6))
@@ -194,7 +193,7 @@ def test_unrelated_shapes_are_refused_in_one_line(bar, spectrum, pair):
     message = str(info.value)
     assert "\n" not in message
     distortion = float(re.search(r"spectral distortion (\d\.\d+)", message).group(1))
-    assert distortion > 1.1 * MAX_DISTORTION, message
+    assert distortion > MAX_DISTORTION, message
 
 
 def test_overlay_is_kept_for_a_copy_of_the_object(bar, spectrum):
@@ -205,7 +204,6 @@ def test_overlay_is_kept_for_a_copy_of_the_object(bar, spectrum):
     assert alignment.method == "overlay" and alignment.residual < 1e-9
     assert alignment.stretch is None
     np.testing.assert_allclose(np.abs(alignment.C[:M]), np.eye(M), atol=1e-8)
-    assert polar(alignment.C).shape == alignment.C.shape
 
 
 CYLINDER_SCRIPT = '''
@@ -243,3 +241,23 @@ def test_precompute_reports_and_stores_each_examples_method(tmp_path):
     again = precompute(scene)
     assert again.from_cache and again.alignment_methods == ["overlay", "intrinsic"]
     np.testing.assert_array_equal(again.alignment_residuals, pre.alignment_residuals)
+
+
+def test_majorise_minimise_steps_never_increase_the_coupling_energy(bar, spectrum):
+    """On the 8:1 cylinder's coupling problem, E after k steps is non-increasing in k and
+    below the first polar factor's."""
+    example = cylinder(0.1128, 1.8, 0.06)
+    frame = body_frame(bar)
+    aligned = align_to_object(example.points, example.tets, frame, reference_points=bar.points,
+                              max_relative_rms=None)
+    rest = example.with_points(aligned.points)
+    offered = offered_spectrum(rest, INTRINSIC_MODES * M)
+    problem = coupling_problem(
+        spectrum, descriptor_functions(spectrum, normalised_coordinates(bar.points, bar.tets,
+                                                                        frame), M),
+        offered, descriptor_functions(offered, normalised_coordinates(rest.points, rest.tets,
+                                                                      frame), M))
+    energies = [problem.energy(solve_map(problem, iterations=k)) for k in (0, 1, 5, 50, 200)]
+    assert all(b <= a * (1 + 1e-12) for a, b in zip(energies[:-1], energies[1:], strict=True)), \
+        energies
+    assert energies[-1] < energies[0], energies

@@ -284,7 +284,7 @@ def align_bases(
     A = phi_ex.T @ (M_ex @ F)
     if landmarks is not None:
         A = _add_landmarks(A, phi_obj, phi_ex, landmarks, landmark_weight, v_obj)
-    C = _polar(A)
+    C = polar(A)
     alignment = transfer_quality(phi_ex, F, M_ex, C, float(outside.mean()))
     log.info("basis alignment: m=%d residual %.3e (worst mode %d: %.3e), %.1f%% outside",
              m, alignment.residual, int(np.argmax(alignment.per_mode_residual)) + 1,
@@ -316,7 +316,7 @@ def _add_landmarks(A, phi_obj, phi_ex, landmarks, weight, volume) -> np.ndarray:
     return np.linalg.solve(normal, A + w * rows_ex.T @ rows_obj)
 
 
-def _polar(A: np.ndarray) -> np.ndarray:
+def polar(A: np.ndarray) -> np.ndarray:
     """Nearest matrix with orthonormal columns (Frobenius) to A (p, m), p ≥ m:
     ``U Vᵀ`` from the thin SVD ``A = U S Vᵀ``."""
     u, _, vt = np.linalg.svd(A, full_matrices=False)
@@ -357,7 +357,7 @@ def pose_basis_map(
         raise LbshapeError(f"posed spectrum has {phi.shape[1]} eigenfunctions, need m={m}")
     phi = phi[:, :m]
     M = posed_spectrum.mass
-    C = _polar(phi.T @ (M @ rest))
+    C = polar(phi.T @ (M @ rest))
     alignment = transfer_quality(phi, rest, M, C, 0.0)
     if not alignment.residual <= max_residual:
         raise LbshapeError(

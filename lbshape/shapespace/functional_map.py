@@ -11,11 +11,16 @@ Descriptor functions (``d`` columns on each shape, :func:`descriptor_functions`)
   m eigenpairs (intrinsic, sign invariant, independent of size and of uniform
   stretching of the spectrum);
 * the normalised principal-axis coordinates ``ξₖ = (x − c)·aₖ / σₖ`` (k = 1..3),
-  with c and aₖ the object's centre and principal axes (the example already in the
-  object's frame, :func:`lbshape.shapespace.frames.align_to_object`) and σₖ the
-  shape's *own* standard deviation along aₖ, and their products ``ξₖ ξₗ``. They
-  break what an intrinsic descriptor cannot (a bar's two ends, a reflection of a
-  symmetric shape) and map a 4:1 bar's axis onto an 8:1 bar's.
+  with aₖ the object's principal axes (the example already in the object's frame,
+  :func:`lbshape.shapespace.frames.align_to_object`), c and σₖ the shape's *own* centre
+  of mass and standard deviation along aₖ (:func:`normalised_coordinates`), and their
+  monomials up to degree :data:`MAX_DEGREE`. They break what an intrinsic descriptor
+  cannot (a bar's two ends, a reflection of a symmetric shape) and map a 4:1 bar's axis
+  onto an 8:1 bar's;
+* matched segments: tent functions of each ξₖ centred at :data:`SEGMENTS` points evenly
+  spaced over ``[−SEGMENT_SPAN, SEGMENT_SPAN]`` (spacing = half-width). Without them the
+  higher longitudinal modes of a long bar were left unresolved (see
+  ``docs/architecture.md``, Measured choices).
 
 Every column is made M-mean free and scaled to unit M-norm on its own shape. Their LB
 coefficients are ``A = Φᵀ M D`` (object: m × d; example: m_ex × d, m_ex ≥ m).
@@ -25,16 +30,22 @@ The map. C (m_ex × m, orthonormal columns, so that ``Φ_ex C ≈ Φ_obj`` as in
 
     E(C) = ‖C A_obj − A_ex‖² + μ ‖C Λ_obj − Λ_ex C‖²,
 
-with ``Λ = diag(λ / λ₁) / (λ_obj,m / λ_obj,1)`` (each shape's eigenvalues in units of
-its own λ₁, scaled so that the object's largest is 1) and μ = :data:`COMMUTATIVITY`.
-The unconstrained minimiser separates by rows of C (one m × m solve each); its polar
-factor starts :data:`ITERATIONS` majorise–minimise steps on the orthonormal matrices
-(``C ← polar(A_ex A_objᵀ + μ (Λ_ex C Λ_obj + (L − Λ_ex²) C))``, L ≥ max Λ_ex²), which
-never increase E.
+with ``Λ = diag(ln(λ / λ₁)) / ln(λ_obj,m / λ_obj,1)`` (each shape's eigenvalues in
+units of its own λ₁, on a log scale so that a stretch, which moves some modes by a
+constant factor, costs a bounded amount; scaled so that the object's largest is 1) and
+μ = :data:`COMMUTATIVITY`. The unconstrained minimiser separates by rows of C (one
+m × m solve each); its polar factor starts :data:`ITERATIONS` majorise–minimise steps
+on the orthonormal matrices,
+``C ← polar(A_ex A_objᵀ + μ (2 Λ_ex C Λ_obj + (L − Λ_ex²) C))`` with L = max Λ_ex²
+(the linearised maximiser of a convex minorant of −E: with Λ ≥ 0 the steps never
+increase E). :func:`refine_pointwise` then runs
+:data:`REFINEMENTS` steps of spectral ICP (nearest neighbours between the two shapes'
+own spectral embeddings).
 
-Residual. ``coupled_residual(C) = sqrt(E(C) / (‖A_ex‖² + μ ‖Λ_obj‖²))``, a number in
-[0, ~1.4] that any orthonormal C can be scored by — the overlay's as well, which is how
-:mod:`lbshape.shapespace.basis_choice` compares the two methods.
+Scores. The choice between this map and the overlay is made elsewhere
+(:mod:`lbshape.shapespace.basis_choice`: a residual on normalised coordinates);
+:func:`spectral_distortion` measures how far a map moves modes along the spectrum (the
+refusal of genuinely different shapes).
 """
 
 from __future__ import annotations
@@ -47,6 +58,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from lbshape.errors import LbshapeError
+from lbshape.shapespace.alignment import polar
 from lbshape.shapespace.frames import BodyFrame, volume_moments
 from lbshape.spectral.spectrum import LBSpectrum
 
@@ -89,15 +101,6 @@ class CouplingProblem:
         descriptor = C @ self.A_obj - self.A_ex
         commutator = C * self.lam_obj[None, :] - self.lam_ex[:, None] * C
         return float((descriptor**2).sum() + self.mu * (commutator**2).sum())
-
-    def residual(self, C: np.ndarray) -> float:
-        """``sqrt(E(C) / (‖A_ex‖² + μ ‖Λ_obj‖²))`` (dimensionless)."""
-        scale = (self.A_ex**2).sum() + self.mu * (self.lam_obj**2).sum()
-        return float(np.sqrt(self.energy(C) / scale))
-
-    def descriptor_residual(self, C: np.ndarray) -> float:
-        """``‖C A_obj − A_ex‖ / ‖A_ex‖``: the descriptors' transfer error alone."""
-        return float(np.linalg.norm(C @ self.A_obj - self.A_ex) / np.linalg.norm(self.A_ex))
 
 
 def principal_extent(points: np.ndarray, tets: np.ndarray,
@@ -177,15 +180,8 @@ def solve_map(problem: CouplingProblem, *, iterations: int = ITERATIONS) -> np.n
     C = polar(C)
     bound = float((le**2).max())
     for _ in range(iterations):
-        C = polar(rhs + mu * (le[:, None] * C * lo[None, :] + (bound - le**2)[:, None] * C))
+        C = polar(rhs + mu * (2.0 * le[:, None] * C * lo[None, :] + (bound - le**2)[:, None] * C))
     return C
-
-
-def polar(A: np.ndarray) -> np.ndarray:
-    """Nearest matrix with orthonormal columns (Frobenius) to A (p, m), p ≥ m:
-    ``U Vᵀ`` from the thin SVD ``A = U S Vᵀ``."""
-    u, _, vt = np.linalg.svd(A, full_matrices=False)
-    return u @ vt
 
 
 def intrinsic_map(object_spectrum: LBSpectrum, object_coordinates: np.ndarray,
