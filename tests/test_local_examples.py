@@ -236,6 +236,10 @@ def test_region_tables_survive_the_precompute_artifact():
     np.testing.assert_array_equal(restored.regions[0].table.cells, low.table.cells)
     assert restored.regions[0].table.check == low.table.check
     assert restored.regions[1].table is None
+    # each example's alignment method travels with the artifact (copies: the overlay)
+    assert low.methods == ["overlay", "overlay"] and high.methods == ["overlay"] * 4
+    assert restored.regions[0].methods == low.methods
+    assert restored.regions[1].methods == high.methods
     untabulated = build_local_space(mesh, MATERIAL, U, specs[:1],
                                     _twisted_examples((0.9, -0.5)), m=M, tabulate=False)
     assert untabulated.regions[0].table is None

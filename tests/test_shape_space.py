@@ -177,7 +177,8 @@ def test_shape_space_runtime_matrices(bar, bar_spectrum):
     U, _ = _mass_orthonormal_basis(rng, M, n, r)
     U = U / np.sqrt(rho)  # orthonormal in the elastic mass ρ M₃
     examples = rng.normal(size=(2, m, 3))
-    fake = [type("A", (), {"residual": 0.1})(), type("A", (), {"residual": 0.2})()]
+    fake = [type("A", (), {"residual": 0.1, "method": "overlay"})(),
+            type("A", (), {"residual": 0.2, "method": "intrinsic"})()]
     space = make_shape_space(lam, phi, M, bar.points, U, examples, fake, ["a", "b"],
                              density=rho)
     assert (space.m, space.r) == (m, r)
@@ -190,6 +191,7 @@ def test_shape_space_runtime_matrices(bar, bar_spectrum):
     np.testing.assert_allclose(space.example_reduced, examples.reshape(2, -1) @ space.projection.T)
     np.testing.assert_allclose(space.rest_coefficients, lb_coefficients(bar.points, phi, M))
     np.testing.assert_allclose(space.alignment_residuals, [0.1, 0.2])
+    assert space.alignment_methods == ("overlay", "intrinsic")
     with pytest.raises(LbshapeError, match="example coefficients must be"):
         ShapeSpace(lam, examples[:, :3], space.projection, space.rest_coefficients,
                    space.alignment_residuals, ("a", "b"), rho)

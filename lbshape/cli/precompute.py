@@ -107,13 +107,13 @@ def run_one(name: str, *, force: bool = False, as_json: bool = False) -> int:
     if pre.has_examples:
         residuals = ", ".join(f"{r:.3f}" for r in pre.alignment_residuals)
         print(f"  shape space: m={pre.eigenvalues.size}, {len(pre.example_names)} examples, "
-              f"alignment residuals [{residuals}]")
+              f"alignment residuals [{residuals}], methods [{', '.join(pre.alignment_methods)}]")
     if pre.has_local_examples:
         for region in pre.local.regions:
             residuals = ", ".join(f"{r:.3f}" for r in region.alignment_residuals)
             print(f"  region {region.name}: {region.vertices.size} vertices, "
                   f"m={region.m}, examples {[int(k) for k in region.examples]}, "
-                  f"alignment residuals [{residuals}]")
+                  f"alignment residuals [{residuals}], methods [{', '.join(region.methods)}]")
     total = sum(pre.stage_seconds.values())
     print("  stage times (s): " + ", ".join(
         f"{name} {seconds:.2f}" for name, seconds in pre.stage_seconds.items())

@@ -79,6 +79,13 @@ def cylinder(radius: float = 0.1, length: float = 1.0, h: float = 0.05) -> TetMe
         return _mesh_current_model(gmsh, h, "cylinder")
 
 
+def ball(radius: float = 0.5, h: float = 0.15) -> TetMesh:
+    """Unstructured gmsh tet mesh of a ball of ``radius`` about the origin (metres)."""
+    with gmsh_model("ball") as gmsh:
+        gmsh.model.occ.addSphere(0.0, 0.0, 0.0, radius)
+        return _mesh_current_model(gmsh, h, "ball")
+
+
 def _mesh_current_model(gmsh, h: float, name: str) -> TetMesh:
     gmsh.model.occ.synchronize()
     gmsh.option.setNumber("Mesh.MeshSizeMin", h)

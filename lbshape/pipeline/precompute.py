@@ -103,6 +103,7 @@ from lbshape.pipeline.responses import response_loads
 from lbshape.pipeline.stages import Ranks, StageRecorder
 from lbshape.scene.schema import ExamplePose, Scene
 from lbshape.shapespace.alignment import BasisAlignment
+from lbshape.shapespace.basis_choice import METHODS
 from lbshape.shapespace.clamped_basis import clamped_eigenvectors
 from lbshape.shapespace.example_shapes import (
     clamp_is_safe,
@@ -364,7 +365,10 @@ def _global_examples(scene: Scene, mesh: TetMesh, U: np.ndarray | None, fixed: n
     return GlobalExamples(
         spectrum=spectrum, example_coefficients=space.example_coefficients,
         projection=space.projection, projection_clamped=projections.projection_clamped,
-        alignment_residuals=space.alignment_residuals, target_table=targets.table,
+        alignment_residuals=space.alignment_residuals,
+        alignment_methods=np.array([METHODS.index(m) for m in space.alignment_methods],
+                                   dtype=np.int64),
+        target_table=targets.table,
         target_clamped=targets.clamped, lb_cubatures=lb_cubatures)
 
 

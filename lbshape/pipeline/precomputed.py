@@ -28,6 +28,7 @@ from lbshape.elastic.materials import Material
 from lbshape.elastic.polynomial_forces import PolynomialForceModel
 from lbshape.geometry.mesh import TetMesh
 from lbshape.scene.schema import Scene
+from lbshape.shapespace.basis_choice import METHODS
 from lbshape.shapespace.clamped_basis import clamped_eigenvectors
 from lbshape.shapespace.example_shapes import energy_elements
 from lbshape.shapespace.local_examples import LocalShapeSpace
@@ -74,6 +75,7 @@ class GlobalExamples(NamedTuple):
     projection: np.ndarray  #: (r, 3m) ``T = Uᵀ M L``
     projection_clamped: np.ndarray  #: (r, 3m) the same for the clamped basis L_F
     alignment_residuals: np.ndarray  #: (k,)
+    alignment_methods: np.ndarray  #: (k,) int: index into ``basis_choice.METHODS``
     target_table: TargetTable | None  #: the exact target tabulated, or None
     target_clamped: bool  #: the table and LB cubatures use the clamped basis
     lb_cubatures: LBCubatures
@@ -122,6 +124,9 @@ class Precomputed:
             :func:`~lbshape.shapespace.example_shapes.clamp_is_safe`), else ``"free"``;
             the table and the per-example LB cubature use it.
         alignment_residuals: (k,) basis alignment residuals or None.
+        alignment_method_codes: (k,) int index into
+            :data:`~lbshape.shapespace.basis_choice.METHODS` of each example's
+            alignment method (:attr:`alignment_methods`), or None.
         lb_cubature_elements, lb_cubature_weights: cubature of the LB displacement
             subspace (basis :meth:`lb_basis`), or None: (s,) shared by the examples or
             (k, s) one row per example (padded with element -1, weight 0);
@@ -152,6 +157,7 @@ class Precomputed:
     example_coefficients: np.ndarray | None = None
     projection: np.ndarray | None = None
     alignment_residuals: np.ndarray | None = None
+    alignment_method_codes: np.ndarray | None = None
     lb_cubature_elements: np.ndarray | None = None
     lb_cubature_weights: np.ndarray | None = None
     lb_cubature_errors: dict = field(default_factory=dict)
@@ -171,6 +177,12 @@ class Precomputed:
     @property
     def r(self) -> int:
         return int(self.U.shape[1])
+
+    @property
+    def alignment_methods(self) -> list[str]:
+        """(k,) each example's basis alignment method (``overlay`` or ``intrinsic``)."""
+        codes = [] if self.alignment_method_codes is None else self.alignment_method_codes
+        return [METHODS[int(c)] for c in codes]
 
     @property
     def has_examples(self) -> bool:
@@ -248,6 +260,7 @@ class Precomputed:
             example_coefficients=arrays.get("example_coefficients") if has_examples else None,
             projection=arrays.get("projection") if has_examples else None,
             alignment_residuals=arrays.get("alignment_residuals") if has_examples else None,
+            alignment_method_codes=arrays.get("alignment_methods") if has_examples else None,
             lb_cubature_elements=(np.asarray(arrays["lb_cub_elements"], dtype=np.int64)
                                   if has_examples else None),
             lb_cubature_weights=arrays.get("lb_cub_weights") if has_examples else None,
@@ -339,6 +352,7 @@ def _example_arrays(examples: GlobalExamples) -> dict[str, np.ndarray]:
         "example_coefficients": examples.example_coefficients,
         "projection": examples.projection,
         "alignment_residuals": examples.alignment_residuals,
+        "alignment_methods": np.asarray(examples.alignment_methods, dtype=np.int64),
     }
 
 

@@ -56,7 +56,8 @@ log = logging.getLogger(__name__)
 #: keys of the ``simulation`` part of ``summary.json``
 SUMMARY_KEYS: tuple[str, ...] = (
     "scene", "headline", "precompute_seconds", "precompute_from_cache", "stage_seconds",
-    "alignment_residuals", "cubature_errors", "reduced", "reduced_no_examples", "full",
+    "alignment_residuals", "alignment_methods", "cubature_errors", "reduced",
+    "reduced_no_examples", "full",
     "full_no_examples", "error_vs_full", "speedup_t_total", "example_influence",
     "example_influence_max", "influence_frame", "example_influence_full", "example_residual",
     "example_residual_none", "end_twist_deg", "example_twist_deg", "simulation_seconds",
@@ -158,6 +159,7 @@ def simulation_figures(out: Path) -> dict:
         "precompute_from_cache": pre.from_cache,
         "stage_seconds": pre.stage_seconds,
         "alignment_residuals": [float(r) for r in pre.alignment_residuals],
+        "alignment_methods": pre.alignment_methods,
         "cubature_errors": pre.cubature_errors,
         **{name: run.stats for name, run in runs.items()},
         "error_vs_full": error,

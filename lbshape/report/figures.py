@@ -321,6 +321,7 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
             "weights": {"no_examples": w_none.tolist(), "examples": w_ex.tolist()},
             "moves_toward_examples": bool(d_ex < d_none),
             "alignment_residuals": region.alignment_residuals.tolist(),
+            "alignment_methods": region.methods,
         }
     summary = write_json_atomic(out_dir / "local_examples.json", {
         "scene": scene.name, "method": method, "steps": output.stats["steps"],

@@ -1,4 +1,9 @@
-"""Aligning an example's LB eigenfunctions with the object's (paper step 3).
+"""Aligning an example's LB eigenfunctions with the object's (paper step 3): the overlay.
+
+This is one of two methods; :mod:`lbshape.shapespace.basis_choice` runs it next to the
+intrinsic map of :mod:`lbshape.shapespace.functional_map` and keeps, per example, the
+one with the smaller residual on normalised coordinates (the overlay on a tie). The
+threshold below is this function's own, used when it is called directly.
 
 Approach. After :func:`lbshape.shapespace.frames.align_to_object`, the example's rest mesh
 overlaps the object's rest mesh geometrically (same volume, same centre of mass,
@@ -76,12 +81,22 @@ class BasisAlignment:
         per_mode_residual: (m,) the same per object eigenfunction.
         outside_fraction: fraction of example vertices outside the object, mapped
             to its boundary (0 for posed-basis maps).
+        method: how C was found: ``"overlay"`` (this module) or ``"intrinsic"``
+            (:mod:`lbshape.shapespace.functional_map`); :mod:`lbshape.shapespace.basis_choice`
+            sets it and then measures ``residual`` on normalised coordinates.
+        distortion: the map's spectral distortion (``basis_choice``; 0 when unmeasured).
+        stretch: (3, 3) the linear map D taking the example's displacements (m) to the
+            object's (the intrinsic map's normalised-coordinate correspondence, with
+            ``D = A diag(σ_obj / σ_ex) Aᵀ``), or None for the identity (overlay).
     """
 
     C: np.ndarray
     residual: float
     per_mode_residual: np.ndarray
     outside_fraction: float = 0.0
+    method: str = "overlay"
+    distortion: float = 0.0
+    stretch: np.ndarray | None = None
 
 
 def scaled_spectrum(spectrum: LBSpectrum, factor: float) -> LBSpectrum:
@@ -269,8 +284,8 @@ def align_bases(
     A = phi_ex.T @ (M_ex @ F)
     if landmarks is not None:
         A = _add_landmarks(A, phi_obj, phi_ex, landmarks, landmark_weight, v_obj)
-    C = _polar(A)
-    alignment = _quality(phi_ex, F, M_ex, C, float(outside.mean()))
+    C = polar(A)
+    alignment = transfer_quality(phi_ex, F, M_ex, C, float(outside.mean()))
     log.info("basis alignment: m=%d residual %.3e (worst mode %d: %.3e), %.1f%% outside",
              m, alignment.residual, int(np.argmax(alignment.per_mode_residual)) + 1,
              alignment.per_mode_residual.max(), 100 * alignment.outside_fraction)
@@ -301,14 +316,16 @@ def _add_landmarks(A, phi_obj, phi_ex, landmarks, weight, volume) -> np.ndarray:
     return np.linalg.solve(normal, A + w * rows_ex.T @ rows_obj)
 
 
-def _polar(A: np.ndarray) -> np.ndarray:
+def polar(A: np.ndarray) -> np.ndarray:
     """Nearest matrix with orthonormal columns (Frobenius) to A (p, m), p ≥ m:
     ``U Vᵀ`` from the thin SVD ``A = U S Vᵀ``."""
     u, _, vt = np.linalg.svd(A, full_matrices=False)
     return u @ vt
 
 
-def _quality(phi, F, M, C, outside_fraction: float) -> BasisAlignment:
+def transfer_quality(phi, F, M, C, outside_fraction: float = 0.0) -> BasisAlignment:
+    """The map C (m_ex, m) with its residual ``‖Φ C − F‖_M / ‖F‖_M`` (and per column)
+    against transferred functions F (n_e, m); Φ (n_e, m_ex), M (n_e, n_e)."""
     diff = phi @ C - F
     num = np.einsum("ij,ij->j", diff, M @ diff)
     den = np.einsum("ij,ij->j", F, M @ F)
@@ -340,8 +357,8 @@ def pose_basis_map(
         raise LbshapeError(f"posed spectrum has {phi.shape[1]} eigenfunctions, need m={m}")
     phi = phi[:, :m]
     M = posed_spectrum.mass
-    C = _polar(phi.T @ (M @ rest))
-    alignment = _quality(phi, rest, M, C, 0.0)
+    C = polar(phi.T @ (M @ rest))
+    alignment = transfer_quality(phi, rest, M, C, 0.0)
     if not alignment.residual <= max_residual:
         raise LbshapeError(
             f"posed eigenbasis does not match the rest basis: residual "

@@ -109,6 +109,7 @@ from lbshape.elastic.polynomial_energy import StVKPolynomialEnergy
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.regions import evaluate_region
+from lbshape.shapespace.basis_choice import METHODS
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_driver import ExampleDriver, TargetInfo
 from lbshape.shapespace.example_shapes import energy_elements, example_rest_shapes
@@ -288,6 +289,9 @@ class RegionSpace:
         table: the region's exact target tabulated over its weight simplex, in the
             coefficients c (3m,) (:func:`region_target_table`), or None (more than three
             examples, a refused table, or not built).
+        alignment_methods: (k_R,) int index into
+            :data:`~lbshape.shapespace.basis_choice.METHODS` of each example's alignment
+            method (:attr:`methods` gives the names).
     """
 
     name: str
@@ -305,6 +309,13 @@ class RegionSpace:
     anchor: np.ndarray
     rigid_lb: np.ndarray
     table: TargetTable | None = None
+    alignment_methods: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+    @property
+    def methods(self) -> list[str]:
+        """(k_R,) each example's alignment method (``overlay`` or ``intrinsic``)."""
+        return [METHODS[int(c)] for c in self.alignment_methods]
 
     @property
     def m(self) -> int:
@@ -386,9 +397,9 @@ class LocalShapeSpace:
         out = {"local_spring": self.spring, "local_covered": np.array(self.covered)}
         for i, reg in enumerate(self.regions):
             for key in ("cells", "vertices", "examples", "eigenvalues", "eigenvectors",
-                        "example_coefficients", "alignment_residuals", "to_reduced",
-                        "rigid_reduced", "rigid_coefficients", "anchor_reduced", "anchor",
-                        "rigid_lb"):
+                        "example_coefficients", "alignment_residuals", "alignment_methods",
+                        "to_reduced", "rigid_reduced", "rigid_coefficients",
+                        "anchor_reduced", "anchor", "rigid_lb"):
                 out[f"local{i}_{key}"] = getattr(reg, key)
             if reg.table is not None:
                 out.update(reg.table.to_arrays(prefix=f"local{i}_table_"))
@@ -411,7 +422,8 @@ class LocalShapeSpace:
                 rigid_coefficients=get("rigid_coefficients"),
                 anchor_reduced=get("anchor_reduced"), anchor=get("anchor").astype(bool),
                 rigid_lb=get("rigid_lb"),
-                table=TargetTable.from_arrays(arrays, prefix=f"local{i}_table_")))
+                table=TargetTable.from_arrays(arrays, prefix=f"local{i}_table_"),
+                alignment_methods=get("alignment_methods").astype(np.int64)))
         return cls(tuple(regions), np.asarray(arrays["local_spring"]),
                    float(arrays["local_covered"]), dict(errors))
 
@@ -421,8 +433,9 @@ class LocalShapeSpace:
         for i in range(n_regions):
             keys += [f"local{i}_{k}" for k in ("cells", "vertices", "examples", "eigenvalues",
                                                 "eigenvectors", "example_coefficients",
-                                                "alignment_residuals", "to_reduced",
-                                                "rigid_reduced", "rigid_coefficients",
+                                                "alignment_residuals", "alignment_methods",
+                                                "to_reduced", "rigid_reduced",
+                                                "rigid_coefficients",
                                                 "anchor_reduced", "anchor", "rigid_lb")]
         return tuple(keys)
 
@@ -550,7 +563,8 @@ def _build_region(mesh: TetMesh, material: Material, U: np.ndarray, spec: Region
     anchor = region_anchor(mesh, selected, vertices, fixed_vertices)
     Q, F, anchor_rows = anchor_fit(sub.points, mass_R, anchor)
     L_R = block_basis(spec_R.eigenvectors)
-    coefficients, residuals = _region_examples(label, spec, sub, spec_R, example_part, embed)
+    coefficients, residuals, methods = _region_examples(label, spec, sub, spec_R, example_part,
+                                                        embed)
     region = RegionSpace(
         name=spec.name, cells=selected, vertices=vertices,
         examples=np.asarray(spec.examples, dtype=np.int64),
@@ -558,6 +572,7 @@ def _build_region(mesh: TetMesh, material: Material, U: np.ndarray, spec: Region
         eigenvectors=np.asarray(spec_R.eigenvectors, dtype=float),
         example_coefficients=np.asarray(coefficients, dtype=float).reshape(-1, m, 3),
         alignment_residuals=np.asarray(residuals, dtype=float),
+        alignment_methods=np.array([METHODS.index(k) for k in methods], dtype=np.int64),
         to_reduced=to_reduced, rigid_reduced=U_R.T @ (mass_R @ Q),
         rigid_coefficients=(F @ L_R[anchor_rows]).T,
         anchor_reduced=(F @ U_R[anchor_rows]).T, anchor=anchor,
@@ -566,10 +581,10 @@ def _build_region(mesh: TetMesh, material: Material, U: np.ndarray, spec: Region
 
 
 def _region_examples(label: str, spec: RegionSpec, sub: TetMesh, spectrum, example_part,
-                     embed) -> tuple[list[np.ndarray], list[float]]:
+                     embed) -> tuple[list[np.ndarray], list[float], list[str]]:
     """The region's examples embedded in its shape space: (coefficients (m, 3) per
-    example, alignment residuals)."""
-    coefficients, residuals = [], []
+    example, alignment residuals, alignment methods)."""
+    coefficients, residuals, methods = [], [], []
     for k in spec.examples:
         what = f"{label}, example {k}"
         rest_part, posed_points = example_part(k, spec)
@@ -579,9 +594,11 @@ def _region_examples(label: str, spec: RegionSpec, sub: TetMesh, spectrum, examp
             raise LbshapeError(f"{what}: {exc}") from None
         coefficients.append(embedded.coefficients[0])
         residuals.append(embedded.alignment.residual)
-        log.info("%s: alignment residual %.3g", what, embedded.alignment.residual)
+        methods.append(embedded.alignment.method)
+        log.info("%s: alignment residual %.3g (%s)", what, embedded.alignment.residual,
+                 embedded.alignment.method)
         _warn_at_rest(what, embedded.coefficients[0], sub)
-    return coefficients, residuals
+    return coefficients, residuals, methods
 
 
 def _measure_representation(built: _BuiltRegion, spec: RegionSpec, object_pose,

@@ -51,10 +51,9 @@ from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.shapespace.alignment import (
     EXAMPLE_EXTRA_MODES,
-    MAX_RESIDUAL,
     BasisAlignment,
-    align_bases,
 )
+from lbshape.shapespace.basis_choice import MAX_RESIDUAL, choose_alignment
 from lbshape.shapespace.frames import (
     MAX_RELATIVE_RMS,
     AlignedShape,
@@ -207,31 +206,52 @@ def embed_example(
             coordinates as ``example_rest`` (e.g. from :func:`lbshape.geometry.poses.apply_pose`).
         object_frame: :func:`lbshape.shapespace.frames.body_frame` of the object (computed
             when omitted).
-        landmarks: optional (q, 2) pairs (object vertex, example vertex).
-        max_residual: largest accepted basis alignment residual.
-        name: how the frame alignment's refusal names the example (e.g.
-            ``"example 2 (cube)"``); callers that prefix their own label to every
-            error, as the precompute pipeline does, leave it out.
-        max_frame_rms: largest accepted relative RMS residual of the frame alignment.
+        landmarks: optional (q, 2) pairs (object vertex, example vertex), used by the
+            overlay.
+        max_residual: largest accepted basis alignment residual (on normalised
+            coordinates, :mod:`lbshape.shapespace.basis_choice`).
+        name: how a refusal names the example (e.g. ``"example 2 (cube)"``); callers
+            that prefix their own label to every error, as the precompute pipeline
+            does, leave it out.
+        max_frame_rms: largest relative RMS residual of the frame alignment at which
+            the overlay is a candidate (above it the shapes do not overlap and only the
+            intrinsic map is tried); None: always a candidate.
+
+    The basis map is :func:`lbshape.shapespace.basis_choice.choose_alignment`'s: the
+    overlay or the intrinsic map, whichever has the smaller residual; with the intrinsic
+    map the example's displacements are mapped by its ``stretch`` D before their
+    coefficients are taken.
 
     Raises:
-        LbshapeError: the example's shape does not match the object's (frame
-            alignment residual above ``max_frame_rms``)
-            or its LB basis cannot be aligned (residual above ``max_residual``).
+        LbshapeError: the example does not correspond to the object (the chosen map's
+            residual above ``max_residual`` or its spectral distortion above
+            :data:`~lbshape.shapespace.basis_choice.MAX_DISTORTION`; the message names
+            the frame residual when it ruled the overlay out).
     """
     m = object_spectrum.eigenvalues.shape[0]
     frame = body_frame(object_mesh) if object_frame is None else object_frame
     aligned = align_to_object(example_rest.points, example_rest.tets, frame,
                               reference_points=object_mesh.points, name=name,
-                              max_relative_rms=max_frame_rms)
-    spectrum = offered_spectrum(example_rest.with_points(aligned.points), m)
-    alignment = align_bases(object_spectrum, object_mesh, spectrum, aligned.points,
-                            landmarks=landmarks, max_residual=max_residual)
+                              max_relative_rms=None)
+    overlaps = max_frame_rms is None or aligned.relative_rms <= max_frame_rms
+    rest = example_rest.with_points(aligned.points)
+    try:
+        alignment, spectrum = choose_alignment(
+            object_spectrum, object_mesh, frame, rest,
+            lambda count: offered_spectrum(rest, count),
+            overlay_refusal=None if overlaps else (
+                f"frame alignment residual {aligned.relative_rms:.3f} exceeds {max_frame_rms:g}"),
+            landmarks=landmarks, max_residual=max_residual)
+    except LbshapeError as exc:
+        raise LbshapeError(f"{name}: {exc}" if name else str(exc)) from None
+    posed = [aligned.apply(_field(p, example_rest.n_vertices)) for p in poses]
+    if alignment.stretch is not None:  # the intrinsic map's displacement correspondence
+        posed = [aligned.points + (p - aligned.points) @ alignment.stretch.T for p in posed]
     coefficients = np.array([
-        example_displacement_coefficients(aligned.apply(_field(p, example_rest.n_vertices)),
+        example_displacement_coefficients(p,
                                           spectrum.eigenvectors, spectrum.mass, alignment,
                                           rest_points=aligned.points)
-        for p in poses
+        for p in posed
     ]).reshape(len(poses), m, 3)
     return EmbeddedExample(aligned, alignment, coefficients)
 
@@ -320,6 +340,8 @@ class ShapeSpace:
         alignment_residuals: (k,) each example's basis alignment residual.
         names: (k,) example names.
         density: ρ (kg/m³) of the elastic mass ``M = ρ M₃`` U is orthonormal in.
+        alignment_methods: (k,) how each example's basis was aligned
+            (:data:`lbshape.shapespace.basis_choice.METHODS`).
     """
 
     eigenvalues: np.ndarray
@@ -329,6 +351,7 @@ class ShapeSpace:
     alignment_residuals: np.ndarray
     names: tuple[str, ...]
     density: float
+    alignment_methods: tuple[str, ...] = ()
 
     def __post_init__(self):
         m = self.eigenvalues.shape[0]
@@ -391,6 +414,7 @@ def make_shape_space(
         projection=reduced_projection(basis, eigenvectors, mass, density),
         rest_coefficients=lb_coefficients(rest_points, eigenvectors, mass),
         alignment_residuals=np.array([a.residual for a in alignments], dtype=float),
+        alignment_methods=tuple(a.method for a in alignments),
         names=tuple(names),
         density=float(density),
     )
