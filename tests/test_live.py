@@ -8,7 +8,6 @@ the wall clock (never ahead of it); a divergence stops it with the engine's mess
 
 from __future__ import annotations
 
-import gc
 import json
 import os
 import shutil
@@ -22,7 +21,7 @@ import pytest
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.live import LiveSession
 from lbshape.pipeline.precompute import precompute
-from lbshape.report.live import LiveEvent, LiveWindow, read_events
+from lbshape.report.live import LiveEvent, LiveWindow, read_events, virtual_display
 from lbshape.scene import load_scene
 
 REPOSITORY = Path(__file__).resolve().parents[1]
@@ -33,30 +32,10 @@ STEPS = 300
 @pytest.fixture(scope="module")
 def display():
     """An X display: ``$DISPLAY``, else a virtual X server (``Xvfb``) for this module."""
-    if os.environ.get("DISPLAY"):
-        yield os.environ["DISPLAY"]
-        return
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
+    if not os.environ.get("DISPLAY") and shutil.which("Xvfb") is None:
         pytest.skip("no DISPLAY and no Xvfb (Debian package xvfb, installed by scripts/setup)")
-    read, write = os.pipe()
-    server = subprocess.Popen([xvfb, "-displayfd", str(write), "-screen", "0", "1280x1024x24",
-                               "-nolisten", "tcp"], pass_fds=(write,),
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(write)
-    with os.fdopen(read) as pipe:
-        number = pipe.readline().strip()
-    if not number:
-        server.kill()
-        pytest.skip("Xvfb did not start")
-    os.environ["DISPLAY"] = f":{number}"
-    try:
-        yield os.environ["DISPLAY"]
-    finally:
-        gc.collect()  # windows not closed by a failed test let go of the server first
-        del os.environ["DISPLAY"]
-        server.terminate()
-        server.wait(timeout=10)
+    with virtual_display() as name:
+        yield name
 
 
 @pytest.fixture(scope="module")

@@ -260,6 +260,8 @@ class FreeBodySimulation:
 
     Attributes:
         q, qd, qa: (r,) deformation, its rate and acceleration at :attr:`time`.
+        drag: a user's :class:`~lbshape.dynamics.drag.DragSpring` (:meth:`set_drag`) or
+            ``None``: a world point force, one more load evaluated at each step's start.
         damping: (r, r) the deformation's Rayleigh damping ``α I + β K₀``.
         phase_seconds: (steps, len(PHASES)) wall time of each part of each step of the
             last :meth:`run` (s).

@@ -107,6 +107,8 @@ class ReducedSimulation:
     Attributes:
         x, v, a: (r,) state at :attr:`time`.
         q_target: (r,) the last target ``q*``.
+        drag: a user's :class:`~lbshape.dynamics.drag.DragSpring` (:meth:`set_drag`) or
+            ``None``: its spring part is in the force and tangent, its pull in the loads.
         last_residual: relative Newton residual at the state the last step accepted
             (``None`` mode).
         phase_seconds: (steps, len(PHASES)) wall time of each part of each step of the
@@ -227,7 +229,8 @@ class ReducedSimulation:
 
     # --------------------------------------------------------------- pieces
     def _external_into(self, t: float, out: np.ndarray) -> None:
-        """Loads at time t plus the example pull ``k_ex q*`` (r,), written into ``out``."""
+        """Loads at time t plus the example pull ``k_ex q*`` and a drag's pull (r,),
+        written into ``out``."""
         if self.k_ex:
             np.multiply(self.q_target, self.k_ex, out=out)
         else:

@@ -17,13 +17,14 @@ of all vertices (n-sized) are formed only for drawing (:meth:`~LiveSession.point
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 
 import numpy as np
 
 from lbshape.dynamics.drag import DragSpring, explicit_stiffness_limit
-from lbshape.errors import LbshapeError
+from lbshape.errors import LbshapeError, SolverError
 from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.simulate import WARMUP_STEPS, reduced_simulation
 from lbshape.scene.schema import Scene
@@ -71,10 +72,19 @@ class LiveSession:
         self.paused = False
         self._debt = 0.0
         self._clock = time.perf_counter
+        self._warm_up()
         self.sim = reduced_simulation(scene, pre)
         self._driver, self._k_ex = self.sim.driver, self.sim.k_ex
         self.examples_on = self._driver is not None
         self.drag: DragSpring | None = None
+
+    def _warm_up(self) -> None:
+        """A few steps of a throwaway engine, so the compiled kernels are loaded before the
+        clock starts (a stop there is left for the live engine to meet)."""
+        sim = reduced_simulation(self.scene, self.pre)
+        with contextlib.suppress(SolverError):
+            for _ in range(WARMUP_STEPS):
+                sim.step()
 
     # -------------------------------------------------------------- state
     @property

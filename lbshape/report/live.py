@@ -21,11 +21,16 @@ pictures stay in :mod:`lbshape.report.render`.
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import json
 import math
 import os
+import shutil
+import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,10 +43,10 @@ from lbshape.report.figures import view_vector_of
 from lbshape.report.render import (
     add_rectangles,
     bounds_of,
-    set_camera,
     plane_rectangles,
     quiet_vtk,
     scene_planes,
+    set_camera,
     to_grid,
 )
 
@@ -60,7 +65,7 @@ CAMERA_ZOOM = 0.8
 #: the order of the stats of a live run (``--json``); the first five are the contract's
 STATS_KEYS = ("frames", "fps", "sim_time_s", "wall_time_s", "t_total_ms", "scene", "steps",
               "dt", "realtime_ratio", "render_ms", "examples_on", "drags", "paused",
-              "n_vertices", "r", "threads")
+              "n_vertices", "r", "threads", "window", "gl_renderer")
 
 
 @dataclass(frozen=True)
@@ -146,6 +151,54 @@ def display_available() -> bool:
     return not sys.platform.startswith("linux") or bool(os.environ.get("DISPLAY"))
 
 
+@contextlib.contextmanager
+def virtual_display(screen: str = "1280x1024x24") -> Iterator[str]:
+    """An X display for the block: ``$DISPLAY`` when set, else a virtual X server
+    (``Xvfb``, Debian ``xvfb``) started for the block on a free display number and
+    stopped after it (``DISPLAY`` restored). Yields the display's name.
+
+    Raises:
+        LbshapeError: no ``DISPLAY`` and no ``Xvfb``, or a server that did not start.
+    """
+    if display_available():
+        yield os.environ.get("DISPLAY", "")
+        return
+    xvfb = shutil.which("Xvfb")
+    if xvfb is None:
+        raise LbshapeError("no DISPLAY and no Xvfb: install the Debian package xvfb "
+                           "(scripts/setup does)")
+    read, write = os.pipe()
+    server = subprocess.Popen([xvfb, "-displayfd", str(write), "-screen", "0", screen,
+                               "-nolisten", "tcp"], pass_fds=(write,),
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                              preexec_fn=_die_with_parent)
+    os.close(write)
+    with os.fdopen(read) as pipe:
+        number = pipe.readline().strip()
+    if not number:
+        server.kill()
+        server.wait()
+        raise LbshapeError("the virtual X server (Xvfb) did not start")
+    os.environ["DISPLAY"] = f":{number}"
+    try:
+        yield os.environ["DISPLAY"]
+    finally:
+        gc.collect()  # windows left unclosed let go of the server first
+        del os.environ["DISPLAY"]
+        server.terminate()
+        server.wait(timeout=10)
+
+
+def _die_with_parent() -> None:
+    """In the child before exec (Linux): SIGTERM when the parent dies, so a killed run
+    leaves no server behind."""
+    with contextlib.suppress(OSError, AttributeError):
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
 def require_display() -> None:
     """Raise a one-line :class:`~lbshape.errors.LbshapeError` without a display."""
     if not display_available():
@@ -179,6 +232,8 @@ class LiveWindow:
         self._clock = time.perf_counter
         self._start = self._last = None
         self._drag_depth = None
+        self.gl_renderer = ""
+        self.window_size = tuple(int(v) for v in window_size)
         scene, mesh = session.scene, session.pre.mesh
         with quiet_vtk():
             self.plotter = plotter = pv.Plotter(off_screen=False, window_size=window_size,
@@ -400,6 +455,7 @@ class LiveWindow:
         with quiet_vtk():
             plotter.show(auto_close=False, interactive_update=True)
         self._install_mouse()
+        self.gl_renderer = gl_renderer(plotter)
         iren = plotter.iren.interactor
         iren.AddObserver("TimerEvent", self.frame)
         timer = iren.CreateRepeatingTimer(TIMER_MS)
@@ -449,8 +505,18 @@ class LiveWindow:
             "n_vertices": int(session.pre.mesh.n_vertices),
             "r": int(session.pre.r),
             "threads": os.environ.get("OMP_NUM_THREADS", "unset"),
+            "window": list(self.window_size),
+            "gl_renderer": self.gl_renderer,
         }
         return {key: values[key] for key in STATS_KEYS}
+
+
+def gl_renderer(plotter) -> str:
+    """The OpenGL renderer of a shown plotter's window (e.g. ``llvmpipe …``: software)."""
+    for line in plotter.ren_win.ReportCapabilities().splitlines():
+        if line.lower().startswith("opengl renderer string:"):
+            return line.split(":", 1)[1].strip()
+    return "unknown"
 
 
 def run_live(session: LiveSession, *, seconds: float | None = None,

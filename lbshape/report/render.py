@@ -1,4 +1,5 @@
-"""Off-screen pictures with pyvista (the only module of lbshape that imports it).
+"""Off-screen pictures with pyvista (with :mod:`lbshape.report.live`, the on-screen window,
+the only modules of lbshape that import it).
 
 All functions write a PNG atomically and return its path. Rendering is headless:
 VTK falls back from X to an off-screen context; its harmless "bad X server
