@@ -210,3 +210,31 @@ def test_a_vertex_out_of_range_is_a_user_error(demo):
     session = LiveSession(*demo)
     with pytest.raises(LbshapeError, match="vertex must be an index"):
         session.grab(session.pre.mesh.n_vertices)
+
+
+def test_a_free_body_moves_in_view_with_its_planes(display):
+    scene = load_scene("car")
+    session = LiveSession(scene, precompute(scene, progress=False))
+    window = LiveWindow(session, seconds=0.2, window_size=(480, 360))
+    plotter = window.plotter
+    plotter.show(auto_close=False, interactive_update=True)
+    try:
+        # the floor and the wall drawn as rectangles reaching far beyond the car
+        bounds = [getattr(actor, "GetBounds", lambda: None)()
+                  for actor in plotter.renderer.actors.values()]
+        sizes = [np.ptp(np.reshape(b, (3, 2)), axis=1).max() for b in bounds
+                 if b is not None and len(b) == 6]
+        assert sum(size > 10.0 for size in sizes) == 2
+        window._draw()
+        start, focus = session.center(), np.array(plotter.camera.focal_point)
+        for _ in range(600):  # thrown into the wall and back (0.6 s)
+            session.step_once()
+        window._draw()
+        shift = session.center() - start
+        assert np.linalg.norm(shift) > 0.4  # measured: 0.94 m
+        assert np.allclose(np.array(plotter.camera.focal_point) - focus, shift, atol=1e-9)
+        # the contact planes hold it: the floor at z = 0, the wall at x = 1.2 m
+        points = session.points()
+        assert points[:, 2].min() > -0.05 and points[:, 0].max() < 1.25
+    finally:
+        window.close()

@@ -109,6 +109,10 @@ class LiveSession:
         rigid = self.sim.rigid
         return rigid.center, rigid.rotation
 
+    def center(self) -> np.ndarray | None:
+        """(3,) a free body's centre of mass (m, world); ``None`` for a fixed object."""
+        return self._pose()[0]
+
     def points(self) -> np.ndarray:
         """(n, 3) world positions of every vertex (m): ``X + U q``, a free body's
         ``c + R (X̄ + U q)`` (n-sized: for drawing only)."""

@@ -60,8 +60,11 @@ EVENT_TYPES = ("drag", "move", "release", "toggle-examples", "pause", "step", "r
 TIMER_MS = 5
 #: the window's size in pixels
 WINDOW_SIZE = (960, 720)
-#: the camera's zoom after framing the object (and its planes) at rest: room to move
-CAMERA_ZOOM = 0.8
+#: contact planes reach this many times the size of the object and the planes' points
+#: beyond them (a free body moves far in a live run; the camera follows it)
+PLANE_REACH = 10.0
+#: the camera's zoom after framing the object and the planes' points at rest
+CAMERA_ZOOM = 1.0
 #: the order of the stats of a live run (``--json``); the first five are the contract's
 STATS_KEYS = ("frames", "fps", "sim_time_s", "wall_time_s", "t_total_ms", "scene", "steps",
               "dt", "realtime_ratio", "render_ms", "examples_on", "drags", "paused",
@@ -233,6 +236,7 @@ class LiveWindow:
         self._start = self._last = None
         self._drag_depth = None
         self.gl_renderer = ""
+        self._followed = None  # the centre of mass the camera was last moved with
         self.window_size = tuple(int(v) for v in window_size)
         scene, mesh = session.scene, session.pre.mesh
         with quiet_vtk():
@@ -249,18 +253,20 @@ class LiveWindow:
         self._line_actor = plotter.add_mesh(self._line, color="#d62728", line_width=3,
                                             point_size=10, render_points_as_spheres=True,
                                             style="wireframe", pickable=False)
+        self._line_actor.GetProperty().SetVertexVisibility(True)
+        self._line_actor.GetProperty().SetVertexColor(0.84, 0.15, 0.16)
         self._line_actor.SetVisibility(False)
         rest = session.points()
         planes = scene_planes(scene)
         extent = np.vstack([rest, *(point[None] for point, _ in planes)])
-        rectangles = plane_rectangles(planes, extent) if planes else []
+        rectangles = plane_rectangles(planes, extent, margin=PLANE_REACH) if planes else []
         add_rectangles(plotter, pv, rectangles)
         self._status = plotter.add_text("", position="upper_left", font_size=10)
         help_text = "left mouse on the object: drag a vertex | " + " | ".join(
             f"{key}: {what}" for key, what in KEYS.items()) + " | q: quit"
-        plotter.add_text(help_text, position="lower_left", font_size=7)
-        set_camera(plotter, view_vector_of(mesh), bounds=bounds_of(
-            np.vstack([extent, *rectangles]) if planes else rest), zoom=CAMERA_ZOOM)
+        plotter.add_text(help_text, position="lower_left", font_size=8)
+        set_camera(plotter, view_vector_of(mesh), bounds=bounds_of(extent), zoom=CAMERA_ZOOM)
+        plotter.renderer.ResetCameraClippingRange()  # the planes reach far beyond the bounds
         for key, action in (("space", lambda: session.pause()), ("n", self._step_key),
                             ("x", lambda: session.set_examples()), ("z", self.reset)):
             plotter.add_key_event(key, self._guarded(action))
@@ -286,6 +292,7 @@ class LiveWindow:
         """Back to rest; the drag is released."""
         self.session.reset()
         self._line_actor.SetVisibility(False)
+        self._drag_depth = None
 
     def start_drag(self, vertex: int, target=None) -> None:
         """Grab ``vertex`` and pull it towards ``target`` (3,) (default: where it is)."""
@@ -399,6 +406,7 @@ class LiveWindow:
         session = self.session
         started = self._clock()
         self.surface.points = session.points()[self._ids]
+        self._follow()
         self._show_drag()
         wall = (self._last - self._start) if self._start is not None else 0.0
         fps = self.frames / wall if wall > 0 else 0.0
@@ -410,6 +418,20 @@ class LiveWindow:
         with quiet_vtk():
             self.plotter.render()
         self.render_seconds += self._clock() - started
+
+    def _follow(self) -> None:
+        """A free body: the camera moves with its centre of mass (turning and zooming stay
+        the user's)."""
+        center = self.session.center()
+        if center is None:
+            return
+        if self._followed is not None:
+            shift = center - self._followed
+            camera = self.plotter.camera
+            camera.focal_point = tuple(np.asarray(camera.focal_point) + shift)
+            camera.position = tuple(np.asarray(camera.position) + shift)
+            self.plotter.renderer.ResetCameraClippingRange()
+        self._followed = np.array(center)
 
     def frame(self, *_args) -> None:
         """One frame: due events, the steps the elapsed wall time owes, the drawing; the
