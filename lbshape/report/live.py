@@ -5,8 +5,9 @@ A repeating VTK timer calls :meth:`LiveWindow.frame`: it feeds the scripted even
 are due, advances the session by the wall time since the last frame
 (:meth:`~lbshape.pipeline.live.LiveSession.advance`: whole steps of the scene's dt,
 capped), moves the drawn surface's points in place, updates the corner text (simulated
-time, mean step cost, frame rate) and renders. Contact planes are drawn as in the
-off-screen pictures (:func:`lbshape.report.render.plane_rectangles`).
+time, mean step cost, frame rate) and renders. Contact planes are the off-screen
+pictures' rectangles (:func:`lbshape.report.render.plane_rectangles`), reaching far, drawn
+as grids of lines (:func:`plane_grid`); the camera follows a free body's centre of mass.
 
 Interaction (:data:`KEYS`): the left mouse button on the object picks the nearest
 vertex of the picked cell and drags it (the cursor is mapped to the plane through the
@@ -41,7 +42,7 @@ from lbshape.io.atomic import write_atomic
 from lbshape.pipeline.live import LiveSession
 from lbshape.report.figures import view_vector_of
 from lbshape.report.render import (
-    add_rectangles,
+    PLANE_COLOR,
     bounds_of,
     plane_rectangles,
     quiet_vtk,
@@ -63,6 +64,9 @@ WINDOW_SIZE = (960, 720)
 #: contact planes reach this many times the size of the object and the planes' points
 #: beyond them (a free body moves far in a live run; the camera follows it)
 PLANE_REACH = 10.0
+#: contact planes are drawn as grids of lines this many object diagonals apart (a
+#: translucent plane filling a software-rendered window tripled a frame's cost)
+GRID_SPACING = 0.5
 #: the camera's zoom after framing the object and the planes' points at rest
 CAMERA_ZOOM = 1.0
 #: the order of the stats of a live run (``--json``); the first five are the contract's
@@ -210,6 +214,21 @@ def require_display() -> None:
                            "...)")
 
 
+def plane_grid(pv, corners: np.ndarray, spacing: float, *, most: int = 200):
+    """A ``pyvista.PolyData`` of lines covering the rectangle ``corners`` (4, 3) (in order
+    around it) about ``spacing`` m apart (at most ``most`` lines each way)."""
+    corners = np.asarray(corners, dtype=float)
+    origin, e1, e2 = corners[0], corners[1] - corners[0], corners[3] - corners[0]
+    counts = [min(most, max(1, math.ceil(np.linalg.norm(e) / spacing))) for e in (e1, e2)]
+    ends = []
+    for count, along, across in ((counts[0], e1, e2), (counts[1], e2, e1)):
+        for step in np.linspace(0.0, 1.0, count + 1):
+            ends.append((origin + step * along, origin + step * along + across))
+    points = np.array([point for pair in ends for point in pair])
+    lines = np.hstack([[2, 2 * k, 2 * k + 1] for k in range(len(ends))])
+    return pv.PolyData(points, lines=lines)
+
+
 class LiveWindow:
     """The window of a :class:`~lbshape.pipeline.live.LiveSession` (see the module
     docstring). Make it, then :meth:`run`.
@@ -260,7 +279,10 @@ class LiveWindow:
         planes = scene_planes(scene)
         extent = np.vstack([rest, *(point[None] for point, _ in planes)])
         rectangles = plane_rectangles(planes, extent, margin=PLANE_REACH) if planes else []
-        add_rectangles(plotter, pv, rectangles)
+        spacing = GRID_SPACING * float(np.linalg.norm(np.ptp(rest, axis=0)))
+        for corners in rectangles:
+            plotter.add_mesh(plane_grid(pv, corners, spacing), color=PLANE_COLOR,
+                             lighting=False, line_width=1.0, pickable=False)
         self._status = plotter.add_text("", position="upper_left", font_size=10)
         help_text = "left mouse on the object: drag a vertex | " + " | ".join(
             f"{key}: {what}" for key, what in KEYS.items()) + " | q: quit"
