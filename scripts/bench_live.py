@@ -150,7 +150,9 @@ def markdown(rows: list[dict], shots: list[Path], machine: dict, args, out_dir: 
         f"{slow_rho:.2f} give {paced_ratio(slow):.2f}). The step costs here "
         "are those of a machine whose 2 cores were shared with other jobs (load average "
         "above), which the software renderer's threads compete for too; the reduced steps "
-        "alone: `free_body_step.md`, `table2.md`.",
+        "alone: `free_body_step.md`, `table2.md` (the car there runs the scene's 0.8 s; "
+        "here it slides on the floor for most of the run, and a step in contact is swept "
+        "several times).",
         "",
         "Screenshot sequence of the drag (teddy-global, a separate untimed run; the red line "
         "joins the foot to the cursor point it is pulled towards), at "
