@@ -13,7 +13,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 BENCHMARKS = (
     "bench_eigen", "bench_element_kernels", "bench_cubature", "bench_precompute",
-    "bench_interpolation", "bench_table2", "bench_large_steps",
+    "bench_interpolation", "bench_table2", "bench_large_steps", "bench_live",
 )
 
 

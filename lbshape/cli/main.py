@@ -16,8 +16,8 @@ import sys
 from lbshape.errors import LbshapeError
 
 #: sub-command modules, in the order ``lbshape --help`` lists them
-COMMANDS = ("mesh", "eigen", "modes", "precompute", "simulate", "render", "bench", "tune",
-            "demo")
+COMMANDS = ("mesh", "eigen", "modes", "precompute", "simulate", "render", "live", "bench",
+            "tune", "demo")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -84,6 +84,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lbshape.dynamics.contact import PlaneContact
+from lbshape.dynamics.drag import DragSpring
 from lbshape.dynamics.fictitious import FrameTensors
 from lbshape.dynamics.free_body_kernels import (
     KICK_ROTATION_FAILED,
@@ -259,6 +260,8 @@ class FreeBodySimulation:
 
     Attributes:
         q, qd, qa: (r,) deformation, its rate and acceleration at :attr:`time`.
+        drag: a user's :class:`~lbshape.dynamics.drag.DragSpring` (:meth:`set_drag`) or
+            ``None``: a world point force, one more load evaluated at each step's start.
         damping: (r, r) the deformation's Rayleigh damping ``α I + β K₀``.
         phase_seconds: (steps, len(PHASES)) wall time of each part of each step of the
             last :meth:`run` (s).
@@ -296,6 +299,7 @@ class FreeBodySimulation:
         self.dt, self.scheme = float(dt), integrator
         self.loads = list(loads)
         self._loads = LoadStack(self.loads, r)
+        self.drag: DragSpring | None = None
         self.driver = driver if (driver is not None and k_ex > 0.0) else None
         self.k_ex = float(k_ex) if self.driver is not None else 0.0
         self._in_place = self.driver is not None and hasattr(self.driver, "weights_into") \
@@ -372,6 +376,37 @@ class FreeBodySimulation:
         self._elastic_energy = 0.0  # the monitor's elastic energy at the committed state (J)
         self.energy0 = self.energy()
         self.work = 0.0
+
+    def set_drag(self, drag: DragSpring | None) -> None:
+        """A user's drag spring (:class:`~lbshape.dynamics.drag.DragSpring`: a world point
+        force at a body point, evaluated at the start of each step and held over it; keep
+        its stiffness below :func:`~lbshape.dynamics.drag.explicit_stiffness_limit`) from
+        the next step on, or ``None`` to release it. The first drag adds one load to the
+        stack (zero while released)."""
+        if drag is not None and self.drag is None and len(self._loads.profiles) == len(
+                self.loads):
+            slot = FreeLoad(np.zeros(3), np.zeros((self.r, 3, 3)), np.zeros((3, 3)),
+                            np.zeros((self.r, 3, 3)), TimeProfile())
+            self._loads = LoadStack([*self.loads, slot], self.r)
+        self.drag = drag
+        if drag is None and len(self._loads.profiles) > len(self.loads):
+            self._loads.forces[-1] = 0.0
+            self._loads.P[-1] = self._loads.Z0[-1] = self._loads.Z1[-1] = 0.0
+
+    def set_example_force(self, driver, k_ex: float) -> None:
+        """Switch the example force: ``driver`` and ``k_ex`` (1/s²) as in the
+        constructor (``None`` or 0: no example force) from the next step on."""
+        self.driver = driver if (driver is not None and k_ex > 0.0) else None
+        self.k_ex = float(k_ex) if self.driver is not None else 0.0
+        self._in_place = self.driver is not None and hasattr(self.driver, "weights_into") \
+            and hasattr(self.driver, "target_from_weights_into")
+
+    def _drag_load(self) -> None:
+        """The drag's point force at the current state into its load slot."""
+        state, stack = self._now, self._loads
+        force = self.drag.point_force(state.c, state.R, state.q)
+        P, Z0, Z1 = self.drag.load_arrays(force)
+        stack.forces[-1], stack.P[-1], stack.Z0[-1], stack.Z1[-1] = force, P, Z0, Z1
 
     # ------------------------------------------------------------ quantities
     @property
@@ -663,6 +698,8 @@ class FreeBodySimulation:
         marks[0] = clock()
         index = self.steps_taken + 1 if index is None else index
         t1 = self.time + self.dt
+        if self.drag is not None:
+            self._drag_load()
         self._interpolate(marks)
         # rigid update (loads and contact at t₀, impulse, rotation), then the deformation
         # solve (contact implicit at the new pose); in contact, sweeps

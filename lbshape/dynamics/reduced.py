@@ -53,6 +53,7 @@ import scipy.linalg as sla
 
 from lbshape._jit import njit
 from lbshape.dynamics.contact import PlaneContact
+from lbshape.dynamics.drag import DragSpring
 from lbshape.dynamics.integrators import get_scheme
 from lbshape.dynamics.kernels import axpy, cholesky_in_place, cholesky_solve_in_place, predict
 from lbshape.dynamics.loads import TimedLoad
@@ -106,6 +107,8 @@ class ReducedSimulation:
     Attributes:
         x, v, a: (r,) state at :attr:`time`.
         q_target: (r,) the last target ``q*``.
+        drag: a user's :class:`~lbshape.dynamics.drag.DragSpring` (:meth:`set_drag`) or
+            ``None``: its spring part is in the force and tangent, its pull in the loads.
         last_residual: relative Newton residual at the state the last step accepted
             (``None`` mode).
         phase_seconds: (steps, len(PHASES)) wall time of each part of each step of the
@@ -138,6 +141,7 @@ class ReducedSimulation:
             raise LbshapeError(f"newton_iterations must be >= 1 or None, got {newton_iterations}")
         self.elastic = elastic
         self.contact = contact
+        self.drag: DragSpring | None = None
         self.r = r = int(r)
         self.dt = h = float(dt)
         self.integrator = integrator
@@ -198,6 +202,26 @@ class ReducedSimulation:
         self._in_place = hasattr(driver, "weights_into") and hasattr(
             driver, "target_from_weights_into")
 
+    def set_drag(self, drag: DragSpring | None) -> None:
+        """A user's drag spring (:class:`~lbshape.dynamics.drag.DragSpring`, implicit in
+        the step) from the next step on, or ``None`` to release it."""
+        self.drag = drag
+        self._relinearise()
+
+    def set_example_force(self, driver, k_ex: float) -> None:
+        """Switch the example force: ``driver`` and ``k_ex`` (1/s²) as in the
+        constructor (``None`` or 0: no example force) from the next step on."""
+        self.driver = driver if (driver is not None and k_ex > 0.0) else None
+        self.k_ex = float(k_ex) if self.driver is not None else 0.0
+        self._coefficients[5] = self.k_ex
+        self._relinearise()
+
+    def _relinearise(self) -> None:
+        """The force and tangent at the current state again (the next step's first Newton
+        update starts from them), after a change of the forces."""
+        self._force_and_tangent(self.x)
+        self._f_start[:], self._K_start[:] = self._f, self._K
+
     @property
     def stepper(self) -> ReducedSimulation:
         """The simulation itself (it is its own stepper: ``x``, ``time``, ``rtol`` …)."""
@@ -205,7 +229,8 @@ class ReducedSimulation:
 
     # --------------------------------------------------------------- pieces
     def _external_into(self, t: float, out: np.ndarray) -> None:
-        """Loads at time t plus the example pull ``k_ex q*`` (r,), written into ``out``."""
+        """Loads at time t plus the example pull ``k_ex q*`` and a drag's pull (r,),
+        written into ``out``."""
         if self.k_ex:
             np.multiply(self.q_target, self.k_ex, out=out)
         else:
@@ -214,6 +239,8 @@ class ReducedSimulation:
             scale = profile(t)
             if scale:
                 axpy(scale, pattern, out)
+        if self.drag is not None:
+            self.drag.pull_into(out)
 
     def _force_and_tangent(self, q: np.ndarray) -> None:
         if self._into:
@@ -226,6 +253,8 @@ class ReducedSimulation:
             if self.contact.evaluate_into(_ORIGIN, _IDENTITY3, q, False):
                 self._f -= self.contact.generalized
                 self._K += self.contact.stiffness_q
+        if self.drag is not None:
+            self.drag.spring_into(q, self._f, self._K)
 
     def _potential(self, q: np.ndarray) -> float:
         energy = float(self.elastic.energy(q))
@@ -234,6 +263,8 @@ class ReducedSimulation:
         if self.contact is not None:
             self.contact.evaluate_into(_ORIGIN, _IDENTITY3, q, False)
             energy += float(self.contact.scalars[0])
+        if self.drag is not None:
+            energy += self.drag.energy(q)
         return energy
 
     # ----------------------------------------------------------------- step

@@ -243,7 +243,7 @@ def _local_example_shape(pre, index: int | Sequence[int]) -> np.ndarray | None:
     return u / np.maximum(count, 1)[:, None]
 
 
-def _view_vector(mesh) -> tuple[float, float, float]:
+def view_vector_of(mesh) -> tuple[float, float, float]:
     """A camera direction: mostly along the thin axis of a flat object, else oblique."""
     extent = np.ptp(mesh.points, axis=0)
     thin = int(np.argmin(extent))
@@ -279,7 +279,7 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
             users = [reg.name for reg in pre.local.regions if index in reg.examples]
             shapes.append(u)
             captions.append(f"{example_caption(index, pose)} -> {', '.join(users)}")
-    view = _view_vector(pre.mesh)
+    view = view_vector_of(pre.mesh)
     regions_png = render_shapes(
         [pre.mesh], [f"{scene.name}: regions ({names}; 0 = none)"],
         out_dir / "local_regions.png", scalars=[labels], scalar_name="region",

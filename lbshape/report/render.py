@@ -1,4 +1,5 @@
-"""Off-screen pictures with pyvista (the only module of lbshape that imports it).
+"""Off-screen pictures with pyvista (with :mod:`lbshape.report.live`, the on-screen window,
+the only modules of lbshape that import it).
 
 All functions write a PNG atomically and return its path. Rendering is headless:
 VTK falls back from X to an off-screen context; its harmless "bad X server
@@ -113,19 +114,22 @@ def scene_planes(scene) -> list[tuple[np.ndarray, np.ndarray]]:
             for p in scene.planes]
 
 
-def _add_rectangles(plotter, pv, rectangles: Sequence[np.ndarray]) -> None:
+def add_rectangles(plotter, pv, rectangles: Sequence[np.ndarray]) -> None:
+    """Draw contact planes' rectangles (each (4, 3) corners, :func:`plane_rectangles`) in
+    the plotter's current panel, translucent and unlit."""
     for corners in rectangles:
         quad = pv.PolyData(np.asarray(corners, dtype=float), faces=np.array([4, 0, 1, 2, 3]))
         plotter.add_mesh(quad, color=PLANE_COLOR, opacity=PLANE_OPACITY, lighting=False,
                          show_edges=True, edge_color="#5a4630", line_width=1.0)
 
 
-def _bounds(points: np.ndarray) -> tuple[float, ...]:
+def bounds_of(points: np.ndarray) -> tuple[float, ...]:
+    """(xmin, xmax, ymin, ymax, zmin, zmax) of points (p, 3), as VTK's cameras take them."""
     low, high = points.min(axis=0), points.max(axis=0)
     return (low[0], high[0], low[1], high[1], low[2], high[2])
 
 
-def _set_camera(plotter, view_vector, *, view_up=None, bounds=None, zoom: float = 1.0) -> None:
+def set_camera(plotter, view_vector, *, view_up=None, bounds=None, zoom: float = 1.0) -> None:
     """Point the current panel's camera along ``view_vector``; frame ``bounds`` (fixed,
     the same for every panel given them) or else what the panel shows."""
     plotter.view_vector(view_vector, viewup=view_up)
@@ -238,7 +242,7 @@ def render_shapes(
     rectangles = plane_rectangles(planes, extent) if len(planes) else []
     bounds = None
     if extent is not None:
-        bounds = _bounds(np.vstack([np.asarray(extent, dtype=float).reshape(-1, 3),
+        bounds = bounds_of(np.vstack([np.asarray(extent, dtype=float).reshape(-1, 3),
                                     *rectangles]))
     plotter = _plotter(pv, shape=(1, k), window_size=window_size, border=False)
     scalars = list(scalars) if scalars is not None else [None] * k
@@ -265,9 +269,9 @@ def render_shapes(
         if ghost is not None and mesh is not ghost:
             plotter.add_mesh(to_grid(ghost).extract_surface(algorithm="dataset_surface"),
                              style="wireframe", color="#888888", opacity=0.25, line_width=0.5)
-        _add_rectangles(plotter, pv, rectangles)
+        add_rectangles(plotter, pv, rectangles)
         plotter.add_text(label, font_size=10)
-        _set_camera(plotter, view_vector, view_up=view_up, bounds=bounds, zoom=zoom)
+        set_camera(plotter, view_vector, view_up=view_up, bounds=bounds, zoom=zoom)
     plotter.link_views()
     return _save(plotter, Path(path))
 
@@ -307,7 +311,7 @@ def render_shape_grid(
         extent = np.vstack([m.points for row in rows for m in row])
     extent = np.asarray(extent, dtype=float).reshape(-1, 3)
     rectangles = plane_rectangles(planes, extent) if len(planes) else []
-    bounds = _bounds(np.vstack([extent, *rectangles]))
+    bounds = bounds_of(np.vstack([extent, *rectangles]))
     for i, row in enumerate(rows):
         for j, mesh in enumerate(row):
             plotter.subplot(i, j)
@@ -321,9 +325,9 @@ def render_shape_grid(
             else:
                 plotter.add_mesh(surface, color="#c8d2e0", show_edges=True,
                                  edge_color="#333333", line_width=0.2)
-            _add_rectangles(plotter, pv, rectangles)
+            add_rectangles(plotter, pv, rectangles)
             plotter.add_text(labels[i][j], font_size=8)
-            _set_camera(plotter, view_vector, bounds=bounds, zoom=zoom)
+            set_camera(plotter, view_vector, bounds=bounds, zoom=zoom)
     if clim is not None:
         plotter.add_text(f"colour: {scalar_name} {clim[0]:.3g} (dark) to {clim[1]:.3g} "
                          "(yellow)", position="lower_right", font_size=7)
@@ -383,7 +387,7 @@ def animation_frames(
         clim = (0.0, float(max(v.max() for v in norms)) or 1.0)
     moved = np.vstack([rest.points, *((rest.points[None] + u).reshape(-1, 3) for u in runs)])
     rectangles = plane_rectangles(planes, moved) if len(planes) else []
-    bounds = _bounds(np.vstack([moved, *rectangles]))
+    bounds = bounds_of(np.vstack([moved, *rectangles]))
     width, height = window_size or (360 * k, 420)
     pv = _pyvista()
     plotter = _plotter(pv, shape=(1, k), window_size=(width, height), border=False)
@@ -447,8 +451,8 @@ def _animation_panel(plotter, pv, panel: int, base, first_values: np.ndarray, sc
     if ghost:
         plotter.add_mesh(base.copy(), style="wireframe", color="#888888", opacity=0.25,
                          line_width=0.5)
-    _add_rectangles(plotter, pv, rectangles)
-    _set_camera(plotter, view_vector, bounds=bounds)  # every frame in view; the camera stays
+    add_rectangles(plotter, pv, rectangles)
+    set_camera(plotter, view_vector, bounds=bounds)  # every frame in view; the camera stays
     return surface
 
 
