@@ -152,6 +152,9 @@ class PlaneContact:
         self.generalized = np.zeros(r)
         self.stiffness_q, self.stiffness_rigid = np.zeros((r, r)), np.zeros((6, 6))
         self.damping_rigid = np.zeros((6, 6))
+        #: (6, r) the friction's coupling ``Σ Bᵀ C R U_i`` of the rigid velocity and q̇:
+        #: minus the derivative of (force, torque) w.r.t. q̇
+        self.coupling = np.zeros((6, r))
         #: [energy (J), active vertices, largest penetration (m)] of the last evaluation
         self.scalars = np.zeros(3)
         self._reach = np.zeros(len(planes), dtype=np.bool_)
@@ -210,9 +213,11 @@ class PlaneContact:
                 float(rate), self.body_points, self.basis, self.points, self.normals,
                 self.stiffness, self.friction, SLIP_SPEED, self._reach, rigid,
                 self._friction_work, self._friction_small, self._friction_q, self.force,
-                self.torque, self.generalized, self.stiffness_q, self.damping_rigid)
+                self.torque, self.generalized, self.stiffness_q, self.damping_rigid,
+                self.coupling)
         elif self.has_friction:
             self.damping_rigid[:] = 0.0
+            self.coupling[:] = 0.0
         return active
 
     def evaluate(self, center: np.ndarray, rotation: np.ndarray, q: np.ndarray,
@@ -378,7 +383,7 @@ def _contact_kernel(center, rotation, q, body_points, basis, points, normals, st
 @njit
 def _friction_kernel(center, rotation, q, velocity, omega, qd, rate, body_points, basis,
                      points, normals, stiffness, friction, eps, reach, rigid, G, small, Kf,
-                     force, torque, generalized, Kq, C6):
+                     force, torque, generalized, Kq, C6, X):
     """The friction of the penetrating vertices (module docstring), added to ``force``,
     ``torque``, ``generalized`` and ``Kq``; ``C6`` (6, 6) receives ``C₆``.
 
@@ -389,6 +394,7 @@ def _friction_kernel(center, rotation, q, velocity, omega, qd, rate, body_points
     """
     r = q.shape[0]
     C6[:, :] = 0.0
+    X[:, :] = 0.0
     Kf[:, :] = 0.0
     y, arm, w, t = small[0:3], small[3:6], small[6:9], small[9:12]
     C = small[12:21].reshape((3, 3))
@@ -467,6 +473,15 @@ def _friction_kernel(center, rotation, q, velocity, omega, qd, rate, body_points
                 torque[1] += arm[2] * f[0] - arm[0] * f[2]
                 torque[2] += arm[0] * f[1] - arm[1] * f[0]
                 _add_rigid_rate(C, arm, C6)
+                for a in range(6):  # X += Bᵀ C G
+                    for j in range(r):
+                        value = 0.0
+                        for i2 in range(3):
+                            bc = _column(arm, a, i2)
+                            if bc != 0.0:
+                                value += bc * (C[i2, 0] * G[0, j] + C[i2, 1] * G[1, j]
+                                               + C[i2, 2] * G[2, j])
+                        X[a, j] += value
     for j in range(r):
         for k2 in range(r):
             Kq[j, k2] += Kf[j, k2]

@@ -43,7 +43,11 @@ world velocities ``v + ω × R y_i + R U_i q̇`` give the regularised Coulomb fo
 kick it is part of the contact (force, torque) C₀, C₁ and made implicit by its rate
 matrix C₆ (``−∂(force, torque)/∂(v, ω)``): the matrix is ``M₆ + θ Δt C₆ + θ² Δt² K₆``,
 the sweep's right-hand side gains ``θ Δt C₆ (ν₁ − ν₀)`` (zero at the fixed point),
-C₆ at t₀ in the first pass and at the end of the last sweep after it. In the deformation
+C₆ at t₀ in the first pass. After a sweep the kick takes the effective rate
+``C₆ − rate X J⁻¹ Xᵀ`` (symmetric part; X the contact's ``coupling`` of ν and q̇, J the
+deformation's Newton matrix): the deformation answers a change of the rigid slip, so the
+friction depends less on ν than C₆ says (with C₆ alone the car's wall impact ran the 12
+sweeps, converging by ~0.8 per sweep; with it 4–5). In the deformation
 solve it is evaluated at the pose (c₁, R₁), the kicked rigid velocities and the trial
 q̇₁ (the scheme's kinematics of Δq), with its tangent (``∂q̇₁/∂q₁ = c_v/Δt``). With
 μ = 0 on every plane nothing of this runs and the step is the frictionless one.
@@ -350,6 +354,8 @@ class FreeBodySimulation:
         self._gen = np.zeros(r)  # the loads' generalized force at t₀ (not used by the step)
         # the rigid motion the contact's friction reads: velocity of c and world ω
         self._velocity, self._omega = np.zeros(3), np.zeros(3)
+        # the friction's effective rigid rate: J⁻¹ Xᵀ (6, r) and X J⁻¹ Xᵀ (6, 6)
+        self._coupling_work, self._rate6 = np.zeros((6, r)), np.zeros((6, 6))
         # the loads' force and torque at the end of the step (not used by the step)
         self._end_force, self._end_torque = np.zeros(3), np.zeros(3)
         #: [internal force, contact, rigid, generalized load, solve] seconds of a step
@@ -626,13 +632,33 @@ class FreeBodySimulation:
         if sweeps == 1 and not np.any(kick.K6):  # the contact began within the step
             kick.K6[:] = contact.stiffness_rigid
         if contact.has_friction:  # the friction's rate at the end of this sweep
-            kick.C6[:] = contact.damping_rigid
+            self._effective_friction_rate(kick.C6)
         omega_body, R1, nu1 = kick.omega1, end.R, kick.nu_end
         for a in range(3):
             nu1[a] = p1[a] / self.frame.mass
             nu1[3 + a] = (R1[a, 0] * omega_body[0] + R1[a, 1] * omega_body[1]
                           + R1[a, 2] * omega_body[2])
         return True
+
+    def _effective_friction_rate(self, out: np.ndarray) -> None:
+        """The friction's rate matrix on the rigid velocity with the deformation's answer:
+        a change δν of (v, ω) changes the slip, the deformation solve answers with
+        ``δq̇ = −rate J⁻¹ Xᵀ δν`` (J its Newton matrix, X the contact's ``coupling``), so
+        the friction (force, torque) changes by ``−(C₆ − rate X J⁻¹ Xᵀ) δν``; its
+        symmetric part into ``out`` (6, 6). With C₆ alone the sweeps converged by ~0.8
+        per sweep on the car's wall impact (the deformation takes the slip)."""
+        contact, solve = self.contact, self._solve
+        X, Y = contact.coupling, self._coupling_work
+        for a in range(6):
+            if not lu_solve(solve.base, solve.K, X[a], solve.J, Y[a]):
+                out[:] = contact.damping_rigid
+                return
+        np.dot(X, Y.T, out=self._rate6)
+        rate = self._cv_dt
+        for a in range(6):
+            for b in range(6):
+                out[a, b] = contact.damping_rigid[a, b] - 0.5 * rate * (
+                    self._rate6[a, b] + self._rate6[b, a])
 
     def _sweeps(self, index: int, t1: float, active: bool, times: np.ndarray) -> int:
         """Steps 2–5: the rigid kick and the deformation solve, repeated while contact
