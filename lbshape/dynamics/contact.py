@@ -3,7 +3,24 @@
 A plane is a point p (m), a unit normal n pointing into the free side and a
 penalty stiffness k (N/m per surface vertex). A surface vertex at world position
 x penetrates by ``d = max(0, −(x − p)·n)`` and feels ``f = k d n`` (N, world),
-with the potential ``½ k d²``. No friction.
+with the potential ``½ k d²``.
+
+**Friction** (regularised Coulomb). A plane's coefficient μ ≥ 0 adds, at every
+penetrating vertex, the tangential force ``f_t = −μ k d · v_t / √(|v_t|² + ε²)`` (N,
+world), ``v_t = (I − n nᵀ) w`` the tangential part of the vertex's world velocity w
+relative to the static plane and ε = :data:`SLIP_SPEED`. Its size tends to the Coulomb
+limit μ |f_n| for |v_t| ≫ ε and is linear in v_t below ε, so the implicit steps stay
+smooth; the price is a creep: a block held by friction on a slope whose ratio
+``tan θ / μ = s < 1`` slides at ``ε s / √(1 − s²)`` instead of sticking. Friction has no
+potential (it only dissipates). Its rate matrix ``C = μ k d (P − t tᵀ/s²)/s``
+(``P = I − n nᵀ``, ``t = v_t``, ``s = √(|t|² + ε²)``; symmetric positive
+semi-definite, ``−∂f_t/∂w``) gives the 6 × 6 rigid rate matrix
+``C₆ = Σ Bᵀ C B``, ``B = [I, −[arm]×]`` (:attr:`PlaneContact.damping_rigid`), and,
+with the step's ``rate = ∂q̇₁/∂q₁``, the deformation's tangent ``rate Σ U_iᵀ Rᵀ C R U_i``
+plus the normal force's share ``−μ k Σ U_iᵀ Rᵀ T gᵀ`` (``T = v_t/s``, ``g = U_iᵀ Rᵀ n``),
+added to :attr:`PlaneContact.stiffness_q` (then not symmetric). The turn of the arm
+with q (``ω × R U_i δq``) is left out of the tangent: exact for a body that does not
+spin.
 
 Positions follow the frame convention of :mod:`lbshape.dynamics.fictitious`:
 ``x_i = c + R (X̄_i + U_i q)`` (free body: c the centre of mass, R the rotation)
@@ -20,12 +37,14 @@ spectral norm of the vertex blocks U_i (so ``|U_i q| ≤ u_max |q|``).
 **Run-time path.** :meth:`PlaneContact.evaluate_into` writes every output into arrays
 the contact owns (:attr:`PlaneContact.force`, …), through one compiled kernel that
 loops over the surface vertices once (positions, gaps, forces and stiffnesses of all
-reached planes); it allocates nothing. :meth:`PlaneContact.evaluate` returns a copy as
-a :class:`ContactResult`.
+reached planes) and, when a plane has friction and a vertex penetrates, a second one
+over the surface vertices for the friction; it allocates nothing.
+:meth:`PlaneContact.evaluate` returns a copy as a :class:`ContactResult`.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -35,14 +54,22 @@ from lbshape._jit import njit
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import boundary_faces
 
+#: ε of the regularised Coulomb friction (m/s): the slip speed below which the friction
+#: force grows linearly with the slip (module docstring)
+SLIP_SPEED = 1e-2
+#: machine ε (the contact's round-off level)
+_EPS = float(np.finfo(float).eps)
+
 
 @dataclass(frozen=True)
 class ContactPlane:
-    """A contact plane: point (3,) m, unit normal (3,) into the free side, k in N/m."""
+    """A contact plane: point (3,) m, unit normal (3,) into the free side, k in N/m,
+    Coulomb friction coefficient μ ≥ 0 (0: frictionless)."""
 
     point: tuple[float, float, float]
     normal: tuple[float, float, float]
     stiffness: float
+    friction: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -53,9 +80,14 @@ class ContactResult:
         force: (3,) total force on the body (N, world).
         torque: (3,) total torque about c (N·m, world).
         generalized: (r,) ``Σ U_iᵀ Rᵀ f_i`` (reduced force, pushes q).
-        stiffness_q: (r, r) ``−∂generalized/∂q`` (symmetric positive semi-definite).
+        stiffness_q: (r, r) ``−∂generalized/∂q`` (symmetric positive semi-definite
+            without friction; with it, the step's ``rate`` share is included and the
+            matrix is not symmetric).
         stiffness_rigid: (6, 6) ``Σ k [n; a][n; a]ᵀ``, ``a = (x − c) × n``: minus the
-            derivative of (force, torque) w.r.t. a translation and a small world rotation.
+            derivative of the normal (force, torque) w.r.t. a translation and a small
+            world rotation.
+        damping_rigid: (6, 6) the friction's ``C₆``: minus the derivative of (force,
+            torque) w.r.t. the rigid velocity (v, ω) (N·s/m …; zero without friction).
         energy: penalty energy (J).
         active: number of penetrating vertices.
         depth: largest penetration (m).
@@ -66,6 +98,7 @@ class ContactResult:
     generalized: np.ndarray
     stiffness_q: np.ndarray
     stiffness_rigid: np.ndarray
+    damping_rigid: np.ndarray
     energy: float
     active: int
     depth: float
@@ -99,6 +132,11 @@ class PlaneContact:
         self.stiffness = np.array([p.stiffness for p in planes], dtype=float)
         if np.any(~np.isfinite(self.stiffness)) or np.any(self.stiffness <= 0):
             raise LbshapeError("contact stiffness must be > 0 N/m")
+        self.friction = plane_frictions(planes)
+        #: some plane has friction (the contact then depends on the velocities)
+        self.has_friction = bool(np.any(self.friction > 0))
+        self._k_max = float(self.stiffness.max())
+        self._mu_max = float(self.friction.max())
         self.body_points = np.ascontiguousarray(body_points, dtype=float)
         self.basis = np.ascontiguousarray(basis, dtype=float)
         self.vertices = np.asarray(vertices, dtype=np.int64)
@@ -113,10 +151,19 @@ class PlaneContact:
         self.force, self.torque = np.zeros(3), np.zeros(3)
         self.generalized = np.zeros(r)
         self.stiffness_q, self.stiffness_rigid = np.zeros((r, r)), np.zeros((6, 6))
+        self.damping_rigid = np.zeros((6, 6))
+        #: (6, r) the friction's coupling ``Σ Bᵀ C R U_i`` of the rigid velocity and q̇:
+        #: minus the derivative of (force, torque) w.r.t. q̇
+        self.coupling = np.zeros((6, r))
         #: [energy (J), active vertices, largest penetration (m)] of the last evaluation
         self.scalars = np.zeros(3)
         self._reach = np.zeros(len(planes), dtype=np.bool_)
         self._work, self._small = np.zeros(r), np.zeros(12)
+        # friction: the velocities of an evaluation without them (at rest), its work
+        self._rest3, self._rest_q = np.zeros(3), np.zeros(r)
+        self._friction_work = np.zeros((3, r))
+        self._friction_small = np.zeros(24)
+        self._friction_q = np.zeros((r, r))
 
     @classmethod
     def for_mesh(cls, planes: Sequence[ContactPlane], points: np.ndarray, tets: np.ndarray,
@@ -136,36 +183,107 @@ class PlaneContact:
         return self._reach.copy()
 
     def evaluate_into(self, center: np.ndarray, rotation: np.ndarray, q: np.ndarray,
-                      rigid: bool = True) -> int:
+                      rigid: bool = True, velocity: np.ndarray | None = None,
+                      omega: np.ndarray | None = None, qd: np.ndarray | None = None,
+                      rate: float = 0.0) -> int:
         """Contact forces at (c (3,), R (3, 3), q (r,)) written into :attr:`force`,
-        :attr:`torque`, :attr:`generalized`, :attr:`stiffness_q`, :attr:`stiffness_rigid`
-        and :attr:`scalars`; returns the number of penetrating vertices. No allocation.
+        :attr:`torque`, :attr:`generalized`, :attr:`stiffness_q`, :attr:`stiffness_rigid`,
+        :attr:`damping_rigid` and :attr:`scalars`; returns the number of penetrating
+        vertices. No allocation.
 
-        ``rigid=False`` leaves the torque and the 6 × 6 stiffness at zero (fixed objects).
+        ``rigid=False`` leaves the torque and the 6 × 6 matrices at zero (fixed objects).
+        Friction reads the motion: ``velocity`` (3,) of c (m/s, world), ``omega`` (3,)
+        the world angular velocity (rad/s), ``qd`` (r,) the deformation's rate (each
+        zero when ``None``), and ``rate`` = ∂q̇/∂q of the step (1/s) for the tangent.
         """
         if _reach_kernel(center, q, self.radius0, self.u_max, self.points, self.normals,
                          self._reach):
             self.evaluated += 1
         else:
             self.skipped += 1
-        return _contact_kernel(center, rotation, q, self.body_points, self.basis, self.points,
-                               self.normals, self.stiffness, self._reach, rigid, self._work,
-                               self._small, self.force, self.torque, self.generalized,
-                               self.stiffness_q, self.stiffness_rigid, self.scalars)
+        active = _contact_kernel(center, rotation, q, self.body_points, self.basis,
+                                 self.points, self.normals, self.stiffness, self._reach,
+                                 rigid, self._work, self._small, self.force, self.torque,
+                                 self.generalized, self.stiffness_q, self.stiffness_rigid,
+                                 self.scalars)
+        if self.has_friction and active:
+            _friction_kernel(
+                center, rotation, q, self._rest3 if velocity is None else velocity,
+                self._rest3 if omega is None else omega, self._rest_q if qd is None else qd,
+                float(rate), self.body_points, self.basis, self.points, self.normals,
+                self.stiffness, self.friction, SLIP_SPEED, self._reach, rigid,
+                self._friction_work, self._friction_small, self._friction_q, self.force,
+                self.torque, self.generalized, self.stiffness_q, self.damping_rigid,
+                self.coupling)
+        elif self.has_friction:
+            self.damping_rigid[:] = 0.0
+            self.coupling[:] = 0.0
+        return active
 
     def evaluate(self, center: np.ndarray, rotation: np.ndarray, q: np.ndarray,
-                 *, rigid: bool = True) -> ContactResult:
-        """Contact forces at the configuration (c (3,), R (3, 3), q (r,)), as a new
+                 *, rigid: bool = True, velocity: np.ndarray | None = None,
+                 omega: np.ndarray | None = None, qd: np.ndarray | None = None,
+                 rate: float = 0.0) -> ContactResult:
+        """Contact forces at the configuration (c (3,), R (3, 3), q (r,)) and motion
+        (``velocity``, ``omega``, ``qd``, ``rate``: :meth:`evaluate_into`), as a new
         :class:`ContactResult` (:meth:`evaluate_into` is the allocation-free path).
 
-        ``rigid=False`` skips the 6 × 6 stiffness and the torque (fixed objects).
+        ``rigid=False`` skips the 6 × 6 matrices and the torque (fixed objects).
         """
+        def vector(value):
+            return None if value is None else np.asarray(value, dtype=float)
+
         active = self.evaluate_into(np.asarray(center, dtype=float),
                                     np.asarray(rotation, dtype=float),
-                                    np.asarray(q, dtype=float), rigid)
+                                    np.asarray(q, dtype=float), rigid, vector(velocity),
+                                    vector(omega), vector(qd), rate)
         return ContactResult(self.force.copy(), self.torque.copy(), self.generalized.copy(),
                              self.stiffness_q.copy(), self.stiffness_rigid.copy(),
-                             float(self.scalars[0]), int(active), float(self.scalars[2]))
+                             self.damping_rigid.copy(), float(self.scalars[0]), int(active),
+                             float(self.scalars[2]))
+
+    def round_off(self, center: np.ndarray, q: np.ndarray) -> float:
+        """Round-off level of :attr:`generalized` of the last evaluation (pushes q): a gap
+        is known to ε (machine) of the positions' size ``|c| + ρ₀ + u_max |q|`` (m), so
+        each of the ``active`` penetrations' force ``k d`` to ``k`` times that, reaching q
+        through ``|g| ≤ u_max``."""
+        size = (math.sqrt(float(center @ center)) + self.radius0
+                + self.u_max * math.sqrt(float(q @ q)))
+        return float(_EPS * self._k_max * size * self.u_max * self.scalars[1]
+                     * (1.0 + self._mu_max))
+
+
+def plane_frictions(planes: Sequence[ContactPlane]) -> np.ndarray:
+    """(P,) the planes' friction coefficients μ; :class:`LbshapeError` unless finite ≥ 0."""
+    friction = np.array([p.friction for p in planes], dtype=float)
+    if np.any(~np.isfinite(friction)) or np.any(friction < 0):
+        raise LbshapeError("contact friction must be a finite number >= 0")
+    return friction
+
+
+def friction_force(velocity: np.ndarray, normal: np.ndarray, normal_force: np.ndarray,
+                   friction: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Regularised Coulomb friction of many contact points on one plane (module docstring).
+
+    Args:
+        velocity: (h, 3) the points' world velocities w (m/s).
+        normal: (3,) the plane's unit normal n.
+        normal_force: (h,) the penalty force sizes k d (N).
+        friction: μ.
+
+    Returns:
+        ``(f_t (h, 3) N, C (h, 3, 3) N·s/m, T (h, 3))``: the friction forces, their rate
+        matrices ``C = −∂f_t/∂w = μ k d (P − T Tᵀ)/s`` and the slip directions
+        ``T = v_t / s`` (``s = √(|v_t|² + ε²)``).
+    """
+    slip = velocity - (velocity @ normal)[:, None] * normal[None, :]
+    s = np.sqrt(np.einsum("ha,ha->h", slip, slip) + SLIP_SPEED**2)
+    scale = friction * normal_force / s
+    direction = slip / s[:, None]
+    projection = np.eye(3) - np.outer(normal, normal)
+    rates = scale[:, None, None] * (projection[None]
+                                    - direction[:, :, None] * direction[:, None, :])
+    return -(friction * normal_force)[:, None] * direction, rates, direction
 
 
 @njit
@@ -260,3 +378,137 @@ def _contact_kernel(center, rotation, q, body_points, basis, points, normals, st
     scalars[1] = active
     scalars[2] = depth
     return active
+
+
+@njit
+def _friction_kernel(center, rotation, q, velocity, omega, qd, rate, body_points, basis,
+                     points, normals, stiffness, friction, eps, reach, rigid, G, small, Kf,
+                     force, torque, generalized, Kq, C6, X):
+    """The friction of the penetrating vertices (module docstring), added to ``force``,
+    ``torque``, ``generalized`` and ``Kq``; ``C6`` (6, 6) receives ``C₆``.
+
+    Vertex i: ``y = X̄_i + U_i q``, arm ``a = R y``, world velocity
+    ``w = v + ω × a + R U_i q̇``; per penetrating plane with μ > 0: ``t = (I − n nᵀ) w``,
+    ``s = √(|t|² + ε²)``, ``T = t/s``, ``f_t = −μ k d T``, ``C = μ k d (P − T Tᵀ)/s``.
+    Work arrays: G (3, r) = R U_i, small (24,), Kf (r, r).
+    """
+    r = q.shape[0]
+    C6[:, :] = 0.0
+    X[:, :] = 0.0
+    Kf[:, :] = 0.0
+    y, arm, w, t = small[0:3], small[3:6], small[6:9], small[9:12]
+    C = small[12:21].reshape((3, 3))
+    f = small[21:24]
+    planes = points.shape[0]
+    for i in range(body_points.shape[0]):
+        for a in range(3):
+            value = 0.0
+            for j in range(r):
+                value += basis[i, a, j] * q[j]
+            y[a] = body_points[i, a] + value
+        for a in range(3):
+            arm[a] = rotation[a, 0] * y[0] + rotation[a, 1] * y[1] + rotation[a, 2] * y[2]
+        touching = False
+        for p in range(planes):
+            if not reach[p] or friction[p] == 0.0:
+                continue
+            gap = 0.0
+            for a in range(3):
+                gap += (arm[a] + (center[a] - points[p, a])) * normals[p, a]
+            if gap < 0.0:
+                touching = True
+        if not touching:
+            continue
+        for a in range(3):  # G = R U_i, w = v + ω × a + G q̇
+            for j in range(r):
+                G[a, j] = (rotation[a, 0] * basis[i, 0, j] + rotation[a, 1] * basis[i, 1, j]
+                           + rotation[a, 2] * basis[i, 2, j])
+        w[0] = velocity[0] + omega[1] * arm[2] - omega[2] * arm[1]
+        w[1] = velocity[1] + omega[2] * arm[0] - omega[0] * arm[2]
+        w[2] = velocity[2] + omega[0] * arm[1] - omega[1] * arm[0]
+        for a in range(3):
+            value = 0.0
+            for j in range(r):
+                value += G[a, j] * qd[j]
+            w[a] += value
+        for p in range(planes):
+            if not reach[p] or friction[p] == 0.0:
+                continue
+            gap = 0.0
+            for a in range(3):
+                gap += (arm[a] + (center[a] - points[p, a])) * normals[p, a]
+            if not gap < 0.0:
+                continue
+            d = -gap
+            n = normals[p]
+            wn = w[0] * n[0] + w[1] * n[1] + w[2] * n[2]
+            for a in range(3):
+                t[a] = w[a] - wn * n[a]
+            s = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + eps * eps)
+            mu_k = friction[p] * stiffness[p]
+            scale = mu_k * d / s
+            for a in range(3):
+                t[a] /= s  # T
+                f[a] = -scale * s * t[a]
+            for a in range(3):  # C = μ k d / s (P − T Tᵀ)
+                for b in range(3):
+                    C[a, b] = scale * ((1.0 if a == b else 0.0) - n[a] * n[b] - t[a] * t[b])
+            for a in range(3):
+                force[a] += f[a]
+            for j in range(r):
+                gf = G[0, j] * f[0] + G[1, j] * f[1] + G[2, j] * f[2]
+                generalized[j] += gf
+            # deformation tangent: rate Gᵀ C G − μ k (Gᵀ T) gᵀ, g = Gᵀ n
+            for j in range(r):
+                cg0 = C[0, 0] * G[0, j] + C[0, 1] * G[1, j] + C[0, 2] * G[2, j]
+                cg1 = C[1, 0] * G[0, j] + C[1, 1] * G[1, j] + C[1, 2] * G[2, j]
+                cg2 = C[2, 0] * G[0, j] + C[2, 1] * G[1, j] + C[2, 2] * G[2, j]
+                gn = G[0, j] * n[0] + G[1, j] * n[1] + G[2, j] * n[2]
+                for k2 in range(r):
+                    Kf[k2, j] += (rate * (G[0, k2] * cg0 + G[1, k2] * cg1 + G[2, k2] * cg2)
+                                  - mu_k * (G[0, k2] * t[0] + G[1, k2] * t[1]
+                                            + G[2, k2] * t[2]) * gn)
+            if rigid:
+                torque[0] += arm[1] * f[2] - arm[2] * f[1]
+                torque[1] += arm[2] * f[0] - arm[0] * f[2]
+                torque[2] += arm[0] * f[1] - arm[1] * f[0]
+                _add_rigid_rate(C, arm, C6)
+                for a in range(6):  # X += Bᵀ C G
+                    for j in range(r):
+                        value = 0.0
+                        for i2 in range(3):
+                            bc = _column(arm, a, i2)
+                            if bc != 0.0:
+                                value += bc * (C[i2, 0] * G[0, j] + C[i2, 1] * G[1, j]
+                                               + C[i2, 2] * G[2, j])
+                        X[a, j] += value
+    for j in range(r):
+        for k2 in range(r):
+            Kq[j, k2] += Kf[j, k2]
+
+
+@njit
+def _add_rigid_rate(C, arm, C6):
+    """C₆ += Bᵀ C B with ``B = [I, −[arm]×]`` (3, 6): the rate matrix of (force, torque)
+    about c with respect to (v, ω) of a point force with rate matrix C (3, 3)."""
+    # B columns: e_a for a < 3; −[arm]× e_b = −(arm × e_b) = e_b × arm for b ≥ 3
+    for a in range(6):
+        for b in range(6):
+            value = 0.0
+            for i in range(3):
+                for j in range(3):
+                    value += _column(arm, a, i) * C[i, j] * _column(arm, b, j)
+            C6[a, b] += value
+
+
+@njit
+def _column(arm, column, row):
+    """Row ``row`` of column ``column`` of ``B = [I, −[arm]×]``."""
+    if column < 3:
+        return 1.0 if row == column else 0.0
+    b = column - 3  # (e_b × arm)[row]
+    if row == b:
+        return 0.0
+    if (b + 1) % 3 == row:  # e_b × arm = ε_{row b k} ... written out
+        return -arm[(b + 2) % 3]
+    return arm[(b + 1) % 3]

@@ -102,6 +102,8 @@ class RigidKick(NamedTuple):
     contact_torque: np.ndarray
     #: (6, 6) the contact stiffness K₆ of the kick, input
     K6: np.ndarray
+    #: (6, 6) the friction's rate matrix C₆ of the kick (zero without friction), input
+    C6: np.ndarray
     #: (6,) contact (force, torque) at the end of the last sweep, input of a sweep
     contact_end: np.ndarray
     #: (6,) ν₁ = (v, ω) at the end of the last sweep, input of a sweep
@@ -128,7 +130,7 @@ class RigidKick(NamedTuple):
     @staticmethod
     def size() -> int:
         """Floats in the buffer."""
-        return 4 * 3 + 36 + 3 * 6 + 7 * 3 + 1
+        return 4 * 3 + 2 * 36 + 3 * 6 + 7 * 3 + 1
 
     @classmethod
     def allocate(cls) -> RigidKick:
@@ -234,6 +236,7 @@ def rigid_kick(data):
     contact_force, at = take(data, at, 3)
     contact_torque, at = take(data, at, 3)
     K6, at = take(data, at, 36)
+    C6, at = take(data, at, 36)
     contact_end, at = take(data, at, 6)
     nu_end, at = take(data, at, 6)
     momentum_end, at = take(data, at, 6)
@@ -247,8 +250,8 @@ def rigid_kick(data):
     theta, at = take(data, at, 1)
     check_size(data, at)
     return RigidKick(data, force, torque, contact_force, contact_torque, K6.reshape((6, 6)),
-                     contact_end, nu_end, momentum_end, omega0, omega1, omega_dot, omega_mid,
-                     dp, dL, v0, theta)
+                     C6.reshape((6, 6)), contact_end, nu_end, momentum_end, omega0, omega1,
+                     omega_dot, omega_mid, dp, dL, v0, theta)
 
 
 @njit
@@ -298,10 +301,12 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
     :data:`KICK_SINGULAR`.
 
     ``active``: the contact at t₀ acts (or a sweep). With ``sweep`` (a contact sweep) the
-    kick is ``(M₆ + θ² Δt² K₆) Δν = Δt F_loads + ½ Δt (C₀ + C₁) + θ² Δt² K₆ (ν₁ − ν₀)``
-    with the contact (force, torque) C₀ at t₀, C₁ = ``kick.contact_end`` and
-    ν₁ = ``kick.nu_end`` at the end of the previous sweep: its fixed point is the
-    trapezoidal rule ``M₆ Δν = Δt F_loads + ½ Δt (C₀ + C₁)``.
+    kick is ``(M₆ + θ Δt C₆ + θ² Δt² K₆) Δν = Δt F_loads + ½ Δt (C₀ + C₁) + (θ Δt C₆ +
+    θ² Δt² K₆) (ν₁ − ν₀)`` with the contact (force, torque) C₀ at t₀, C₁ =
+    ``kick.contact_end`` and ν₁ = ``kick.nu_end`` at the end of the previous sweep: its
+    fixed point is the trapezoidal rule ``M₆ Δν = Δt F_loads + ½ Δt (C₀ + C₁)``. C₆ is
+    the friction's rate matrix (``kick.C6``, zero without friction): the friction of
+    C₀, C₁ depends on the velocities, and C₆ makes that dependence implicit.
     """
     frame = frame_arrays(frame_data, r)
     start, end = body_state(start_data, r), body_state(end_data, r)
@@ -366,10 +371,12 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
 def _contact_impulse(dt, mass, sweep, R0, inertia, omega0, F6, kick, work, world):
     """The impulses ``kick.dp``, ``kick.dL`` of the linearly implicit contact kick
     ``M₆ Δν`` (see :func:`rigid_update`) and its θ; False if the kick's matrix is not
-    positive definite. ``world`` (3, 3) receives ``R₀ I Rᵀ₀``."""
+    positive definite. ``world`` (3, 3) receives ``R₀ I Rᵀ₀``. The first pass is
+    ``(M₆ + θ Δt C₆ + θ² Δt² K₆) Δν = Δt F₆ − θ Δt² K₆ ν₀`` (F₆ with the contact and its
+    friction at t₀)."""
     M6, A = work.m66[0], work.m66[1]
     nu0 = work.v6[2]
-    K6, dp, dL = kick.K6, kick.dp, kick.dL
+    K6, C6, dp, dL = kick.K6, kick.C6, kick.dp, kick.dL
     for a in range(3):  # I_world = R I Rᵀ
         for b in range(3):
             value = 0.0
@@ -388,17 +395,21 @@ def _contact_impulse(dt, mass, sweep, R0, inertia, omega0, F6, kick, work, world
     kick.theta[0] = theta
     rhs = work.v6[3]
     k = theta * theta * dt * dt
+    c = theta * dt
     for i in range(6):
         value = 0.0
+        rate = 0.0
         for j in range(6):
             if sweep:
                 value += K6[i, j] * (kick.nu_end[j] - nu0[j])
+                rate += C6[i, j] * (kick.nu_end[j] - nu0[j])
             else:
                 value += K6[i, j] * nu0[j]
-            A[i, j] = M6[i, j] + k * K6[i, j]
+            A[i, j] = M6[i, j] + k * K6[i, j] + c * C6[i, j]
         if sweep:
             contact0 = kick.contact_force[i] if i < 3 else kick.contact_torque[i - 3]
-            rhs[i] = dt * F6[i] + 0.5 * dt * (kick.contact_end[i] - contact0) + k * value
+            rhs[i] = (dt * F6[i] + 0.5 * dt * (kick.contact_end[i] - contact0) + k * value
+                      + c * rate)
         else:
             rhs[i] = dt * F6[i] - theta * dt * dt * value
     if not cholesky_in_place(A):

@@ -48,7 +48,13 @@ the StVK and Neo-Hookean forces are invariant under rigid rotation, so there is 
 frame split and no fictitious force). Contact planes act on the surface vertices
 with the penalty force ``k d n`` of :mod:`lbshape.dynamics.contact` (``d`` the
 penetration), part of the position-dependent force with its tangent
-``k n nᵀ`` per penetrating vertex. For a free body the stiffness damping is
+``k n nᵀ`` per penetrating vertex, and with the planes' regularised Coulomb friction
+on the vertex velocity, taken at the scheme's end-of-step velocity ``v₁(x)`` (linear
+in x) inside the Newton iteration with its consistent tangent (fully implicit; the
+sparse LU solves the non-symmetric system). The slip direction turns within ε of the
+slip speed, where a full Newton update overshoots: with friction Newton halves an update
+until it lowers the residual (``line_search``) and may take up to
+:data:`FRICTION_NEWTON_ITERATIONS` iterations. For a free body the stiffness damping is
 co-rotated, ``β Q K₀ Qᵀ`` with Q the best rigid frame's rotation at the start of each
 step, so that it does not damp the rigid motion; ``α M`` would still damp it (the
 reduced method damps only the deformation): free scenes use ``α = 0``.
@@ -74,7 +80,12 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from lbshape.dynamics.contact import ContactPlane, surface_vertices
+from lbshape.dynamics.contact import (
+    ContactPlane,
+    friction_force,
+    plane_frictions,
+    surface_vertices,
+)
 from lbshape.dynamics.integrators import make_stepper
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.record import RunRecord, RunRecorder
@@ -91,6 +102,11 @@ from lbshape.shapespace.local_examples import FullSpaceLocalForce
 from lbshape.shapespace.projections import block_basis
 
 log = logging.getLogger(__name__)
+
+#: Newton iterations per step allowed (at least) when a plane has friction, whose Newton
+#: runs with a line search: the regularised friction is steep within its slip speed, and
+#: the car's wall impact took up to 23 iterations (2.6 per step on average)
+FRICTION_NEWTON_ITERATIONS = 60
 
 
 @dataclass(frozen=True)
@@ -111,7 +127,8 @@ class FullSpaceExamples:
 
 
 class FullSpaceContact:
-    """Penalty contact of the surface vertices with planes, on full displacements.
+    """Penalty contact of the surface vertices with planes, on full displacements, with
+    the planes' regularised Coulomb friction (:mod:`lbshape.dynamics.contact`).
 
     Args:
         planes: the :class:`~lbshape.dynamics.contact.ContactPlane` list.
@@ -123,15 +140,30 @@ class FullSpaceContact:
         self.rest = np.asarray(points, dtype=float)[self.vertices]
         self.n = points.shape[0]
         self.planes = list(planes)
+        normals = np.array([p.normal for p in self.planes], dtype=float).reshape(-1, 3)
+        lengths = np.linalg.norm(normals, axis=1)
+        if np.any(lengths == 0):
+            raise LbshapeError("contact plane normals must be non-zero")
+        #: (P, 3) unit normals (as :class:`~lbshape.dynamics.contact.PlaneContact` uses)
+        self.normals = normals / lengths[:, None]
+        self.friction = plane_frictions(self.planes)
+        #: some plane has friction (the force then depends on the velocity)
+        self.has_friction = bool(np.any(self.friction > 0))
 
-    def evaluate(self, u: np.ndarray):
-        """``(f (3n,) = +∂E/∂u, K (3n, 3n) CSR or None, energy J)`` for u (3n,) m."""
+    def evaluate(self, u: np.ndarray, v: np.ndarray | None = None, rate: float = 0.0):
+        """``(f (3n,) = +∂E/∂u − f_friction, K (3n, 3n) CSR or None, energy J)`` for
+        u (3n,) m and the vertex velocities v (3n,) m/s (zero when ``None``).
+
+        The friction force ``f_t`` (:func:`~lbshape.dynamics.contact.friction_force`)
+        enters ``f`` with the internal-force sign; its tangent per vertex is
+        ``rate C − μ k T nᵀ`` (``rate = ∂v/∂u`` of the step in 1/s, C the rate matrix,
+        T the slip direction): the consistent tangent, not symmetric.
+        """
         x = self.rest + u.reshape(-1, 3)[self.vertices]
         force = np.zeros((self.n, 3))
         rows, cols, vals = [], [], []
         energy = 0.0
-        for plane in self.planes:
-            n = np.asarray(plane.normal, dtype=float)
+        for plane, n, mu in zip(self.planes, self.normals, self.friction, strict=True):
             gap = (x - np.asarray(plane.point)) @ n
             hit = np.flatnonzero(gap < 0.0)
             if hit.size == 0:
@@ -139,11 +171,18 @@ class FullSpaceContact:
             d = -gap[hit]
             energy += 0.5 * plane.stiffness * float(d @ d)
             np.add.at(force, self.vertices[hit], -plane.stiffness * d[:, None] * n[None, :])
-            block = plane.stiffness * np.outer(n, n)
+            blocks = np.broadcast_to(plane.stiffness * np.outer(n, n), (hit.size, 3, 3))
+            if mu > 0:
+                w = (np.zeros((hit.size, 3)) if v is None
+                     else v.reshape(-1, 3)[self.vertices[hit]])
+                friction, rates, direction = friction_force(w, n, plane.stiffness * d, mu)
+                np.add.at(force, self.vertices[hit], -friction)
+                blocks = (blocks + rate * rates
+                          - mu * plane.stiffness * direction[:, :, None] * n[None, None, :])
             dofs = 3 * self.vertices[hit][:, None] + np.arange(3)[None, :]  # (h, 3)
             rows.append(np.repeat(dofs, 3, axis=1).ravel())
             cols.append(np.tile(dofs, (1, 3)).ravel())
-            vals.append(np.tile(block.ravel(), hit.size))
+            vals.append(np.ascontiguousarray(blocks).ravel())
         if not rows:
             return force.ravel(), None, 0.0
         K = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
@@ -179,7 +218,8 @@ class FullSpaceSimulator:
         initial_velocity: (n, 3) m/s, zero on fixed vertices (default 0).
         target_tolerance: relative gradient tolerance of the target solve.
         newton_rtol: relative Newton tolerance of the time step.
-        max_newton_iterations: Newton iterations per step before failing.
+        max_newton_iterations: Newton iterations per step before failing (with friction
+            at least :data:`FRICTION_NEWTON_ITERATIONS`).
         contact: penalty contact with planes, or ``None``.
 
     Attributes:
@@ -217,6 +257,7 @@ class FullSpaceSimulator:
     ):
         n = mesh.n_vertices
         self.contact = contact
+        friction = contact is not None and contact.has_friction
         self.mesh = mesh
         self.material = material
         self.n_vertices = n
@@ -248,6 +289,7 @@ class FullSpaceSimulator:
 
         x0 = self._initial(initial_displacement, "initial_displacement")
         v0 = self._initial(initial_velocity, "initial_velocity")
+        self._v_start = v0  # the friction's velocity while the stepper is set up
         # free body: the stiffness damping follows the body's rotation (see _corotate)
         self._corotated_beta = float(beta) if (fixed.size == 0 and beta > 0) else 0.0
         self._damping_rest = K0_ff if self._corotated_beta else None
@@ -267,7 +309,9 @@ class FullSpaceSimulator:
             damping_stiffness=K0_ff,
             potential=self._potential,
             rtol=newton_rtol,
-            max_iterations=max_newton_iterations,
+            max_iterations=(max(max_newton_iterations, FRICTION_NEWTON_ITERATIONS) if friction
+                            else max_newton_iterations),
+            line_search=friction,
         )
 
     # ----------------------------------------------------------------- set-up
@@ -377,7 +421,9 @@ class FullSpaceSimulator:
         f, K = self.elastic.force_and_tangent(self.full_displacement(x).reshape(-1))
         f, K = f[self.free_dofs], self._restrict(K)
         if self.contact is not None:
-            fc, Kc, _ = self.contact.evaluate(self.full_displacement(x).reshape(-1))
+            velocity, rate = self._contact_velocity(x)
+            fc, Kc, _ = self.contact.evaluate(self.full_displacement(x).reshape(-1), velocity,
+                                              rate)
             if Kc is not None:
                 f = f + fc[self.free_dofs]
                 K = (K + Kc[self.free_dofs][:, self.free_dofs]).tocsr()
@@ -396,6 +442,21 @@ class FullSpaceSimulator:
             f = f + damping @ v1
             K = (K + (stepper.scheme.cv / stepper.dt) * damping).tocsr()
         return f, K
+
+    def _contact_velocity(self, x: np.ndarray) -> tuple[np.ndarray | None, float]:
+        """The vertex velocities (3n,) m/s the contact's friction reads at the end-of-step
+        position x (the scheme's ``v₁(x)``; the initial velocity while the stepper is set
+        up) and ``∂v₁/∂x`` (1/s); ``(None, 0)`` without friction."""
+        if not self.contact.has_friction:
+            return None, 0.0
+        stepper = getattr(self, "stepper", None)
+        v = np.zeros(3 * self.n_vertices)
+        if stepper is None:
+            if self._v_start is not None:
+                v[self.free_dofs] = self._v_start
+            return v, 0.0
+        v[self.free_dofs], _ = stepper.kinematics(x - stepper.x)
+        return v, stepper.scheme.cv / stepper.dt
 
     def _corotate(self) -> None:
         """Free body: rotate the stiffness damping ``β K₀`` into the current best rigid

@@ -188,6 +188,9 @@ class ImplicitStepper:
         energy_budget: absolute energy (J) always considered acceptable.
         symmetric: the Newton matrix is symmetric (dense solves use ``LDLᵀ``);
             set ``False`` for non-symmetric tangents (follower forces).
+        line_search: halve a Newton update (down to 1/64) until it lowers ‖R‖ (for
+            forces whose residual is steep in a narrow band, as regularised friction
+            is below its slip speed); ``False``: full updates.
     """
 
     #: the scheme's coefficients (one of :data:`SCHEMES`)
@@ -213,6 +216,7 @@ class ImplicitStepper:
         energy_factor: float | None = 1e3,
         energy_budget: float = 0.0,
         symmetric: bool = True,
+        line_search: bool = False,
     ):
         self._sparse = sp.issparse(mass)
         self.mass = _square_matrix(mass, "mass")
@@ -228,6 +232,7 @@ class ImplicitStepper:
         self.energy_factor = energy_factor
         self.energy_budget = float(energy_budget)
         self._assume_a = "sym" if symmetric else "gen"
+        self.line_search = bool(line_search)
 
         self._x = self._vector(x0, "x0")
         self._v = self._vector(v0, "v0")
@@ -326,12 +331,9 @@ class ImplicitStepper:
         )
         residuals: list[float] = []
         scale = 0.0
+        state = self._residual(dx, fext, index, t1)
         for iteration in range(self.max_iterations + 1):
-            x1 = self._x + dx
-            f, K = self._evaluate(x1, index, t1)
-            v1, a1 = self.kinematics(dx)
-            R = self.mass @ a1 + self.damping @ v1 + f - fext
-            norm = float(_norm(R))
+            x1, f, K, v1, a1, R, norm = state
             if not np.isfinite(norm):
                 raise SolverError(f"non-finite residual at step {index} (t = {t1:.6g} s)")
             if iteration == 0:
@@ -345,7 +347,20 @@ class ImplicitStepper:
                     f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
                     f"residual {relative:.3e} after {iteration} iterations (rtol {self.rtol:g})"
                 )
-            dx = dx - self._solve_newton(K, R, index, t1)
+            delta = self._solve_newton(K, R, index, t1)
+            if not self.line_search:
+                dx = dx - delta
+                state = self._residual(dx, fext, index, t1)
+                continue
+            # backtracking: the last trial is the accepted one
+            fraction = 1.0
+            while True:
+                trial = dx - fraction * delta
+                state = self._residual(trial, fext, index, t1)
+                if state[-1] < norm or fraction <= 1.0 / 64:
+                    break
+                fraction *= 0.5
+            dx = trial
         energy = self.total_energy(x1, v1)
         work = self._work + abs(0.5 * float((self._fext + fext) @ dx))
         self._check_energy(energy, work, index, t1)
@@ -357,6 +372,15 @@ class ImplicitStepper:
     def run(self, steps: int) -> list[StepInfo]:
         """Take ``steps`` steps; return their infos (raises like :meth:`step`)."""
         return [self.step() for _ in range(int(steps))]
+
+    def _residual(self, dx: np.ndarray, fext: np.ndarray, index: int, t1: float):
+        """``(x₁, f, K, v₁, a₁, R, ‖R‖)`` of the increment ``dx`` (the step's residual
+        ``R = M a₁ + D v₁ + f(x₁) − f_ext``)."""
+        x1 = self._x + dx
+        f, K = self._evaluate(x1, index, t1)
+        v1, a1 = self.kinematics(dx)
+        R = self.mass @ a1 + self.damping @ v1 + f - fext
+        return x1, f, K, v1, a1, R, float(_norm(R))
 
     # ------------------------------------------------------- scheme specifics
     def _predict(self) -> np.ndarray:

@@ -95,6 +95,7 @@ class ReducedSimulation:
         k_ex: example stiffness (1/s²); 0 disables the example force.
         contact: penalty contact with planes (:class:`~lbshape.dynamics.contact.PlaneContact`
             built on the rest positions, ``x = X + U q``), implicit in q; or ``None``.
+            Frictionless: friction is modelled on free bodies only.
         newton_iterations: ``None`` (default): iterate until the relative residual at the
             accepted state is below ``rtol``; a number: that many updates from the
             predictor, residual unchecked (studies only).
@@ -139,6 +140,9 @@ class ReducedSimulation:
             raise LbshapeError(f"time step dt must be > 0 s, got {dt}")
         if newton_iterations is not None and int(newton_iterations) < 1:
             raise LbshapeError(f"newton_iterations must be >= 1 or None, got {newton_iterations}")
+        if contact is not None and contact.has_friction:
+            raise LbshapeError("contact friction acts on free bodies only; this object is "
+                               "fixed (give its planes friction = 0)")
         self.elastic = elastic
         self.contact = contact
         self.drag: DragSpring | None = None

@@ -144,6 +144,10 @@ def scene_from_dict(
             "deformation; set alpha = 0 and damp the deformation with damping.beta")
     loads = tuple(_load(t, ctx) for t in top.array_of_tables("loads", _LOAD_KEYS))
     planes = tuple(_plane(t, ctx) for t in top.array_of_tables("planes", _PLANE_KEYS))
+    rubbing = [i for i, plane in enumerate(planes) if plane.friction > 0]
+    if fixed is not None and rubbing:
+        raise ctx.error(f"'planes[{rubbing[0]}].friction' acts on free bodies only; this "
+                        "object has '[fixed]' (set friction = 0)")
     return Scene(
         name=scene_name, description=description, object=obj, material=material,
         damping=damping, reduced=reduced, examples=examples, fixed=fixed, loads=loads,
@@ -157,7 +161,7 @@ _TOP_KEYS = ("name", "description", "object", "material", "damping", "reduced", 
              "fixed", "loads", "planes", "regions", "simulation", "initial")
 _POSE_KEYS = ("shape", "mesh", "size", "pose", "parameters", "landmarks", "rest")
 _LOAD_KEYS = ("type", "vector", "region", "group", "profile", "start", "duration")
-_PLANE_KEYS = ("point", "normal", "stiffness")
+_PLANE_KEYS = ("point", "normal", "stiffness", "friction")
 _REGION_KEYS = ("name", "region", "group", "examples")
 
 
@@ -389,7 +393,9 @@ def _plane(t: _Table, ctx: _Context) -> ContactPlane:
     if length == 0.0:
         raise ctx.error(f"'{t.key('normal')}' must be a non-zero vector")
     stiffness = t.number("stiffness", low=0.0, open_low=True, unit="N/m")
-    return ContactPlane(point, tuple(float(v) for v in normal / length), stiffness)
+    friction = t.number("friction", 0.0, low=0.0)
+    return ContactPlane(point, tuple(float(v) for v in normal / length), stiffness,
+                        friction)
 
 
 def _local_region(t: _Table, ctx: _Context, n_examples: int) -> LocalRegion:

@@ -73,6 +73,8 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
     point = [0, 0, 0]          # m
     normal = [0, 0, 1]         # non-zero; stored normalised; points into the free side
     stiffness = 1e4            # N/m per surface vertex, > 0
+    friction = 0.5             # Coulomb coefficient μ, >= 0 (0: frictionless); free
+                               # bodies only (an error with [fixed] when > 0)
 
     [initial]                  # optional, free bodies only (an error with [fixed])
     velocity = [0, 0, 0]       # m/s, world: centre-of-mass velocity ([0, 0, 0])
@@ -421,7 +423,8 @@ class Scene:
             "loads": [load.key() for load in self.loads],
             "k_ex": None if self.examples is None else self.examples.stiffness,
             "planes": [{"point": list(p.point), "normal": list(p.normal),
-                        "stiffness": p.stiffness} for p in self.planes],
+                        "stiffness": p.stiffness, "friction": p.friction}
+                       for p in self.planes],
             "initial": {"velocity": list(self.initial.velocity),
                         "angular_velocity": list(self.initial.angular_velocity)},
         }
