@@ -309,6 +309,7 @@ class FullSpaceSimulator:
             damping_stiffness=K0_ff,
             potential=self._potential,
             rtol=newton_rtol,
+            atol=self._free_pull_round_off(),
             max_iterations=(max(max_newton_iterations, FRICTION_NEWTON_ITERATIONS) if friction
                             else max_newton_iterations),
             line_search=friction,
@@ -480,6 +481,20 @@ class FullSpaceSimulator:
         elif self._k_ex:
             energy += 0.5 * self._k_ex * float(x @ (self._spring_ff @ x))
         return energy
+
+    def _free_pull_round_off(self) -> float:
+        """Round-off (N, 2-norm) of a free body's fitted example pull, 0 otherwise.
+
+        ``k_ex M (x − T(x))`` subtracts positions of size |X̄| (the body's radius), and the
+        fit's rotation is exact only to ε: the pull is known to ``k_ex ε |X̄| ‖M 1‖``, which
+        at a strong k_ex lies above ``rtol`` times a small step's residual scale (Newton
+        would iterate on noise)."""
+        if not (self._k_ex and self.fixed_vertices.size == 0 and self._local is None):
+            return 0.0
+        points = self.mesh.points
+        radius = float(np.linalg.norm(points - points.mean(axis=0), axis=1).max())
+        row_sums = np.asarray(self._mass_ff.sum(axis=1)).ravel()
+        return 64.0 * np.finfo(float).eps * self._k_ex * radius * float(np.linalg.norm(row_sums))
 
     def _free_gap(self, x: np.ndarray) -> np.ndarray:
         """(3n,) ``x_world − T(x)``: a free body's positions minus the target shape placed
