@@ -4,6 +4,7 @@ Python), and the free-body step without per-step arrays."""
 
 from __future__ import annotations
 
+import os
 import tracemalloc
 
 import numpy as np
@@ -167,3 +168,20 @@ def test_the_free_body_step_allocates_no_arrays():
     r = body.frame.r
     assert after - before < 8 * r, (before, after)
     assert peak - before < 8 * r * r / 2, (before, peak)
+
+
+def test_compiled_kernels_are_cached_per_source_digest(monkeypatch, tmp_path):
+    """Kernels compile into a folder named after a digest of lbshape's sources, so a
+    change to any module (a callee's layout) cannot meet stale machine code."""
+    import numba
+
+    from lbshape import _jit
+    from lbshape.io.cache import cache_root
+
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    folder = _jit.kernel_cache_dir()
+    assert folder.parent == cache_root() / "numba" and len(folder.name) == 16
+    # set at import (under the cache root of that moment), named after the same digest
+    assert os.path.basename(numba.config.CACHE_DIR) == folder.name
+    monkeypatch.setenv("LBSHAPE_CACHE", str(tmp_path))
+    assert _jit.kernel_cache_dir() == tmp_path / "numba" / folder.name
