@@ -2,8 +2,9 @@
 
 Fixtures: ``private_cache`` (autouse, whole session) points ``$LBSHAPE_CACHE`` at one
 folder under pytest's temporary base directory, so no test reads or writes the
-user's cache and no test depends on which ran before it; ``load_script`` loads a
-benchmark script of ``scripts/``.
+user's cache and no test depends on which ran before it; ``live_display`` (autouse,
+whole session) starts a virtual X server when the live window's tests run;
+``load_script`` loads a benchmark script of ``scripts/``.
 
 Helpers, imported by the test modules (``from conftest import rel``):
 :func:`rel`, :func:`central_difference_errors` and :func:`observed_rates`.
@@ -28,6 +29,25 @@ def private_cache(tmp_path_factory) -> Path:
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("LBSHAPE_CACHE", str(folder))
         yield folder
+
+
+@pytest.fixture(scope="session", autouse=True)
+def live_display(request):
+    """A virtual X display for the whole session when ``tests/test_live.py`` is collected
+    and no ``DISPLAY`` is set (and Xvfb is installed): VTK settles on a window class at
+    the first render of the process, so the live window's display must exist before any
+    off-screen picture of an earlier test. Yields the display's name or None."""
+    import os
+    import shutil
+
+    wanted = any(Path(str(item.fspath)).name == "test_live.py" for item in request.session.items)
+    if not wanted or os.environ.get("DISPLAY") or shutil.which("Xvfb") is None:
+        yield os.environ.get("DISPLAY")
+        return
+    from lbshape.report.live import virtual_display
+
+    with virtual_display() as name:
+        yield name
 
 
 @pytest.fixture(scope="session")

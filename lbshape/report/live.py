@@ -246,6 +246,10 @@ class LiveWindow:
                  window_size: tuple[int, int] = WINDOW_SIZE):
         import pyvista as pv
 
+        # an on-screen window even after off-screen renders in the same process
+        # (lbshape.report.render sets pyvista's global OFF_SCREEN for batch work, and
+        # show() then returns without running the window's event loop)
+        pv.OFF_SCREEN = False
         self.session, self.seconds = session, seconds
         self.screenshot_path = None if screenshot is None else Path(screenshot)
         self.events = list(events)
