@@ -310,9 +310,12 @@ class FullSpaceSimulator:
             potential=self._potential,
             rtol=newton_rtol,
             atol=self._free_pull_round_off(),
-            max_iterations=(max(max_newton_iterations, FRICTION_NEWTON_ITERATIONS) if friction
+            max_iterations=(max(max_newton_iterations, FRICTION_NEWTON_ITERATIONS)
+                            if friction or self._free_pull_round_off() > 0
                             else max_newton_iterations),
-            line_search=friction,
+            line_search=friction or self._free_pull_round_off() > 0,
+            low_rank_tangent=(self._free_pull_rigid_part if self._free_pull_round_off() > 0
+                              else None),
         )
 
     # ----------------------------------------------------------------- set-up
@@ -429,9 +432,9 @@ class FullSpaceSimulator:
                 f = f + fc[self.free_dofs]
                 K = (K + Kc[self.free_dofs][:, self.free_dofs]).tocsr()
         if self._k_ex and self._target_body is not None:  # free body, global examples
-            gap = self._free_gap(x)
+            gap = self._free_gap(x, tangent=True)
             f = f + self._k_ex * (self._spring_ff @ gap)
-            K = K + self._kM_ff
+            K = K + self._kM_ff  # minus the rigid part W Wᵀ (_free_pull_rigid_part)
         elif self._k_ex:
             f = f + self._k_ex * (self._spring_ff @ x)
             K = K + self._kM_ff
@@ -496,14 +499,35 @@ class FullSpaceSimulator:
         row_sums = np.asarray(self._mass_ff.sum(axis=1)).ravel()
         return 64.0 * np.finfo(float).eps * self._k_ex * radius * float(np.linalg.norm(row_sums))
 
-    def _free_gap(self, x: np.ndarray) -> np.ndarray:
+    def _free_gap(self, x: np.ndarray, *, tangent: bool = False) -> np.ndarray:
         """(3n,) ``x_world − T(x)``: a free body's positions minus the target shape placed
-        by its mass-weighted best rigid fit onto them (see :meth:`_update_free_target`)."""
+        by its mass-weighted best rigid fit onto them (see :meth:`_update_free_target`).
+
+        With ``tangent`` also the rigid part of the pull's tangent: with Ψ (3n, 6) the
+        rigid motions of the placed target (translations, rotations about its centre)
+        and G = Ψᵀ M Ψ = L Lᵀ, ``W = √k_ex M Ψ L⁻ᵀ`` (3n, 6), so that the pull's tangent
+        is ``k_ex M − W Wᵀ`` (no stiffness along rigid motions: the fit follows them)."""
         n = self.n_vertices
         positions = self.mesh.points + x.reshape(n, 3)
         center, R, _ = best_rigid_frame(self._scalar_mass, self._target_body, positions)
         placed = center + (self._target_body - self._target_center) @ R.T
+        if tangent:
+            arm = placed - center
+            psi = np.zeros((3 * n, 6))
+            for axis in range(3):
+                psi[axis::3, axis] = 1.0
+                turn = np.zeros(3)
+                turn[axis] = 1.0
+                psi[:, 3 + axis] = np.cross(turn, arm).ravel()
+            mass_psi = np.asarray(self._spring_ff @ psi)
+            lower = np.linalg.cholesky(psi.T @ mass_psi)
+            self._pull_rigid = np.sqrt(self._k_ex) * np.linalg.solve(lower, mass_psi.T).T
         return (positions - placed).ravel()
+
+    def _free_pull_rigid_part(self) -> np.ndarray | None:
+        """W (3n, 6) of the last tangent evaluation (see :meth:`_free_gap`), or None
+        before the first."""
+        return getattr(self, "_pull_rigid", None)
 
     def _external(self, t: float) -> np.ndarray:
         scales = np.array([profile(t) for profile in self._load_profiles])

@@ -191,6 +191,10 @@ class ImplicitStepper:
         line_search: halve a Newton update (down to 1/64) until it lowers ‖R‖ (for
             forces whose residual is steep in a narrow band, as regularised friction
             is below its slip speed); ``False``: full updates.
+        low_rank_tangent: returns W (n, k) or None after each force evaluation: the
+            tangent is then ``K − W Wᵀ`` (a rank-k correction of the sparse K, e.g. a
+            free body's rigid-invariant example pull, whose rigid directions carry no
+            stiffness), solved by the Woodbury identity with K's factorisation.
     """
 
     #: the scheme's coefficients (one of :data:`SCHEMES`)
@@ -217,6 +221,7 @@ class ImplicitStepper:
         energy_budget: float = 0.0,
         symmetric: bool = True,
         line_search: bool = False,
+        low_rank_tangent: Callable[[], np.ndarray | None] | None = None,
     ):
         self._sparse = sp.issparse(mass)
         self.mass = _square_matrix(mass, "mass")
@@ -233,6 +238,7 @@ class ImplicitStepper:
         self.energy_budget = float(energy_budget)
         self._assume_a = "sym" if symmetric else "gen"
         self.line_search = bool(line_search)
+        self._low_rank_tangent = low_rank_tangent
 
         self._x = self._vector(x0, "x0")
         self._v = self._vector(v0, "v0")
@@ -431,12 +437,19 @@ class ImplicitStepper:
 
     def _solve_newton(self, K: Matrix, R: np.ndarray, index: int, t: float) -> np.ndarray:
         J = self._newton_base + K
+        W = self._low_rank_tangent() if self._low_rank_tangent is not None else None
         try:
             if self._sparse:
-                delta = spla.splu(sp.csc_matrix(J)).solve(R)
+                solve = spla.splu(sp.csc_matrix(J)).solve
             else:
-                delta = sla.solve(J, R, assume_a=self._assume_a, check_finite=False)
-        except (sla.LinAlgError, RuntimeError) as exc:
+                def solve(rhs):
+                    return sla.solve(J, rhs, assume_a=self._assume_a, check_finite=False)
+            delta = solve(R)
+            if W is not None and W.size:  # (J − W Wᵀ)⁻¹ R by the Woodbury identity
+                Z = solve(np.asarray(W, dtype=float))
+                small = np.eye(W.shape[1]) - W.T @ Z
+                delta = delta + Z @ np.linalg.solve(small, W.T @ delta)
+        except (sla.LinAlgError, np.linalg.LinAlgError, RuntimeError) as exc:
             raise SolverError(
                 f"singular Newton matrix at step {index} (t = {t:.6g} s): {exc}"
             ) from None
