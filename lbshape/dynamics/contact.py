@@ -287,6 +287,19 @@ def friction_force(velocity: np.ndarray, normal: np.ndarray, normal_force: np.nd
 
 
 @njit
+def _body_arm(i, q, rotation, body_points, basis, r, y, arm):
+    """Body point i deformed, ``y = X̄_i + U_i q`` (body frame), and its world arm
+    ``R y`` about the centre of mass, written into y (3,) and arm (3,) (m)."""
+    for a in range(3):
+        value = 0.0
+        for j in range(r):
+            value += basis[i, a, j] * q[j]
+        y[a] = body_points[i, a] + value
+    for a in range(3):
+        arm[a] = rotation[a, 0] * y[0] + rotation[a, 1] * y[1] + rotation[a, 2] * y[2]
+
+
+@njit
 def _reach_kernel(center, q, radius0, u_max, points, normals, reach):
     """reach[p] = the bounding sphere reaches plane p; True if any plane is reached."""
     radius = radius0 + u_max * np.sqrt(np.dot(q, q))
@@ -326,13 +339,7 @@ def _contact_kernel(center, rotation, q, body_points, basis, points, normals, st
         scalars[0] = scalars[1] = scalars[2] = 0.0
         return 0
     for i in range(body_points.shape[0]):
-        for a in range(3):
-            value = 0.0
-            for j in range(r):
-                value += basis[i, a, j] * q[j]
-            y[a] = body_points[i, a] + value
-        for a in range(3):
-            arm[a] = rotation[a, 0] * y[0] + rotation[a, 1] * y[1] + rotation[a, 2] * y[2]
+        _body_arm(i, q, rotation, body_points, basis, r, y, arm)
         for p in range(planes):
             if not reach[p]:
                 continue
@@ -401,13 +408,7 @@ def _friction_kernel(center, rotation, q, velocity, omega, qd, rate, body_points
     f = small[21:24]
     planes = points.shape[0]
     for i in range(body_points.shape[0]):
-        for a in range(3):
-            value = 0.0
-            for j in range(r):
-                value += basis[i, a, j] * q[j]
-            y[a] = body_points[i, a] + value
-        for a in range(3):
-            arm[a] = rotation[a, 0] * y[0] + rotation[a, 1] * y[1] + rotation[a, 2] * y[2]
+        _body_arm(i, q, rotation, body_points, basis, r, y, arm)
         touching = False
         for p in range(planes):
             if not reach[p] or friction[p] == 0.0:
