@@ -300,6 +300,15 @@ def _body_arm(i, q, rotation, body_points, basis, r, y, arm):
 
 
 @njit
+def _plane_gap(arm, center, points, normals, p):
+    """Signed distance (m) of the point ``center + arm`` from plane p (negative: inside)."""
+    gap = 0.0
+    for a in range(3):
+        gap += (arm[a] + (center[a] - points[p, a])) * normals[p, a]
+    return gap
+
+
+@njit
 def _reach_kernel(center, q, radius0, u_max, points, normals, reach):
     """reach[p] = the bounding sphere reaches plane p; True if any plane is reached."""
     radius = radius0 + u_max * np.sqrt(np.dot(q, q))
@@ -343,9 +352,7 @@ def _contact_kernel(center, rotation, q, body_points, basis, points, normals, st
         for p in range(planes):
             if not reach[p]:
                 continue
-            gap = 0.0
-            for a in range(3):
-                gap += (arm[a] + (center[a] - points[p, a])) * normals[p, a]
+            gap = _plane_gap(arm, center, points, normals, p)
             if not gap < 0.0:
                 continue
             d = -gap
@@ -413,9 +420,7 @@ def _friction_kernel(center, rotation, q, velocity, omega, qd, rate, body_points
         for p in range(planes):
             if not reach[p] or friction[p] == 0.0:
                 continue
-            gap = 0.0
-            for a in range(3):
-                gap += (arm[a] + (center[a] - points[p, a])) * normals[p, a]
+            gap = _plane_gap(arm, center, points, normals, p)
             if gap < 0.0:
                 touching = True
         if not touching:
@@ -435,9 +440,7 @@ def _friction_kernel(center, rotation, q, velocity, omega, qd, rate, body_points
         for p in range(planes):
             if not reach[p] or friction[p] == 0.0:
                 continue
-            gap = 0.0
-            for a in range(3):
-                gap += (arm[a] + (center[a] - points[p, a])) * normals[p, a]
+            gap = _plane_gap(arm, center, points, normals, p)
             if not gap < 0.0:
                 continue
             d = -gap

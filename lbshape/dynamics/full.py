@@ -296,6 +296,8 @@ class FullSpaceSimulator:
         self._damping_now = K0_ff if self._corotated_beta else None
         if self._corotated_beta:
             beta = 0.0
+        # a free body's global examples: the rigid-invariant fitted pull (_free_gap)
+        fitted_pull = bool(self._k_ex and self.fixed_vertices.size == 0 and self._local is None)
         self.stepper = make_stepper(
             integrator,
             self._mass_ff,
@@ -309,13 +311,11 @@ class FullSpaceSimulator:
             damping_stiffness=K0_ff,
             potential=self._potential,
             rtol=newton_rtol,
-            atol=self._free_pull_round_off(),
+            atol=self._free_pull_round_off() if fitted_pull else 0.0,
             max_iterations=(max(max_newton_iterations, FRICTION_NEWTON_ITERATIONS)
-                            if friction or self._free_pull_round_off() > 0
-                            else max_newton_iterations),
-            line_search=friction or self._free_pull_round_off() > 0,
-            low_rank_tangent=(self._free_pull_rigid_part if self._free_pull_round_off() > 0
-                              else None),
+                            if friction or fitted_pull else max_newton_iterations),
+            line_search=friction or fitted_pull,
+            low_rank_tangent=self._free_pull_rigid_part if fitted_pull else None,
         )
 
     # ----------------------------------------------------------------- set-up
@@ -486,14 +486,12 @@ class FullSpaceSimulator:
         return energy
 
     def _free_pull_round_off(self) -> float:
-        """Round-off (N, 2-norm) of a free body's fitted example pull, 0 otherwise.
+        """Round-off (N, 2-norm) of a free body's fitted example pull.
 
         ``k_ex M (x − T(x))`` subtracts positions of size |X̄| (the body's radius), and the
         fit's rotation is exact only to ε: the pull is known to ``k_ex ε |X̄| ‖M 1‖``, which
         at a strong k_ex lies above ``rtol`` times a small step's residual scale (Newton
         would iterate on noise)."""
-        if not (self._k_ex and self.fixed_vertices.size == 0 and self._local is None):
-            return 0.0
         points = self.mesh.points
         radius = float(np.linalg.norm(points - points.mean(axis=0), axis=1).max())
         row_sums = np.asarray(self._mass_ff.sum(axis=1)).ravel()
