@@ -81,6 +81,9 @@ RESPONSE_RTOL = 1e-3
 #: a response enters the basis only if the modes-and-derivatives basis of the same r
 #: leaves more than this share of it (M-norm) outside its span
 RESPONSE_MIN_OUTSIDE = 0.05
+#: an appended direction is kept if its principal component is at least this share of the
+#: largest one (:func:`append_directions`)
+APPEND_RTOL = 1e-2
 #: accepted ``max |UᵀMU − I|``
 ORTHONORMALITY_TOL = 1e-8
 
@@ -100,6 +103,8 @@ class NonlinearBasis:
         n_linear: linear modes offered to the PCA (k).
         n_derivatives: modal derivatives offered to the PCA (p).
         n_responses: response directions kept in U (after the linear modes).
+        n_example_responses: example response directions appended after the r columns
+            of modes, responses and derivatives (:func:`append_directions`).
     """
 
     U: np.ndarray
@@ -109,6 +114,7 @@ class NonlinearBasis:
     n_linear: int
     n_derivatives: int
     n_responses: int = 0
+    n_example_responses: int = 0
 
 
 def default_linear_modes(r: int) -> int:
@@ -193,6 +199,51 @@ def nonlinear_basis(
              keep_linear, error)
     return NonlinearBasis(U=U, singular_values=singular, r=int(r), omega2=rayleigh,
                           n_linear=k, n_derivatives=p, n_responses=int(kept.shape[1]))
+
+
+def append_directions(basis: NonlinearBasis, X: np.ndarray, mass, stiffness, *,
+                      max_columns: int | None = None, rtol: float = APPEND_RTOL,
+                      min_outside: float = RESPONSE_MIN_OUTSIDE) -> NonlinearBasis:
+    """The basis with the principal directions of X (3n, c) that it misses appended.
+
+    Each column of X is normalised (M-norm 1) and its part in span U removed
+    M-orthogonally; the principal components of what is left are appended when the
+    largest holds more than ``min_outside`` (share of a unit column) and each one
+    kept holds at least ``rtol`` of the largest, the largest first and at most
+    ``max_columns`` of them (so U grows by at most c columns, by none when it already
+    holds X). U stays M-orthonormal; r grows.
+
+    Args:
+        basis: the basis (U (3n, r), ``UᵀMU = I``).
+        X: (3n, c) directions (e.g. the example responses,
+            :func:`lbshape.pipeline.responses.example_responses`).
+        mass: (3n, 3n) M in kg.
+        stiffness: (3n, 3n) K in N/m (the new columns' Rayleigh quotients).
+        max_columns: at most this many columns are appended (None: no limit).
+        rtol: smallest kept principal component, relative to the largest.
+        min_outside: nothing is appended when the largest component is below this.
+
+    Returns:
+        The :class:`NonlinearBasis` with ``r + a`` columns, ``n_example_responses = a``.
+    """
+    X = _check_responses(X, basis.U.shape[0])
+    U = basis.U
+    norms = np.sqrt(np.einsum("ij,ij->j", X, mass @ X))
+    X = X[:, norms > 0] / norms[norms > 0]
+    for _ in range(2):  # twice is enough
+        X = X - U @ (U.T @ (mass @ X))
+    components, singular = _principal(X, mass)
+    if singular.size == 0 or singular[0] <= min_outside or max_columns == 0:
+        return basis
+    keep = int(np.count_nonzero(singular[: components.shape[1]] >= rtol * singular[0]))
+    if max_columns is not None:
+        keep = min(keep, int(max_columns))
+    U = _reorthonormalise(np.hstack([U, components[:, :keep]]), mass)
+    rayleigh = np.einsum("ij,ij->j", U, stiffness @ U)
+    log.info("nonlinear basis: %d example response directions appended (r = %d)", keep,
+             U.shape[1])
+    return dataclasses.replace(basis, U=U, r=int(U.shape[1]), omega2=rayleigh,
+                               n_example_responses=keep)
 
 
 def _modes_first(Phi, linear_scale, order, X_der, kept, mass, r: int, p: int):

@@ -27,7 +27,6 @@ cubature for a mesh where that exceeds :data:`POLYNOMIAL_BUILD_FLOPS`.
 from __future__ import annotations
 
 import numpy as np
-
 from scipy.linalg import blas
 
 from lbshape._jit import njit

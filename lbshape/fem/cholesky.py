@@ -4,6 +4,8 @@ has SuiteSparse and the matrix is serial, else MUMPS;
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 from lbshape.errors import SolverError
@@ -71,3 +73,31 @@ class CholeskySolver:
         if self._ksp is not None:
             self._ksp.destroy()
             self._ksp = None
+
+
+
+@contextlib.contextmanager
+def serial_cholesky(A, *, prefix: str = "", what: str = "the matrix"):
+    """``with serial_cholesky(A) as solve:`` one Cholesky factorisation (CHOLMOD) of a
+    serial symmetric positive definite scipy matrix A (n, n); ``solve(rhs)`` gives X
+    (n, c) with ``A X = rhs`` for rhs (n, c), as often as needed; everything is destroyed
+    on leaving the block.
+
+    Raises:
+        SolverError: A is singular or not positive definite.
+    """
+    import scipy.sparse as sp
+    from petsc4py import PETSc
+
+    A = sp.csr_matrix(A)
+    matrix = PETSc.Mat().createAIJ(
+        size=A.shape, csr=(A.indptr.astype(PETSc.IntType), A.indices.astype(PETSc.IntType),
+                           A.data), comm=PETSc.COMM_SELF)
+    solver = None
+    try:
+        solver = CholeskySolver(matrix, prefix=prefix, what=what)
+        yield lambda rhs: solver.solve(np.asarray(rhs, dtype=float).reshape(A.shape[0], -1))
+    finally:
+        if solver is not None:
+            solver.destroy()
+        matrix.destroy()

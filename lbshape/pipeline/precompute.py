@@ -65,7 +65,12 @@ from mpi4py import MPI
 
 from lbshape.dynamics.fictitious import frame_tensors
 from lbshape.dynamics.rigid_frame import best_rigid_frame
-from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
+from lbshape.elastic.basis import (
+    NonlinearBasis,
+    append_directions,
+    default_linear_modes,
+    nonlinear_basis,
+)
 from lbshape.elastic.cubature import (
     Cubature,
     inverse_frequency_scales,
@@ -99,7 +104,12 @@ from lbshape.pipeline.precomputed import (
     artifact,
     required_arrays,
 )
-from lbshape.pipeline.responses import response_loads
+from lbshape.pipeline.responses import (
+    example_response_stiffness,
+    example_responses,
+    example_target_fields,
+    response_loads,
+)
 from lbshape.pipeline.stages import Ranks, StageRecorder
 from lbshape.scene.schema import ExamplePose, Scene
 from lbshape.shapespace.alignment import BasisAlignment
@@ -119,7 +129,6 @@ from lbshape.shapespace.local_examples import (
     submesh,
 )
 from lbshape.shapespace.projections import (
-    ShapeSpace,
     block_basis,
     embed_example,
     make_shape_space,
@@ -135,17 +144,27 @@ log = logging.getLogger(__name__)
 #: "The clamped LB basis"); the clamped basis stays available to the routes and
 #: benchmarks (``boundary=``).
 CLAMPED_TARGETS = False
+#: the example responses grow the basis up to this many columns: at r = 48 one exact
+#: polynomial force and tangent costs 0.27 ms (``dsymv``, measured on the reference
+#: machine), so a step of about two Newton updates stays well inside 1 ms; at r = 60 it
+#: is 0.64 ms per call
+MAX_EXAMPLE_BASIS = 48
 
 
 def stage_names(scene: Scene) -> list[str]:
     """The stages this scene needs, in order."""
-    names = ["mesh", "modes", "derivatives", "basis", "cubature"]
-    if scene.material.model == "stvk" and scene.reduced.forces != "cubature":
-        names.append("forces")
+    names = ["mesh", "modes", "derivatives", "basis"]
     if scene.has_local_examples:
         names += ["lb", "regions"]
     elif scene.has_examples:
-        names += ["lb", "examples", "projections", "target-table", "lb-cubature"]
+        names += ["lb", "examples", "target-table", "lb-cubature"]
+    if example_response_stiffness(scene) > 0:
+        names.append("example-basis")
+    names.append("cubature")
+    if scene.material.model == "stvk" and scene.reduced.forces != "cubature":
+        names.append("forces")
+    if scene.has_examples or scene.has_local_examples:
+        names.append("projections")
     if scene.is_free:
         names.append("frame")
     return names
@@ -199,21 +218,30 @@ def _compute(scene: Scene, stages: StageRecorder,
     """Every stage; the artifact's (arrays, meta) on rank 0, (None, None) on the others."""
     ranks = Ranks(comm, stages)
     mesh, fixed = ranks.on_root("mesh", lambda: _read_mesh(scene), share=True)
-    elastic = _elastic_stages(scene, mesh, fixed, ranks)
-    examples = local = None
+    elastic = _basis_stages(scene, mesh, fixed, ranks)
+    shape = local = None
     if scene.has_local_examples:
-        local = _local_examples(scene, mesh, elastic.U, fixed, ranks)
+        local = _local_examples(scene, mesh, fixed, ranks)
     elif scene.has_examples:
-        examples = _global_examples(scene, mesh, elastic.U, fixed, ranks)
+        shape = _global_shape_space(scene, mesh, fixed, ranks)
+    basis = elastic.basis
+    if "example-basis" in stages.names:
+        basis = ranks.on_root("example-basis", lambda: _example_basis(
+            scene, mesh, fixed, elastic, shape, local))
+    U, cubature, polynomial = _force_stages(scene, mesh, basis, ranks)
+    examples = None
+    if local is not None or shape is not None:
+        examples, local = ranks.on_root("projections", lambda: _projections(
+            scene, mesh, U, fixed, shape, local)) or (None, None)
     frame = (ranks.on_root("frame", lambda: frame_tensors(mesh.points, mesh.tets,
-                                                          elastic.mass, elastic.U))
+                                                          elastic.mass, U))
              if scene.is_free else None)
     if not ranks.root:
         return None, None
     names = [] if scene.examples is None else [example_label(p) for p in scene.examples.poses]
-    return artifact(scene, mesh=mesh, fixed=fixed, U=elastic.U,
-                    omega2=np.asarray(elastic.modes.omega2), cubature=elastic.cubature,
-                    polynomial=elastic.polynomial, examples=examples, local=local,
+    return artifact(scene, mesh=mesh, fixed=fixed, U=U,
+                    omega2=np.asarray(elastic.modes.omega2), cubature=cubature,
+                    polynomial=polynomial, examples=examples, local=local,
                     frame=frame, example_names=names, stage_ranks=ranks.count)
 
 
@@ -225,14 +253,12 @@ def example_label(pose: ExamplePose) -> str:
 
 # ------------------------------------------------------------- the elastic stages
 class ElasticStages(NamedTuple):
-    """What the ``modes`` to ``forces`` stages produced (U and the cubature on every
-    rank; the modes' vectors and the mass on rank 0)."""
+    """What the ``modes`` to ``basis`` stages produced (the modes' vectors, the mass and
+    the basis on rank 0)."""
 
     modes: LinearModes
     mass: sp.spmatrix | None  #: (3n, 3n) elastic mass M (kg), rank 0
-    U: np.ndarray  #: (3n, r) the basis, ``UᵀMU = I``
-    cubature: Cubature
-    polynomial: PolynomialForceModel | None  #: the ``forces`` stage's model, or None
+    basis: NonlinearBasis | None  #: U (3n, r), ``UᵀMU = I``, rank 0
 
 
 def _read_mesh(scene: Scene) -> tuple[TetMesh, np.ndarray]:
@@ -244,9 +270,9 @@ def _read_mesh(scene: Scene) -> tuple[TetMesh, np.ndarray]:
     return mesh, fixed
 
 
-def _elastic_stages(scene: Scene, mesh: TetMesh, fixed: np.ndarray,
-                    ranks: Ranks) -> ElasticStages:
-    """The ``modes``, ``derivatives``, ``basis``, ``cubature`` and ``forces`` stages."""
+def _basis_stages(scene: Scene, mesh: TetMesh, fixed: np.ndarray,
+                  ranks: Ranks) -> ElasticStages:
+    """The ``modes``, ``derivatives`` and ``basis`` stages."""
     material, reduced, comm = scene.material, scene.reduced, ranks.comm
     count = reduced.linear_modes or default_linear_modes(reduced.r)
     modes = ranks.distributed("modes", lambda: linear_modes(
@@ -255,11 +281,19 @@ def _elastic_stages(scene: Scene, mesh: TetMesh, fixed: np.ndarray,
         scene, mesh, fixed, modes, comm))
     basis = ranks.on_root("basis", lambda: nonlinear_basis(
         modes, derivatives, mass, reduced.r, responses=derivatives.static_responses))
+    return ElasticStages(modes, mass, basis)
+
+
+def _force_stages(scene: Scene, mesh: TetMesh, basis: NonlinearBasis | None, ranks: Ranks
+                  ) -> tuple[np.ndarray, Cubature, PolynomialForceModel | None]:
+    """The ``cubature`` and ``forces`` stages on the final basis: (U on every rank, the
+    cubature, the polynomial force model or None)."""
+    reduced, comm = scene.reduced, ranks.comm
 
     def cubature_stage():  # every rank: the element passes are split across the ranks
         U, omega2 = compute_on_root(comm, lambda: (basis.U, np.asarray(basis.omega2)))
         return U, train_cubature(
-            mesh, material, U, rng=np.random.default_rng(PRECOMPUTE_SEED),
+            mesh, scene.material, U, rng=np.random.default_rng(PRECOMPUTE_SEED),
             scales=inverse_frequency_scales(omega2),
             max_elements=reduced.s, tol=reduced.cubature_tolerance,
             n_train=CUBATURE_TRAINING_POSES, n_holdout=CUBATURE_TRAINING_POSES // 2,
@@ -270,7 +304,26 @@ def _elastic_stages(scene: Scene, mesh: TetMesh, fixed: np.ndarray,
     if "forces" in ranks.stages.names:
         polynomial = ranks.distributed("forces", lambda: _polynomial_forces(
             scene, mesh, U, comm))
-    return ElasticStages(modes, mass, U, cubature, polynomial)
+    return U, cubature, polynomial
+
+
+def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: ElasticStages,
+                   shape: _GlobalShape | None, local: LocalExamples | None) -> NonlinearBasis:
+    """The ``example-basis`` stage: U with the example responses it misses appended
+    (:func:`lbshape.pipeline.responses.example_responses`,
+    :func:`lbshape.elastic.basis.append_directions`)."""
+    density = scene.material.density
+    if local is not None:
+        fields, spring = example_target_fields(mesh, regions=local.space.regions,
+                                               density=density)
+    else:
+        fields, spring = example_target_fields(mesh, eigenvectors=shape.targets.eigenvectors,
+                                               targets=shape.targets.path, density=density)
+    responses = example_responses(elastic.modes.stiffness, spring,
+                                  example_response_stiffness(scene), fields, elastic.mass,
+                                  fixed)
+    return append_directions(elastic.basis, responses, elastic.mass, elastic.modes.stiffness,
+                             max_columns=max(0, MAX_EXAMPLE_BASIS - elastic.basis.r))
 
 
 def _derivatives(scene: Scene, mesh: TetMesh, fixed: np.ndarray, modes: LinearModes,
@@ -317,14 +370,6 @@ class EmbeddedExamples(NamedTuple):
     alignments: list[BasisAlignment]  #: each example's basis map to the object's
 
 
-class Projections(NamedTuple):
-    """The ``projections`` stage."""
-
-    space: ShapeSpace  #: the shape space (``projection``: T for the free basis L)
-    phi_clamped: np.ndarray  #: (n, m) Φ_F, faded to zero at the fixed vertices
-    projection_clamped: np.ndarray  #: (r, 3m) T for the clamped basis L_F
-
-
 class TargetStage(NamedTuple):
     """The ``target-table`` stage."""
 
@@ -332,6 +377,17 @@ class TargetStage(NamedTuple):
     path: np.ndarray  #: (P, 3m) exact targets over the weight simplex
     clamped: bool  #: the targets use the clamped basis
     eigenvectors: np.ndarray  #: (n, m) Φ of the targets (Φ or Φ_F)
+    phi_clamped: np.ndarray  #: (n, m) Φ_F, faded to zero at the fixed vertices
+
+
+class _GlobalShape(NamedTuple):
+    """What the ``lb`` to ``lb-cubature`` stages give (rank 0; none of it depends on U)."""
+
+    spectrum: LBSpectrum
+    embedded: EmbeddedExamples
+    coefficients: list[np.ndarray]  #: (m, 3) per example (a free body's: its deformation)
+    targets: TargetStage
+    lb_cubatures: LBCubatures
 
 
 class LBCubatureInputs(NamedTuple):
@@ -343,33 +399,29 @@ class LBCubatureInputs(NamedTuple):
     path: np.ndarray  #: (P, 3m) the exact targets to train on
 
 
-def _global_examples(scene: Scene, mesh: TetMesh, U: np.ndarray | None, fixed: np.ndarray,
-                     ranks: Ranks) -> GlobalExamples | None:
-    """The ``lb`` (distributed) to ``lb-cubature`` stages of a scene with examples;
-    what they store on rank 0, ``None`` on the other ranks."""
+def _global_shape_space(scene: Scene, mesh: TetMesh, fixed: np.ndarray,
+                        ranks: Ranks) -> _GlobalShape | None:
+    """The ``lb`` (distributed) to ``lb-cubature`` stages of a scene with examples (on
+    rank 0; ``None`` on the other ranks)."""
     m = scene.reduced.m
     spectrum = ranks.distributed("lb", lambda: lb_spectrum(mesh, m, comm=ranks.comm))
     embedded = ranks.on_root("examples", lambda: _embed_examples(scene, mesh, spectrum))
-    projections = ranks.on_root("projections", lambda: _projections(
-        scene, mesh, U, fixed, spectrum, embedded))
+    coefficients = None
+    if ranks.root:
+        coefficients = embedded.coefficients
+        if scene.is_free:
+            coefficients = [deformation_coefficients(mesh.points, spectrum.eigenvectors,
+                                                     spectrum.mass, c) for c in coefficients]
     targets = ranks.on_root("target-table", lambda: _target_table(
-        scene, mesh, fixed, spectrum, projections))
+        scene, mesh, fixed, spectrum, np.asarray(coefficients)))
     lb_cubatures = ranks.distributed("lb-cubature", lambda: _train_lb_cubatures(
         scene, mesh, compute_on_root(ranks.comm, lambda: LBCubatureInputs(
-            targets.eigenvectors, spectrum.eigenvalues,
-            projections.space.example_coefficients, targets.path)),
+            targets.eigenvectors, spectrum.eigenvalues, np.asarray(coefficients),
+            targets.path)),
         comm=ranks.comm))
     if not ranks.root:
         return None
-    space = projections.space
-    return GlobalExamples(
-        spectrum=spectrum, example_coefficients=space.example_coefficients,
-        projection=space.projection, projection_clamped=projections.projection_clamped,
-        alignment_residuals=space.alignment_residuals,
-        alignment_methods=np.array([METHODS.index(m) for m in space.alignment_methods],
-                                   dtype=np.int64),
-        target_table=targets.table,
-        target_clamped=targets.clamped, lb_cubatures=lb_cubatures)
+    return _GlobalShape(spectrum, embedded, coefficients, targets, lb_cubatures)
 
 
 def _embed_examples(scene: Scene, mesh: TetMesh, spectrum: LBSpectrum) -> EmbeddedExamples:
@@ -418,38 +470,47 @@ def deformation_coefficients(points: np.ndarray, eigenvectors: np.ndarray, volum
 
 
 def _projections(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.ndarray,
-                 spectrum: LBSpectrum, embedded: EmbeddedExamples) -> Projections:
-    """The ``projections`` stage: the shape space and the clamped basis' projection,
-    both ``T = Uᵀ M L`` (:func:`~lbshape.shapespace.projections.reduced_projection`)."""
+                 shape: _GlobalShape | None, local: LocalExamples | None
+                 ) -> tuple[GlobalExamples | None, LocalExamples | None]:
+    """The ``projections`` stage, on the final basis U: the maps ``T = Uᵀ M L`` of LB
+    coefficients to reduced coordinates
+    (:func:`~lbshape.shapespace.projections.reduced_projection`; global examples: also
+    for the clamped basis), or each region's small matrices (local examples)."""
+    if local is not None:
+        return None, local._replace(space=local.space.projected(mesh, scene.material, U))
     density = scene.material.density
-    coefficients = embedded.coefficients
-    if scene.is_free:
-        coefficients = [deformation_coefficients(mesh.points, spectrum.eigenvectors,
-                                                 spectrum.mass, c) for c in coefficients]
+    spectrum, targets = shape.spectrum, shape.targets
     space = make_shape_space(
         spectrum.eigenvalues, spectrum.eigenvectors, spectrum.mass, mesh.points, U,
-        coefficients, embedded.alignments,
+        shape.coefficients, shape.embedded.alignments,
         [example_label(p) for p in scene.examples.poses], density=density,
     )
-    phi_clamped = clamped_eigenvectors(spectrum.eigenvectors, fixed, mesh.points)
-    projection_clamped = reduced_projection(U, phi_clamped, spectrum.mass, density)
-    return Projections(space, phi_clamped, projection_clamped)
+    return GlobalExamples(
+        spectrum=spectrum, example_coefficients=space.example_coefficients,
+        projection=space.projection,
+        projection_clamped=reduced_projection(U, targets.phi_clamped, spectrum.mass, density),
+        alignment_residuals=space.alignment_residuals,
+        alignment_methods=np.array([METHODS.index(m) for m in space.alignment_methods],
+                                   dtype=np.int64),
+        target_table=targets.table, target_clamped=targets.clamped,
+        lb_cubatures=shape.lb_cubatures), None
 
 
 def _target_table(scene: Scene, mesh: TetMesh, fixed: np.ndarray, spectrum: LBSpectrum,
-                  projections: Projections) -> TargetStage:
+                  coefficients: np.ndarray) -> TargetStage:
     """The ``target-table`` stage: the basis of the targets (free, or clamped when
-    :data:`CLAMPED_TARGETS` and safe), the table and the path of exact targets."""
-    coefficients = projections.space.example_coefficients
+    :data:`CLAMPED_TARGETS` and safe), the table and the path of exact targets
+    (coefficients (k, m, 3): the examples')."""
+    phi_clamped = clamped_eigenvectors(spectrum.eigenvectors, fixed, mesh.points)
     clamped = CLAMPED_TARGETS and fixed.size > 0 and clamp_is_safe(
-        mesh.points, mesh.tets, spectrum.eigenvectors, projections.phi_clamped, coefficients)
+        mesh.points, mesh.tets, spectrum.eigenvectors, phi_clamped, coefficients)
     if CLAMPED_TARGETS and fixed.size and not clamped:
         log.warning("the clamped LB basis would flatten elements of the examples' rest "
                     "shapes: the target routes keep the free basis")
-    phi_target = projections.phi_clamped if clamped else spectrum.eigenvectors
+    phi_target = phi_clamped if clamped else spectrum.eigenvectors
     targets = tabulate_examples(mesh.points, mesh.tets, scene.material, phi_target,
                                 coefficients, mass=spectrum.mass)
-    return TargetStage(targets.table, targets.path, clamped, phi_target)
+    return TargetStage(targets.table, targets.path, clamped, phi_target, phi_clamped)
 
 
 def _train_lb_cubatures(scene: Scene, mesh: TetMesh, inputs: LBCubatureInputs, *,
@@ -483,17 +544,18 @@ def _train_lb_cubatures(scene: Scene, mesh: TetMesh, inputs: LBCubatureInputs, *
 
 
 # ------------------------------------------------------------- local examples
-def _local_examples(scene: Scene, mesh: TetMesh, U: np.ndarray | None, fixed: np.ndarray,
+def _local_examples(scene: Scene, mesh: TetMesh, fixed: np.ndarray,
                     ranks: Ranks) -> LocalExamples | None:
     """The ``lb`` (distributed) and ``regions`` (rank 0) stages of a scene with local
-    examples; None on the other ranks."""
+    examples, without the regions' maps to reduced coordinates (``projections``); None on
+    the other ranks."""
     m = scene.reduced.m
     spectrum = ranks.distributed("lb", lambda: lb_spectrum(mesh, m, comm=ranks.comm))
     parts = _ExampleParts(scene, mesh)
     specs = [RegionSpec(reg.name, reg.selection.group, reg.selection.region, reg.examples)
              for reg in scene.regions]
     local = ranks.on_root("regions", lambda: build_local_space(
-        mesh, scene.material, U, specs, parts.example_part, m=m,
+        mesh, scene.material, None, specs, parts.example_part, m=m,
         object_pose=parts.object_pose,
         global_eigenvectors=spectrum.eigenvectors, fixed_vertices=fixed))
     if local is None:

@@ -25,6 +25,8 @@ whose static responses the basis keeps (:mod:`lbshape.elastic.basis`).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -36,11 +38,15 @@ from lbshape.dynamics.loads import (
 )
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
+from lbshape.fem.cholesky import serial_cholesky
 from lbshape.geometry.mesh import TetMesh
-from lbshape.geometry.poses import POSES
 from lbshape.pipeline.meshes import selected_vertices
 from lbshape.scene.schema import Scene
-from lbshape.shapespace.local_examples import region_cells, submesh
+from lbshape.shapespace.local_examples import RegionSpace, rigid_fields
+from lbshape.shapespace.projections import block_basis
+
+#: Krylov blocks of the example responses (:func:`example_responses`)
+EXAMPLE_RESPONSE_DEPTH = 2
 
 
 def mesh_load_patterns(scene: Scene, mesh: TetMesh, mass) -> list[TimedLoad]:
@@ -68,74 +74,115 @@ def mesh_load_patterns(scene: Scene, mesh: TetMesh, mass) -> list[TimedLoad]:
     return patterns
 
 
-def example_pulls(scene: Scene, mesh: TetMesh, mass) -> tuple[np.ndarray, sp.csr_matrix]:
-    """The examples' pose displacements on the object and the mass they pull with.
-
-    Returns:
-        ``(D, S)``: D (3n, c) displacements in m, one per (region, example) or per
-        example with an analytic pose; S (3n, 3n) kg (M, or ``Σ_R M^(R)`` over the
-        regions). D has no column for a scene without examples.
-    """
-    n = mesh.n_vertices
-    if scene.examples is None or not scene.examples.poses:
-        return np.zeros((3 * n, 0)), sp.csr_matrix(mass)
-    poses = scene.examples.poses
-    columns = []
-    if not scene.has_local_examples:
-        for pose in poses:
-            if pose.pose is not None:
-                posed = POSES[pose.pose](mesh.points, **dict(pose.parameters))
-                columns.append((posed - mesh.points).ravel())
-        return _stack(columns, n), sp.csr_matrix(mass)
-    rho = float(scene.material.density)
-    spring = sp.csr_matrix((3 * n, 3 * n))
-    for region in scene.regions:
-        cells = region_cells(mesh, group=region.selection.group, region=region.selection.region,
-                             what=f"region '{region.name}'")
-        part, vertices = submesh(mesh, cells, what=f"region '{region.name}'")
-        rows = (3 * vertices[:, None] + np.arange(3)).ravel()
-        place = sp.csr_matrix((np.ones(rows.size), (rows, np.arange(rows.size))),
-                              shape=(3 * n, rows.size))
-        spring = spring + place @ mass_matrix(part, rho) @ place.T
-        for k in region.examples:
-            if poses[k].pose is None:
-                continue
-            posed = POSES[poses[k].pose](part.points, **dict(poses[k].parameters))
-            field = np.zeros((n, 3))
-            field[vertices] = posed - part.points
-            columns.append(field.ravel())
-    return _stack(columns, n), spring.tocsr()
-
-
 def response_loads(scene: Scene, mesh: TetMesh, mass,
                    fixed_vertices: np.ndarray) -> np.ndarray:
     """(3n, c) forces in N whose static responses the basis keeps: the scene's load
-    patterns, then the example pulls ``S d_k`` when the examples pull (k_ex > 0).
+    patterns (none for a free body, see the module docstring).
 
     Args:
-        scene: the scene (loads, examples, regions, k_ex).
+        scene: the scene (its loads).
         mesh: the object's rest mesh.
         mass: (3n, 3n) consistent mass, kg.
-        fixed_vertices: (f,) clamped vertices; none means a free body (no loads, see
-            the module docstring).
+        fixed_vertices: (f,) clamped vertices; none means a free body.
     """
-    if np.size(fixed_vertices) == 0:
+    if np.size(fixed_vertices) == 0 or not scene.loads:
         return np.zeros((3 * mesh.n_vertices, 0))
+    return np.column_stack([load.pattern for load in mesh_load_patterns(scene, mesh, mass)])
+
+
+def example_response_stiffness(scene: Scene) -> float:
+    """k_ex (1/s²) the example responses are shifted by, or 0 when the scene gets none
+    (no examples, k_ex = 0, or a free body)."""
+    if scene.examples is None or not scene.examples.poses or scene.is_free:
+        return 0.0
+    return float(scene.examples.stiffness)
+
+
+def example_target_fields(mesh: TetMesh, *, eigenvectors: np.ndarray | None = None,
+                          targets: np.ndarray | None = None,
+                          regions: Sequence[RegionSpace] = (),
+                          density: float = 1.0) -> tuple[np.ndarray, sp.csr_matrix]:
+    """The displacements the example force pulls towards, and the mass it pulls with.
+
+    Global examples: the exact targets along the weight simplex, ``L z_p`` (L = Φ ⊗ I₃)
+    for each target z_p (3m,), pulled with the elastic mass M. Local examples: per
+    region, its targets ``E_R L_R z_p`` and its six rigid fields ``E_R Q_R`` (the
+    anchored target moves the region's target rigidly), pulled with ``S = Σ_R M^(R)``.
+
+    Args:
+        mesh: the object's rest mesh (n vertices).
+        eigenvectors: (n, m) the targets' Φ (global examples).
+        targets: (P, 3m) exact targets over the weight simplex (global examples).
+        regions: the local shape space's regions (local examples; their ``table`` nodes
+            are the targets, or the examples' coefficients without a table).
+        density: ρ in kg/m³.
+
+    Returns:
+        ``(V, S)``: V (3n, p) displacements in m, S (3n, 3n) in kg.
+    """
+    n = mesh.n_vertices
+    if not regions:
+        V = block_basis(eigenvectors) @ np.asarray(targets, dtype=float).T
+        return V, sp.csr_matrix(mass_matrix(mesh, density))
+    spring = sp.csr_matrix((3 * n, 3 * n))
     columns = []
-    if scene.loads:
-        columns.append(np.column_stack([load.pattern
-                                        for load in mesh_load_patterns(scene, mesh, mass)]))
-    k_ex = scene.examples.stiffness if scene.examples is not None else 0.0
-    if k_ex > 0:
-        D, spring = example_pulls(scene, mesh, mass)
-        if D.shape[1]:
-            columns.append(spring @ D)
-    return np.hstack(columns) if columns else np.zeros((3 * mesh.n_vertices, 0))
+    for region in regions:
+        sub = region.submesh(mesh)
+        rows = (3 * region.vertices[:, None] + np.arange(3)).ravel()
+        place = sp.csr_matrix((np.ones(rows.size), (rows, np.arange(rows.size))),
+                              shape=(3 * n, rows.size))
+        mass_R = mass_matrix(sub, density)
+        spring = spring + place @ mass_R @ place.T
+        nodes = (region.table.nodes if region.table is not None
+                 else region.example_coefficients.reshape(len(region.examples), -1))
+        fields = np.column_stack([region.displacement(z).ravel() for z in nodes])
+        columns.append(place @ np.hstack([fields, rigid_fields(sub.points, mass_R)]))
+    return np.hstack(columns), spring.tocsr()
+
+
+def example_responses(stiffness, spring, k_ex: float, fields: np.ndarray, mass,
+                      fixed_vertices: np.ndarray, *,
+                      depth: int = EXAMPLE_RESPONSE_DEPTH) -> np.ndarray:
+    """(3n, depth · p) the object's responses to the example pull, a Krylov sequence of
+    the spring-shifted stiffness: ``X₁ = (K + k_ex S)⁻¹ S V``, ``X_{j+1} = (K + k_ex S)⁻¹ M
+    X_j`` on the free DOFs (zero at the fixed ones).
+
+    ``X₁`` is the static shape the object takes when the example force
+    ``k_ex S (v − u)`` pulls it towards a target v together with its elasticity (for
+    k_ex ≫ ω² it is v itself away from the supports, with the boundary layer where the
+    supports hold it; for k_ex ≪ ω² the static response ``K⁻¹ S v``); the later blocks are
+    the load-dependent Ritz vectors of that pull (Wilson, Yuan & Dickens 1982), which hold
+    its dynamic response.
+
+    Args:
+        stiffness: (3n, 3n) K without constraints, N/m.
+        spring: (3n, 3n) S, kg (:func:`example_target_fields`).
+        k_ex: the example stiffness in 1/s², > 0.
+        fields: (3n, p) target displacements V in m.
+        mass: (3n, 3n) M, kg.
+        fixed_vertices: (f,) clamped vertices (at least one).
+        depth: Krylov blocks.
+    """
+    n3 = stiffness.shape[0]
+    free = np.ones(n3, dtype=bool)
+    free[(3 * np.asarray(fixed_vertices)[:, None] + np.arange(3)).ravel()] = False
+    shifted = sp.csr_matrix(stiffness + k_ex * spring)[free][:, free]
+    blocks = []
+    with serial_cholesky(shifted, prefix="responses_", what="the spring-shifted stiffness") \
+            as solve:
+        load = spring @ fields
+        for _ in range(depth):
+            block = np.zeros((n3, fields.shape[1]))
+            block[free] = solve(np.asarray(load)[free])
+            blocks.append(block)
+            load = mass @ block
+    return np.hstack(blocks)
 
 
 def response_key(scene: Scene) -> dict:
     """What the responses depend on beyond the precompute's own fields: each load's
-    type, selection and direction (unit vector), and whether the examples pull."""
+    type, selection and direction (unit vector), and the k_ex the example responses are
+    shifted by (:func:`example_response_stiffness`)."""
     loads = []
     for load in scene.loads:
         vector = np.asarray(load.vector, dtype=float)
@@ -144,9 +191,5 @@ def response_key(scene: Scene) -> dict:
         loads.append({"type": load.type, "group": load.selection.group if load.selection
                       else None, "region": load.selection.region if load.selection else None,
                       "direction": direction})
-    pulls = scene.examples is not None and scene.examples.stiffness > 0
-    return {"loads": loads, "example_pulls": bool(pulls), "free": scene.is_free}
-
-
-def _stack(columns: list[np.ndarray], n: int) -> np.ndarray:
-    return np.column_stack(columns) if columns else np.zeros((3 * n, 0))
+    return {"loads": loads, "example_response_stiffness": example_response_stiffness(scene),
+            "free": scene.is_free}

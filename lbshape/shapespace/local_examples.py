@@ -392,6 +392,18 @@ class LocalShapeSpace:
         """(r, r) ``Π = Σ_R Π_R``."""
         return sum(reg.rigid_pull() for reg in self.regions)
 
+    def projected(self, mesh: TetMesh, material: Material, U: np.ndarray) -> LocalShapeSpace:
+        """The same regions with their maps to the reduced coordinates of U (3n, r)
+        (``to_reduced``, ``rigid_reduced``, ``anchor_reduced``) and the spring
+        ``S_q = Uᵀ (Σ_R M^(R)) U`` (r, r)."""
+        regions, spring = [], np.zeros((U.shape[1],) * 2)
+        for region in self.regions:
+            region, share = _region_maps(mesh, material, region, U)
+            regions.append(region)
+            spring += share
+        return dataclasses.replace(self, regions=tuple(regions),
+                                   spring=0.5 * (spring + spring.T))
+
     def arrays(self) -> dict[str, np.ndarray]:
         """Flat arrays for the precompute artifact (see :func:`from_arrays`)."""
         out = {"local_spring": self.spring, "local_covered": np.array(self.covered)}
@@ -477,7 +489,9 @@ def build_local_space(
     Args:
         mesh: the object's rest mesh (n vertices).
         material: its material (density ρ for the elastic mass).
-        U: (3n, r) basis with ``Uᵀ M U = I`` (M the elastic mass).
+        U: (3n, r) basis with ``Uᵀ M U = I`` (M the elastic mass), or None: the regions'
+            maps to reduced coordinates and the spring are left empty, for
+            :meth:`LocalShapeSpace.projected` once the basis is final.
         specs: the regions.
         example_part: ``(k, spec) -> (rest part, posed part points)``: example k's
             part selected by the region on the example's rest mesh, at rest (a
@@ -509,14 +523,13 @@ def build_local_space(
              for s in specs]
     covered = check_partition(names, cells, mesh.n_tets)
     volumes = np.abs(mesh.signed_volumes())
-    U = np.asarray(U, dtype=float)
-    r = U.shape[1]
-    spring = np.zeros((r, r))
+    spring = None if U is None else np.zeros((U.shape[1],) * 2)
     regions, errors = [], {}
     for spec, selected in zip(specs, cells, strict=True):
         built = _build_region(mesh, material, U, spec, selected, example_part, m=m,
                               spectrum=spectrum, embed=embed, fixed_vertices=fixed_vertices)
-        spring += built.spring
+        if U is not None:
+            spring += built.spring
         if object_pose is not None:
             measured = _measure_representation(built, spec, object_pose, global_eigenvectors)
             if measured is not None:
@@ -530,6 +543,8 @@ def build_local_space(
     if covered_fraction < 1.0:
         log.info("local examples: %.1f %% of the volume is in no region (no example force "
                  "there)", 100 * (1 - covered_fraction))
+    if U is None:
+        spring = np.zeros((0, 0))
     return LocalShapeSpace(tuple(regions), 0.5 * (spring + spring.T), covered_fraction, errors)
 
 
@@ -537,16 +552,16 @@ class _BuiltRegion(NamedTuple):
     """One region as :func:`build_local_space` assembles it."""
 
     region: RegionSpace  #: its shape space (no table yet)
-    spring: np.ndarray  #: (r, r) its share ``U_Rᵀ M^(R) U_R`` of the spring matrix
+    spring: np.ndarray | None  #: (r, r) its share ``U_Rᵀ M^(R) U_R`` of the spring matrix
     mesh: TetMesh  #: its own mesh
     volume_mass: sp.spmatrix  #: (n_R, n_R) M_R in m³
 
 
-def _build_region(mesh: TetMesh, material: Material, U: np.ndarray, spec: RegionSpec,
+def _build_region(mesh: TetMesh, material: Material, U: np.ndarray | None, spec: RegionSpec,
                   selected: np.ndarray, example_part, *, m: int, spectrum, embed,
                   fixed_vertices: np.ndarray | None) -> _BuiltRegion:
-    """A region's spectrum, its examples' coefficients and its small matrices (see the
-    module docstring and :class:`RegionSpace`)."""
+    """A region's spectrum, its examples' coefficients and, with U, its small matrices
+    (see the module docstring and :class:`RegionSpace`)."""
     label = f"region '{spec.name}'"
     rho = float(material.density)
     sub, vertices = submesh(mesh, selected, what=label)
@@ -554,12 +569,8 @@ def _build_region(mesh: TetMesh, material: Material, U: np.ndarray, spec: Region
         raise LbshapeError(f"{label}: m={m} needs more than {m + 1} vertices, it has "
                            f"{sub.n_vertices}")
     spec_R = spectrum(sub, m)
-    rows = (3 * vertices[:, None] + np.arange(3)).ravel()
-    U_R = U[rows]
     mass_R = mass_matrix(sub, rho)  # (3n_R, 3n_R) kg
-    spring = U_R.T @ (mass_R @ U_R)
     volume_mass = mass_R[0::3, 0::3] / rho  # (n_R, n_R) m³
-    to_reduced = reduced_projection(U_R, spec_R.eigenvectors, volume_mass, rho)
     anchor = region_anchor(mesh, selected, vertices, fixed_vertices)
     Q, F, anchor_rows = anchor_fit(sub.points, mass_R, anchor)
     L_R = block_basis(spec_R.eigenvectors)
@@ -573,11 +584,32 @@ def _build_region(mesh: TetMesh, material: Material, U: np.ndarray, spec: Region
         example_coefficients=np.asarray(coefficients, dtype=float).reshape(-1, m, 3),
         alignment_residuals=np.asarray(residuals, dtype=float),
         alignment_methods=np.array([METHODS.index(k) for k in methods], dtype=np.int64),
-        to_reduced=to_reduced, rigid_reduced=U_R.T @ (mass_R @ Q),
+        to_reduced=np.zeros((0, 3 * m)), rigid_reduced=np.zeros((0, 6)),
         rigid_coefficients=(F @ L_R[anchor_rows]).T,
-        anchor_reduced=(F @ U_R[anchor_rows]).T, anchor=anchor,
+        anchor_reduced=np.zeros((0, 6)), anchor=anchor,
         rigid_lb=L_R.T @ (mass_R @ Q))
+    spring = None
+    if U is not None:
+        region, spring = _region_maps(mesh, material, region, U)
     return _BuiltRegion(region, spring, sub, volume_mass)
+
+
+def _region_maps(mesh: TetMesh, material: Material, region: RegionSpace,
+                 U: np.ndarray) -> tuple[RegionSpace, np.ndarray]:
+    """The region with its maps to the reduced coordinates of U (3n, r) (``to_reduced``,
+    ``rigid_reduced``, ``anchor_reduced``) and its share ``U_Rᵀ M^(R) U_R`` (r, r) of
+    the spring matrix."""
+    rho = float(material.density)
+    sub = region.submesh(mesh)
+    rows = (3 * region.vertices[:, None] + np.arange(3)).ravel()
+    U_R = np.asarray(U, dtype=float)[rows]
+    mass_R = mass_matrix(sub, rho)
+    Q, F, anchor_rows = anchor_fit(sub.points, mass_R, region.anchor)
+    region = dataclasses.replace(
+        region,
+        to_reduced=reduced_projection(U_R, region.eigenvectors, mass_R[0::3, 0::3] / rho, rho),
+        rigid_reduced=U_R.T @ (mass_R @ Q), anchor_reduced=(F @ U_R[anchor_rows]).T)
+    return region, U_R.T @ (mass_R @ U_R)
 
 
 def _region_examples(label: str, spec: RegionSpec, sub: TetMesh, spectrum, example_part,
