@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.linalg
-import scipy.sparse as sp
 
 from lbshape.elastic.basis import RESPONSE_MIN_OUTSIDE, nonlinear_basis
 from lbshape.elastic.element_kernels import mass_matrix

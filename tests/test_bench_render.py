@@ -174,9 +174,14 @@ def test_bench_script_writes_table_and_sweep(tmp_path, load_script):
     lines = (tmp_path / "speed_vs_error.csv").read_text().splitlines()
     assert lines[0].startswith("#")
     points = list(csv.DictReader(lines[1:]))
-    # both force models: the polynomial once per r, the cubature at every s
+    # both force models: the polynomial once per r, the cubature at every s; r is the
+    # basis' size (the scene's r and the example responses appended to it)
+    from lbshape.pipeline.precompute import precompute
+
+    r = precompute(load_scene("demo")).r
+    assert r > own.r
     assert [(int(p["r"]), int(p["s_max"]), p["forces"]) for p in points] == [
-        (own.r, own.s, "polynomial"), (own.r, 10, "cubature"), (own.r, own.s, "cubature")]
+        (r, own.s, "polynomial"), (r, 10, "cubature"), (r, own.s, "cubature")]
     for p in points:
         assert 0 < int(p["s"]) <= int(p["s_max"]) and float(p["error_vs_full"]) > 0
     # the sweep point with the scene's own r, s and force model is Table 2's reduced row

@@ -34,14 +34,17 @@ def test_precompute_is_cached_and_runtime_changes_reuse_it(demo, caplog):
     np.testing.assert_array_equal(again.U, pre.U)
     # runtime-only changes keep the key
     faster = dataclasses.replace(
-        scene, simulation=dataclasses.replace(scene.simulation, dt=2e-3, steps=5),
-        examples=dataclasses.replace(scene.examples, stiffness=1.0))
+        scene, simulation=dataclasses.replace(scene.simulation, dt=2e-3, steps=5))
     assert precompute(faster).key == pre.key
-    # a precompute field changes it
+    # a precompute field changes it, and so does k_ex (the example responses are shifted
+    # by it)
     other = dataclasses.replace(scene, reduced=dataclasses.replace(scene.reduced, s=10))
     from lbshape.pipeline.precompute_key import scene_cache_key
 
     assert scene_cache_key(other) != pre.key
+    softer = dataclasses.replace(scene, examples=dataclasses.replace(scene.examples,
+                                                                     stiffness=1.0))
+    assert scene_cache_key(softer) != pre.key
 
 
 def test_mesh_file_change_invalidates_the_cache(tmp_path):
@@ -70,19 +73,22 @@ def test_examples_pull_the_object_to_the_example_shape(demo):
 
     scene, _ = demo
     # no loads, one example: its own precompute (the basis holds the responses to the
-    # scene's loads and example pulls; the value of k_ex is not part of the key)
+    # scene's loads and example pulls, shifted by k_ex: the value of k_ex is part of the
+    # key, so the stiffest mode is read off a first precompute)
     quiet = dataclasses.replace(
         scene, loads=(), examples=dataclasses.replace(scene.examples,
                                                       poses=scene.examples.poses[:1]))
-    pre1 = precompute(quiet)
-    elastic = ReducedForceModel(pre1.mesh.points, pre1.mesh.tets, pre1.material, pre1.U,
-                                pre1.cubature_elements, pre1.cubature_weights)
-    stiffest = float(np.linalg.eigvalsh(elastic.tangent(np.zeros(pre1.r))).max())
+    first = precompute(quiet)
+    stiffest = float(np.linalg.eigvalsh(ReducedForceModel(
+        first.mesh.points, first.mesh.tets, first.material, first.U, first.cubature_elements,
+        first.cubature_weights).tangent(np.zeros(first.r))).max())
     k_ex = 100.0 * stiffest
     quiet = dataclasses.replace(
         quiet, examples=dataclasses.replace(quiet.examples, stiffness=k_ex),
         damping=dataclasses.replace(scene.damping, alpha=2.0 * np.sqrt(k_ex)))
-    assert precompute(quiet).key == pre1.key
+    pre1 = precompute(quiet)
+    elastic = ReducedForceModel(pre1.mesh.points, pre1.mesh.tets, pre1.material, pre1.U,
+                                pre1.cubature_elements, pre1.cubature_weights)
     out = simulate(quiet, pre1, steps=300)
     assert out.stats["stable"]
     # the example in reduced coordinates, through the precompute's target basis
@@ -109,7 +115,10 @@ def test_zero_example_stiffness_has_no_effect(demo):
     assert reduced_simulation(off, pre).driver is None
     without = dataclasses.replace(scene, examples=None)
     pre_without = precompute(without)
-    a = simulate(off, pre, steps=40).displacements
+    # k_ex = 0 appends no example responses: the basis is the one without examples
+    pre_off = precompute(off)
+    np.testing.assert_array_equal(pre_off.U, pre_without.U)
+    a = simulate(off, pre_off, steps=40).displacements
     b = simulate(without, pre_without, steps=40).displacements
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * max(np.abs(b).max(), 1e-30))
 

@@ -106,7 +106,8 @@ def test_both_settings_errors_with_and_without_examples_from_one_bench(demo, run
     for setting in result.settings:
         assert setting.examples and setting.timing.stable
         assert len(setting.timing.t_total_ms) == repeats
-        assert (setting.m, setting.r) == (scene.reduced.m, scene.reduced.r)
+        # r: the basis' size (the scene's r and the example responses appended)
+        assert (setting.m, setting.r) == (scene.reduced.m, pre.r) and pre.r > scene.reduced.r
     # the lbshape setting is the reduced row
     reduced = result.row("reduced")
     assert lbshape.error_vs_full == reduced["error_vs_full"]

@@ -1,37 +1,43 @@
 """The precompute pipeline of a scene: its stages, run once and cached.
 
-Stages (only those the scene needs; paper pre-computation steps 1–6):
+Stages (only those the scene needs; paper pre-computation steps 1–6), in order:
 
 1. ``mesh``: the object's rest mesh and its fixed vertices;
 2. ``modes``: linear elastic modes (fixed vertices from the scene);
 3. ``derivatives``: modal derivatives (Barbič & James), and with the same
-   factorisation of K the static responses to the scene's loads and example pulls
+   factorisation of K the static responses to the scene's loads
    (:mod:`lbshape.pipeline.responses`);
 4. ``basis``: mass-PCA nonlinear basis U (3n, r), ``UᵀMU = I``: the linear modes, the
    static responses, then the modal derivatives' principal components;
-5. ``cubature``: optimized cubature for the reduced elastic force (the force model of
-   non-StVK materials and large meshes, and the energy of the ``modal`` route);
-5b. ``forces``: the exact reduced StVK force as polynomials in q (K, C̃, D̃ of
-   :class:`~lbshape.elastic.polynomial_forces.PolynomialForceModel`)   — StVK scenes
-   whose ``reduced.forces`` resolves to ``polynomial``;
-6. ``lb``: the object's LB spectrum (m pairs)                — scenes with examples;
-7. ``examples``: example meshes, poses, frame and basis alignment, displacement
+5. ``lb``: the object's LB spectrum (m pairs)                — scenes with examples;
+6. ``examples``: example meshes, poses, frame and basis alignment, displacement
    coefficients                                              — scenes with examples;
-8. ``projections``: the maps ``T = Uᵀ M L`` of LB coefficients to reduced coordinates
-   (:func:`~lbshape.shapespace.projections.reduced_projection`; also for the clamped
-   LB basis, faded to zero at the fixed vertices)            — scenes with examples;
-9. ``target-table``: the exact interpolation target tabulated over the weight
+7. ``target-table``: the exact interpolation target tabulated over the weight
    simplex (1–3 examples), checked against the exact target at held-out weights
    (:mod:`lbshape.shapespace.example_targets`)                  — scenes with examples;
-10. ``lb-cubature``: one cubature per example for the LB displacement subspace (the
+8. ``lb-cubature``: one cubature per example for the LB displacement subspace (the
    ``lb`` interpolation route), trained on the example's rest shape along the path of
    exact targets between the examples                         — scenes with examples;
-11. ``frame``: the rigid frame's reduced inertia and fictitious-force tensors
+9. ``example-basis``: the object's responses to the example pull (Krylov blocks of the
+   spring-shifted stiffness on the examples' targets,
+   :func:`~lbshape.pipeline.responses.example_responses`) that U misses, appended to it
+   up to :data:`MAX_EXAMPLE_BASIS` columns      — fixed objects with examples (k_ex > 0);
+10. ``cubature``: optimized cubature for the reduced elastic force on the final U (the
+    force model of non-StVK materials and large meshes, and the energy of the ``modal``
+    route);
+11. ``forces``: the exact reduced StVK force as polynomials in q (K, C̃, D̃ of
+    :class:`~lbshape.elastic.polynomial_forces.PolynomialForceModel`) — StVK scenes
+    whose ``reduced.forces`` resolves to ``polynomial``;
+12. ``projections``: the maps ``T = Uᵀ M L`` of LB coefficients to the final reduced
+    coordinates (:func:`~lbshape.shapespace.projections.reduced_projection`; also for
+    the clamped LB basis, faded to zero at the fixed vertices) — scenes with examples;
+13. ``frame``: the rigid frame's reduced inertia and fictitious-force tensors
     (:mod:`lbshape.dynamics.fictitious`)                      — free bodies.
 
-Scenes with ``[[regions]]`` (local examples) replace stages 7–10 by
-``regions``: per-region spectra, example parts embedded per region and the small
-region matrices (:mod:`lbshape.shapespace.local_examples`); stage 6 still
+Scenes with ``[[regions]]`` (local examples) replace stages 6–8 by
+``regions``: per-region spectra and example parts embedded per region (their small
+matrices in reduced coordinates come in ``projections``,
+:meth:`~lbshape.shapespace.local_examples.LocalShapeSpace.projected`); stage 5 still
 computes the whole object's spectrum (eigenfunction pictures, and the measured
 comparison of the two local-example variants).
 

@@ -1,26 +1,28 @@
-"""What a scene drives its object with: load patterns and example pulls, the forces
-whose static responses the basis keeps (:mod:`lbshape.elastic.basis`).
+"""What a scene drives its object with, as the basis needs it
+(:mod:`lbshape.elastic.basis`).
 
 * **Load patterns** (:func:`mesh_load_patterns`): the scene's ``[[loads]]`` as
   full-space force patterns (3n,) in N with their time profiles — the same patterns
   every method is driven by (:func:`lbshape.pipeline.simulate.load_patterns`).
-* **Example pulls** (:func:`example_pulls`): each example's pose applied to the
-  object's own rest mesh (global examples) or to the object's region it guides
-  (local examples), as a displacement d_k (3n,) in m, with the mass S it pulls with
-  (M for global examples, ``Σ_R M^(R)`` for local ones). The pose is the example's
-  analytic pose evaluated on the object's points (no inversion check: it is a
-  direction, not a rest shape); an example without an analytic pose (a posed mesh
-  file) adds no direction.
-* **Response loads** (:func:`response_loads`): f per load pattern and ``S d_k`` per
-  example pull; their responses ``K⁻¹ f``, the linear static shapes the object takes
-  under each, are solved with the modal derivatives' factorisation of K
-  (:func:`lbshape.elastic.modal_derivatives.modal_derivatives`, ``static_loads``).
-  Neither depends on a load's size or profile nor on k_ex (only on whether it is > 0),
-  so runtime changes keep the precompute; a load's type, region and direction are part
-  of the cache key (:func:`response_key`). Fixed objects only: a free body's loads move
-  it rigidly, its deformation is already held by the plain basis, and an example
-  response would take a derivative's place (measured on the car in
-  ``docs/architecture.md``, "Response vectors in the basis").
+* **Response loads** (:func:`response_loads`): the load patterns f, whose static
+  responses ``K⁻¹ f`` (the linear static shapes the object takes under each) are solved
+  with the modal derivatives' factorisation of K
+  (:func:`lbshape.elastic.modal_derivatives.modal_derivatives`, ``static_loads``). They
+  depend on a load's type, region and direction, not on its size or profile
+  (:func:`response_key`). Fixed objects only: a free body's loads move it rigidly, and
+  its deformation is already held by the plain basis.
+* **Example responses** (:func:`example_target_fields`, :func:`example_responses`): the
+  example force ``k_ex S (v − u)`` pulls towards targets v (3n,) — global examples: the
+  exact targets ``L z`` over the weight simplex, pulled with the elastic mass M; local
+  examples: each region's targets and its rigid fields (the anchored target moves
+  rigidly with the region), pulled with ``S = Σ_R M^(R)``. The object's answer to that
+  pull is a Krylov sequence of the spring-shifted stiffness ``K + k_ex S``, which
+  :func:`lbshape.elastic.basis.append_directions` appends to U (the precompute's
+  ``example-basis`` stage). The shift makes them depend on k_ex, which is therefore part
+  of the cache key (:func:`example_response_stiffness`). Fixed objects only: a free
+  body's error against the full reference is its rigid motion after contact, not its
+  deformation (measured in ``docs/architecture.md``, "Example responses appended to the
+  basis").
 """
 
 from __future__ import annotations
@@ -106,8 +108,9 @@ def example_target_fields(mesh: TetMesh, *, eigenvectors: np.ndarray | None = No
 
     Global examples: the exact targets along the weight simplex, ``L z_p`` (L = Φ ⊗ I₃)
     for each target z_p (3m,), pulled with the elastic mass M. Local examples: per
-    region, its targets ``E_R L_R z_p`` and its six rigid fields ``E_R Q_R`` (the
-    anchored target moves the region's target rigidly), pulled with ``S = Σ_R M^(R)``.
+    region, its targets ``E_R L_R z_p`` and, when it has an anchor, its six rigid fields
+    ``E_R Q_R`` (the anchor fit moves the region's target rigidly; a region covering the
+    object has none and is the global path), pulled with ``S = Σ_R M^(R)``.
 
     Args:
         mesh: the object's rest mesh (n vertices).
@@ -136,7 +139,9 @@ def example_target_fields(mesh: TetMesh, *, eigenvectors: np.ndarray | None = No
         nodes = (region.table.nodes if region.table is not None
                  else region.example_coefficients.reshape(len(region.examples), -1))
         fields = np.column_stack([region.displacement(z).ravel() for z in nodes])
-        columns.append(place @ np.hstack([fields, rigid_fields(sub.points, mass_R)]))
+        if region.anchor.any():
+            fields = np.hstack([fields, rigid_fields(sub.points, mass_R)])
+        columns.append(place @ fields)
     return np.hstack(columns), spring.tocsr()
 
 
