@@ -236,7 +236,7 @@ def _compute(scene: Scene, stages: StageRecorder,
             scene, mesh, fixed, elastic, shape, local))
     U, cubature, polynomial = _force_stages(scene, mesh, basis, ranks)
     examples = None
-    if local is not None or shape is not None:
+    if "projections" in stages.names:  # every rank takes part (the others wait)
         examples, local = ranks.on_root("projections", lambda: _projections(
             scene, mesh, U, fixed, shape, local)) or (None, None)
     frame = (ranks.on_root("frame", lambda: frame_tensors(mesh.points, mesh.tets,
