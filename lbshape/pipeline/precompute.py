@@ -150,10 +150,11 @@ log = logging.getLogger(__name__)
 #: "The clamped LB basis"); the clamped basis stays available to the routes and
 #: benchmarks (``boundary=``).
 CLAMPED_TARGETS = False
-#: the example responses grow the basis up to this many columns: at r = 48 one exact
-#: polynomial force and tangent costs 0.27 ms (``dsymv``, measured on the reference
-#: machine), so a step of about two Newton updates stays well inside 1 ms; at r = 60 it
-#: is 0.64 ms per call
+#: the example responses grow the basis up to this many columns: at r = 48 the quartic
+#: product of one exact polynomial force and tangent costs 0.27 ms (``dsymv``, measured
+#: in isolation on an Intel Xeon of 2.5 GHz), so a step of about two Newton updates stays
+#: inside 1 ms (teddy-local 0.68 ms, cross 0.82 ms per step there); at r = 60 it is 0.64 ms
+#: per call
 MAX_EXAMPLE_BASIS = 48
 
 
@@ -318,6 +319,9 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
     """The ``example-basis`` stage: U with the example responses it misses appended
     (:func:`lbshape.pipeline.responses.example_responses`,
     :func:`lbshape.elastic.basis.append_directions`)."""
+    room = MAX_EXAMPLE_BASIS - elastic.basis.r
+    if room <= 0:  # nothing could be appended: no factorisation
+        return elastic.basis
     density = scene.material.density
     if local is not None:
         fields, spring = example_target_fields(mesh, regions=local.space.regions,
@@ -329,7 +333,7 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
                                   example_response_stiffness(scene), fields, elastic.mass,
                                   fixed)
     return append_directions(elastic.basis, responses, elastic.mass, elastic.modes.stiffness,
-                             max_columns=max(0, MAX_EXAMPLE_BASIS - elastic.basis.r))
+                             max_columns=room)
 
 
 def _derivatives(scene: Scene, mesh: TetMesh, fixed: np.ndarray, modes: LinearModes,
