@@ -154,9 +154,9 @@ def test_the_free_body_step_allocates_no_arrays():
                           angular_velocity=(0.3, 0.2, 0.0))
     tracemalloc.start()
     try:
-        # warm-up: compilation, and a first traced window that absorbs one-off growth of
-        # the interpreter's own caches (measured once in a whole-suite run: 240 bytes,
-        # not per step); a per-step allocation would grow every window
+        # warm-up: compilation; then two traced windows of 200 steps. The interpreter's
+        # own caches may grow once in either (measured in whole-suite runs: 240 and 248
+        # bytes, once, not per step); a per-step allocation grows both
         for _ in range(250):
             sim.step()
         before, _ = tracemalloc.get_traced_memory()
@@ -164,12 +164,15 @@ def test_the_free_body_step_allocates_no_arrays():
         sweeps = sim.total_sweeps
         for _ in range(200):
             sim.step()
+        middle, _ = tracemalloc.get_traced_memory()
+        for _ in range(200):
+            sim.step()
         after, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
-    assert sim.total_sweeps - sweeps > 200  # the contact swept
+    assert sim.total_sweeps - sweeps > 400  # the contact swept
     r = body.frame.r
-    assert after - before < 8 * r, (before, after)
+    assert min(middle - before, after - middle) < 8 * r, (before, middle, after)
     assert peak - before < 8 * r * r / 2, (before, peak)
 
 
