@@ -324,11 +324,12 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
         return elastic.basis
     density = scene.material.density
     if local is not None:
-        fields, spring = example_target_fields(mesh, regions=local.space.regions,
-                                               density=density)
+        fields, spring = example_target_fields(mesh, elastic.mass, density,
+                                               regions=local.space.regions)
     else:
-        fields, spring = example_target_fields(mesh, eigenvectors=shape.targets.eigenvectors,
-                                               targets=shape.targets.path, density=density)
+        fields, spring = example_target_fields(mesh, elastic.mass, density,
+                                               eigenvectors=shape.targets.eigenvectors,
+                                               targets=shape.targets.path)
     responses = example_responses(elastic.modes.stiffness, spring,
                                   example_response_stiffness(scene), fields, elastic.mass,
                                   fixed)

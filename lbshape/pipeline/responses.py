@@ -100,10 +100,11 @@ def example_response_stiffness(scene: Scene) -> float:
     return float(scene.examples.stiffness)
 
 
-def example_target_fields(mesh: TetMesh, *, eigenvectors: np.ndarray | None = None,
+def example_target_fields(mesh: TetMesh, mass, density: float, *,
+                          eigenvectors: np.ndarray | None = None,
                           targets: np.ndarray | None = None,
-                          regions: Sequence[RegionSpace] = (),
-                          density: float = 1.0) -> tuple[np.ndarray, sp.csr_matrix]:
+                          regions: Sequence[RegionSpace] = ()
+                          ) -> tuple[np.ndarray, sp.csr_matrix]:
     """The displacements the example force pulls towards, and the mass it pulls with.
 
     Global examples: the exact targets along the weight simplex, ``L z_p`` (L = Φ ⊗ I₃)
@@ -114,11 +115,12 @@ def example_target_fields(mesh: TetMesh, *, eigenvectors: np.ndarray | None = No
 
     Args:
         mesh: the object's rest mesh (n vertices).
+        mass: (3n, 3n) the elastic mass M in kg (global examples' spring).
+        density: ρ in kg/m³ (the regions' masses).
         eigenvectors: (n, m) the targets' Φ (global examples).
         targets: (P, 3m) exact targets over the weight simplex (global examples).
         regions: the local shape space's regions (local examples; their ``table`` nodes
             are the targets, or the examples' coefficients without a table).
-        density: ρ in kg/m³.
 
     Returns:
         ``(V, S)``: V (3n, p) displacements in m, S (3n, 3n) in kg.
@@ -126,7 +128,7 @@ def example_target_fields(mesh: TetMesh, *, eigenvectors: np.ndarray | None = No
     n = mesh.n_vertices
     if not regions:
         V = block_basis(eigenvectors) @ np.asarray(targets, dtype=float).T
-        return V, sp.csr_matrix(mass_matrix(mesh, density))
+        return V, sp.csr_matrix(mass)
     spring = sp.csr_matrix((3 * n, 3 * n))
     columns = []
     for region in regions:
