@@ -154,8 +154,8 @@ def test_cache_key_follows_what_the_responses_depend_on():
     def with_vector(vector):
         return dataclasses.replace(scene, loads=(dataclasses.replace(load, vector=vector),))
 
-    # a load's size is runtime: same basis, same key
-    assert scene_cache_key(with_vector(tuple(2.5 * np.asarray(load.vector)))) == key
+    # a load's size sets the static equilibria the basis holds: part of the key
+    assert scene_cache_key(with_vector(tuple(2.5 * np.asarray(load.vector)))) != key
     # the example responses are shifted by k_ex: its value is part of the key
     assert scene_cache_key(dataclasses.replace(
         scene, examples=dataclasses.replace(scene.examples, stiffness=1.0))) != key

@@ -84,6 +84,12 @@ RESPONSE_MIN_OUTSIDE = 0.05
 #: an appended direction is kept if its principal component is at least this share of the
 #: largest one (:func:`append_directions`)
 APPEND_RTOL = 1e-2
+#: a static equilibrium is appended when more than this share of it (M-norm) lies
+#: outside U: the cross's equilibria lie 1–5 % outside, and appending them halves its
+#: error against the full reference (``docs/architecture.md``, "Static equilibria")
+EQUILIBRIUM_MIN_OUTSIDE = 1e-3
+#: what :func:`append_directions` appends (each has its count ``n_<kind>``)
+APPENDED_KINDS = ("static_equilibria", "example_responses")
 #: accepted ``max |UᵀMU − I|``
 ORTHONORMALITY_TOL = 1e-8
 
@@ -103,8 +109,11 @@ class NonlinearBasis:
         n_linear: linear modes offered to the PCA (k).
         n_derivatives: modal derivatives offered to the PCA (p).
         n_responses: response directions kept in U (after the linear modes).
-        n_example_responses: example response directions appended after the r columns
-            of modes, responses and derivatives (:func:`append_directions`).
+        n_static_equilibria: directions of the nonlinear static equilibria appended
+            after the r columns of modes, responses and derivatives
+            (:func:`append_directions`, :mod:`lbshape.elastic.static_equilibrium`).
+        n_example_responses: example response directions appended after those
+            (:func:`append_directions`).
     """
 
     U: np.ndarray
@@ -114,6 +123,7 @@ class NonlinearBasis:
     n_linear: int
     n_derivatives: int
     n_responses: int = 0
+    n_static_equilibria: int = 0
     n_example_responses: int = 0
 
 
@@ -202,7 +212,8 @@ def nonlinear_basis(
 
 
 def append_directions(basis: NonlinearBasis, X: np.ndarray, mass, stiffness, *,
-                      max_columns: int | None = None, rtol: float = APPEND_RTOL,
+                      kind: str = "example_responses", max_columns: int | None = None,
+                      rtol: float = APPEND_RTOL,
                       min_outside: float = RESPONSE_MIN_OUTSIDE) -> NonlinearBasis:
     """The basis with the principal directions of X (3n, c) that it misses appended.
 
@@ -215,17 +226,21 @@ def append_directions(basis: NonlinearBasis, X: np.ndarray, mass, stiffness, *,
 
     Args:
         basis: the basis (U (3n, r), ``UᵀMU = I``).
-        X: (3n, c) directions (e.g. the example responses,
-            :func:`lbshape.pipeline.responses.example_responses`).
+        X: (3n, c) directions (the example responses,
+            :func:`lbshape.pipeline.responses.example_responses`, or the static
+            equilibria, :func:`lbshape.elastic.static_equilibrium.static_equilibria`).
         mass: (3n, 3n) M in kg.
         stiffness: (3n, 3n) K in N/m (the new columns' Rayleigh quotients).
+        kind: what X is, one of :data:`APPENDED_KINDS`: the count ``n_<kind>`` grows.
         max_columns: at most this many columns are appended (None: no limit).
         rtol: smallest kept principal component, relative to the largest.
         min_outside: nothing is appended when the largest component is below this.
 
     Returns:
-        The :class:`NonlinearBasis` with ``r + a`` columns, ``n_example_responses = a``.
+        The :class:`NonlinearBasis` with ``r + a`` columns and ``n_<kind>`` grown by a.
     """
+    if kind not in APPENDED_KINDS:
+        raise LbshapeError(f"appended directions must be one of {APPENDED_KINDS}, got {kind!r}")
     X = _check_responses(X, basis.U.shape[0])
     U = basis.U
     norms = np.sqrt(np.einsum("ij,ij->j", X, mass @ X))
@@ -240,10 +255,11 @@ def append_directions(basis: NonlinearBasis, X: np.ndarray, mass, stiffness, *,
         keep = min(keep, int(max_columns))
     U = _reorthonormalise(np.hstack([U, components[:, :keep]]), mass)
     rayleigh = np.einsum("ij,ij->j", U, stiffness @ U)
-    log.info("nonlinear basis: %d example response directions appended (r = %d)", keep,
-             U.shape[1])
+    log.info("nonlinear basis: %d %s directions appended (r = %d)", keep,
+             kind.replace("_", " "), U.shape[1])
+    count = f"n_{kind}"
     return dataclasses.replace(basis, U=U, r=int(U.shape[1]), omega2=rayleigh,
-                               n_example_responses=keep)
+                               **{count: getattr(basis, count) + keep})
 
 
 def _modes_first(Phi, linear_scale, order, X_der, kept, mass, r: int, p: int):

@@ -18,20 +18,25 @@ Stages (only those the scene needs; paper pre-computation steps 1–6), in order
 8. ``lb-cubature``: one cubature per example for the LB displacement subspace (the
    ``lb`` interpolation route), trained on the example's rest shape along the path of
    exact targets between the examples                         — scenes with examples;
-9. ``example-basis``: the object's responses to the example pull (Krylov blocks of the
-   spring-shifted stiffness on the examples' targets,
-   :func:`~lbshape.pipeline.responses.example_responses`) that U misses, appended to it
-   up to :data:`MAX_EXAMPLE_BASIS` columns      — fixed objects with examples (k_ex > 0);
-10. ``cubature``: optimized cubature for the reduced elastic force on the final U (the
+9. ``static-equilibria``: the object's nonlinear static equilibria under the scene's
+   loads at full strength and at half of it
+   (:func:`~lbshape.elastic.static_equilibrium.static_equilibria`), appended to U where
+   it misses them               — fixed objects with loads, up to
+   :data:`STATIC_EQUILIBRIA_MAX_VERTICES` vertices;
+10. ``example-basis``: the object's responses to the example pull (Krylov blocks of the
+    spring-shifted stiffness on the examples' targets,
+    :func:`~lbshape.pipeline.responses.example_responses`) that U misses, appended to it
+    up to :data:`MAX_APPENDED_BASIS` columns     — fixed objects with examples (k_ex > 0);
+11. ``cubature``: optimized cubature for the reduced elastic force on the final U (the
     force model of non-StVK materials and large meshes, and the energy of the ``modal``
     route);
-11. ``forces``: the exact reduced StVK force as polynomials in q (K, C̃, D̃ of
+12. ``forces``: the exact reduced StVK force as polynomials in q (K, C̃, D̃ of
     :class:`~lbshape.elastic.polynomial_forces.PolynomialForceModel`) — StVK scenes
     whose ``reduced.forces`` resolves to ``polynomial``;
-12. ``projections``: the maps ``T = Uᵀ M L`` of LB coefficients to the final reduced
+13. ``projections``: the maps ``T = Uᵀ M L`` of LB coefficients to the final reduced
     coordinates (:func:`~lbshape.shapespace.projections.reduced_projection`; also for
     the clamped LB basis, faded to zero at the fixed vertices) — scenes with examples;
-13. ``frame``: the rigid frame's reduced inertia and fictitious-force tensors
+14. ``frame``: the rigid frame's reduced inertia and fictitious-force tensors
     (:mod:`lbshape.dynamics.fictitious`)                      — free bodies.
 
 Scenes with ``[[regions]]`` (local examples) replace stages 6–8 by
@@ -72,6 +77,7 @@ from mpi4py import MPI
 from lbshape.dynamics.fictitious import frame_tensors
 from lbshape.dynamics.rigid_frame import best_rigid_frame
 from lbshape.elastic.basis import (
+    EQUILIBRIUM_MIN_OUTSIDE,
     NonlinearBasis,
     append_directions,
     default_linear_modes,
@@ -87,6 +93,7 @@ from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.modal_derivatives import ModalDerivatives, modal_derivatives
 from lbshape.elastic.modes import LinearModes, linear_modes
 from lbshape.elastic.polynomial_forces import PolynomialForceModel, resolve_force_model
+from lbshape.elastic.static_equilibrium import static_equilibria
 from lbshape.errors import LbshapeError
 from lbshape.fem.mpi import compute_on_root
 from lbshape.geometry.mesh import TetMesh
@@ -115,6 +122,8 @@ from lbshape.pipeline.responses import (
     example_responses,
     example_target_fields,
     response_loads,
+    static_load,
+    static_load_applies,
 )
 from lbshape.pipeline.stages import Ranks, StageRecorder
 from lbshape.scene.schema import ExamplePose, Scene
@@ -150,12 +159,16 @@ log = logging.getLogger(__name__)
 #: "The clamped LB basis"); the clamped basis stays available to the routes and
 #: benchmarks (``boundary=``).
 CLAMPED_TARGETS = False
-#: the example responses grow the basis up to this many columns: at r = 48 the quartic
+#: the static equilibria and the example responses grow the basis up to this many
+#: columns (the equilibria first, for a scene whose own r leaves room): at r = 48 the quartic
 #: product of one exact polynomial force and tangent costs 0.27 ms (``dsymv``, measured
 #: in isolation on an Intel Xeon of 2.5 GHz), so a step of about two Newton updates stays
 #: inside 1 ms (teddy-local 0.68 ms, cross 0.82 ms per step there); at r = 60 it is 0.64 ms
 #: per call
-MAX_EXAMPLE_BASIS = 48
+MAX_APPENDED_BASIS = 48
+#: the static equilibria are solved by sparse LU in full space (about 0.3 s for the
+#: teddy's 1.9k vertices, 1.5 s for the cross); larger meshes skip the stage
+STATIC_EQUILIBRIA_MAX_VERTICES = 20_000
 
 
 def stage_names(scene: Scene) -> list[str]:
@@ -165,6 +178,8 @@ def stage_names(scene: Scene) -> list[str]:
         names += ["lb", "regions"]
     elif scene.has_examples:
         names += ["lb", "examples", "target-table", "lb-cubature"]
+    if static_load_applies(scene):
+        names.append("static-equilibria")
     if example_response_stiffness(scene) > 0:
         names.append("example-basis")
     names.append("cubature")
@@ -231,6 +246,9 @@ def _compute(scene: Scene, stages: StageRecorder,
         local = _local_examples(scene, mesh, fixed, ranks)
     elif scene.has_examples:
         shape = _global_shape_space(scene, mesh, fixed, ranks)
+    if "static-equilibria" in stages.names:
+        elastic = elastic._replace(basis=ranks.on_root("static-equilibria", lambda: (
+            _static_equilibria(scene, mesh, fixed, elastic))))
     basis = elastic.basis
     if "example-basis" in stages.names:
         basis = ranks.on_root("example-basis", lambda: _example_basis(
@@ -314,12 +332,31 @@ def _force_stages(scene: Scene, mesh: TetMesh, basis: NonlinearBasis | None, ran
     return U, cubature, polynomial
 
 
+def _static_equilibria(scene: Scene, mesh: TetMesh, fixed: np.ndarray,
+                       elastic: ElasticStages) -> NonlinearBasis:
+    """The ``static-equilibria`` stage: U with the nonlinear static equilibria under the
+    scene's loads (:func:`lbshape.pipeline.responses.static_load`) that it misses
+    appended, within :data:`MAX_APPENDED_BASIS` columns."""
+    if mesh.n_vertices > STATIC_EQUILIBRIA_MAX_VERTICES:
+        log.info("static equilibria: skipped, %d vertices (more than %d)", mesh.n_vertices,
+                 STATIC_EQUILIBRIA_MAX_VERTICES)
+        return elastic.basis
+    room = MAX_APPENDED_BASIS - elastic.basis.r
+    if room <= 0:
+        return elastic.basis
+    load = static_load(scene, mesh, elastic.mass)
+    equilibria = static_equilibria(mesh, scene.material, fixed, load)
+    return append_directions(elastic.basis, equilibria, elastic.mass,
+                             elastic.modes.stiffness, kind="static_equilibria",
+                             max_columns=room, min_outside=EQUILIBRIUM_MIN_OUTSIDE)
+
+
 def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: ElasticStages,
                    shape: _GlobalShape | None, local: LocalExamples | None) -> NonlinearBasis:
     """The ``example-basis`` stage: U with the example responses it misses appended
     (:func:`lbshape.pipeline.responses.example_responses`,
     :func:`lbshape.elastic.basis.append_directions`)."""
-    room = MAX_EXAMPLE_BASIS - elastic.basis.r
+    room = MAX_APPENDED_BASIS - elastic.basis.r
     if room <= 0:  # nothing could be appended: no factorisation
         return elastic.basis
     density = scene.material.density
@@ -334,7 +371,7 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
                                   example_response_stiffness(scene), fields, elastic.mass,
                                   fixed)
     return append_directions(elastic.basis, responses, elastic.mass, elastic.modes.stiffness,
-                             max_columns=room)
+                             kind="example_responses", max_columns=room)
 
 
 def _derivatives(scene: Scene, mesh: TetMesh, fixed: np.ndarray, modes: LinearModes,

@@ -11,6 +11,13 @@
   depend on a load's type, region and direction, not on its size or profile
   (:func:`response_key`). Fixed objects only: a free body's loads move it rigidly, and
   its deformation is already held by the plain basis.
+* **Static load** (:func:`static_load`): every load at full strength, summed — the
+  load whose nonlinear static equilibria the basis holds
+  (:func:`lbshape.elastic.static_equilibrium.static_equilibria`, the precompute's
+  ``static-equilibria`` stage; fixed objects only, :func:`static_load_applies`). The
+  time profiles all peak at 1, so this is the strongest load the scene applies. The
+  equilibria depend on the loads' sizes, which are part of the cache key
+  (:func:`response_key`).
 * **Example responses** (:func:`example_target_fields`, :func:`example_responses`): the
   example force ``k_ex S (v − u)`` pulls towards targets v (3n,) — global examples: the
   exact targets ``L z`` over the weight simplex, pulled with the elastic mass M; local
@@ -90,6 +97,24 @@ def response_loads(scene: Scene, mesh: TetMesh, mass,
     if np.size(fixed_vertices) == 0 or not scene.loads:
         return np.zeros((3 * mesh.n_vertices, 0))
     return np.column_stack([load.pattern for load in mesh_load_patterns(scene, mesh, mass)])
+
+
+def static_load_applies(scene: Scene) -> bool:
+    """Whether the scene's loads have static equilibria for the basis: a fixed object
+    with loads."""
+    return not scene.is_free and bool(scene.loads)
+
+
+def static_load(scene: Scene, mesh: TetMesh, mass) -> np.ndarray:
+    """(3n,) N: the scene's load patterns at full strength, summed.
+
+    Args:
+        scene: the scene (its loads).
+        mesh: the object's rest mesh.
+        mass: (3n, 3n) consistent mass, kg.
+    """
+    return sum((load.pattern for load in mesh_load_patterns(scene, mesh, mass)),
+               np.zeros(3 * mesh.n_vertices))
 
 
 def example_response_stiffness(scene: Scene) -> float:
@@ -188,15 +213,13 @@ def example_responses(stiffness, spring, k_ex: float, fields: np.ndarray, mass,
 
 def response_key(scene: Scene) -> dict:
     """What the responses depend on beyond the precompute's own fields: each load's
-    type, selection and direction (unit vector), and the k_ex the example responses are
-    shifted by (:func:`example_response_stiffness`)."""
+    type, selection and vector (the linear responses depend on its direction only, the
+    static equilibria on its size too), and the k_ex the example responses are shifted by
+    (:func:`example_response_stiffness`)."""
     loads = []
     for load in scene.loads:
-        vector = np.asarray(load.vector, dtype=float)
-        norm = float(np.linalg.norm(vector))
-        direction = (vector / norm if norm > 0 else vector).round(12).tolist()
         loads.append({"type": load.type, "group": load.selection.group if load.selection
                       else None, "region": load.selection.region if load.selection else None,
-                      "direction": direction})
+                      "vector": np.asarray(load.vector, dtype=float).round(12).tolist()})
     return {"loads": loads, "example_response_stiffness": example_response_stiffness(scene),
             "free": scene.is_free}
