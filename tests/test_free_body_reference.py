@@ -29,6 +29,7 @@ from lbshape.dynamics.free_body import (
 )
 from lbshape.dynamics.kernels import lu_solve, max_symmetric_eigenvalue
 from lbshape.dynamics.loads import TimeProfile
+from lbshape.dynamics.reduced import REALTIME_RTOL
 from lbshape.dynamics.rigid_frame import cayley, orthonormality_error, rotate
 from lbshape.errors import SolverError
 
@@ -131,7 +132,7 @@ class ReferenceFreeBody:
 
     def __init__(self, elastic, frame, *, dt, integrator="newmark", alpha=0.0, beta=0.0,
                  loads=(), k_ex=0.0, target=None, contact=None, velocity=(0, 0, 0),
-                 angular_velocity=(0, 0, 0), rtol=1e-8, max_iterations=20):
+                 angular_velocity=(0, 0, 0), rtol=REALTIME_RTOL, max_iterations=20):
         r = frame.r
         self.elastic, self.frame, self.dt, self.scheme = elastic, frame, dt, integrator
         self.loads, self.k_ex, self.contact = list(loads), k_ex, contact

@@ -265,7 +265,8 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
     frame of the same run without examples (k_ex = 0) and ``output``'s final frame,
     coloured by |u|. The JSON holds the example influence ``‖u_ex − u_none‖_M / ‖u_none‖_M``
     and, per region, the distance to its examples (eq. 5's residual, relative to
-    the largest example) and weights, without and with the examples.
+    the largest example) and weights, without and with the examples. The examples and
+    result pictures draw the rest shape as a faint wireframe in every panel.
     """
     if not pre.has_local_examples:
         raise LbshapeError(f"scene {scene.name} has no local examples to draw")
@@ -289,7 +290,7 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
         ["rest", *captions], out_dir / "local_examples.png",
         scalars=[None, *(np.linalg.norm(u, axis=1) for u in shapes)],
         scalar_name="|x_k - X| (m)", window_size=(480 * (len(shapes) + 1), 560),
-        view_vector=view)
+        view_vector=view, ghost=pre.mesh)
     method = output.stats.get("method", "reduced")
     effect, none = example_influence(scene, pre, output, method=method,
                                      steps=output.stats["steps"])
@@ -308,7 +309,7 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
          f"visible change {100 * effect.visible_change:.1f} %\nclosest: {closest}"],
         out_dir / "local_result.png",
         scalars=[None, None, np.linalg.norm(u_none, axis=1), np.linalg.norm(u_ex, axis=1)],
-        window_size=(1800, 640), view_vector=view)
+        window_size=(1800, 640), view_vector=view, ghost=pre.mesh)
     regions = {}
     for region in pre.local.regions:
         d_none, w_none = region_example_distance(pre.mesh, region, u_none,
