@@ -19,7 +19,9 @@
   scene side by side (e.g. no examples, examples reduced, full reference): the
   final frames as a PNG, the whole runs as a GIF, with the end twist in the captions;
 * :func:`figure5` — the paper's Figures 4 and 5: a free body with no example and with
-  each example alone, the runs in rows, a few times in columns (``runs_by_example.png``);
+  each example alone, the runs in rows, a few times in columns (``runs_by_example.png``),
+  and close up each run's final shape in the body frame beside its example
+  (``runs_by_example_shapes.png``);
 * :func:`render_scene` — all of the above that a scene supports, into one folder.
 
 Numbers behind each composite picture go to a JSON file next to it. Nothing here
@@ -451,6 +453,9 @@ class Figure5:
             final deformation is closest to in shape space (among all the scene's
             examples; :func:`lbshape.pipeline.influence.closest_example`).
         messages: per run, the solver failure message ('' if it finished).
+        shapes: the close-up PNG (``<path stem>_shapes.png``): per run, its example on
+            the object beside the run's final shape in the body frame (best rigid fit
+            removed), the rest shape as a wireframe in every panel.
     """
 
     path: Path
@@ -460,6 +465,7 @@ class Figure5:
     visible_change: tuple[float, ...]
     closest: tuple[object, ...]
     messages: tuple[str, ...]
+    shapes: Path | None = None
 
 
 def _scalar_mass(pre):
@@ -488,7 +494,10 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
     with the contact planes. Each row's last caption gives the shape the run ends
     closest to (among the rest shape and *all* the scene's examples, on the whole
     scene's LB descriptors) and its visible change. Numbers go to
-    ``<path stem>.json`` next to the PNG.
+    ``<path stem>.json`` next to the PNG. The trajectory's camera shows where the body
+    flies; ``<path stem>_shapes.png`` shows what each example did to its shape, close up:
+    per run its example (grey) and its final shape in the body frame, coloured by the
+    deformation on the same range, the rest shape as a wireframe in every panel.
     """
     if not scene.has_examples or not scene.is_free:
         raise LbshapeError(f"scene {scene.name}: Figure 5 needs a free body with examples")
@@ -534,8 +543,10 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
                              view_vector=(0.3, -1.0, 0.35), zoom=1.1,
                              scalar_name="deformation (m)",
                              extent=trajectory_points(every, outputs))
+    shapes = _figure5_shapes(every, rows, labels, bodies, Path(path))
     result = Figure5(Path(path), tuple(n for n, _ in variants), tuple(world),
-                     tuple(deformation), tuple(visible), tuple(closest), tuple(messages))
+                     tuple(deformation), tuple(visible), tuple(closest), tuple(messages),
+                     shapes)
     runs = list(result.labels)
     write_json_atomic(Path(path).with_suffix(".json"), {
         "scene": scene.name, "runs": runs, "steps": steps,
@@ -548,6 +559,22 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
         "messages": list(messages),
     })
     return result
+
+
+def _figure5_shapes(every, rows, labels, bodies, path: Path) -> Path:
+    """Figure 5's close-up: per run its example (the row's first panel) and its final
+    body-frame shape ``X + d`` (d (n, 3) m, best rigid fit removed), one camera."""
+    rest = every.mesh.points
+    meshes, captions, scalars = [], [], []
+    for row, label, body in zip(rows, labels, bodies, strict=True):
+        meshes += [row[0], every.mesh.with_points(rest + body)]
+        run = label[-1].split(" t=")[0]
+        captions += [label[0], f"{run}: final shape\n(body frame){label[-1][len(run):]}"]
+        scalars += [None, np.linalg.norm(body, axis=1)]
+    return render_shapes(meshes, captions, path.with_name(f"{path.stem}_shapes.png"),
+                         scalars=scalars, scalar_name="deformation (m)", ghost=every.mesh,
+                         window_size=(330 * len(meshes), 420),
+                         view_vector=(0.3, -1.0, 0.35))
 
 
 def _twist_caption(pre, u: np.ndarray) -> str:
@@ -708,8 +735,8 @@ def render_scene(scene, out: str | Path, *, steps: int | None = None, method: st
     if pre.has_local_examples:
         paths.extend(local_examples_figures(scene, pre, output, out)[:3])
     if pre.has_examples and scene.is_free:
-        paths.append(figure5(scene, out / "runs_by_example.png", steps=steps,
-                             progress=progress).path)
+        runs = figure5(scene, out / "runs_by_example.png", steps=steps, progress=progress)
+        paths += [runs.path, runs.shapes]
     summary = write_json_atomic(out / "summary.json", {
         "scene": scene.name, "simulation": output.stats, "message": output.message,
         "pictures": [p.name for p in paths],
