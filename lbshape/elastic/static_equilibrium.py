@@ -16,6 +16,11 @@ iteration does not converge (``|f_int(u) − λ f| ≤ rtol |f|`` on the free do
 :data:`MAX_NEWTON_ITERATIONS`) is halved, down to :data:`MIN_LOAD_INCREMENT`, below
 which the levels reached so far are returned (an equilibrium may not exist: a
 St. Venant–Kirchhoff body can collapse under compression).
+
+The equilibria are of the elastic forces and the loads alone: a scene's contact planes
+and example pull are left out (the example pull has its own responses,
+:func:`lbshape.pipeline.responses.example_responses`); they are directions for the basis,
+not a solution the simulation uses.
 """
 
 from __future__ import annotations

@@ -2,13 +2,14 @@
 
 :func:`scene_cache_key` digests :meth:`Scene.precompute_key_fields`, the gmsh scripts or
 mesh files behind the meshes (their bytes), the package versions, what the basis's
-static responses depend on (:func:`lbshape.pipeline.responses.response_key`: each
-load's type, region and direction, and whether k_ex > 0), the precompute's fixed
-settings (:data:`CUBATURE_TRAINING_POSES`, :data:`PRECOMPUTE_SEED`) and the artifact's
-format (:data:`~lbshape.pipeline.precomputed.PIPELINE_VERSION`). So changing dt, steps,
-a load's size or profile, damping or the value of k_ex never redoes the precompute,
-while changing any mesh byte, material value, m, r, s, example, or where and along
-what a load acts does.
+responses depend on (:func:`lbshape.pipeline.responses.response_key`: each load's
+type, region and vector — its size sets the static equilibria — and the k_ex the
+example responses are shifted by), the precompute's fixed settings
+(:data:`CUBATURE_TRAINING_POSES`, :data:`PRECOMPUTE_SEED`) and the artifact's format
+(:data:`~lbshape.pipeline.precomputed.PIPELINE_VERSION`). So changing dt, steps, a
+load's profile or damping never redoes the precompute, while changing any mesh byte,
+material value, m, r, s, example, k_ex, or where, along what and how strongly a load
+acts does.
 """
 
 from __future__ import annotations

@@ -8,9 +8,10 @@
   responses ``K⁻¹ f`` (the linear static shapes the object takes under each) are solved
   with the modal derivatives' factorisation of K
   (:func:`lbshape.elastic.modal_derivatives.modal_derivatives`, ``static_loads``). They
-  depend on a load's type, region and direction, not on its size or profile
-  (:func:`response_key`). Fixed objects only: a free body's loads move it rigidly, and
-  its deformation is already held by the plain basis.
+  depend on a load's type, region and direction, not on its size or profile (the
+  static equilibria below do depend on its size, :func:`response_key`). Fixed objects
+  only: a free body's loads move it rigidly, and its deformation is already held by the
+  plain basis.
 * **Static load** (:func:`static_load`): every load at full strength, summed — the
   load whose nonlinear static equilibria the basis holds
   (:func:`lbshape.elastic.static_equilibrium.static_equilibria`, the precompute's

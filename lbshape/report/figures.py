@@ -511,6 +511,7 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
     scalar_mass = _scalar_mass(every)
     rest = every.mesh.points
     rows, labels, scalars, bodies, messages, outputs, closest = [], [], [], [], [], [], []
+    endings = []  # the run's last time and closest shape, for the close-up
     for index, (name, variant) in enumerate(variants):
         pre = precompute(variant, progress=progress)
         output = simulate(variant, pre, method="reduced", steps=steps)
@@ -524,7 +525,9 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
         rows.append([every.mesh.with_points(shown),
                      *(_deformed(pre, output.displacements[i]) for i in picks)])
         captions = [f"{name} t={output.times[i]:.2f} s" for i in picks]
-        captions[-1] += f"\n{_closest_caption(closest[-1], names)}"
+        nearest = _closest_caption(closest[-1], names)
+        captions[-1] += f"\n{nearest}"
+        endings.append(f"t={output.times[picks[-1]]:.2f} s, {nearest}")
         labels.append(["rest shape" if index == 0 else f"example: {names[index - 1]}",
                        *captions])
         scalars.append([None, *np.linalg.norm(picked, axis=2)])
@@ -537,13 +540,18 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
     deformation = [float(m_norms((b - bodies[0])[None], mass)[0]
                          / m_norms(bodies[0][None], mass)[0]) for b in bodies[1:]]
     visible = [visible_change(rest, b, bodies[0]) for b in bodies[1:]]
-    for row, change in zip(labels[1:], visible, strict=True):
-        row[-1] += f", visible change {100 * change:.1f} %"
+    for k, change in enumerate(visible, start=1):
+        seen = f", visible change {100 * change:.1f} %"
+        labels[k][-1] += seen
+        endings[k] += seen
     path = render_shape_grid(rows, labels, path, scalars=scalars, planes=scene_planes(scene),
                              view_vector=(0.3, -1.0, 0.35), zoom=1.1,
                              scalar_name="deformation (m)",
                              extent=trajectory_points(every, outputs))
-    shapes = _figure5_shapes(every, rows, labels, bodies, Path(path))
+    shapes = _figure5_shapes(every, [row[0] for row in rows], [row[0] for row in labels],
+                             [f"{name}: final shape (body frame)\n{ending}"
+                              for (name, _), ending in zip(variants, endings, strict=True)],
+                             bodies, Path(path))
     result = Figure5(Path(path), tuple(n for n, _ in variants), tuple(world),
                      tuple(deformation), tuple(visible), tuple(closest), tuple(messages),
                      shapes)
@@ -561,15 +569,17 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
     return result
 
 
-def _figure5_shapes(every, rows, labels, bodies, path: Path) -> Path:
-    """Figure 5's close-up: per run its example (the row's first panel) and its final
-    body-frame shape ``X + d`` (d (n, 3) m, best rigid fit removed), one camera."""
+def _figure5_shapes(every, examples, example_labels, run_labels, bodies,
+                    path: Path) -> Path:
+    """Figure 5's close-up, ``<path stem>_shapes.png``: per run its example on the
+    object (or the rest shape) and its final body-frame shape ``X + d`` (d (n, 3) m,
+    best rigid fit removed), one camera, the rest shape as a wireframe."""
     rest = every.mesh.points
     meshes, captions, scalars = [], [], []
-    for row, label, body in zip(rows, labels, bodies, strict=True):
-        meshes += [row[0], every.mesh.with_points(rest + body)]
-        run = label[-1].split(" t=")[0]
-        captions += [label[0], f"{run}: final shape\n(body frame){label[-1][len(run):]}"]
+    for example, example_label, run_label, body in zip(
+            examples, example_labels, run_labels, bodies, strict=True):
+        meshes += [example, every.mesh.with_points(rest + body)]
+        captions += [example_label, run_label]
         scalars += [None, np.linalg.norm(body, axis=1)]
     return render_shapes(meshes, captions, path.with_name(f"{path.stem}_shapes.png"),
                          scalars=scalars, scalar_name="deformation (m)", ghost=every.mesh,
