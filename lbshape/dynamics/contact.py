@@ -159,9 +159,14 @@ class PlaneContact:
         self.scalars = np.zeros(3)
         self._reach = np.zeros(len(planes), dtype=np.bool_)
         self._work, self._small = np.zeros(r), np.zeros(12)
+        # the surface deformed in the body frame, y_i = X̄_i + U_i q (one BLAS product
+        # per evaluation; the kernels' own loops over r were 6x slower on the car)
+        self._basis_rows = self.basis.reshape(-1, r)
+        self._deformed = np.zeros(self.body_points.shape)
+        self._deformed_flat = self._deformed.reshape(-1)
         # friction: the velocities of an evaluation without them (at rest), its work
         self._rest3, self._rest_q = np.zeros(3), np.zeros(r)
-        self._friction_work = np.zeros((3, r))
+        self._friction_work = np.zeros((8, r))
         self._friction_small = np.zeros(24)
         self._friction_q = np.zeros((r, r))
 
@@ -199,9 +204,11 @@ class PlaneContact:
         if _reach_kernel(center, q, self.radius0, self.u_max, self.points, self.normals,
                          self._reach):
             self.evaluated += 1
+            np.dot(self._basis_rows, q, out=self._deformed_flat)
+            np.add(self._deformed, self.body_points, out=self._deformed)
         else:
             self.skipped += 1
-        active = _contact_kernel(center, rotation, q, self.body_points, self.basis,
+        active = _contact_kernel(center, rotation, q, self._deformed, self.basis,
                                  self.points, self.normals, self.stiffness, self._reach,
                                  rigid, self._work, self._small, self.force, self.torque,
                                  self.generalized, self.stiffness_q, self.stiffness_rigid,
@@ -210,7 +217,7 @@ class PlaneContact:
             _friction_kernel(
                 center, rotation, q, self._rest3 if velocity is None else velocity,
                 self._rest3 if omega is None else omega, self._rest_q if qd is None else qd,
-                float(rate), self.body_points, self.basis, self.points, self.normals,
+                float(rate), self._deformed, self.basis, self.points, self.normals,
                 self.stiffness, self.friction, SLIP_SPEED, self._reach, rigid,
                 self._friction_work, self._friction_small, self._friction_q, self.force,
                 self.torque, self.generalized, self.stiffness_q, self.damping_rigid,
@@ -287,16 +294,12 @@ def friction_force(velocity: np.ndarray, normal: np.ndarray, normal_force: np.nd
 
 
 @njit
-def _body_arm(i, q, rotation, body_points, basis, r, y, arm):
-    """Body point i deformed, ``y = X̄_i + U_i q`` (body frame), and its world arm
-    ``R y`` about the centre of mass, written into y (3,) and arm (3,) (m)."""
+def _body_arm(i, rotation, deformed, arm):
+    """The world arm ``R y_i`` (3,) about the centre of mass of surface point i, deformed
+    ``y_i = X̄_i + U_i q`` (``deformed`` (s, 3), body frame, m), written into arm."""
     for a in range(3):
-        value = 0.0
-        for j in range(r):
-            value += basis[i, a, j] * q[j]
-        y[a] = body_points[i, a] + value
-    for a in range(3):
-        arm[a] = rotation[a, 0] * y[0] + rotation[a, 1] * y[1] + rotation[a, 2] * y[2]
+        arm[a] = (rotation[a, 0] * deformed[i, 0] + rotation[a, 1] * deformed[i, 1]
+                  + rotation[a, 2] * deformed[i, 2])
 
 
 @njit
@@ -323,11 +326,12 @@ def _reach_kernel(center, q, radius0, u_max, points, normals, reach):
 
 
 @njit
-def _contact_kernel(center, rotation, q, body_points, basis, points, normals, stiffness,
+def _contact_kernel(center, rotation, q, deformed, basis, points, normals, stiffness,
                     reach, rigid, g, small, force, torque, generalized, Kq, K6, scalars):
     """One pass over the surface vertices (see :meth:`PlaneContact.evaluate_into`).
 
-    Vertex i: ``y = X̄_i + U_i q`` (body), arm ``R y`` (world), gap per reached plane
+    Vertex i: ``y = X̄_i + U_i q`` (body, the row i of ``deformed`` (s, 3)), arm ``R y``
+    (world), gap per reached plane
     ``(R y + c − p)·n``; a penetration d > 0 adds ``k d n`` to the force, ``k d (arm × n)``
     to the torque, ``k d g`` with ``g = U_iᵀ Rᵀ n`` to the generalized force, ``k g gᵀ`` to
     ``stiffness_q`` and ``k J Jᵀ`` (J = [n; arm × n]) to the 6 × 6 stiffness.
@@ -342,13 +346,13 @@ def _contact_kernel(center, rotation, q, body_points, basis, points, normals, st
     energy = 0.0
     depth = 0.0
     active = 0
-    J, arm, nb, y = small[0:6], small[6:9], small[9:12], small[0:3]  # y dies before J
+    J, arm, nb = small[0:6], small[6:9], small[9:12]
     planes = points.shape[0]
     if not reach.any():
         scalars[0] = scalars[1] = scalars[2] = 0.0
         return 0
-    for i in range(body_points.shape[0]):
-        _body_arm(i, q, rotation, body_points, basis, r, y, arm)
+    for i in range(deformed.shape[0]):
+        _body_arm(i, rotation, deformed, arm)
         for p in range(planes):
             if not reach[p]:
                 continue
@@ -395,27 +399,29 @@ def _contact_kernel(center, rotation, q, body_points, basis, points, normals, st
 
 
 @njit
-def _friction_kernel(center, rotation, q, velocity, omega, qd, rate, body_points, basis,
-                     points, normals, stiffness, friction, eps, reach, rigid, G, small, Kf,
+def _friction_kernel(center, rotation, q, velocity, omega, qd, rate, deformed, basis,
+                     points, normals, stiffness, friction, eps, reach, rigid, work, small, Kf,
                      force, torque, generalized, Kq, C6, X):
     """The friction of the penetrating vertices (module docstring), added to ``force``,
     ``torque``, ``generalized`` and ``Kq``; ``C6`` (6, 6) receives ``C₆``.
 
-    Vertex i: ``y = X̄_i + U_i q``, arm ``a = R y``, world velocity
+    Vertex i: ``y = X̄_i + U_i q`` (row i of ``deformed``), arm ``a = R y``, world velocity
     ``w = v + ω × a + R U_i q̇``; per penetrating plane with μ > 0: ``t = (I − n nᵀ) w``,
     ``s = √(|t|² + ε²)``, ``T = t/s``, ``f_t = −μ k d T``, ``C = μ k d (P − T Tᵀ)/s``.
-    Work arrays: G (3, r) = R U_i, small (24,), Kf (r, r).
+    Work arrays: work (8, r) (G = R U_i, C G, Gᵀ T, Gᵀ n), small (24,), Kf (r, r);
+    ``q`` only sizes them.
     """
     r = q.shape[0]
+    G, CG, GT, GN = work[0:3], work[3:6], work[6], work[7]
     C6[:, :] = 0.0
     X[:, :] = 0.0
     Kf[:, :] = 0.0
-    y, arm, w, t = small[0:3], small[3:6], small[6:9], small[9:12]
+    arm, w, t = small[3:6], small[6:9], small[9:12]
     C = small[12:21].reshape((3, 3))
     f = small[21:24]
     planes = points.shape[0]
-    for i in range(body_points.shape[0]):
-        _body_arm(i, q, rotation, body_points, basis, r, y, arm)
+    for i in range(deformed.shape[0]):
+        _body_arm(i, rotation, deformed, arm)
         touching = False
         for p in range(planes):
             if not reach[p] or friction[p] == 0.0:
@@ -459,60 +465,69 @@ def _friction_kernel(center, rotation, q, velocity, omega, qd, rate, body_points
                     C[a, b] = scale * ((1.0 if a == b else 0.0) - n[a] * n[b] - t[a] * t[b])
             for a in range(3):
                 force[a] += f[a]
+            # deformation tangent: rate Gᵀ C G − μ k (Gᵀ T) gᵀ, g = Gᵀ n. C G (3, r),
+            # Gᵀ T and g once per vertex; Gᵀ C G (symmetric) summed in Kf's upper
+            # triangle, the rank-one part straight into Kq (rows innermost)
             for j in range(r):
-                gf = G[0, j] * f[0] + G[1, j] * f[1] + G[2, j] * f[2]
-                generalized[j] += gf
-            # deformation tangent: rate Gᵀ C G − μ k (Gᵀ T) gᵀ, g = Gᵀ n
+                generalized[j] += G[0, j] * f[0] + G[1, j] * f[1] + G[2, j] * f[2]
+                CG[0, j] = C[0, 0] * G[0, j] + C[0, 1] * G[1, j] + C[0, 2] * G[2, j]
+                CG[1, j] = C[1, 0] * G[0, j] + C[1, 1] * G[1, j] + C[1, 2] * G[2, j]
+                CG[2, j] = C[2, 0] * G[0, j] + C[2, 1] * G[1, j] + C[2, 2] * G[2, j]
+                GT[j] = mu_k * (G[0, j] * t[0] + G[1, j] * t[1] + G[2, j] * t[2])
+                GN[j] = G[0, j] * n[0] + G[1, j] * n[1] + G[2, j] * n[2]
             for j in range(r):
-                cg0 = C[0, 0] * G[0, j] + C[0, 1] * G[1, j] + C[0, 2] * G[2, j]
-                cg1 = C[1, 0] * G[0, j] + C[1, 1] * G[1, j] + C[1, 2] * G[2, j]
-                cg2 = C[2, 0] * G[0, j] + C[2, 1] * G[1, j] + C[2, 2] * G[2, j]
-                gn = G[0, j] * n[0] + G[1, j] * n[1] + G[2, j] * n[2]
-                for k2 in range(r):
-                    Kf[k2, j] += (rate * (G[0, k2] * cg0 + G[1, k2] * cg1 + G[2, k2] * cg2)
-                                  - mu_k * (G[0, k2] * t[0] + G[1, k2] * t[1]
-                                            + G[2, k2] * t[2]) * gn)
+                c0, c1, c2 = CG[0, j], CG[1, j], CG[2, j]
+                for k2 in range(j, r):
+                    Kf[j, k2] += G[0, k2] * c0 + G[1, k2] * c1 + G[2, k2] * c2
+            for k2 in range(r):
+                gt = GT[k2]
+                for j in range(r):
+                    Kq[k2, j] -= gt * GN[j]
             if rigid:
                 torque[0] += arm[1] * f[2] - arm[2] * f[1]
                 torque[1] += arm[2] * f[0] - arm[0] * f[2]
                 torque[2] += arm[0] * f[1] - arm[1] * f[0]
                 _add_rigid_rate(C, arm, C6)
-                for a in range(6):  # X += Bᵀ C G
-                    for j in range(r):
-                        value = 0.0
-                        for i2 in range(3):
-                            bc = _column(arm, a, i2)
-                            if bc != 0.0:
-                                value += bc * (C[i2, 0] * G[0, j] + C[i2, 1] * G[1, j]
-                                               + C[i2, 2] * G[2, j])
-                        X[a, j] += value
-    for j in range(r):
-        for k2 in range(r):
-            Kq[j, k2] += Kf[j, k2]
+                for j in range(r):  # X += Bᵀ C G: (C G; arm × C G) per column
+                    c0, c1, c2 = CG[0, j], CG[1, j], CG[2, j]
+                    X[0, j] += c0
+                    X[1, j] += c1
+                    X[2, j] += c2
+                    X[3, j] += arm[1] * c2 - arm[2] * c1
+                    X[4, j] += arm[2] * c0 - arm[0] * c2
+                    X[5, j] += arm[0] * c1 - arm[1] * c0
+    for j in range(r):  # rate Σ Gᵀ C G from its upper triangle
+        Kq[j, j] += rate * Kf[j, j]
+        for k2 in range(j + 1, r):
+            value = rate * Kf[j, k2]
+            Kq[k2, j] += value
+            Kq[j, k2] += value
 
 
 @njit
 def _add_rigid_rate(C, arm, C6):
     """C₆ += Bᵀ C B with ``B = [I, −[arm]×]`` (3, 6): the rate matrix of (force, torque)
-    about c with respect to (v, ω) of a point force with rate matrix C (3, 3)."""
-    # B columns: e_a for a < 3; −[arm]× e_b = −(arm × e_b) = e_b × arm for b ≥ 3
-    for a in range(6):
-        for b in range(6):
-            value = 0.0
-            for i in range(3):
-                for j in range(3):
-                    value += _column(arm, a, i) * C[i, j] * _column(arm, b, j)
-            C6[a, b] += value
+    about c with respect to (v, ω) of a point force with rate matrix C (3, 3).
 
-
-@njit
-def _column(arm, column, row):
-    """Row ``row`` of column ``column`` of ``B = [I, −[arm]×]``."""
-    if column < 3:
-        return 1.0 if row == column else 0.0
-    b = column - 3  # (e_b × arm)[row]
-    if row == b:
-        return 0.0
-    if (b + 1) % 3 == row:  # e_b × arm = ε_{row b k} ... written out
-        return -arm[(b + 2) % 3]
-    return arm[(b + 1) % 3]
+    B's columns are e_a (a < 3) and ``e_b × arm`` (3 + b); with D = C B (3, 6) each
+    column of Bᵀ D is ``(d; arm × d)`` for the column d of D."""
+    a0, a1, a2 = arm[0], arm[1], arm[2]
+    for col in range(6):
+        if col < 3:
+            d0, d1, d2 = C[0, col], C[1, col], C[2, col]
+        else:  # C (e_b × arm)
+            if col == 3:
+                e0, e1, e2 = 0.0, -a2, a1
+            elif col == 4:
+                e0, e1, e2 = a2, 0.0, -a0
+            else:
+                e0, e1, e2 = -a1, a0, 0.0
+            d0 = C[0, 0] * e0 + C[0, 1] * e1 + C[0, 2] * e2
+            d1 = C[1, 0] * e0 + C[1, 1] * e1 + C[1, 2] * e2
+            d2 = C[2, 0] * e0 + C[2, 1] * e1 + C[2, 2] * e2
+        C6[0, col] += d0
+        C6[1, col] += d1
+        C6[2, col] += d2
+        C6[3, col] += a1 * d2 - a2 * d1
+        C6[4, col] += a2 * d0 - a0 * d2
+        C6[5, col] += a0 * d1 - a1 * d0

@@ -191,10 +191,12 @@ class ImplicitStepper:
         line_search: halve a Newton update (down to 1/64) until it lowers ‖R‖ (for
             forces whose residual is steep in a narrow band, as regularised friction
             is below its slip speed); ``False``: full updates.
-        low_rank_tangent: returns W (n, k) or None after each force evaluation: the
-            tangent is then ``K − W Wᵀ`` (a rank-k correction of the sparse K, e.g. a
-            free body's rigid-invariant example pull, whose rigid directions carry no
-            stiffness), solved by the Woodbury identity with K's factorisation.
+        low_rank_tangent: returns ``(W, S)`` (n, k) and (k, k) symmetric, or None,
+            after each force evaluation: the Newton matrix is then ``J + W S Wᵀ`` (a
+            rank-k correction of the sparse one, e.g. a free body's rigid-invariant
+            example pull, whose rigid directions carry no stiffness, or its stiffness
+            damping of the deformation only), solved by the Woodbury identity with J's
+            factorisation.
     """
 
     #: the scheme's coefficients (one of :data:`SCHEMES`)
@@ -221,7 +223,7 @@ class ImplicitStepper:
         energy_budget: float = 0.0,
         symmetric: bool = True,
         line_search: bool = False,
-        low_rank_tangent: Callable[[], np.ndarray | None] | None = None,
+        low_rank_tangent: Callable[[], tuple[np.ndarray, np.ndarray] | None] | None = None,
     ):
         self._sparse = sp.issparse(mass)
         self.mass = _square_matrix(mass, "mass")
@@ -437,7 +439,7 @@ class ImplicitStepper:
 
     def _solve_newton(self, K: Matrix, R: np.ndarray, index: int, t: float) -> np.ndarray:
         J = self._newton_base + K
-        W = self._low_rank_tangent() if self._low_rank_tangent is not None else None
+        correction = self._low_rank_tangent() if self._low_rank_tangent is not None else None
         try:
             if self._sparse:
                 solve = spla.splu(sp.csc_matrix(J)).solve
@@ -445,10 +447,13 @@ class ImplicitStepper:
                 def solve(rhs):
                     return sla.solve(J, rhs, assume_a=self._assume_a, check_finite=False)
             delta = solve(R)
-            if W is not None and W.size:  # (J − W Wᵀ)⁻¹ R by the Woodbury identity
-                Z = solve(np.asarray(W, dtype=float))
-                small = np.eye(W.shape[1]) - W.T @ Z
-                delta = delta + Z @ np.linalg.solve(small, W.T @ delta)
+            if correction is not None and correction[0].size:
+                # (J + W S Wᵀ)⁻¹ R by the Woodbury identity, in the form that needs no
+                # S⁻¹: (J + W S Wᵀ)⁻¹ = J⁻¹ − Z (I + S Wᵀ Z)⁻¹ S Wᵀ J⁻¹, Z = J⁻¹ W
+                W, S = np.asarray(correction[0], dtype=float), np.asarray(correction[1])
+                Z = solve(W)
+                small = np.eye(W.shape[1]) + S @ (W.T @ Z)
+                delta = delta - Z @ np.linalg.solve(small, S @ (W.T @ delta))
         except (sla.LinAlgError, np.linalg.LinAlgError, RuntimeError) as exc:
             raise SolverError(
                 f"singular Newton matrix at step {index} (t = {t:.6g} s): {exc}"

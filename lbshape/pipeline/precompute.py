@@ -26,7 +26,8 @@ Stages (only those the scene needs; paper pre-computation steps 1–6), in order
 10. ``example-basis``: the object's responses to the example pull (Krylov blocks of the
     spring-shifted stiffness on the examples' targets,
     :func:`~lbshape.pipeline.responses.example_responses`) that U misses, appended to it
-    up to :data:`MAX_APPENDED_BASIS` columns     — fixed objects with examples (k_ex > 0);
+    up to :data:`MAX_APPENDED_BASIS` columns (a free body: without their rigid part, up to
+    :data:`MAX_APPENDED_FREE_BODY`)               — scenes with examples (k_ex > 0);
 11. ``cubature``: optimized cubature for the reduced elastic force on the final U (the
     force model of non-StVK materials and large meshes, and the energy of the ``modal``
     route);
@@ -141,6 +142,7 @@ from lbshape.shapespace.local_examples import (
     RegionSpec,
     build_local_space,
     region_cells,
+    rigid_fields,
     submesh,
 )
 from lbshape.shapespace.projections import (
@@ -166,6 +168,11 @@ CLAMPED_TARGETS = False
 #: inside 1 ms (teddy-local 0.68 ms, cross 0.82 ms per step there); at r = 60 it is 0.64 ms
 #: per call
 MAX_APPENDED_BASIS = 48
+#: a free body's example responses grow its basis up to this many columns: its step also
+#: pays for the contact (r² per touching vertex, with friction) and the frame; the car's
+#: mean step was 1.08 ms at r = 29 (all nine responses), 0.94 ms at r = 24, and its
+#: body-frame deformation error against full 7.8 % and 6.9 % (20 % with none, r = 20)
+MAX_APPENDED_FREE_BODY = 24
 #: the static equilibria are solved by sparse LU in full space (about 0.3 s for the
 #: teddy's 1.9k vertices, 1.5 s for the cross); larger meshes skip the stage
 STATIC_EQUILIBRIA_MAX_VERTICES = 20_000
@@ -356,7 +363,7 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
     """The ``example-basis`` stage: U with the example responses it misses appended
     (:func:`lbshape.pipeline.responses.example_responses`,
     :func:`lbshape.elastic.basis.append_directions`)."""
-    room = MAX_APPENDED_BASIS - elastic.basis.r
+    room = (MAX_APPENDED_FREE_BODY if scene.is_free else MAX_APPENDED_BASIS) - elastic.basis.r
     if room <= 0:  # nothing could be appended: no factorisation
         return elastic.basis
     density = scene.material.density
@@ -369,7 +376,8 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
                                                targets=shape.targets.path)
     responses = example_responses(elastic.modes.stiffness, spring,
                                   example_response_stiffness(scene), fields, elastic.mass,
-                                  fixed)
+                                  fixed, rigid=(rigid_fields(mesh.points, elastic.mass)
+                                                if scene.is_free else None))
     return append_directions(elastic.basis, responses, elastic.mass, elastic.modes.stiffness,
                              kind="example_responses", max_columns=room)
 

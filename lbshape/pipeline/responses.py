@@ -27,10 +27,10 @@
   pull is a Krylov sequence of the spring-shifted stiffness ``K + k_ex S``, which
   :func:`lbshape.elastic.basis.append_directions` appends to U (the precompute's
   ``example-basis`` stage). The shift makes them depend on k_ex, which is therefore part
-  of the cache key (:func:`example_response_stiffness`). Fixed objects only: a free
-  body's error against the full reference is its rigid motion after contact, not its
-  deformation (measured in ``docs/architecture.md``, "Example responses appended to the
-  basis").
+  of the cache key (:func:`example_response_stiffness`). A free body's targets and
+  responses lose their rigid part (its frame holds the rigid motion, and the full
+  reference pulls towards the target placed by its best rigid fit); ``K + k_ex M`` is
+  positive definite without supports.
 """
 
 from __future__ import annotations
@@ -120,8 +120,8 @@ def static_load(scene: Scene, mesh: TetMesh, mass) -> np.ndarray:
 
 def example_response_stiffness(scene: Scene) -> float:
     """k_ex (1/s²) the example responses are shifted by, or 0 when the scene gets none
-    (no examples, k_ex = 0, or a free body)."""
-    if scene.examples is None or not scene.examples.poses or scene.is_free:
+    (no examples, or k_ex = 0)."""
+    if scene.examples is None or not scene.examples.poses:
         return 0.0
     return float(scene.examples.stiffness)
 
@@ -174,7 +174,7 @@ def example_target_fields(mesh: TetMesh, mass, density: float, *,
 
 
 def example_responses(stiffness, spring, k_ex: float, fields: np.ndarray, mass,
-                      fixed_vertices: np.ndarray, *,
+                      fixed_vertices: np.ndarray, *, rigid: np.ndarray | None = None,
                       depth: int = EXAMPLE_RESPONSE_DEPTH) -> np.ndarray:
     """(3n, depth · p) the object's responses to the example pull, a Krylov sequence of
     the spring-shifted stiffness: ``X₁ = (K + k_ex S)⁻¹ S V``, ``X_{j+1} = (K + k_ex S)⁻¹ M
@@ -193,9 +193,15 @@ def example_responses(stiffness, spring, k_ex: float, fields: np.ndarray, mass,
         k_ex: the example stiffness in 1/s², > 0.
         fields: (3n, p) target displacements V in m.
         mass: (3n, 3n) M, kg.
-        fixed_vertices: (f,) clamped vertices (at least one).
+        fixed_vertices: (f,) clamped vertices; none for a free body.
+        rigid: (3n, 6) M-orthonormal rigid fields of a free body, removed from the
+            targets and the responses (the reduced frame holds the rigid motion and the
+            full reference pulls towards the target placed by its best rigid fit).
         depth: Krylov blocks.
     """
+    def deformation(X):
+        return X if rigid is None else X - rigid @ (rigid.T @ (mass @ X))
+
     n3 = stiffness.shape[0]
     free = np.ones(n3, dtype=bool)
     free[(3 * np.asarray(fixed_vertices)[:, None] + np.arange(3)).ravel()] = False
@@ -203,10 +209,11 @@ def example_responses(stiffness, spring, k_ex: float, fields: np.ndarray, mass,
     blocks = []
     with serial_cholesky(shifted, prefix="responses_", what="the spring-shifted stiffness") \
             as solve:
-        load = spring @ fields
+        load = spring @ deformation(fields)
         for _ in range(depth):
             block = np.zeros((n3, fields.shape[1]))
             block[free] = solve(np.asarray(load)[free])
+            block = deformation(block)
             blocks.append(block)
             load = mass @ block
     return np.hstack(blocks)
