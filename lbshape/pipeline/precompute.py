@@ -92,7 +92,7 @@ from lbshape.elastic.cubature import (
 )
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.modal_derivatives import ModalDerivatives, modal_derivatives
-from lbshape.elastic.modes import LinearModes, linear_modes
+from lbshape.elastic.modes import LinearModes, linear_modes, rigid_body_modes
 from lbshape.elastic.polynomial_forces import PolynomialForceModel, resolve_force_model
 from lbshape.elastic.static_equilibrium import static_equilibria
 from lbshape.errors import LbshapeError
@@ -142,7 +142,6 @@ from lbshape.shapespace.local_examples import (
     RegionSpec,
     build_local_space,
     region_cells,
-    rigid_fields,
     submesh,
 )
 from lbshape.shapespace.projections import (
@@ -376,7 +375,7 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
                                                targets=shape.targets.path)
     responses = example_responses(elastic.modes.stiffness, spring,
                                   example_response_stiffness(scene), fields, elastic.mass,
-                                  fixed, rigid=(rigid_fields(mesh.points, elastic.mass)
+                                  fixed, rigid=(rigid_body_modes(mesh.points, elastic.mass)
                                                 if scene.is_free else None))
     return append_directions(elastic.basis, responses, elastic.mass, elastic.modes.stiffness,
                              kind="example_responses", max_columns=room)
