@@ -464,8 +464,8 @@ class FullSpaceSimulator:
 
         Its tangent ``rate · Pᵀ D P`` (P held) is ``rate · D`` plus the rank-12 part
         ``[a b] [[C, −I], [−I, 0]] [a b]ᵀ`` (a = MΨ, b = DΨ, C = Ψᵀ D Ψ), kept for
-        :meth:`_tangent_correction`: with ``rate · D`` alone Newton took 2.5× the
-        iterations.
+        :meth:`_tangent_correction`: with ``rate · D`` alone Newton took 4.9 iterations per
+        step on a spinning bent bar, with it 3.0.
 
         Args:
             x: (3n,) the Newton iterate's displacement in m.
