@@ -233,6 +233,54 @@ def test_figure3_panels_for_a_same_and_other_topology_pair(tmp_path):
         figure3(dataclasses.replace(same, examples=None), other, tmp_path / "x.png")
 
 
+def test_figure6_measures_local_against_global_examples_on_one_object(tmp_path):
+    import meshio
+
+    from lbshape.geometry.primitives import structured_box
+    from lbshape.pipeline.precompute import precompute
+    from lbshape.pipeline.simulate import simulate
+    from lbshape.report.figures import figure6
+    from lbshape.scene.reader import scene_from_dict
+
+    bar = structured_box((0.2, 0.2, 1.0), (2, 2, 8))
+    meshio.write(tmp_path / "bar.vtu", meshio.Mesh(bar.points, [("tetra", bar.tets)]))
+    twist = {"mesh": "bar.vtu", "pose": "twist", "parameters": {"angle": 1.0, "axis": "z",
+                                                                 "anchor": "min"}}
+    bend = {"mesh": "bar.vtu", "pose": "arc", "parameters": {"angle": 0.5, "axis": "z",
+                                                              "direction": "x"}}
+    common = {"object": {"mesh": "bar.vtu"}, "reduced": {"m": 4, "r": 12, "s": 20},
+              "fixed": {"region": "z < 0.001"}, "simulation": {"steps": 30},
+              "loads": [{"type": "gravity", "vector": [3.0, 0.0, 0.0]}]}
+    global_scene = scene_from_dict({**common, "examples": {"stiffness": 300.0,
+                                                           "pose": [twist, bend]}},
+                                   name="bar-global", base_dir=tmp_path)
+    local_scene = scene_from_dict(
+        {**common, "examples": {"stiffness": 300.0, "pose": [twist, bend]},
+         "regions": [{"name": "low", "region": "z < 0.5", "examples": [0]},
+                     {"name": "high", "region": "z > 0.5", "examples": [1]}]},
+        name="bar-local", base_dir=tmp_path)
+    result = figure6(global_scene, local_scene, tmp_path / "figure6.png")
+    _assert_not_blank(result.path, coloured=0.01)
+    _assert_not_blank(result.difference, coloured=0.005)
+    # the numbers against the runs made here, independently of the figure
+    finals = {}
+    for name, scene in (("global", global_scene), ("local", local_scene)):
+        finals[name] = simulate(scene, precompute(scene)).displacements[-1]
+    distance = np.linalg.norm(finals["local"] - finals["global"], axis=1)
+    assert result.difference_max == pytest.approx(distance.max(), rel=1e-9)
+    assert result.difference_max > 1e-3  # the two example sets pull differently
+    height = np.ptp(bar.points[:, 2])
+    top = bar.points[:, 2] > 0.5
+    assert result.difference_by_region["high"] == pytest.approx(
+        distance[top].max() / height, rel=1e-9)
+    assert result.region_displacement["local"]["high"] == pytest.approx(
+        np.linalg.norm(finals["local"][top], axis=1).max() / height, rel=1e-9)
+    stored = json.loads((tmp_path / "figure6.json").read_text())
+    assert set(stored["closest_example"]["local"]) == {"low", "high"}
+    with pytest.raises(LbshapeError, match="global examples and one with local"):
+        figure6(global_scene, global_scene, tmp_path / "x.png")
+
+
 def test_render_command_bad_scene_leaves_no_output(tmp_path, capsys):
     scene = tmp_path / "bad.toml"
     scene.write_text('[object]\nshape = "demo-bar"\n[reduced]\nr = 100000\n'

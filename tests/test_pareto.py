@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
 
 from lbshape.report import pareto
 from lbshape.report.bench import SweepPoint
+from lbshape.report.machine import machine_description
 
 
 def _point(m, r, s, ms, error, forces="cubature"):
@@ -81,8 +83,8 @@ def test_write_pareto_writes_table_json_and_plot(tmp_path):
     assert "| bar | (10, 30, 60), cubature | 0.800 ms, 1.50% | **met**" in text, text
     assert "Target: error ≤ 2% at ≤ 1 ms per step." in text
     # the polynomial forces' s is not a cubature size
-    assert "| polynomial | 10 | 50 | exact (60) | 0.450 " in text
-    assert "| cubature | 10 | 30 | 60 (60) | 0.800 " in text
+    assert "| polynomial | 10 | 50 (50) | exact (60) | 0.450 " in text
+    assert "| cubature | 10 | 30 (30) | 60 (60) | 0.800 " in text
     payload = json.loads(js.read_text())
     assert payload["target"] == {"error_vs_full": 0.02, "t_total_ms": 1.0}
     scene = payload["scenes"][0]
@@ -126,3 +128,12 @@ def test_sweep_runs_the_polynomials_once_per_r_and_the_cubature_per_r_and_s():
     assert got == [("cubature", r8, 10), ("cubature", r8, 20), ("polynomial", r8, 40),
                    ("polynomial", r12, 40)]
     assert all(p.error_vs_full is not None for p in points)
+
+
+def test_the_scene_s_own_setting_is_found_by_the_r_it_asked_for():
+    # the bar asks for r = 30 and its static responses grow the basis to 32
+    grown = dataclasses.replace(_point(10, 32, 60, 0.2, 0.005, "polynomial"), r_asked=30)
+    other = dataclasses.replace(_point(10, 30, 60, 0.1, 0.04, "polynomial"), r_asked=28)
+    sweep = pareto.ParetoSweep("bar", (10, 30, 60), 500, 1e-3, 2, (other, grown), "polynomial")
+    assert sweep.paper_point() is grown
+    assert "| 32 (30) |" in pareto.pareto_markdown([sweep], machine_description())

@@ -1,6 +1,7 @@
 """``lbshape render SCENE [--out DIR] [--steps N] [--method M] [--movie [--fps F]]``.
 
-Off-screen PNGs of a scene; ``--movie`` adds ``simulation.gif`` (and ``simulation.mp4``
+Off-screen PNGs of a scene (the bars add Figure 3, teddy-local Figure 6: its run beside
+teddy-global's); ``--movie`` adds ``simulation.gif`` (and ``simulation.mp4``
 where the encoder is installed): the method and the ``full`` reference side by side,
 frames read from the trajectories written to ``OUT/runs/METHOD``.
 """
@@ -16,8 +17,10 @@ from lbshape.report.animation import simulation_movie
 from lbshape.report.figures import (
     FIGURE3_SCENES,
     FIGURE3_STEPS,
+    FIGURE6_SCENES,
     default_out,
     figure3,
+    figure6,
     render_scene,
 )
 from lbshape.scene import load_scene
@@ -65,6 +68,12 @@ def run(args) -> int:
             result = figure3(same, other, out / "figure3.png", steps=steps, progress=True)
             print(f"render {scene.name}: {result.path} (reduced vs full final frame: "
                   f"{result.reduced_vs_full_final:.2%})")
+        if scene.name == FIGURE6_SCENES[1]:
+            figure = figure6(*(load_scene(name) for name in FIGURE6_SCENES),
+                             out / "figure6.png", steps=args.steps, progress=True)
+            print(f"render {scene.name}: {figure.path} and {figure.difference} (local vs "
+                  f"global: up to {figure.difference_max:.3f} m = "
+                  f"{max(figure.difference_by_region.values()):.1%} of the height)")
         if args.movie:
             movie = simulation_movie(scene, out, method=args.method, steps=args.steps,
                                      fps=args.fps, progress=True)

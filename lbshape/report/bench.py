@@ -642,6 +642,8 @@ class SweepPoint:
         cubature_holdout_error: relative reduced-force error on held-out poses.
         forces: the reduced elastic force the runs used (``"polynomial"``: exact, every
             element, so s only sizes the cubature trained beside it; ``"cubature"``).
+        r_asked: the r the configuration asked for (``[reduced] r``); the basis has
+            ``r`` columns, more where static responses were appended (None: r).
     """
 
     m: int
@@ -655,6 +657,12 @@ class SweepPoint:
     error_vs_full: float | None
     cubature_holdout_error: float | None
     forces: str = "cubature"
+    r_asked: int | None = None
+
+    @property
+    def asked_r(self) -> int:
+        """The r the configuration asked for (:attr:`r_asked`, else :attr:`r`)."""
+        return self.r if self.r_asked is None else self.r_asked
 
 
 def _variant(scene, *, m: int, r: int, s: int, forces: str | None = None):
@@ -744,7 +752,7 @@ def speed_error_sweep(
             t_interp_ms=timing.summary("t_interp_ms")["median"], t_total_ms=total["median"],
             t_total_min_ms=total["min"], t_total_max_ms=total["max"], error_vs_full=error,
             cubature_holdout_error=None if holdout is None else float(holdout),
-            forces=pre.force_model,
+            forces=pre.force_model, r_asked=r,
         ))
         log.info("sweep %s: %s", scene.name, points[-1])
     return tuple(points)

@@ -22,6 +22,9 @@
   each example alone, the runs in rows, a few times in columns (``runs_by_example.png``),
   and close up each run's final shape in the body frame beside its example
   (``runs_by_example_shapes.png``);
+* :func:`figure6` — the paper's Figure 6: one dragged object without examples, with
+  global and with local examples, from the side, and the local run coloured by its
+  distance to the global one (``figure6.png``, ``figure6_difference.png``);
 * :func:`render_scene` — all of the above that a scene supports, into one folder.
 
 Numbers behind each composite picture go to a JSON file next to it. Nothing here
@@ -50,6 +53,7 @@ from lbshape.pipeline.influence import (
     end_twist_degrees,
     has_example_force,
     visible_change,
+    without_examples,
 )
 from lbshape.pipeline.meshes import example_mesh
 from lbshape.pipeline.precompute import precompute
@@ -75,6 +79,11 @@ FIGURE3_SCENES: tuple[str, str] = ("bar-cuboid", "bar-cylinder")
 TRAJECTORY_ZOOM = 1.2
 #: steps of the Figure 3 runs (0.4 s at dt = 1 ms: the 0.3 s torque ramp is over)
 FIGURE3_STEPS = 400
+#: built-in scenes of Figure 6: (global examples, local examples), one teddy, one drag
+FIGURE6_SCENES: tuple[str, str] = ("teddy-global", "teddy-local")
+#: Figure 6's camera direction: the teddy's left side (+x), a little from the front
+#: (−y) and above, so the drag (+z) and the limbs' curl lie nearly in the picture
+FIGURE6_VIEW: tuple[float, float, float] = (1.0, -0.35, 0.15)
 
 
 def default_out(scene_name: str) -> Path:
@@ -585,6 +594,115 @@ def _figure5_shapes(every, examples, example_labels, run_labels, bodies,
                          scalars=scalars, scalar_name="deformation (m)", ghost=every.mesh,
                          window_size=(330 * len(meshes), 420),
                          view_vector=(0.3, -1.0, 0.35))
+
+
+@dataclass(frozen=True)
+class Figure6:
+    """The paper's Figure 6: the dragged teddy without examples, with global and with
+    local examples, side by side from the side; and the local run against the global one.
+
+    Attributes:
+        path: the PNG (rest | no examples | global examples | local examples, final
+            frames, coloured by |u| on one range, the rest shape as a wireframe).
+        difference: ``<path stem>_difference.png``: the local run's final shape
+            coloured by its distance to the global run's, which is drawn as a wireframe.
+        height: the object's extent along the drag (m).
+        region_displacement: per run (``no examples``, ``global``, ``local``), per
+            region of the local scene, its largest vertex displacement at the end over
+            ``height``.
+        difference_by_region: per region, the largest vertex distance between the local
+            and the global run's final shapes over ``height``.
+        difference_max: the largest over the whole object (m).
+    """
+
+    path: Path
+    difference: Path
+    height: float
+    region_displacement: dict[str, dict[str, float]]
+    difference_by_region: dict[str, float]
+    difference_max: float
+
+
+def figure6(global_scene, local_scene, path: str | Path, *, steps: int | None = None,
+            progress: bool = False) -> Figure6:
+    """The paper's Figure 6 for one object, one load and two example sets (reduced runs).
+
+    ``global_scene``'s examples act on the whole object, ``local_scene``'s on its
+    regions; both drag the same object with the same loads. The camera looks at the
+    object from the side along x (up: z, the drag's direction), where the drag and the
+    limbs' curl towards the front lie in the picture's plane. The numbers go to
+    ``<path stem>.json``: per run and region the largest displacement over the
+    object's height, per region the largest local-vs-global distance, and which example
+    each run ends closest to (global: the whole object; local: per region).
+
+    Raises:
+        LbshapeError: scenes on different meshes, a global scene with local examples or
+            a local scene without, or a run that stopped.
+    """
+    if not local_scene.regions or global_scene.regions or global_scene.examples is None:
+        raise LbshapeError(f"Figure 6 needs a scene with global examples and one with local "
+                           f"examples; got {global_scene.name} and {local_scene.name}")
+    pre_global = precompute(global_scene, progress=progress)
+    pre_local = precompute(local_scene, progress=progress)
+    a, b = pre_global.mesh, pre_local.mesh
+    if a.points.shape != b.points.shape or not np.allclose(a.points, b.points) \
+            or not np.array_equal(a.tets, b.tets):
+        raise LbshapeError(f"Figure 6 needs one object: {global_scene.name} and "
+                           f"{local_scene.name} simulate different meshes")
+    runs = {"no examples": (without_examples(global_scene), pre_global),
+            "global": (global_scene, pre_global), "local": (local_scene, pre_local)}
+    finals = {}
+    for name, (scene, pre) in runs.items():
+        output = simulate(scene, pre, method="reduced", steps=steps)
+        if output.message:
+            raise LbshapeError(f"Figure 6 run '{name}' stopped: {output.message}")
+        finals[name] = np.asarray(output.displacements[-1])
+        time = float(output.times[-1])
+    rest = a.points
+    height = float(np.ptp(rest[:, 2]))
+    regions = {region.name: region.vertices for region in pre_local.local.regions}
+    moved = {name: {region: float(np.linalg.norm(u[vertices], axis=1).max()) / height
+                    for region, vertices in regions.items()} for name, u in finals.items()}
+    distance = np.linalg.norm(finals["local"] - finals["global"], axis=1)
+    by_region = {region: float(distance[vertices].max()) / height
+                 for region, vertices in regions.items()}
+    closest_global = closest_example(pre_global, finals["global"])[0]
+    closest_local = closest_example(pre_local, finals["local"])[0]
+    peak = int(np.argmax(distance))
+    where = next((region for region, vertices in regions.items() if peak in vertices),
+                 "outside the local regions")
+    view = {"view_vector": FIGURE6_VIEW, "view_up": (0.0, 0.0, 1.0)}
+    lifts = {name: max(values.values()) for name, values in moved.items()}
+    labels = ["rest", *(f"{name} (reduced) t={time:.2f} s\nlargest displacement "
+                        f"{100 * lifts[name]:.1f} % of the height" for name in finals)]
+    labels[2] += f"\n{_closest_caption(closest_global, range(len(global_scene.examples.poses)))}"
+    labels[3] += "\nclosest: " + ", ".join(f"{region} {k}"
+                                          for region, k in closest_local.items())
+    png = render_shapes([a, *(_deformed(pre_global, u) for u in finals.values())], labels,
+                        path, scalars=[None, *(np.linalg.norm(u, axis=1)
+                                               for u in finals.values())],
+                        ghost=a, scalar_name="displacement (m)", window_size=(1800, 600),
+                        **view)
+    limbs = ", ".join(f"{region} {100 * value:.1f} %" for region, value in by_region.items())
+    difference = render_shapes(
+        [_deformed(pre_local, finals["local"])],
+        [f"local examples (solid) against global examples (wireframe)\n"
+         f"largest distance {100 * distance.max():.1f} cm ({where}) = "
+         f"{100 * distance.max() / height:.1f} % of the height\nper region: {limbs}"],
+        Path(path).with_name(f"{Path(path).stem}_difference.png"), scalars=[distance],
+        scalar_name="distance local to global (m)",
+        ghost=_deformed(pre_global, finals["global"]), window_size=(900, 640), **view)
+    write_json_atomic(Path(path).with_suffix(".json"), {
+        "scenes": [global_scene.name, local_scene.name], "method": "reduced",
+        "time_s": time, "height_m": height,
+        "largest_displacement_over_height": moved,
+        "local_vs_global_over_height": by_region,
+        "local_vs_global_max_m": float(distance.max()),
+        "local_vs_global_max_where": where,
+        "closest_example": {"global": closest_global, "local": closest_local},
+    })
+    return Figure6(Path(png), Path(difference), height, moved, by_region,
+                   float(distance.max()))
 
 
 def _twist_caption(pre, u: np.ndarray) -> str:

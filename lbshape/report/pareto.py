@@ -99,8 +99,8 @@ class ParetoSweep:
         return tuple(p for p in self.points if p.error_vs_full is not None)
 
     def is_paper(self, point: SweepPoint) -> bool:
-        """Whether ``point`` is the scene's own setting (m, r, s and force model)."""
-        return ((point.m, point.r, point.s_max) == tuple(self.paper)
+        """Whether ``point`` is the scene's own setting (m, r and s asked, force model)."""
+        return ((point.m, point.asked_r, point.s_max) == tuple(self.paper)
                 and (not self.forces or point.forces == self.forces))
 
     def paper_point(self) -> SweepPoint | None:
@@ -237,7 +237,8 @@ def pareto_markdown(sweeps: Sequence[ParetoSweep], machine: dict) -> str:
         f"{{{', '.join(map(str, S_VALUES))}}} (s: the cubature elements selected, training "
         "may stop at its tolerance before the s asked for), and every m ∈ "
         f"{{{', '.join(map(str, M_VALUES))}}} at the scene's (r, s) and force choice; the "
-        "scene's own values are added. "
+        "scene's own values are added; r: the basis's columns (more than asked where the "
+        "scene's static responses are appended). "
         f"Target: error ≤ {TARGET_ERROR:.0%} at ≤ {TARGET_MS:g} ms per step.",
         "",
         "The scene's own (m, r, s) is the paper's for the bar scenes; its force model is "
@@ -256,7 +257,7 @@ def pareto_markdown(sweeps: Sequence[ParetoSweep], machine: dict) -> str:
     for sweep in sweeps:
         lines += ["", f"## {sweep.scene}: {sweep.steps} steps of {sweep.dt:g} s, "
                   f"{sweep.repeats} reduced runs per configuration", "",
-                  "| forces | m | r | s (asked) | t_total ms [min, max] | t_interp ms "
+                  "| forces | m | r (asked) | s (asked) | t_total ms [min, max] | t_interp ms "
                   "| error vs full | Pareto | meets target | scene's |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         front = {id(p) for p in pareto_front(sweep.points)}
@@ -264,7 +265,7 @@ def pareto_markdown(sweeps: Sequence[ParetoSweep], machine: dict) -> str:
         for p in sorted(sweep.points, key=lambda p: (p.forces, p.m, p.r, p.s_max)):
             error = "failed" if p.error_vs_full is None else f"{p.error_vs_full:.2%}"
             lines.append(
-                f"| {p.forces} | {p.m} | {p.r} | {_s_cell(p)} | {p.t_total_ms:.3f} "
+                f"| {p.forces} | {p.m} | {p.r} ({p.asked_r}) | {_s_cell(p)} | {p.t_total_ms:.3f} "
                 f"[{p.t_total_min_ms:.3f}, {p.t_total_max_ms:.3f}] | {p.t_interp_ms:.3f} "
                 f"| {error} | {'yes' if id(p) in front else ''} "
                 f"| {'yes' if id(p) in good else ''} "
