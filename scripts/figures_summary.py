@@ -62,6 +62,32 @@ def rows(figures: Path) -> list[str]:
     return lines
 
 
+def figure6_lines(figures: Path) -> list[str]:
+    """Figure 6's table from ``figure6.json`` (``lbshape render teddy-local``): per region,
+    its largest displacement in each run and the local-vs-global distance, as shares
+    of the object's height; empty without the file."""
+    data = next((d for d in (_load(folder / "figure6.json") for folder in
+                             sorted(p for p in figures.iterdir() if p.is_dir()))
+                 if d is not None), None)
+    if data is None:
+        return []
+    moved, apart = data["largest_displacement_over_height"], data["local_vs_global_over_height"]
+    runs = list(moved)
+    lines = ["", f"## Figure 6: {data['scenes'][1]} against {data['scenes'][0]} "
+             f"(`figure6.png`, `figure6_difference.png`)", "",
+             f"Largest vertex displacement per region at t = {data['time_s']:.2f} s, and the "
+             "largest distance between the local and the global run, as shares of the "
+             f"object's height ({data['height_m']:.2f} m). Over the whole object the two "
+             f"runs are up to {100 * data['local_vs_global_max_m']:.1f} cm apart "
+             f"({data['local_vs_global_max_where']}).", "",
+             "| region | " + " | ".join(runs) + " | local vs global |",
+             "|---|" + "---|" * (len(runs) + 1)]
+    for region in apart:
+        cells = " | ".join(f"{100 * moved[run][region]:.1f} %" for run in runs)
+        lines.append(f"| {region} | {cells} | {100 * apart[region]:.1f} % |")
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--figures", type=Path, default=Path("results/figures"))
@@ -81,7 +107,7 @@ def main() -> None:
         "",
         "| scene | figure | visible change | closest | largest displacement (examples run) |",
         "|---|---|---|---|---|",
-        *table, "",
+        *table, *figure6_lines(args.figures), "",
     ])
     out = args.figures / "README.md"
     out.write_text(text)

@@ -73,7 +73,8 @@ def run(args) -> int:
                              out / "figure6.png", steps=args.steps, progress=True)
             print(f"render {scene.name}: {figure.path} and {figure.difference} (local vs "
                   f"global: up to {figure.difference_max:.3f} m = "
-                  f"{max(figure.difference_by_region.values()):.1%} of the height)")
+                  f"{figure.difference_max / figure.height:.1%} of the height; in the "
+                  f"regions up to {max(figure.difference_by_region.values()):.1%})")
         if args.movie:
             movie = simulation_movie(scene, out, method=args.method, steps=args.steps,
                                      fps=args.fps, progress=True)
