@@ -368,6 +368,23 @@ def _examples_label(scene) -> str:
     return source.shape or Path(source.label).stem
 
 
+def _one_object(figure: str, first, second, progress: bool):
+    """The precomputes of two scenes that must simulate one mesh (same points and
+    tetrahedra), for a figure comparing their runs.
+
+    Raises:
+        LbshapeError: the scenes' meshes differ.
+    """
+    pre_first = precompute(first, progress=progress)
+    pre_second = precompute(second, progress=progress)
+    a, b = pre_first.mesh, pre_second.mesh
+    if a.points.shape != b.points.shape or not np.allclose(a.points, b.points) \
+            or not np.array_equal(a.tets, b.tets):
+        raise LbshapeError(f"{figure} needs one object: {first.name} and {second.name} "
+                           "simulate different meshes")
+    return pre_first, pre_second
+
+
 def figure3(same_topology, other_topology, path: str | Path, *,
             steps: int = FIGURE3_STEPS, progress: bool = False) -> Figure3:
     """The paper's Figure 3 for an object with two example sets (final frames).
@@ -390,15 +407,9 @@ def figure3(same_topology, other_topology, path: str | Path, *,
     for scene in (same_topology, other_topology):
         if scene.examples is None:
             raise LbshapeError(f"Figure 3 needs scenes with examples; {scene.name} has none")
-    pre_same = precompute(same_topology, progress=progress)
-    pre_other = precompute(other_topology, progress=progress)
-    a, b = pre_same.mesh, pre_other.mesh
-    if a.points.shape != b.points.shape or not np.allclose(a.points, b.points) \
-            or not np.array_equal(a.tets, b.tets):
-        raise LbshapeError(f"Figure 3 needs one object: {same_topology.name} and "
-                           f"{other_topology.name} simulate different meshes")
-    no_examples = dataclasses.replace(
-        same_topology, examples=dataclasses.replace(same_topology.examples, stiffness=0.0))
+    pre_same, pre_other = _one_object("Figure 3", same_topology, other_topology, progress)
+    a = pre_same.mesh
+    no_examples = without_examples(same_topology)
     same_label, other_label = _examples_label(same_topology), _examples_label(other_topology)
     runs = [
         ("no examples (full)", no_examples, pre_same, "full"),
@@ -642,13 +653,8 @@ def figure6(global_scene, local_scene, path: str | Path, *, steps: int | None = 
     if not local_scene.regions or global_scene.regions or global_scene.examples is None:
         raise LbshapeError(f"Figure 6 needs a scene with global examples and one with local "
                            f"examples; got {global_scene.name} and {local_scene.name}")
-    pre_global = precompute(global_scene, progress=progress)
-    pre_local = precompute(local_scene, progress=progress)
-    a, b = pre_global.mesh, pre_local.mesh
-    if a.points.shape != b.points.shape or not np.allclose(a.points, b.points) \
-            or not np.array_equal(a.tets, b.tets):
-        raise LbshapeError(f"Figure 6 needs one object: {global_scene.name} and "
-                           f"{local_scene.name} simulate different meshes")
+    pre_global, pre_local = _one_object("Figure 6", global_scene, local_scene, progress)
+    a = pre_global.mesh
     runs = {"no examples": (without_examples(global_scene), pre_global),
             "global": (global_scene, pre_global), "local": (local_scene, pre_local)}
     finals = {}
