@@ -134,3 +134,20 @@ def test_precomputed_basis_holds_the_scene_equilibria():
     for u in equilibria.T:
         rest = u - pre.U @ (pre.U.T @ (M @ u))
         assert np.sqrt(rest @ (M @ rest) / (u @ (M @ u))) < 1e-3
+
+
+def test_newton_steps_by_cholesky_and_by_lu_where_the_tangent_is_indefinite():
+    import scipy.sparse as sp
+
+    from lbshape.elastic.static_equilibrium import _newton_step
+
+    rng = np.random.default_rng(3)
+    B = rng.standard_normal((12, 12))
+    spd = sp.csr_matrix(B @ B.T + 12.0 * np.eye(12))
+    indefinite = sp.csr_matrix(B + B.T)  # symmetric, eigenvalues of both signs
+    assert np.linalg.eigvalsh(indefinite.toarray()).min() < 0
+    b = rng.standard_normal(12)
+    for matrix in (spd, indefinite):
+        step = _newton_step(matrix, b)
+        np.testing.assert_allclose(matrix @ step, b, atol=1e-10)
+    assert _newton_step(sp.csr_matrix((12, 12)), b) is None  # singular: no step

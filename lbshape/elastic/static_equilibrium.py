@@ -34,7 +34,8 @@ import scipy.sparse.linalg as spla
 
 from lbshape.elastic.element_kernels import FullSpaceElasticity
 from lbshape.elastic.materials import Material
-from lbshape.errors import LbshapeError
+from lbshape.errors import LbshapeError, SolverError
+from lbshape.fem.cholesky import serial_cholesky
 from lbshape.geometry.mesh import TetMesh
 
 log = logging.getLogger(__name__)
@@ -116,9 +117,24 @@ def _newton(elasticity: FullSpaceElasticity, free: np.ndarray, force: np.ndarray
             return None
         if norm <= atol:
             return u
-        try:
-            step = spla.splu(sp.csc_matrix(tangent[free][:, free])).solve(residual)
-        except RuntimeError:  # a singular tangent
+        step = _newton_step(tangent[free][:, free], residual)
+        if step is None:
             return None
         u[free] += step
     return None
+
+
+def _newton_step(tangent: sp.spmatrix, residual: np.ndarray) -> np.ndarray | None:
+    """``tangent⁻¹ residual`` (free dofs): by sparse Cholesky (the tangent of a stable
+    equilibrium is positive definite; 2.2 s for the 55k free dofs of an 18.6k-vertex
+    bar, against 23 s by LU), by LU where it is not; None when it is singular."""
+    try:
+        with serial_cholesky(tangent, prefix="static_", what="the tangent stiffness") \
+                as solve:
+            return solve(residual)[:, 0]
+    except SolverError:  # indefinite (a buckling StVK body): LU
+        pass
+    try:
+        return spla.splu(sp.csc_matrix(tangent)).solve(residual)
+    except RuntimeError:  # a singular tangent
+        return None
