@@ -108,3 +108,14 @@ def test_fine_scene_is_bar_cylinder_with_a_finer_object():
     assert (fine.examples, fine.reduced, fine.material, fine.loads, fine.fixed) == \
         (base.examples, base.reduced, base.material, base.loads, base.fixed)
     assert fine.precompute_key_fields() != base.precompute_key_fields()
+
+
+def test_each_size_reports_its_basis_columns(tmp_path):
+    """The step's cost follows r, which the appended responses make differ between sizes:
+    the table, the CSV and the step verdicts name it."""
+    points = [point(0.0665, 330, 3.0, 400.0, 0.12), point(0.0068, 103_000, 290.0, 900.0, 0.13)]
+    points[0].r, points[1].r = 32, 37
+    assert "(r = 37 / 32)" in scaling.verdicts(points)[2]
+    scaling.write_scaling(points, tmp_path)
+    assert [r["r"] for r in csv.DictReader((tmp_path / "scaling.csv").open())] == ["32", "37"]
+    assert "| 103000 | 515000 | 37 | 1 |" in (tmp_path / "scaling.md").read_text()

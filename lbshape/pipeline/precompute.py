@@ -172,8 +172,9 @@ MAX_APPENDED_BASIS = 48
 #: mean step was 1.08 ms at r = 29 (all nine responses), 0.94 ms at r = 24, and its
 #: body-frame deformation error against full 7.8 % and 6.9 % (20 % with none, r = 20)
 MAX_APPENDED_FREE_BODY = 24
-#: the static equilibria are solved by sparse LU in full space (about 0.3 s for the
-#: teddy's 1.9k vertices, 1.5 s for the cross); larger meshes skip the stage
+#: the static equilibria are solved in full space by sparse Cholesky (the stage took 7 s
+#: of the 6.7k-vertex bar's precompute and 30 s of the 18.6k-vertex one's, 90 s in all;
+#: by LU it had taken 383 s in all); larger meshes skip the stage
 STATIC_EQUILIBRIA_MAX_VERTICES = 20_000
 
 

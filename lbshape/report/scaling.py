@@ -70,7 +70,7 @@ TARGET_SECONDS = 300.0
 TARGET_PEAK_MB = 8 * 1024.0
 TARGET_STEP_RATIO = 1.2
 #: CSV columns before the per-stage ones
-_COLUMNS = ("size_m", "n_vertices", "n_tets", "ranks", "wall_s", "stages_s", "peak_mb",
+_COLUMNS = ("size_m", "n_vertices", "n_tets", "r", "ranks", "wall_s", "stages_s", "peak_mb",
             "t_total_ms", "t_total_min_ms", "t_total_max_ms", "t_interp_ms", "target_table",
             "t_total_common_route_ms")
 
@@ -92,6 +92,9 @@ class ScalingPoint:
         t_interp_ms: per repeat, the mean time of the example target (ms).
         target_table: whether the precompute tabulated the example target (else the
             reduced step solves it at run time, a different t_interp).
+        r: the basis's columns (the scene's r and the static responses and example
+            responses appended where the size's modes miss them: the step's cost
+            follows r, which can differ between sizes).
         t_total_common_ms: per repeat, the mean reduced step time (ms) with the
             target route :data:`COMMON_ROUTE` at every size.
     """
@@ -108,6 +111,7 @@ class ScalingPoint:
     t_interp_ms: list = field(default_factory=list)
     target_table: bool | None = None
     t_total_common_ms: list = field(default_factory=list)
+    r: int | None = None
 
     @property
     def stages_seconds(self) -> float:
@@ -190,7 +194,8 @@ def run_scaling(sizes: Sequence[float] = DEFAULT_SIZES, *, scene: str = DEFAULT_
                 size=float(size), n_vertices=pre.mesh.n_vertices, n_tets=pre.mesh.n_tets,
                 ranks=ranks, wall_seconds=wall, peak_mb=peak,
                 stage_seconds=dict(pre.stage_seconds), stage_peak_mb=dict(pre.stage_peak_mb),
-                target_table=(pre.target_table is not None) if pre.has_examples else None)
+                target_table=(pre.target_table is not None) if pre.has_examples else None,
+                r=int(pre.r))
             points.append(point)
             runs.append((loaded, pre))
             if progress:
@@ -224,7 +229,7 @@ def point_payload(point: ScalingPoint) -> dict:
             "stage_seconds": point.stage_seconds, "stage_peak_mb": point.stage_peak_mb,
             "t_total_ms": list(point.t_total_ms), "t_interp_ms": list(point.t_interp_ms),
             "target_table": point.target_table,
-            "t_total_common_route_ms": list(point.t_total_common_ms)}
+            "t_total_common_route_ms": list(point.t_total_common_ms), "r": point.r}
 
 
 def write_scaling(points: Sequence[ScalingPoint], out: Path, *,
@@ -238,7 +243,8 @@ def write_scaling(points: Sequence[ScalingPoint], out: Path, *,
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow([*_COLUMNS, *(f"{n}_s" for n in names), *(f"{n}_peak_mb" for n in names)])
     for p in points:
-        writer.writerow([f"{p.size:g}", p.n_vertices, p.n_tets, p.ranks, f"{p.wall_seconds:.2f}",
+        writer.writerow([f"{p.size:g}", p.n_vertices, p.n_tets, "" if p.r is None else p.r,
+                         p.ranks, f"{p.wall_seconds:.2f}",
                          f"{p.stages_seconds:.2f}", f"{p.peak_mb:.0f}",
                          f"{np.median(p.t_total_ms):.4f}", f"{min(p.t_total_ms):.4f}",
                          f"{max(p.t_total_ms):.4f}", f"{np.median(p.t_interp_ms):.4f}",
@@ -261,7 +267,7 @@ def verdicts(points: Sequence[ScalingPoint]) -> list[str]:
     ratio = np.median(big.t_total_ms) / np.median(small.t_total_ms)
     common = ([] if not (big.t_total_common_ms and small.t_total_common_ms) else [
         _verdict(f"reduced t_total with the {COMMON_ROUTE} route at every size, "
-                 f"{big.n_vertices} / {small.n_vertices} vertices",
+                 f"{big.n_vertices} / {small.n_vertices} vertices{_r_pair(big, small)}",
                  np.median(big.t_total_common_ms) / np.median(small.t_total_common_ms),
                  TARGET_STEP_RATIO, "x")])
     return [
@@ -269,10 +275,16 @@ def verdicts(points: Sequence[ScalingPoint]) -> list[str]:
                  big.wall_seconds, TARGET_SECONDS, "s"),
         _verdict("its peak memory" + (f" (all {big.ranks} ranks)" if big.ranks > 1 else ""),
                  big.total_peak_mb, TARGET_PEAK_MB, "MB"),
-        _verdict(f"reduced t_total at {big.n_vertices} / {small.n_vertices} vertices",
+        _verdict(f"reduced t_total at {big.n_vertices} / {small.n_vertices} vertices"
+                 f"{_r_pair(big, small)}",
                  ratio, TARGET_STEP_RATIO, "x"),
         *common,
     ]
+
+
+def _r_pair(big: ScalingPoint, small: ScalingPoint) -> str:
+    """`` (r = a / b)`` of two points, '' when unknown."""
+    return "" if big.r is None or small.r is None else f" (r = {big.r} / {small.r})"
 
 
 def scaling_markdown(points: Sequence[ScalingPoint], machine: dict) -> str:
@@ -283,22 +295,24 @@ def scaling_markdown(points: Sequence[ScalingPoint], machine: dict) -> str:
         "# Cost growth with mesh size",
         "",
         f"Scene: the built-in bar-cylinder with `[object] size` = h (its examples, m, r, s "
-        f"unchanged; the cubature force model at every size, `reduced.forces = "
-        f"\"cubature\"`); precompute from scratch in a fresh process per size "
+        f"asked unchanged; r: the basis's columns, with the static and example responses "
+        f"each size's modes miss appended; the cubature force model at every size, "
+        f"`reduced.forces = \"cubature\"`); precompute from scratch in a fresh process per size "
         f"({'serial' if ranks == [1] else 'mpirun -n ' + '/'.join(map(str, ranks))}); "
         f"per-step times: the reduced method, sizes interleaved in one process, median of "
         f"{len(points[0].t_total_ms)} repeats of the mean after {WARMUP_STEPS} warm-up steps.",
         f"Machine: {machine_text(machine)}; load average {load_text(machine)} at the end.",
         "",
-        "| h (m) | vertices | tets | ranks | precompute wall (s) | stages (s) "
+        "| h (m) | vertices | tets | r | ranks | precompute wall (s) | stages (s) "
         "| peak, largest process (MB) "
         f"| t_total (ms) [range] | t_interp (ms) | target table | t_total, {COMMON_ROUTE} "
         "route (ms) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for p in points:
         lines.append(
-            f"| {p.size:g} | {p.n_vertices} | {p.n_tets} | {p.ranks} | {p.wall_seconds:.1f} "
+            f"| {p.size:g} | {p.n_vertices} | {p.n_tets} | {'—' if p.r is None else p.r} "
+            f"| {p.ranks} | {p.wall_seconds:.1f} "
             f"| {p.stages_seconds:.1f} | {p.peak_mb:.0f} | {np.median(p.t_total_ms):.3f} "
             f"[{min(p.t_total_ms):.3f}–{max(p.t_total_ms):.3f}] "
             f"| {np.median(p.t_interp_ms):.3f} | {_yes_no(p.target_table)} "
