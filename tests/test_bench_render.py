@@ -279,6 +279,10 @@ def test_figure6_measures_local_against_global_examples_on_one_object(tmp_path):
     assert set(stored["closest_example"]["local"]) == {"low", "high"}
     with pytest.raises(LbshapeError, match="global examples and one with local"):
         figure6(global_scene, global_scene, tmp_path / "x.png")
+    harder = dataclasses.replace(local_scene, loads=tuple(
+        dataclasses.replace(load, vector=(6.0, 0.0, 0.0)) for load in local_scene.loads))
+    with pytest.raises(LbshapeError, match="differ in loads"):
+        figure6(global_scene, harder, tmp_path / "x.png")
 
 
 def test_render_command_bad_scene_leaves_no_output(tmp_path, capsys):

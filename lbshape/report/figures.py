@@ -84,6 +84,8 @@ FIGURE6_SCENES: tuple[str, str] = ("teddy-global", "teddy-local")
 #: Figure 6's camera direction: the teddy's left side (+x), a little from the front
 #: (−y) and above, so the drag (+z) and the limbs' curl lie nearly in the picture
 FIGURE6_VIEW: tuple[float, float, float] = (1.0, -0.35, 0.15)
+#: what Figure 6's two scenes must share, so that only their examples differ
+FIGURE6_SHARED = ("material", "damping", "fixed", "loads", "planes", "simulation", "initial")
 
 
 def default_out(scene_name: str) -> Path:
@@ -617,7 +619,7 @@ class Figure6:
             frames, coloured by |u| on one range, the rest shape as a wireframe).
         difference: ``<path stem>_difference.png``: the local run's final shape
             coloured by its distance to the global run's, which is drawn as a wireframe.
-        height: the object's extent along the drag (m).
+        height: the object's extent along z (m; the teddy's height, the drag's direction).
         region_displacement: per run (``no examples``, ``global``, ``local``), per
             region of the local scene, its largest vertex displacement at the end over
             ``height``.
@@ -647,12 +649,18 @@ def figure6(global_scene, local_scene, path: str | Path, *, steps: int | None = 
     each run ends closest to (global: the whole object; local: per region).
 
     Raises:
-        LbshapeError: scenes on different meshes, a global scene with local examples or
-            a local scene without, or a run that stopped.
+        LbshapeError: scenes on different meshes or differing in anything but their
+            examples (:data:`FIGURE6_SHARED`), a global scene with local examples or a
+            local scene without, or a run that stopped.
     """
     if not local_scene.regions or global_scene.regions or global_scene.examples is None:
         raise LbshapeError(f"Figure 6 needs a scene with global examples and one with local "
                            f"examples; got {global_scene.name} and {local_scene.name}")
+    differ = [key for key in FIGURE6_SHARED
+              if getattr(global_scene, key) != getattr(local_scene, key)]
+    if differ:
+        raise LbshapeError(f"Figure 6 compares example sets on one motion: {global_scene.name} "
+                           f"and {local_scene.name} differ in {', '.join(differ)}")
     pre_global, pre_local = _one_object("Figure 6", global_scene, local_scene, progress)
     a = pre_global.mesh
     runs = {"no examples": (without_examples(global_scene), pre_global),
