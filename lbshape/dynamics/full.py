@@ -529,12 +529,18 @@ class FullSpaceSimulator:
         energy = self.elastic.energy(self.full_displacement(x).reshape(-1))
         if self.contact is not None:
             energy += self.contact.evaluate(self.full_displacement(x).reshape(-1))[2]
-        if self._k_ex and self._target_body is not None:
+        return energy + self._example_energy(x)
+
+    def _example_energy(self, x: np.ndarray) -> float:
+        """The example spring's energy (J) at free-dof displacements x (its part of the
+        potential): ``½ k_ex ‖x − T(x)‖²_M`` towards a free body's placed target, else
+        ``½ k_ex xᵀ M x`` (the target's side is the external force ``b``)."""
+        if not self._k_ex:
+            return 0.0
+        if self._target_body is not None:
             gap = self._free_gap(x)
-            energy += 0.5 * self._k_ex * float(gap @ (self._spring_ff @ gap))
-        elif self._k_ex:
-            energy += 0.5 * self._k_ex * float(x @ (self._spring_ff @ x))
-        return energy
+            return 0.5 * self._k_ex * float(gap @ (self._spring_ff @ gap))
+        return 0.5 * self._k_ex * float(x @ (self._spring_ff @ x))
 
     def _free_pull_round_off(self) -> float:
         """Round-off (N, 2-norm) of a free body's fitted example pull.
@@ -587,7 +593,11 @@ class FullSpaceSimulator:
             self._b = self._k_ex * pull[self.free_dofs]
             return
         if self.fixed_vertices.size == 0:  # free body: interpolate in the co-moving frame
+            # the fitted pull is part of the potential: the energy the moved target puts
+            # in at the fixed state is work done on the body (the energy monitor's budget)
+            before = self._example_energy(x)
             self._update_free_target(x)
+            self.stepper.credit_work(self._example_energy(x) - before)
             return
         weights = simplex_weights(self._example_descriptors, self._descriptor @ x)
         c_star = self._target_solver.solve(weights).z

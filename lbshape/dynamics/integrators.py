@@ -311,6 +311,15 @@ class ImplicitStepper:
         """Accumulated absolute work of the external load (J), trapezoidal rule."""
         return self._work
 
+    def credit_work(self, joules: float) -> None:
+        """Count ``|joules|`` into the energy budget as work done on the system between
+        steps: a supplied potential that the caller changes at a fixed state (a moved
+        example target) puts that much energy in or takes it out, outside the external
+        load's work."""
+        if not math.isfinite(joules):
+            raise SolverError(f"non-finite work {joules!r} J credited after step {self._steps}")
+        self._work += abs(float(joules))
+
     def kinetic_energy(self, v: np.ndarray | None = None) -> float:
         """``½ vᵀ M v`` (J) of ``v`` (default: the current velocity)."""
         v = self._v if v is None else v
