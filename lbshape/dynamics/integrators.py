@@ -51,10 +51,12 @@ total energy ``½ vᵀMv + potential(x)`` exceeds ``energy_factor`` times the en
 made available to the system so far, ``budget = E₀ + W_ext + energy_budget``:
 ``E₀`` the initial energy (without a supplied potential, ``½|f(x₀)·x₀|`` stands in
 for the initial potential energy), ``W_ext`` the accumulated absolute work of the
-external load (trapezoidal rule). A conservative or dissipative system stays
-below ``budget`` (Newmark conserves the energy of linear systems exactly); a
-non-conservative force that feeds energy in (example forces chasing a moving
-target, follower forces, fictitious forces) eventually exceeds it. With a zero
+external load (trapezoidal rule) plus what the caller credits between steps
+(:meth:`ImplicitStepper.credit_work`: a supplied potential it changes at a fixed
+state). A conservative or dissipative system stays below ``budget`` (Newmark
+conserves the energy of linear systems exactly); a non-conservative force that feeds
+energy in (example forces chasing a moving target, follower forces, fictitious
+forces) eventually exceeds it. With a zero
 budget (starting at rest and unloaded) the monitor is inactive; pass
 ``energy_budget`` to arm it.
 """
@@ -308,7 +310,8 @@ class ImplicitStepper:
 
     @property
     def external_work(self) -> float:
-        """Accumulated absolute work of the external load (J), trapezoidal rule."""
+        """Accumulated absolute work (J) of the external load (trapezoidal rule) and of
+        the changes credited by :meth:`credit_work`."""
         return self._work
 
     def credit_work(self, joules: float) -> None:
