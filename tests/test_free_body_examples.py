@@ -204,9 +204,8 @@ def test_full_reference_counts_the_energy_a_moved_target_puts_in():
     (interpolated from the current shape). The energy each move puts in is work done on
     the body; before it counted, the energy monitor's budget was the body's initial
     energy alone, and the full run stopped at step 1 ("energy blew up", 50 J against a
-    1.9 mJ budget on the Figure 4 bar) while the reduced run went on. A wrong credit
-    (the monitor disarmed) would let a real blow-up through: a doubled energy still
-    stops it (checked below by breaking the stepper's energy)."""
+    1.9 mJ budget on the Figure 4 bar) while the reduced run went on. The credit must
+    not disarm the monitor: an energy over 1000 times the budget still stops the run."""
     import copy
 
     from lbshape.errors import SolverError

@@ -56,9 +56,8 @@ external load (trapezoidal rule) plus what the caller credits between steps
 state). A conservative or dissipative system stays below ``budget`` (Newmark
 conserves the energy of linear systems exactly); a non-conservative force that feeds
 energy in (example forces chasing a moving target, follower forces, fictitious
-forces) eventually exceeds it. With a zero
-budget (starting at rest and unloaded) the monitor is inactive; pass
-``energy_budget`` to arm it.
+forces) eventually exceeds it. With a zero budget (starting at rest and unloaded) the
+monitor is inactive; pass ``energy_budget`` to arm it.
 """
 
 from __future__ import annotations
