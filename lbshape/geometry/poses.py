@@ -28,17 +28,22 @@ towards the other end.
 :data:`POSES` is the one registry of poses (scenes validate against it, with
 :data:`POSE_PARAMETERS` and :data:`POSE_CHOICES`); :func:`apply_pose` validates names
 and parameters against it and rejects a pose that inverts tetrahedra of the mesh.
+:func:`pose_parts` poses parts of a mesh each on its own (a character's limbs), the
+rest of the mesh following harmonically.
 """
 
 from __future__ import annotations
 
 import inspect
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from types import MappingProxyType
 
 import numpy as np
 from scipy.optimize import brentq
+from scipy.sparse import coo_matrix, diags
+from scipy.sparse.csgraph import connected_components
+from scipy.sparse.linalg import splu
 
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh, signed_volumes
@@ -242,6 +247,82 @@ def apply_pose(mesh: TetMesh, name: str, **params) -> TetMesh:
         LbshapeError: unknown pose or parameter, missing or non-finite parameter,
             or a pose that inverts (or flattens) tetrahedra of this mesh.
     """
+    _check_parameters(name, params)
+    posed = POSES[name](mesh.points, **params)
+    shown = ", ".join(f"{k}={v}" for k, v in params.items())
+    _check_orientation(mesh, posed, f"pose {name!r} ({shown})")
+    return mesh.with_points(posed)
+
+
+def pose_parts(mesh: TetMesh, parts: Sequence[tuple[np.ndarray, str, Mapping]],
+               held: np.ndarray | Sequence[int] = ()) -> TetMesh:
+    """The mesh posed part by part (a character's limbs, say), the rest following smoothly.
+
+    Each part's vertices move as ``POSES[name]`` maps the part's own points: the
+    pose's bar is the part (its extent along the pose axis, its anchor end), as for
+    a local example's part. The ``held`` vertices stay in place. Every other vertex
+    moves by the discrete harmonic extension of those displacements: the graph
+    Laplacian of the mesh's edges, weighted by 1 / edge length, is zero at it. A
+    connected piece of the mesh without a part or a held vertex stays in place.
+
+    Args:
+        mesh: the rest mesh (positively oriented tets).
+        parts: (vertices (k,) int, pose name, pose parameters) per part.
+        held: (h,) int vertices kept at rest.
+
+    Returns:
+        The posed mesh, same connectivity.
+
+    Raises:
+        LbshapeError: a bad pose or parameter, parts that share vertices with each
+            other or with ``held``, or a result that inverts (or flattens) tetrahedra.
+    """
+    n = mesh.n_vertices
+    owner = np.full(n, -1, dtype=np.int64)
+    owner[np.asarray(held, dtype=np.int64)] = len(parts)
+    displacement = np.zeros((n, 3))
+    for k, (vertices, name, params) in enumerate(parts):
+        vertices = np.asarray(vertices, dtype=np.int64)
+        taken = owner[vertices] >= 0
+        if taken.any():
+            other = owner[vertices[taken][0]]
+            what = "the held vertices" if other == len(parts) else f"part {other}"
+            raise LbshapeError(f"part {k} of the pose shares {int(taken.sum())} vertices "
+                               f"with {what}; parts and held vertices must be disjoint")
+        _check_parameters(name, params)
+        points = mesh.points[vertices]
+        displacement[vertices] = POSES[name](points, **params) - points
+        owner[vertices] = k
+    displacement = _harmonic_extension(mesh, displacement, known=owner >= 0)
+    posed = mesh.points + displacement
+    _check_orientation(mesh, posed, f"the pose of {len(parts)} parts")
+    return mesh.with_points(posed)
+
+
+def _harmonic_extension(mesh: TetMesh, values: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """(n, 3) ``values`` at the ``known`` vertices, harmonic (1 / length edge weights)
+    at the others; pieces of the mesh without a known vertex keep their ``values``."""
+    n = mesh.n_vertices
+    edges = np.unique(np.sort(np.vstack([mesh.tets[:, [i, j]] for i in range(4)
+                                         for j in range(i + 1, 4)]), axis=1), axis=0)
+    weights = 1.0 / np.linalg.norm(mesh.points[edges[:, 0]] - mesh.points[edges[:, 1]], axis=1)
+    adjacency = coo_matrix((np.concatenate([weights, weights]),
+                            (np.concatenate([edges[:, 0], edges[:, 1]]),
+                             np.concatenate([edges[:, 1], edges[:, 0]]))), shape=(n, n)).tocsr()
+    _, piece = connected_components(adjacency, directed=False)
+    known = known | ~np.isin(piece, piece[known])
+    free = ~known
+    if not free.any():
+        return values
+    laplacian = (diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency).tocsr()
+    out = values.copy()
+    out[free] = splu(laplacian[free][:, free].tocsc()).solve(
+        -(laplacian[free][:, known] @ values[known]))
+    return out
+
+
+def _check_parameters(name: str, params: Mapping) -> None:
+    """Raise LbshapeError unless ``params`` are valid keyword parameters of pose ``name``."""
     required, optional = pose_parameters(name)
     allowed = required + optional
     unknown = sorted(set(params) - set(allowed))
@@ -260,17 +341,18 @@ def apply_pose(mesh: TetMesh, name: str, **params) -> TetMesh:
         elif isinstance(value, bool) or not isinstance(value, int | float | np.number) \
                 or not math.isfinite(float(value)):
             raise LbshapeError(f"pose {name!r}: {key} must be a finite number, got {value!r}")
-    posed = POSES[name](mesh.points, **params)
+
+
+def _check_orientation(mesh: TetMesh, posed: np.ndarray, what: str) -> None:
+    """Raise LbshapeError if ``posed`` (n, 3) inverts or flattens tetrahedra of ``mesh``."""
     volumes = signed_volumes(posed, mesh.tets)
     rest = np.abs(signed_volumes(mesh.points, mesh.tets))
     inverted = volumes <= 1e-9 * rest
     if inverted.any():
-        shown = ", ".join(f"{k}={v}" for k, v in params.items())
         raise LbshapeError(
-            f"pose {name!r} ({shown}) inverts {int(inverted.sum())} of {mesh.n_tets} "
+            f"{what} inverts {int(inverted.sum())} of {mesh.n_tets} "
             f"tetrahedra of this mesh; use gentler parameters or a finer mesh"
         )
-    return mesh.with_points(posed)
 
 
 def _pose(name: str) -> Callable[..., np.ndarray]:

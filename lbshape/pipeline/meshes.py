@@ -24,7 +24,7 @@ from lbshape.geometry.mesh_files import (
     read_mesh_file,
     write_msh,
 )
-from lbshape.geometry.poses import apply_pose
+from lbshape.geometry.poses import apply_pose, pose_parts
 from lbshape.geometry.regions import region_vertices
 from lbshape.geometry.shapes import build_script, build_shape, write_script, write_shape
 from lbshape.scene.schema import ExamplePose, MeshSource, Selection
@@ -64,7 +64,14 @@ def write_mesh(source: MeshSource, path: str | Path) -> TetMesh:
 
 
 def posed_example(pose: ExamplePose, rest: TetMesh) -> TetMesh:
-    """The example's rest mesh with its analytic pose applied (``rest`` if it has none)."""
+    """The example's rest mesh with its analytic pose applied, whole or part by part
+    (:func:`~lbshape.geometry.poses.pose_parts`; ``rest`` if it has none)."""
+    if pose.parts:
+        parts = [(selected_vertices(part.selection, rest, what=f"example part {k}"),
+                  part.pose, dict(part.parameters)) for k, part in enumerate(pose.parts)]
+        held = (() if pose.hold is None
+                else selected_vertices(pose.hold, rest, what="the example's hold"))
+        return pose_parts(rest, parts, held)
     if pose.pose is None:
         return rest
     return apply_pose(rest, pose.pose, **dict(pose.parameters))
@@ -142,8 +149,8 @@ def posed_part(pose: ExamplePose, part: TetMesh, vertices: np.ndarray,
     """(n_P, 3) posed positions (m) of a part of an example (a local-example region).
 
     An analytic pose is applied to the part itself: the pose's bar is the part (its
-    extent along the pose axis, its anchor end). A posed file (or a shape at rest)
-    gives its own positions of the part's vertices.
+    extent along the pose axis, its anchor end). A posed file, an example posed part
+    by part (or a shape at rest) gives its own positions of the part's vertices.
 
     Args:
         pose: the example.

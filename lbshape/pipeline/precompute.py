@@ -280,6 +280,8 @@ def _compute(scene: Scene, stages: StageRecorder,
 def example_label(pose: ExamplePose) -> str:
     """How messages and the artifact name an example: its mesh source and pose."""
     source = pose.source.label
+    if pose.parts:
+        return f"{source}:parts({', '.join(part.pose for part in pose.parts)})"
     return f"{source}:{pose.pose}" if pose.pose else str(source)
 
 

@@ -189,6 +189,8 @@ def example_caption(index: int, pose) -> str:
         words.append(pose.pose)
         words += [f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
                   for k, v in pose.parameters.items() if k in ("angle", "amplitude")]
+    if pose.parts:
+        words.append(f"{len(pose.parts)} parts posed")
     return " ".join(words)
 
 

@@ -43,6 +43,7 @@ from lbshape.scene.schema import (
     Load,
     LocalRegion,
     MeshSource,
+    PosedPart,
     PoseValue,
     Reduced,
     Scene,
@@ -159,7 +160,9 @@ def scene_from_dict(
 # ------------------------------------------------------------------ tables
 _TOP_KEYS = ("name", "description", "object", "material", "damping", "reduced", "examples",
              "fixed", "loads", "planes", "regions", "simulation", "initial")
-_POSE_KEYS = ("shape", "mesh", "size", "pose", "parameters", "landmarks", "rest")
+_POSE_KEYS = ("shape", "mesh", "size", "pose", "parameters", "landmarks", "rest", "parts",
+              "hold")
+_PART_KEYS = ("region", "group", "pose", "parameters")
 _LOAD_KEYS = ("type", "vector", "region", "group", "profile", "start", "duration")
 _PLANE_KEYS = ("point", "normal", "stiffness", "friction")
 _REGION_KEYS = ("name", "region", "group", "examples")
@@ -326,7 +329,40 @@ def _rest_is_surface(t: _Table, ctx: _Context) -> bool:
 
 def _example_pose(t: _Table, ctx: _Context) -> ExamplePose:
     source = _mesh_source(t, ctx)
-    pose = t.choice("pose", None, tuple(POSES))
+    pose, parameters = _pose_and_parameters(t, ctx, required=False)
+    landmarks = t.int_pairs("landmarks")
+    rest = None
+    if "rest" in t.data:
+        if source.mesh_file is None or pose is not None or "parts" in t.data:
+            raise ctx.error(f"'{t.key('rest')}' is the rest shape of a posed mesh file: it "
+                            "needs 'mesh' and no 'pose' or 'parts'")
+        path = _mesh_path(t, "rest", ctx)
+        size = t.number("size", None) if is_surface_file(path) else None
+        rest = MeshSource(mesh_file=path, size=size)
+    parts = tuple(_posed_part(p, ctx) for p in t.array_of_tables("parts", _PART_KEYS))
+    if parts and pose is not None:
+        raise ctx.error(f"'{t.path}' takes 'pose' (the whole example) or 'parts' "
+                        "(posed part by part), not both")
+    hold = None
+    if "hold" in t.data:
+        if not parts:
+            raise ctx.error(f"'{t.key('hold')}' keeps vertices at rest while parts are "
+                            f"posed: it needs [[{t.key('parts')}]]")
+        hold = _selection(t.subtable("hold", ("region", "group")), ctx, required=True)
+    return ExamplePose(source, pose, MappingProxyType(parameters), landmarks, rest,
+                       parts, hold)
+
+
+def _posed_part(t: _Table, ctx: _Context) -> PosedPart:
+    selection = _selection(t, ctx, required=True)
+    pose, parameters = _pose_and_parameters(t, ctx, required=True)
+    return PosedPart(selection, pose, MappingProxyType(parameters))
+
+
+def _pose_and_parameters(t: _Table, ctx: _Context, *, required: bool
+                         ) -> tuple[str | None, dict[str, PoseValue]]:
+    """A table's ``pose`` (a key of POSES) and its ``parameters``, checked by name and type."""
+    pose = t.choice("pose", _REQUIRED if required else None, tuple(POSES))
     parameters: dict[str, PoseValue] = {}
     if "parameters" in t.data:
         if pose is None:
@@ -340,16 +376,7 @@ def _example_pose(t: _Table, ctx: _Context) -> ExamplePose:
     elif pose is not None:
         raise ctx.error(f"'{t.key('parameters')}' is required for pose '{pose}' "
                         f"(needs '{POSE_PARAMETERS[pose][0]}')")
-    landmarks = t.int_pairs("landmarks")
-    rest = None
-    if "rest" in t.data:
-        if source.mesh_file is None or pose is not None:
-            raise ctx.error(f"'{t.key('rest')}' is the rest shape of a posed mesh file: it "
-                            "needs 'mesh' and no 'pose'")
-        path = _mesh_path(t, "rest", ctx)
-        size = t.number("size", None) if is_surface_file(path) else None
-        rest = MeshSource(mesh_file=path, size=size)
-    return ExamplePose(source, pose, MappingProxyType(parameters), landmarks, rest)
+    return pose, parameters
 
 
 def _selection(t: _Table, ctx: _Context, *, required: bool) -> Selection | None:

@@ -54,6 +54,11 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
                                # is compared with the object's rest shape
     parameters = { angle = 1.57 }  # pose parameters (poses.POSE_PARAMETERS); pose only
     landmarks = [[0, 12]]      # optional (object vertex, example vertex) int pairs >= 0
+    hold = { group = "back" }  # with parts only: vertices kept at rest (region or group)
+    [[examples.pose.parts]]    # instead of pose: the example posed part by part, the rest
+    group = "left_leg"         #   of its mesh following harmonically; region or group
+    pose = "arc"               #   selects the part on the example's rest mesh; parts are
+    parameters = { angle = 0.8, direction = "z", axis = "y", anchor = "max" }  # disjoint
 
     [fixed]                    # optional; without it the object is a free body
     region = "z > 0.999"       # safe expression in x, y, z (m), OR
@@ -126,6 +131,7 @@ __all__ = [
     "LocalRegion",
     "MeshSource",
     "PoseValue",
+    "PosedPart",
     "Reduced",
     "Scene",
     "Selection",
@@ -235,6 +241,25 @@ class Reduced:
 
 
 @dataclass(frozen=True)
+class PosedPart:
+    """One part of an example posed on its own (:attr:`ExamplePose.parts`).
+
+    Attributes:
+        selection: the part's vertices on the example's rest mesh.
+        pose: a key of :data:`lbshape.geometry.poses.POSES`, applied to the part's
+            own points (its extent along the pose axis, its anchor end).
+        parameters: the pose's parameters (read-only mapping).
+    """
+
+    selection: Selection
+    pose: str
+    parameters: Mapping[str, PoseValue] = field(default_factory=lambda: MappingProxyType({}))
+
+    def key(self) -> dict:
+        return {**self.selection.key(), "pose": self.pose, "parameters": dict(self.parameters)}
+
+
+@dataclass(frozen=True)
 class ExamplePose:
     """One example: a mesh and an optional analytic pose applied to it.
 
@@ -253,6 +278,10 @@ class ExamplePose:
         parameters: pose parameters (read-only mapping; see
             :data:`lbshape.geometry.poses.POSE_PARAMETERS`).
         landmarks: (object vertex, example vertex) correspondences.
+        parts: instead of ``pose``, the example posed part by part
+            (:func:`lbshape.geometry.poses.pose_parts`): each part by its own pose,
+            the rest of the mesh following harmonically.
+        hold: with ``parts``, vertices kept at rest, or ``None``.
     """
 
     source: MeshSource
@@ -260,14 +289,19 @@ class ExamplePose:
     parameters: Mapping[str, PoseValue] = field(default_factory=lambda: MappingProxyType({}))
     landmarks: tuple[tuple[int, int], ...] = ()
     rest: MeshSource | None = None
+    parts: tuple[PosedPart, ...] = ()
+    hold: Selection | None = None
 
     @property
     def is_posed_file(self) -> bool:
         """A mesh file without analytic pose: the file holds the posed shape."""
-        return self.pose is None and self.source.mesh_file is not None
+        return self.pose is None and not self.parts and self.source.mesh_file is not None
 
     def key(self) -> dict:
         key = {} if self.rest is None else {"rest": self.rest.key()}
+        if self.parts:
+            key["parts"] = [part.key() for part in self.parts]
+            key["hold"] = None if self.hold is None else self.hold.key()
         return {
             **key,
             "source": self.source.key(),
