@@ -9,8 +9,9 @@ from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.poses import arc, pose_parts, twist
 from lbshape.geometry.primitives import structured_box
-from lbshape.pipeline.meshes import example_meshes, selected_vertices
+from lbshape.pipeline.meshes import build_mesh, example_meshes, posed_part, selected_vertices
 from lbshape.scene import load_scene
+from lbshape.scene.schema import MeshSource, Selection
 
 
 @pytest.fixture(scope="module")
@@ -134,11 +135,13 @@ def test_a_scene_poses_an_example_part_by_part(tmp_path):
                                arc(rest.points[part], angle=0.4, direction="x"), atol=1e-14)
     held = selected_vertices(pose.hold, rest)
     assert np.array_equal(posed.points[held], rest.points[held])
+    # a local region of such an example takes the example's own positions of its part
+    region = selected_vertices(Selection(region="z > 0.3"), rest)
+    np.testing.assert_array_equal(posed_part(pose, rest, region, posed),
+                                  posed.points[region])
 
 
 def _demo_bar() -> TetMesh:
-    from lbshape.pipeline.meshes import build_mesh
-    from lbshape.scene.schema import MeshSource
     return build_mesh(MeshSource(shape="demo-bar"))
 
 
