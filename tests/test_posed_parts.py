@@ -10,8 +10,10 @@ from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.poses import arc, pose_parts, twist
 from lbshape.geometry.primitives import structured_box
 from lbshape.pipeline.meshes import build_mesh, example_meshes, posed_part, selected_vertices
+from lbshape.pipeline.precompute import _ExampleParts
 from lbshape.scene import load_scene
-from lbshape.scene.schema import MeshSource, Selection
+from lbshape.scene.schema import MeshSource
+from lbshape.shapespace.local_examples import region_cells, submesh
 
 
 @pytest.fixture(scope="module")
@@ -136,9 +138,16 @@ def test_a_scene_poses_an_example_part_by_part(tmp_path):
     held = selected_vertices(pose.hold, rest)
     assert np.array_equal(posed.points[held], rest.points[held])
     # a local region of such an example takes the example's own positions of its part
-    region = selected_vertices(Selection(region="z > 0.3"), rest)
-    np.testing.assert_array_equal(posed_part(pose, rest, region, posed),
-                                  posed.points[region])
+    cells = region_cells(rest, region="z > 0.3")
+    part_mesh, vertices = submesh(rest, cells)
+    np.testing.assert_array_equal(posed_part(pose, part_mesh, vertices, posed),
+                                  posed.points[vertices])
+    # but has no pose on the object's own region: its parts live on its own mesh
+    # (the representation measurement skips it instead of indexing another mesh)
+    object_part, object_vertices = submesh(object_mesh,
+                                           region_cells(object_mesh, region="z > 0.3"))
+    with pytest.raises(LbshapeError, match="no pose on the object's mesh"):
+        _ExampleParts(scene, object_mesh).object_pose(0, object_part, object_vertices)
 
 
 def _demo_bar() -> TetMesh:

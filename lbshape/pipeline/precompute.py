@@ -649,10 +649,19 @@ class _ExampleParts:
         return part, posed_part(self.poses[k], part, vertices, posed)
 
     def object_pose(self, k: int, part: TetMesh, vertices: np.ndarray) -> np.ndarray:
-        """Example k's pose on the object's own region (representation measurement)."""
+        """Example k's pose on the object's own region (representation measurement):
+        an analytic pose applied to the region, a posed copy of the object's positions,
+        or the region at rest for an example at rest.
+
+        Raises:
+            LbshapeError: an example whose pose lives on its own mesh only (a posed file
+                with its own rest, or an example posed part by part).
+        """
         pose = self.poses[k]
-        if pose.is_posed_file and pose.rest is not None:
-            raise LbshapeError("a posed file with its own rest mesh has no pose on the "
-                               "object's mesh")
+        if pose.parts or (pose.is_posed_file and pose.rest is not None):
+            raise LbshapeError("an example posed on its own mesh (a posed file with its "
+                               "rest, or part by part) has no pose on the object's mesh")
+        if pose.pose is None and not pose.is_posed_file:
+            return part.points
         _, posed = self.meshes(k)
         return posed_part(pose, part, vertices, posed)
