@@ -12,6 +12,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -231,3 +233,36 @@ def test_full_reference_counts_the_energy_a_moved_target_puts_in():
     with pytest.raises(SolverError, match="energy blew up"):
         stepper._check_energy(1001.0 * (stepper.external_work + abs(stepper._initial_energy)),
                               stepper.external_work, 41, 0.082)
+
+
+def test_a_free_body_sweep_measures_it_as_table2_does():
+    """``bench --sweep`` on a free body with examples: its point carries the error of the
+    run without examples and the centre path / rotation / deformation split of both, each
+    the same as measured from the runs directly."""
+    from lbshape.pipeline.influence import without_examples
+    from lbshape.report.bench import speed_error_sweep, trajectory_error
+    from lbshape.report.free_body_error import free_body_error
+
+    scene = scene_from_dict(SPINNING, name="spinning-bar")
+    steps = 20
+    (point,) = speed_error_sweep(scene, r_values=(12,), s_values=(30,), steps=steps,
+                                 repeats=1, forces=("polynomial",), polynomial_r_values=(12,))
+    pre = precompute(dataclasses.replace(scene, reduced=dataclasses.replace(
+        scene.reduced, forces="polynomial")))
+    mass = mass_matrix(pre.mesh, pre.material.density)
+    runs = {(method, examples): simulate(scene if examples else without_examples(scene), pre,
+                                         method=method, steps=steps)
+            for method in ("reduced", "full") for examples in (True, False)}
+    for examples, error, split in ((True, point.error_vs_full, point.free_body),
+                                   (False, point.error_no_examples,
+                                    point.free_body_no_examples)):
+        reduced, full = runs["reduced", examples], runs["full", examples]
+        assert error == pytest.approx(trajectory_error(reduced.displacements,
+                                                       full.displacements, mass), rel=1e-9)
+        expected = free_body_error(reduced.displacements, full.displacements,
+                                   pre.mesh.points, mass).stats()
+        assert split.keys() == expected.keys()
+        for key, value in expected.items():
+            assert split[key] == pytest.approx(value, rel=1e-9, abs=1e-12), key
+    # with and without examples are different runs
+    assert point.error_no_examples != pytest.approx(point.error_vs_full, rel=1e-3)

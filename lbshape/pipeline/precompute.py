@@ -27,7 +27,8 @@ Stages (only those the scene needs; paper pre-computation steps 1–6), in order
     spring-shifted stiffness on the examples' targets,
     :func:`~lbshape.pipeline.responses.example_responses`) that U misses, appended to it
     up to :data:`MAX_APPENDED_BASIS` columns (a free body: without their rigid part, up to
-    :data:`MAX_APPENDED_FREE_BODY`)               — scenes with examples (k_ex > 0);
+    :data:`MAX_APPENDED_FREE_BODY`, and at least :data:`MIN_APPENDED_FREE_BODY` beyond its
+    own r)               — scenes with examples (k_ex > 0);
 11. ``cubature``: optimized cubature for the reduced elastic force on the final U (the
     force model of non-StVK materials and large meshes, and the energy of the ``modal``
     route);
@@ -172,6 +173,11 @@ MAX_APPENDED_BASIS = 48
 #: mean step was 1.08 ms at r = 29 (all nine responses), 0.94 ms at r = 24, and its
 #: body-frame deformation error against full 7.8 % and 6.9 % (20 % with none, r = 20)
 MAX_APPENDED_FREE_BODY = 24
+#: ... but a free body whose own r reaches that still gets up to this many: the Figure 4
+#: bar (r = 30) had none, and in free flight, before its first bounce, 5.5 % of its
+#: example-driven deformation lay outside U (5.6 % off the full reference); its two
+#: responses above the threshold (r = 32) leave 0.3 % outside (0.4 % off)
+MIN_APPENDED_FREE_BODY = 4
 #: the static equilibria are solved in full space by sparse Cholesky (the stage took 7 s
 #: of the 6.7k-vertex bar's precompute and 30 s of the 18.6k-vertex one's, 90 s in all;
 #: by LU it had taken 383 s in all); larger meshes skip the stage
@@ -365,7 +371,10 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
     """The ``example-basis`` stage: U with the example responses it misses appended
     (:func:`lbshape.pipeline.responses.example_responses`,
     :func:`lbshape.elastic.basis.append_directions`)."""
-    room = (MAX_APPENDED_FREE_BODY if scene.is_free else MAX_APPENDED_BASIS) - elastic.basis.r
+    if scene.is_free:
+        room = max(MAX_APPENDED_FREE_BODY - elastic.basis.r, MIN_APPENDED_FREE_BODY)
+    else:
+        room = MAX_APPENDED_BASIS - elastic.basis.r
     if room <= 0:  # nothing could be appended: no factorisation
         return elastic.basis
     density = scene.material.density

@@ -644,6 +644,12 @@ class SweepPoint:
             element, so s only sizes the cubature trained beside it; ``"cubature"``).
         r_asked: the r the configuration asked for (``[reduced] r``); the basis has
             ``r`` columns, more where static responses were appended (None: r).
+        error_no_examples: a free body with examples: the error of its run without them
+            (``k_ex = 0`` in both methods); None otherwise.
+        free_body, free_body_no_examples: a free body's
+            :meth:`~lbshape.report.free_body_error.FreeBodyError.stats` (centre path,
+            rotation in degrees, body-frame deformation) with and without its examples
+            (the same run twice for a free body without examples); None for a fixed object.
     """
 
     m: int
@@ -658,6 +664,9 @@ class SweepPoint:
     cubature_holdout_error: float | None
     forces: str = "cubature"
     r_asked: int | None = None
+    error_no_examples: float | None = None
+    free_body: dict | None = None
+    free_body_no_examples: dict | None = None
 
     @property
     def asked_r(self) -> int:
@@ -698,7 +707,10 @@ def speed_error_sweep(
     (m, scene r, scene s, scene force choice) for each other m of ``m_values``. Each
     configuration is its own precompute (cached); the ``full`` reference is run once
     per m. Each force value is checked against the material
-    (:func:`lbshape.elastic.polynomial_forces.check_force_choice`).
+    (:func:`lbshape.elastic.polynomial_forces.check_force_choice`). A free body is
+    also measured as Table 2 measures it: its run without examples (one untimed
+    reduced run per configuration, one ``full`` reference per m) and the centre path,
+    rotation and body-frame deformation of both (:class:`SweepPoint`).
 
     Args:
         scene: the base scene.
@@ -733,6 +745,7 @@ def speed_error_sweep(
         if value < 1:
             raise LbshapeError(f"m, r and s must be >= 1, got {value}")
     references: dict[int, object] = {}
+    references_none: dict[int, object] = {}  # free bodies: full without examples, per m
     points = []
     for m, r, s, choice in grid:
         variant = _variant(scene, m=m, r=r, s=s, forces=choice)
@@ -743,8 +756,12 @@ def speed_error_sweep(
                 log.error("sweep: full reference (m=%d) stopped: %s", m, references[m].message)
         outputs, (timing,) = _run_interleaved(variant, pre, ("reduced",), steps=steps,
                                               repeats=repeats)
-        error = _error_vs_full(outputs["reduced"], references[m],
-                               mass_matrix(pre.mesh, pre.material.density))
+        mass = mass_matrix(pre.mesh, pre.material.density)
+        error = _error_vs_full(outputs["reduced"], references[m], mass)
+        free = {}
+        if is_free_body(pre):
+            free = _free_body_sweep_errors(variant, pre, outputs["reduced"], references[m],
+                                           references_none, steps=steps, mass=mass)
         holdout = pre.cubature_errors.get("holdout")
         total = timing.summary("t_total_ms")
         points.append(SweepPoint(
@@ -752,7 +769,36 @@ def speed_error_sweep(
             t_interp_ms=timing.summary("t_interp_ms")["median"], t_total_ms=total["median"],
             t_total_min_ms=total["min"], t_total_max_ms=total["max"], error_vs_full=error,
             cubature_holdout_error=None if holdout is None else float(holdout),
-            forces=pre.force_model, r_asked=r,
+            forces=pre.force_model, r_asked=r, **free,
         ))
         log.info("sweep %s: %s", scene.name, points[-1])
     return tuple(points)
+
+
+def _free_body_sweep_errors(scene, pre, reduced, full, references_none: dict, *, steps: int,
+                            mass) -> dict:
+    """A free body's :class:`SweepPoint` fields beyond the error with examples.
+
+    Args:
+        scene, pre: the configuration (a free body).
+        reduced, full: its timed reduced run and the full reference, both with examples.
+        references_none: ``{m: full run without examples}``, filled here once per m.
+
+    Returns:
+        ``{"error_no_examples", "free_body", "free_body_no_examples"}``.
+    """
+    if has_example_force(scene, pre):
+        m = scene.reduced.m
+        if m not in references_none:
+            references_none[m] = simulate(without_examples(scene), pre, method="full",
+                                          steps=steps)
+        full_none = references_none[m]
+        reduced_none = simulate(without_examples(scene), pre, method="reduced", steps=steps)
+    else:
+        full_none, reduced_none = full, reduced
+    return {
+        "error_no_examples": _error_vs_full(reduced_none, full_none, mass),
+        "free_body": _free_body_vs_full(reduced, full, pre, mass),
+        "free_body_no_examples": _free_body_vs_full(reduced_none, full_none, pre, mass),
+    }
+
