@@ -644,8 +644,9 @@ class SweepPoint:
             element, so s only sizes the cubature trained beside it; ``"cubature"``).
         r_asked: the r the configuration asked for (``[reduced] r``); the basis has
             ``r`` columns, more where static responses were appended (None: r).
-        error_no_examples: a free body with examples: the error of its run without them
-            (``k_ex = 0`` in both methods); None otherwise.
+        error_no_examples: a free body: the error of its run without examples
+            (``k_ex = 0`` in both methods; its only run when it has none); None for a
+            fixed object.
         free_body, free_body_no_examples: a free body's
             :meth:`~lbshape.report.free_body_error.FreeBodyError.stats` (centre path,
             rotation in degrees, body-frame deformation) with and without its examples
