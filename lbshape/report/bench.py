@@ -489,28 +489,53 @@ def _setting(label: str, source: str, scene, pre, outputs: dict, timing: MethodT
     it ran, kept in ``references`` for the other setting), ``reduced`` once per setting
     (the influence's for the scene as written).
     """
-    examples = has_example_force(scene, pre)
-    if examples:
-        if "full" not in references:
-            references["full"] = simulate(without_examples(scene), pre, method="full",
-                                          steps=steps)
-        full_none = references["full"]
-        reduced_none = references.get("reduced") if label == "lbshape" else None
-        if reduced_none is None:
-            reduced_none = simulate(without_examples(scene), pre, method="reduced",
-                                    steps=steps)
-    else:
-        full_none, reduced_none = full, reduced
+    apart = _errors_apart_from_examples(
+        scene, pre, reduced, full, references, "full", steps=steps, mass=mass,
+        reduced_none=references.get("reduced") if label == "lbshape" else None)
     stats = reduced.stats
     return SettingResult(
         label, source, m=int(stats["m"]), r=int(stats["r"]), s=int(stats["s"]),
         s_max=int(scene.reduced.s), forces=str(stats["forces"]), timing=timing,
         error_vs_full=_error_vs_full(reduced, full, mass),
-        error_vs_full_no_examples=_error_vs_full(reduced_none, full_none, mass),
-        examples=examples,
-        free_body=_free_body_vs_full(reduced, full, pre, mass),
-        free_body_no_examples=_free_body_vs_full(reduced_none, full_none, pre, mass),
+        error_vs_full_no_examples=apart["error_no_examples"],
+        examples=has_example_force(scene, pre),
+        free_body=apart["free_body"], free_body_no_examples=apart["free_body_no_examples"],
     )
+
+
+def _errors_apart_from_examples(scene, pre, reduced, full, references: dict, key, *,
+                                steps: int, mass, reduced_none=None) -> dict:
+    """The errors of a setting beyond its whole-field error with examples: the error of
+    its run without examples (``k_ex = 0`` in both methods) and, for a free body, the
+    centre path / rotation / deformation split of both runs.
+
+    Args:
+        scene, pre: the setting.
+        reduced, full: its reduced run and the full reference, both with examples.
+        references: full runs without examples, shared between settings: filled here
+            under ``key`` once.
+        reduced_none: its reduced run without examples if one ran already (else one is
+            run here).
+
+    Returns:
+        ``{"error_no_examples", "free_body", "free_body_no_examples"}`` (the free-body
+        splits None for a fixed object; without examples the runs with them serve).
+    """
+    if has_example_force(scene, pre):
+        if key not in references:
+            references[key] = simulate(without_examples(scene), pre, method="full",
+                                       steps=steps)
+        full_none = references[key]
+        if reduced_none is None:
+            reduced_none = simulate(without_examples(scene), pre, method="reduced",
+                                    steps=steps)
+    else:
+        full_none, reduced_none = full, reduced
+    return {
+        "error_no_examples": _error_vs_full(reduced_none, full_none, mass),
+        "free_body": _free_body_vs_full(reduced, full, pre, mass),
+        "free_body_no_examples": _free_body_vs_full(reduced_none, full_none, pre, mass),
+    }
 
 
 def _influence(scene, pre, outputs: dict, *, steps: int
@@ -761,8 +786,9 @@ def speed_error_sweep(
         error = _error_vs_full(outputs["reduced"], references[m], mass)
         free = {}
         if is_free_body(pre):
-            free = _free_body_sweep_errors(variant, pre, outputs["reduced"], references[m],
-                                           references_none, steps=steps, mass=mass)
+            free = _errors_apart_from_examples(variant, pre, outputs["reduced"],
+                                               references[m], references_none, m,
+                                               steps=steps, mass=mass)
         holdout = pre.cubature_errors.get("holdout")
         total = timing.summary("t_total_ms")
         points.append(SweepPoint(
@@ -774,32 +800,3 @@ def speed_error_sweep(
         ))
         log.info("sweep %s: %s", scene.name, points[-1])
     return tuple(points)
-
-
-def _free_body_sweep_errors(scene, pre, reduced, full, references_none: dict, *, steps: int,
-                            mass) -> dict:
-    """A free body's :class:`SweepPoint` fields beyond the error with examples.
-
-    Args:
-        scene, pre: the configuration (a free body).
-        reduced, full: its timed reduced run and the full reference, both with examples.
-        references_none: ``{m: full run without examples}``, filled here once per m.
-
-    Returns:
-        ``{"error_no_examples", "free_body", "free_body_no_examples"}``.
-    """
-    if has_example_force(scene, pre):
-        m = scene.reduced.m
-        if m not in references_none:
-            references_none[m] = simulate(without_examples(scene), pre, method="full",
-                                          steps=steps)
-        full_none = references_none[m]
-        reduced_none = simulate(without_examples(scene), pre, method="reduced", steps=steps)
-    else:
-        full_none, reduced_none = full, reduced
-    return {
-        "error_no_examples": _error_vs_full(reduced_none, full_none, mass),
-        "free_body": _free_body_vs_full(reduced, full, pre, mass),
-        "free_body_no_examples": _free_body_vs_full(reduced_none, full_none, pre, mass),
-    }
-
