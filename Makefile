@@ -7,7 +7,7 @@ setup:
 	@bash scripts/setup
 
 demo: setup
-	$(PY) -m lbshape.cli demo
+	$(PY) -m lbshape.cli demo --out demo-output
 
 test: setup
 	$(PY) -m pytest -q tests
