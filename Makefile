@@ -22,4 +22,4 @@ bench: setup
 	$(PY) scripts/bench_all.py
 
 clean:
-	rm -rf .venv build *.egg-info .pytest_cache
+	rm -rf .venv build *.egg-info .pytest_cache demo-output

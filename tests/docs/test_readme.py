@@ -16,7 +16,8 @@ README = ROOT / "README.md"
 
 
 def _load_readme_table():
-    spec = importlib.util.spec_from_file_location("readme_table", ROOT / "scripts" / "readme_table.py")
+    path = ROOT / "scripts" / "readme_table.py"
+    spec = importlib.util.spec_from_file_location("readme_table", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
