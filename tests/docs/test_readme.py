@@ -33,11 +33,13 @@ def python_example(text: str) -> str:
 
 
 def _has_simulation_api() -> bool:
+    """Whether the package offers ``lbshape.simulation`` (named in ``__all__``; not imported
+    here, so a broken API fails the test instead of skipping it)."""
     try:
         import lbshape
     except ImportError:
         return False
-    return hasattr(lbshape, "simulation")
+    return "simulation" in getattr(lbshape, "__all__", ())
 
 
 def test_readme_size():

@@ -65,3 +65,17 @@ def test_stale_files_are_marked():
         if (ROOT / "results" / name).exists():
             section = next(p for p, _ in _sections(text) if f"| `{name}` |" in p)
             assert section.startswith("STALE"), f"results/{name} is not marked stale"
+
+
+def _masked(text: str) -> str:
+    """The index without its commit and date columns (they follow git, not the sources)."""
+    return re.sub(r"^(\| `[^`]+` \|).*$", r"\1", text, flags=re.MULTILINE)
+
+
+def test_index_is_generated_from_sources():
+    _tracked()
+    expected = _load_script().render_index(ROOT)
+    assert _masked(INDEX.read_text(encoding="utf-8")) == _masked(expected), (
+        "results/README.md differs from results/SOURCES.toml; run "
+        "`python scripts/results_index.py`"
+    )
