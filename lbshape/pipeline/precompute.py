@@ -44,7 +44,7 @@ Stages (only those the scene needs; paper pre-computation steps 1–6), in order
 Scenes with ``[[regions]]`` (local examples) replace stages 6–8 by
 ``regions``: per-region spectra and example parts embedded per region (their small
 matrices in reduced coordinates come in ``projections``,
-:meth:`~lbshape.shapespace.local_examples.LocalShapeSpace.projected`); stage 5 still
+:meth:`~lbshape.shapespace.local_space.LocalShapeSpace.projected`); stage 5 still
 computes the whole object's spectrum (eigenfunction pictures, and the measured
 comparison of the two local-example variants).
 
@@ -139,12 +139,8 @@ from lbshape.shapespace.example_shapes import (
 )
 from lbshape.shapespace.example_targets import tabulate_examples
 from lbshape.shapespace.frames import body_frame
-from lbshape.shapespace.local_examples import (
-    RegionSpec,
-    build_local_space,
-    region_cells,
-    submesh,
-)
+from lbshape.shapespace.local_build import RegionSpec, build_local_space
+from lbshape.shapespace.local_regions import region_cells, submesh
 from lbshape.shapespace.projections import (
     block_basis,
     embed_example,
