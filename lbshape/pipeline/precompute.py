@@ -85,12 +85,8 @@ from lbshape.elastic.basis import (
     default_linear_modes,
     nonlinear_basis,
 )
-from lbshape.elastic.cubature import (
-    Cubature,
-    inverse_frequency_scales,
-    train_cubature,
-    train_example_cubatures,
-)
+from lbshape.elastic.cubature import Cubature, train_cubature, train_example_cubatures
+from lbshape.elastic.cubature_poses import inverse_frequency_scales
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.modal_derivatives import ModalDerivatives, modal_derivatives
 from lbshape.elastic.modes import LinearModes, linear_modes, rigid_body_modes
