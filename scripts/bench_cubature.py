@@ -37,7 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lbshape.elastic.cubature import inverse_frequency_scales, train_cubature, training_poses
+from lbshape.elastic.cubature import train_cubature
+from lbshape.elastic.cubature_poses import inverse_frequency_scales, training_poses
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.polynomial_forces import PolynomialForceModel

@@ -43,7 +43,7 @@ from lbshape.report.bench import DEFAULT_OUT, bench_scene
 from lbshape.report.machine import load_text, machine_description, machine_text
 from lbshape.scene import load_scene
 from lbshape.shapespace.interpolation import TargetSolver
-from lbshape.shapespace.local_examples import region_energy_models
+from lbshape.shapespace.local_driver import region_energy_models
 
 log = logging.getLogger(__name__)
 

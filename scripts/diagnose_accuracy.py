@@ -48,12 +48,9 @@ from lbshape.pipeline.simulate import (
 from lbshape.report.bench import m_norms, trajectory_error
 from lbshape.scene import load_scene
 from lbshape.shapespace.interpolation import resolve_route
-from lbshape.shapespace.local_examples import (
-    FullSpaceLocalForce,
-    LocalShapeSpace,
-    local_example_driver,
-    local_route,
-)
+from lbshape.shapespace.local_driver import local_example_driver, local_route
+from lbshape.shapespace.local_full_force import FullSpaceLocalForce
+from lbshape.shapespace.local_space import LocalShapeSpace
 
 SCENES = ("bar-cuboid", "cross", "car", "teddy-global", "teddy-local")
 STRIDE = 5

@@ -8,16 +8,13 @@ import numpy as np
 import pytest
 from scipy.optimize import nnls
 
-from lbshape.elastic.cubature import (
-    Cubature,
+from lbshape.elastic.cubature import Cubature, train_cubature, train_example_cubatures
+from lbshape.elastic.cubature_forces import (
     element_chunks,
     exact_pose_forces,
     force_contribution_matrix,
-    inverse_frequency_scales,
-    train_cubature,
-    train_example_cubatures,
-    training_poses,
 )
+from lbshape.elastic.cubature_poses import inverse_frequency_scales, training_poses
 from lbshape.elastic.element_kernels import FullSpaceElasticity
 from lbshape.elastic.materials import Material
 from lbshape.elastic.reduced_forces import ReducedForceModel
@@ -345,9 +342,9 @@ def test_example_cubatures_train_on_at_most_max_path_targets(bar):
 def test_sampled_fallback_is_the_same_streamed_and_on_ranks(bar, monkeypatch):
     """More elements than FALLBACK_ELEMENTS: the wider scan draws a sample (the same on
     every rank and for every byte bound); the rules still meet the tolerance."""
-    import lbshape.elastic.cubature as cubature
+    import lbshape.elastic.cubature_greedy as greedy
 
-    monkeypatch.setattr(cubature, "FALLBACK_ELEMENTS", 40)
+    monkeypatch.setattr(greedy, "FALLBACK_ELEMENTS", 40)
     one = train(bar, candidates_per_iter=2, tol=1e-3)
     many = train(bar, candidates_per_iter=2, tol=1e-3, max_bytes=1)
     ranked = on_ranks(2, lambda comm: train(bar, candidates_per_iter=2, tol=1e-3,

@@ -97,7 +97,8 @@ def test_every_route_and_the_full_reference_use_the_same_elements(squeezed):
 def test_a_region_leaves_out_the_elements_its_examples_squeeze():
     """Local examples apply the rule on the region's own mesh: a region covering the
     right three quarters of a box, example 1 squeezing x < 0.5 to 20 % of its length."""
-    from lbshape.shapespace.local_examples import RegionSpace, region_energy_models
+    from lbshape.shapespace.local_driver import region_energy_models
+    from lbshape.shapespace.local_space import RegionSpace
 
     mesh = structured_box((1.0, 0.25, 0.25), (4, 1, 1))
     centres = mesh.points[mesh.tets].mean(axis=1)

@@ -19,18 +19,11 @@ from lbshape.pipeline.routes import example_driver
 from lbshape.pipeline.simulate import reduced_simulation
 from lbshape.scene.reader import load_scene
 from lbshape.scene.schema import LocalRegion, Selection
-from lbshape.shapespace.local_examples import (
-    FullSpaceLocalForce,
-    LocalShapeSpace,
-    RegionSpec,
-    build_local_space,
-    check_partition,
-    local_example_driver,
-    region_cells,
-    region_descriptor,
-    rigid_fields,
-    submesh,
-)
+from lbshape.shapespace.local_build import RegionSpec, build_local_space
+from lbshape.shapespace.local_driver import local_example_driver
+from lbshape.shapespace.local_full_force import FullSpaceLocalForce
+from lbshape.shapespace.local_regions import check_partition, region_cells, rigid_fields, submesh
+from lbshape.shapespace.local_space import LocalShapeSpace, region_descriptor
 from lbshape.shapespace.target_table import DEFAULT_TOLERANCE
 
 MATERIAL = Material(model="stvk", young=1e5, poisson=0.3, density=1000.0)

@@ -23,14 +23,10 @@ from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.geometry.poses import twist
 from lbshape.geometry.primitives import structured_box
 from lbshape.shapespace.interpolation import BASELINE_ROUTE
-from lbshape.shapespace.local_examples import (
-    FullSpaceLocalForce,
-    RegionSpec,
-    build_local_space,
-    local_example_driver,
-    region_cells,
-    submesh,
-)
+from lbshape.shapespace.local_build import RegionSpec, build_local_space
+from lbshape.shapespace.local_driver import local_example_driver
+from lbshape.shapespace.local_full_force import FullSpaceLocalForce
+from lbshape.shapespace.local_regions import region_cells, submesh
 
 MATERIAL = Material(model="stvk", young=1e5, poisson=0.3, density=1000.0)
 BAR = (0.2, 0.2, 1.0)

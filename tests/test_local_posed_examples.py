@@ -29,12 +29,8 @@ from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
 from lbshape.report.figures import example_caption
 from lbshape.scene.reader import load_scene, scene_from_dict
-from lbshape.shapespace.local_examples import (
-    RegionSpec,
-    build_local_space,
-    region_cells,
-    submesh,
-)
+from lbshape.shapespace.local_build import RegionSpec, build_local_space
+from lbshape.shapespace.local_regions import region_cells, submesh
 
 BAR = (0.2, 0.2, 1.0)
 #: the demo's two twists (rad) of its cylinder examples about z, top end in place
@@ -116,7 +112,7 @@ def test_an_example_at_rest_on_a_region_is_warned_about(caplog):
         return sub, (sub.points if k == 0 else twist(sub.points, angle=0.5, axis="z"))
 
     basis = np.random.default_rng(0).normal(size=(3 * mesh.n_vertices, 8))
-    with caplog.at_level(logging.WARNING, logger="lbshape.shapespace.local_examples"):
+    with caplog.at_level(logging.WARNING, logger="lbshape.shapespace.local_build"):
         build_local_space(mesh, material, basis, [RegionSpec("low", None, "z < 0.5", (0, 1))],
                           part, m=4, tabulate=False)
     warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lbshape.elastic.cubature import training_poses
+from lbshape.elastic.cubature_poses import training_poses
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.pipeline.precompute import precompute

@@ -13,7 +13,7 @@ from lbshape.pipeline.meshes import build_mesh, example_meshes, posed_part, sele
 from lbshape.pipeline.precompute import _ExampleParts
 from lbshape.scene import load_scene
 from lbshape.scene.schema import MeshSource
-from lbshape.shapespace.local_examples import region_cells, submesh
+from lbshape.shapespace.local_regions import region_cells, submesh
 
 
 @pytest.fixture(scope="module")

@@ -99,7 +99,7 @@ from lbshape.geometry.mesh import TetMesh
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_shapes import energy_elements, example_rest_shapes
 from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
-from lbshape.shapespace.local_examples import FullSpaceLocalForce
+from lbshape.shapespace.local_full_force import FullSpaceLocalForce
 from lbshape.shapespace.projections import block_basis
 
 log = logging.getLogger(__name__)

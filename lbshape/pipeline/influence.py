@@ -77,7 +77,7 @@ from lbshape.errors import LbshapeError
 from lbshape.pipeline.precomputed import Precomputed
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.interpolation import simplex_weights
-from lbshape.shapespace.local_examples import region_descriptor, region_example_distance
+from lbshape.shapespace.local_space import region_descriptor, region_example_distance
 
 #: M-norm differences below ROUNDOFF × sqrt(mass) × bounding-box diagonal count as none
 ROUNDOFF = 1e-12

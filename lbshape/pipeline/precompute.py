@@ -44,7 +44,7 @@ Stages (only those the scene needs; paper pre-computation steps 1–6), in order
 Scenes with ``[[regions]]`` (local examples) replace stages 6–8 by
 ``regions``: per-region spectra and example parts embedded per region (their small
 matrices in reduced coordinates come in ``projections``,
-:meth:`~lbshape.shapespace.local_examples.LocalShapeSpace.projected`); stage 5 still
+:meth:`~lbshape.shapespace.local_space.LocalShapeSpace.projected`); stage 5 still
 computes the whole object's spectrum (eigenfunction pictures, and the measured
 comparison of the two local-example variants).
 
@@ -85,12 +85,8 @@ from lbshape.elastic.basis import (
     default_linear_modes,
     nonlinear_basis,
 )
-from lbshape.elastic.cubature import (
-    Cubature,
-    inverse_frequency_scales,
-    train_cubature,
-    train_example_cubatures,
-)
+from lbshape.elastic.cubature import Cubature, train_cubature, train_example_cubatures
+from lbshape.elastic.cubature_poses import inverse_frequency_scales
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.modal_derivatives import ModalDerivatives, modal_derivatives
 from lbshape.elastic.modes import LinearModes, linear_modes, rigid_body_modes
@@ -139,12 +135,8 @@ from lbshape.shapespace.example_shapes import (
 )
 from lbshape.shapespace.example_targets import tabulate_examples
 from lbshape.shapespace.frames import body_frame
-from lbshape.shapespace.local_examples import (
-    RegionSpec,
-    build_local_space,
-    region_cells,
-    submesh,
-)
+from lbshape.shapespace.local_build import RegionSpec, build_local_space
+from lbshape.shapespace.local_regions import region_cells, submesh
 from lbshape.shapespace.projections import (
     block_basis,
     embed_example,

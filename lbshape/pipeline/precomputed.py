@@ -31,7 +31,7 @@ from lbshape.scene.schema import Scene
 from lbshape.shapespace.basis_choice import METHODS
 from lbshape.shapespace.clamped_basis import clamped_eigenvectors
 from lbshape.shapespace.example_shapes import energy_elements
-from lbshape.shapespace.local_examples import LocalShapeSpace
+from lbshape.shapespace.local_space import LocalShapeSpace
 from lbshape.shapespace.projections import block_basis, descriptor_matrix, example_descriptors
 from lbshape.shapespace.target_table import TargetTable
 from lbshape.spectral.spectrum import LBSpectrum

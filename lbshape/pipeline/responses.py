@@ -52,7 +52,8 @@ from lbshape.fem.cholesky import serial_cholesky
 from lbshape.geometry.mesh import TetMesh
 from lbshape.pipeline.meshes import selected_vertices
 from lbshape.scene.schema import Scene
-from lbshape.shapespace.local_examples import RegionSpace, rigid_fields
+from lbshape.shapespace.local_regions import rigid_fields
+from lbshape.shapespace.local_space import RegionSpace
 from lbshape.shapespace.projections import block_basis
 
 #: Krylov blocks of the example responses (:func:`example_responses`)

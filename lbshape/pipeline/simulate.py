@@ -71,11 +71,8 @@ from lbshape.pipeline.responses import mesh_load_patterns
 from lbshape.pipeline.routes import example_driver
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.interpolation import BASELINE_ROUTE, resolve_route
-from lbshape.shapespace.local_examples import (
-    FullSpaceLocalForce,
-    local_example_driver,
-    local_route,
-)
+from lbshape.shapespace.local_driver import local_example_driver, local_route
+from lbshape.shapespace.local_full_force import FullSpaceLocalForce
 
 log = logging.getLogger(__name__)
 
@@ -249,7 +246,7 @@ def full_simulation(scene: Scene, pre: Precomputed) -> FullSpaceSimulator:
 
     Contact planes act on the surface vertices; a free body moves in the inertial
     frame with its ``[initial]`` velocity; local examples use
-    :class:`~lbshape.shapespace.local_examples.FullSpaceLocalForce`.
+    :class:`~lbshape.shapespace.local_full_force.FullSpaceLocalForce`.
     """
     loads = load_patterns(scene, pre, mass_matrix(pre.mesh, pre.material.density))
     k_ex = example_stiffness(scene, pre)

@@ -67,7 +67,8 @@ from lbshape.report.render import (
     scene_planes,
 )
 from lbshape.scene.schema import Examples
-from lbshape.shapespace.local_examples import anchor_fit, region_example_distance
+from lbshape.shapespace.local_driver import local_example_shape
+from lbshape.shapespace.local_space import region_example_distance
 from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)
@@ -236,28 +237,6 @@ def _region_labels(pre) -> np.ndarray:
     return labels
 
 
-def _local_example_shape(pre, index: int | Sequence[int]) -> np.ndarray | None:
-    """(n, 3) the object with every region that example ``index`` guides in that
-    example's region shape, attached at the region's anchor as the runtime attaches
-    its targets (the rest state's rigid fit); None if no region uses it. Several
-    indices: each region in the first of them that it uses."""
-    mesh = pre.mesh
-    indices = [index] if np.isscalar(index) else list(index)
-    u, count = np.zeros((mesh.n_vertices, 3)), np.zeros(mesh.n_vertices)
-    for region in pre.local.regions:
-        hits = np.flatnonzero(np.isin(region.examples, indices))
-        if hits.size == 0:
-            continue
-        shape = region.displacement(region.example_coefficients[hits[0]]).reshape(-1)
-        part = region.submesh(mesh)
-        Q, F, rows = anchor_fit(part.points, mass_matrix(part, 1.0), region.anchor)
-        u[region.vertices] += (shape - Q @ (F @ shape[rows])).reshape(-1, 3)
-        count[region.vertices] += 1
-    if not count.any():
-        return None
-    return u / np.maximum(count, 1)[:, None]
-
-
 def view_vector_of(mesh) -> tuple[float, float, float]:
     """A camera direction: mostly along the thin axis of a flat object, else oblique."""
     extent = np.ptp(mesh.points, axis=0)
@@ -290,7 +269,7 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
     names = ", ".join(f"{i}={reg.name}" for i, reg in enumerate(pre.local.regions, start=1))
     shapes, captions = [], []
     for index, pose in enumerate(scene.examples.poses):
-        u = _local_example_shape(pre, index)
+        u = local_example_shape(pre.mesh, pre.local, index)
         if u is not None:
             users = [reg.name for reg in pre.local.regions if index in reg.examples]
             shapes.append(u)
@@ -316,7 +295,7 @@ def local_examples_figures(scene, pre, output, out_dir: str | Path) -> tuple[Pat
     closest = ", ".join(f"{name} {'rest' if k == REST else k}"
                         for name, k in effect.closest_example.items())
     result_png = render_shapes(
-        [pre.mesh, _deformed(pre, _local_example_shape(pre, strongest)),
+        [pre.mesh, _deformed(pre, local_example_shape(pre.mesh, pre.local, strongest)),
          _deformed(pre, u_none), _deformed(pre, u_ex)],
         ["rest", f"examples {sorted(set(strongest))} on their regions",
          f"no examples ({method}) t={t:.2f} s",

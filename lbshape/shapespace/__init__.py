@@ -7,6 +7,10 @@ __all__ = [
     "example_driver",
     "frames",
     "interpolation",
-    "local_examples",
+    "local_build",
+    "local_driver",
+    "local_full_force",
+    "local_regions",
+    "local_space",
     "projections",
 ]
