@@ -109,7 +109,7 @@ def test_the_engines_use_the_polynomials(demo):
     cubature_scene = dataclasses.replace(scene, reduced=dataclasses.replace(
         scene.reduced, forces="cubature"))
     assert "forces" not in stage_names(cubature_scene)
-    assert precompute(cubature_scene).force_model == "cubature"
+    assert precompute(cubature_scene).elastic.force_model == "cubature"
 
 
 @pytest.mark.slow

@@ -59,11 +59,11 @@ def test_mesh_file_change_invalidates_the_cache(tmp_path):
     )
     first = precompute(load_scene(str(scene_path)))
     assert not first.stages.from_cache
-    assert precompute(load_scene(str(scene_path))).from_cache
+    assert precompute(load_scene(str(scene_path))).stages.from_cache
     data = bytearray(mesh_path.read_bytes())
     data[-20:-19] = b" " if data[-20:-19] != b" " else b"\n"  # one byte, same mesh
     mesh_path.write_bytes(bytes(data))
-    assert not precompute(load_scene(str(scene_path))).from_cache
+    assert not precompute(load_scene(str(scene_path))).stages.from_cache
 
 
 def test_examples_pull_the_object_to_the_example_shape(demo):

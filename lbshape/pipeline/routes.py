@@ -169,7 +169,8 @@ def target_solver(
     """
     if route not in ROUTES:
         raise LbshapeError(f"unknown interpolation route {route!r} (routes: {', '.join(ROUTES)})")
-    boundary = pre.examples.target_boundary if boundary is None else boundary
+    if boundary is None:
+        boundary = "free" if pre.examples is None else pre.examples.target_boundary
     if boundary not in BOUNDARIES:
         raise LbshapeError(f"boundary must be one of {BOUNDARIES}, got {boundary!r}")
     check_precomputed(pre)
