@@ -7,6 +7,17 @@ both directions: :func:`artifact` turns the stages' results into (arrays, meta),
 cached artifact of a scene must hold. Bump :data:`PIPELINE_VERSION` whenever what is
 stored, or what it means, changes.
 
+**Parts.** A :class:`Precomputed` is composed of records, each present as a whole or
+None: :class:`ElasticSpace` (every scene: U, ω², the reduced force model),
+:class:`ShapeBasis` (scenes with examples, global or local: the object's LB eigenpairs
+and the examples' names), :class:`GlobalExamples` (global examples: coefficients, maps
+to reduced coordinates, target table, LB cubatures; also what the example stages hand
+to :func:`artifact`), the local-example shape space
+(:class:`~lbshape.shapespace.local_examples.LocalShapeSpace`), a free body's
+:class:`~lbshape.dynamics.fictitious.FrameTensors`, and :class:`StageReport` (how the
+artifact was built). ``pre.U``, ``pre.r``, ``pre.has_examples`` and
+``pre.has_local_examples`` are kept on the record itself.
+
 **Shape-space maps** (:mod:`lbshape.shapespace.projections`): ``projection`` is stored
 in the reduced coordinates of the dynamics, ``T = Uᵀ M L`` (U orthonormal in the
 elastic mass ``M = ρ M₃``): the examples' reduced coordinates are ``T c`` with no
