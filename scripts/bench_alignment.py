@@ -235,12 +235,12 @@ def scene_rows(steps: int) -> list[dict]:
             run = simulate(scene, pre, method="reduced")
             u = run.displacements[-1]
             finals[label] = u.reshape(-1)
-            coefficients[label] = np.asarray(pre.example_coefficients).reshape(-1)
+            coefficients[label] = np.asarray(pre.examples.example_coefficients).reshape(-1)
             rows.append({
                 "examples": f"{'the bar' if label == 'own' else 'a 3 m x 1 m cylinder'} "
                             "twisted +90 degrees",
-                "methods": pre.alignment_methods,
-                "residuals": [float(r) for r in pre.alignment_residuals],
+                "methods": pre.examples.alignment_methods,
+                "residuals": [float(r) for r in pre.examples.alignment_residuals],
                 "final_twist_deg": end_twist_degrees(pre.mesh.points, u, end="min"),
                 "vertices": pre.mesh.n_vertices})
     own, other = finals["own"], finals["cylinder"]

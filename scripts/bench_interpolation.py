@@ -149,9 +149,9 @@ class RouteRun:
 def route_variants(pre: Precomputed, routes=ROUTES) -> list[tuple[str, str]]:
     """(route, boundary) pairs: every route in the precompute's basis, and where the
     object has fixed vertices ``modal``, ``lb-exact`` and ``euclidean`` in the other."""
-    variants = [(route, pre.target_boundary) for route in routes]
+    variants = [(route, pre.examples.target_boundary) for route in routes]
     if pre.fixed_vertices.size:
-        other = next(b for b in BOUNDARIES if b != pre.target_boundary)
+        other = next(b for b in BOUNDARIES if b != pre.examples.target_boundary)
         variants += [(route, other) for route in ("modal", "lb-exact", "euclidean")
                      if route in routes]
     return variants
@@ -162,8 +162,9 @@ def run_routes(pre: Precomputed, states: np.ndarray, *, repeats: int = 3,
     """Time and record every route variant along ``states`` (calls, r), interleaved per repeat."""
     variants = route_variants(pre, routes)
     setups = {v: target_solver(pre, v[0], boundary=v[1]) for v in variants}
-    drivers = {v: ExampleDriver(pre.descriptor_matrix, pre.example_descriptors, setup.solver,
-                                to_reduced=setup.to_reduced) for v, setup in setups.items()}
+    drivers = {v: ExampleDriver(pre.examples.descriptor_matrix, pre.examples.example_descriptors,
+                                setup.solver, to_reduced=setup.to_reduced)
+               for v, setup in setups.items()}
     seconds = {v: np.zeros((repeats, len(states))) for v in variants}
     first: dict = {v: ([], [], []) for v in variants}
     out = np.zeros(pre.r)
@@ -219,19 +220,19 @@ def example_projection_error(pre: Precomputed, mass, *, boundary: str = "free") 
     themselves (weights at a vertex of the simplex), in the basis B of ``boundary``.
     """
     clamped = boundary == "clamped"
-    B = pre.lb_basis(clamped=clamped)
-    k = pre.example_coefficients.shape[0]
-    flat = pre.example_coefficients.reshape(k, -1)
+    B = pre.shape.lb_basis(clamped=clamped)
+    k = pre.examples.example_coefficients.shape[0]
+    flat = pre.examples.example_coefficients.reshape(k, -1)
     exact = flat @ B.T
-    projected = (flat @ pre.lb_to_reduced_for(clamped=clamped).T) @ pre.U.T
+    projected = (flat @ pre.examples.lb_to_reduced_for(clamped=clamped).T) @ pre.U.T
     return float(_relative(projected, exact, mass).max())
 
 
 def example_separation(pre: Precomputed, mass, *, boundary: str) -> float:
     """``max_ij ‖B(c_i − c_j)‖_M`` (m·kg^½): the distance between the examples' targets."""
-    B = pre.lb_basis(clamped=boundary == "clamped")
-    k = pre.example_coefficients.shape[0]
-    u = pre.example_coefficients.reshape(k, -1) @ B.T
+    B = pre.shape.lb_basis(clamped=boundary == "clamped")
+    k = pre.examples.example_coefficients.shape[0]
+    u = pre.examples.example_coefficients.reshape(k, -1) @ B.T
     best = 0.0
     for i in range(k):
         for j in range(i + 1, k):

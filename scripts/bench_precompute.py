@@ -43,9 +43,9 @@ def run(repeats: int = 1) -> list[dict]:
             rows.append({"case": label, "n_vertices": pre.mesh.n_vertices,
                          "n_tets": pre.mesh.n_tets, "r": r, "s": s,
                          "free": fixed is None,
-                         **{k: pre.stage_seconds.get(k, 0.0) for k in STAGES},
-                         "total": sum(pre.stage_seconds.values()),
-                         "cubature_holdout": pre.cubature_errors.get("holdout")})
+                         **{k: pre.stages.seconds.get(k, 0.0) for k in STAGES},
+                         "total": sum(pre.stages.seconds.values()),
+                         "cubature_holdout": pre.elastic.cubature_errors.get("holdout")})
     return rows
 
 

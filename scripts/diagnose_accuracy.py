@@ -158,7 +158,7 @@ def diagnose(name: str) -> dict:
     steps = scene.simulation.steps
     free = scene.is_free
     result: dict = {"scene": name, "steps": steps, "r": pre.r,
-                    "s": int(pre.cubature_elements.size), "n_vertices": pre.mesh.n_vertices}
+                    "s": int(pre.elastic.cubature_elements.size), "n_vertices": pre.mesh.n_vertices}
     started = time.perf_counter()
 
     stops: dict[str, str] = {}
@@ -171,7 +171,8 @@ def diagnose(name: str) -> dict:
             return None, None
         return record.displacements(pre.U), record.times
 
-    cubature = dataclasses.replace(pre, force_model="cubature")  # the trained cubature
+    cubature = dataclasses.replace(pre, elastic=dataclasses.replace(
+        pre.elastic, force_model="cubature"))  # the trained cubature
 
     def full(sc):
         record = run_full_space(sc, pre, steps=steps, stride=STRIDE)

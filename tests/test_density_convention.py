@@ -72,18 +72,18 @@ def test_projection_is_the_mass_projection_and_descriptors_read_the_field(runs):
     pre = runs[SCALE].pre
     rng = np.random.default_rng(0)
     M = mass_matrix(pre.mesh, pre.material.density)  # elastic mass (kg)
-    U, L, T = pre.U, pre.lb_basis(), pre.lb_to_reduced
+    U, L, T = pre.U, pre.shape.lb_basis(), pre.examples.lb_to_reduced
     c = rng.normal(size=L.shape[1])
     projected = U @ np.linalg.solve(U.T @ (M @ U), U.T @ (M @ (L @ c)))
     np.testing.assert_allclose(U @ (T @ c), projected, rtol=0,
                                atol=1e-9 * np.abs(projected).max())
     q = rng.normal(size=pre.r)
     expected = descriptor(pre, (U @ q).reshape(-1, 3))
-    np.testing.assert_allclose(pre.descriptor_matrix @ q, expected, rtol=0,
+    np.testing.assert_allclose(pre.examples.descriptor_matrix @ q, expected, rtol=0,
                                atol=1e-9 * np.abs(expected).max())
     # the clamped basis' map obeys the same convention
-    clamped = dataclasses.replace(pre, projection=pre.projection_clamped)
-    L_F = pre.lb_basis(clamped=True)
+    clamped = dataclasses.replace(pre.examples, projection=pre.examples.projection_clamped)
+    L_F = pre.shape.lb_basis(clamped=True)
     projected = U @ np.linalg.solve(U.T @ (M @ U), U.T @ (M @ (L_F @ c)))
     np.testing.assert_allclose(U @ (clamped.lb_to_reduced @ c), projected, rtol=0,
                                atol=1e-9 * np.abs(projected).max())

@@ -70,15 +70,15 @@ def squeezed():
 
 def test_every_route_and_the_full_reference_use_the_same_elements(squeezed):
     scene, pre = squeezed
-    assert pre.target_boundary == "free"  # the full reference's basis, compared below
-    kept = pre.example_energy_elements()
+    assert pre.examples.target_boundary == "free"  # the full reference's basis, compared below
+    kept = pre.examples.energy_elements()
     assert 0 < pre.mesh.n_tets - kept.size < pre.mesh.n_tets // 4
     exact = {route: target_solver(pre, route, tolerance=1e-12, max_iterations=100)
              for route in ("lb-exact", "euclidean")}
     for setup in exact.values():
         assert np.array_equal(setup.elements, kept)
     assert np.isin(target_solver(pre, "modal").elements, kept).all()
-    lb_rules = pre.lb_cubature_elements
+    lb_rules = pre.examples.lb_cubatures.elements
     assert np.isin(lb_rules[lb_rules >= 0], kept).all()
     weights = np.array([0.4, 0.6])
     targets = {route: setup.solver.solve(weights).z for route, setup in exact.items()}
@@ -87,9 +87,9 @@ def test_every_route_and_the_full_reference_use_the_same_elements(squeezed):
     assert np.linalg.norm(targets["lb-exact"] - targets["euclidean"]) < 1e-8 * scale
     assert np.linalg.norm(full - targets["euclidean"]) < 1e-6 * scale
     # the squeezed elements matter: with them the target moves
-    L = pre.lb_basis()
+    L = pre.shape.lb_basis()
     everything = TargetSolver(
-        [EuclideanExampleEnergy(pre.example_rest_points(i), pre.mesh.tets, pre.material, L)
+        [EuclideanExampleEnergy(pre.examples.rest_points(i), pre.mesh.tets, pre.material, L)
          for i in range(2)], exact["euclidean"].offsets, tolerance=1e-12, max_iterations=100)
     assert np.linalg.norm(everything.solve(weights).z - targets["euclidean"]) > 1e-3 * scale
 

@@ -181,7 +181,7 @@ def test_influence_is_zero_when_the_examples_are_the_rest_shape(demo):
     rest_examples = dataclasses.replace(scene, loads=(), examples=dataclasses.replace(
         scene.examples, poses=(rest_pose,)))
     pre = precompute(rest_examples)
-    np.testing.assert_allclose(pre.example_coefficients, 0.0, atol=1e-10)
+    np.testing.assert_allclose(pre.examples.example_coefficients, 0.0, atol=1e-10)
     output = simulate(rest_examples, pre, steps=60)
     effect, reference = example_influence(rest_examples, pre, output, method="reduced", steps=60)
     assert effect.final == 0.0 and effect.maximum == 0.0, effect
@@ -254,10 +254,11 @@ def test_simulate_reports_influence_and_the_examples_bring_the_shape_to_their_ma
 
 def test_descriptor_of_an_example_is_its_descriptor_and_on_the_manifold(demo):
     _, pre = demo
-    for k in range(pre.example_coefficients.shape[0]):
-        u = pre.example_rest_points(k) - pre.mesh.points
-        np.testing.assert_allclose(descriptor(pre, u), pre.example_descriptors[k],
-                                   rtol=1e-8, atol=1e-10 * np.abs(pre.example_descriptors).max())
+    for k in range(pre.examples.example_coefficients.shape[0]):
+        u = pre.examples.rest_points(k) - pre.mesh.points
+        np.testing.assert_allclose(descriptor(pre, u), pre.examples.example_descriptors[k],
+                                   rtol=1e-8,
+                                   atol=1e-10 * np.abs(pre.examples.example_descriptors).max())
         assert manifold_residual(pre, u) < 1e-8
     # the rest shape is off the hull of a +90 / -45 degree twist pair
     assert manifold_residual(pre, np.zeros_like(pre.mesh.points)) > 0.05

@@ -39,8 +39,8 @@ def pre():
 
 def test_a_valid_scene_sets_up_every_route(pre):
     """The control for the error cases below: same object, corresponding examples."""
-    assert pre.alignment_residuals.max() < 1e-8, pre.alignment_residuals
-    q = 0.5 * pre.lb_to_reduced @ pre.example_coefficients[0].ravel()
+    assert pre.examples.alignment_residuals.max() < 1e-8, pre.examples.alignment_residuals
+    q = 0.5 * pre.examples.lb_to_reduced @ pre.examples.example_coefficients[0].ravel()
     targets = {}
     for route in ROUTES:
         info = example_driver(pre, route=route).target(q)
@@ -67,28 +67,32 @@ def test_scene_without_examples():
 
 
 def test_examples_of_mismatched_dimension(pre):
-    m = pre.eigenvalues.size
-    truncated = dataclasses.replace(pre, example_coefficients=pre.example_coefficients[:, :-1])
+    m = pre.shape.eigenvalues.size
+    truncated = dataclasses.replace(pre, examples=dataclasses.replace(
+        pre.examples, example_coefficients=pre.examples.example_coefficients[:, :-1]))
     for route in ROUTES:
         with pytest.raises(LbshapeError, match=f"5 LB coefficients .* m={m}"):
             target_solver(truncated, route)
-    flat = dataclasses.replace(pre, example_coefficients=pre.example_coefficients[..., :2])
+    flat = dataclasses.replace(pre, examples=dataclasses.replace(
+        pre.examples, example_coefficients=pre.examples.example_coefficients[..., :2]))
     with pytest.raises(LbshapeError, match=r"\(k, m, 3\)"):
         target_solver(flat, "lb")
     # descriptors of another shape space handed to the runtime driver
     setup = target_solver(pre, "modal")
     with pytest.raises(LbshapeError, match="dimension 15, the object's descriptor 18"):
-        ExampleDriver(pre.descriptor_matrix, pre.example_descriptors[:, :15], setup.solver)
+        ExampleDriver(pre.examples.descriptor_matrix, pre.examples.example_descriptors[:, :15],
+                      setup.solver)
     # example offsets that do not fit the energy models' coordinates
     model = ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U,
-                              pre.cubature_elements, pre.cubature_weights)
+                              pre.elastic.cubature_elements, pre.elastic.cubature_weights)
     solver = TargetSolver([model], np.zeros((1, pre.r + 3)))
     with pytest.raises(LbshapeError, match=f"shape \\({pre.r},\\)"):
         solver.solve(np.ones(1))
 
 
 def test_lb_route_needs_the_lb_cubature(pre):
-    missing = dataclasses.replace(pre, lb_cubature_elements=None, lb_cubature_weights=None)
+    missing = dataclasses.replace(pre, examples=dataclasses.replace(pre.examples,
+                                                                    lb_cubatures=None))
     with pytest.raises(LbshapeError, match="no LB-subspace cubature"):
         target_solver(missing, "lb")
     assert target_solver(missing, "modal").solver.dimension == pre.r  # the others still work

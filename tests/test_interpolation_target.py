@@ -26,7 +26,13 @@ from lbshape.elastic.modal_derivatives import modal_derivatives
 from lbshape.elastic.modes import linear_modes
 from lbshape.geometry.poses import twist
 from lbshape.geometry.primitives import structured_box
-from lbshape.pipeline.precomputed import Precomputed
+from lbshape.pipeline.precomputed import (
+    ElasticSpace,
+    GlobalExamples,
+    LBCubatures,
+    Precomputed,
+    ShapeBasis,
+)
 from lbshape.pipeline.routes import ROUTES, example_driver, target_solver
 from lbshape.shapespace.example_targets import tabulate_examples
 from lbshape.shapespace.projections import lb_coefficients, reduced_projection
@@ -62,22 +68,26 @@ def base() -> tuple[Precomputed, object]:
     assert gap > 1.1, f"no spectral gap after mode {M_MODES}: {spectrum.eigenvalues}"
     phi = spectrum.eigenvectors[:, :M_MODES]
     eigenvalues = spectrum.eigenvalues[:M_MODES]
-    pre = Precomputed(
-        scene="twisted-bar", key="", mesh=mesh, material=MATERIAL, fixed_vertices=fixed,
-        U=basis.U, omega2=np.asarray(modes.omega2), cubature_elements=cubature.elements,
-        cubature_weights=cubature.weights,
-        cubature_errors={"train": cubature.train_error, "holdout": cubature.holdout_error},
-        eigenvalues=eigenvalues, eigenvectors=phi, example_coefficients=np.zeros((1, M_MODES, 3)),
-        projection=reduced_projection(basis.U, phi, spectrum.mass, MATERIAL.density),
-        alignment_residuals=np.zeros(1), example_names=("rest",),
-    )
-    lb = train_cubature(mesh, MATERIAL, pre.lb_basis(), rng=np.random.default_rng(12),
+    shape = ShapeBasis(eigenvalues, phi, ("rest",), mesh, fixed)
+    lb = train_cubature(mesh, MATERIAL, shape.lb_basis(), rng=np.random.default_rng(12),
                         scales=inverse_frequency_scales(np.repeat(eigenvalues, 3)),
                         max_elements=S_ELEMENTS, tol=0.0, magnitude=LB_MAGNITUDE)
-    return dataclasses.replace(
-        pre, lb_cubature_elements=lb.elements, lb_cubature_weights=lb.weights,
-        lb_cubature_errors={"train": lb.train_error, "holdout": lb.holdout_error},
-    ), spectrum.mass
+    pre = Precomputed(
+        scene="twisted-bar", key="", mesh=mesh, material=MATERIAL, fixed_vertices=fixed,
+        elastic=ElasticSpace(
+            U=basis.U, omega2=np.asarray(modes.omega2), cubature_elements=cubature.elements,
+            cubature_weights=cubature.weights,
+            cubature_errors={"train": cubature.train_error, "holdout": cubature.holdout_error}),
+        shape=shape,
+        examples=GlobalExamples(
+            shape=shape, density=MATERIAL.density,
+            example_coefficients=np.zeros((1, M_MODES, 3)),
+            projection=reduced_projection(basis.U, phi, spectrum.mass, MATERIAL.density),
+            alignment_residuals=np.zeros(1),
+            lb_cubatures=LBCubatures(lb.elements, lb.weights,
+                                     np.array([lb.train_error, lb.holdout_error]))),
+    )
+    return pre, spectrum.mass
 
 
 #: the routes that solve the target by Newton at run time (``lb-table`` interpolates)
@@ -92,17 +102,19 @@ def _with_twists(base, angles) -> Precomputed:
     points = pre.mesh.points
     coefficients = np.array([
         lb_coefficients(twist(points, angle=a, axis="z", anchor="max") - points,
-                        pre.eigenvectors, lb_mass)
+                        pre.shape.eigenvectors, lb_mass)
         for a in angles
     ])
     key = (id(pre), tuple(angles))
     if key not in _TABLES:
-        _TABLES[key] = tabulate_examples(points, pre.mesh.tets, pre.material, pre.eigenvectors,
-                                         coefficients, mass=lb_mass).table
-    return dataclasses.replace(
-        pre, example_coefficients=coefficients, alignment_residuals=np.zeros(len(angles)),
-        example_names=tuple(f"twist {a:+.2f}" for a in angles), target_table=_TABLES[key],
-    )
+        _TABLES[key] = tabulate_examples(points, pre.mesh.tets, pre.material,
+                                         pre.shape.eigenvectors, coefficients,
+                                         mass=lb_mass).table
+    shape = dataclasses.replace(
+        pre.shape, example_names=tuple(f"twist {a:+.2f}" for a in angles))
+    return dataclasses.replace(pre, shape=shape, examples=dataclasses.replace(
+        pre.examples, shape=shape, example_coefficients=coefficients,
+        alignment_residuals=np.zeros(len(angles)), target_table=_TABLES[key]))
 
 
 def _m_norm(pre: Precomputed, u: np.ndarray) -> float:
@@ -144,7 +156,7 @@ def test_a_single_example_is_its_own_target(base, route):
     # and the runtime driver hands the same q* = T c_1 to the dynamics on every route
     driver = example_driver(pre, route=route)
     info = driver.target(np.zeros(pre.r))
-    q1 = pre.lb_to_reduced @ pre.example_coefficients[0].ravel()
+    q1 = pre.examples.lb_to_reduced @ pre.examples.example_coefficients[0].ravel()
     np.testing.assert_allclose(info.weights, [1.0])
     np.testing.assert_allclose(info.q_target, q1, rtol=0, atol=1e-8 * np.linalg.norm(q1))
 
@@ -197,8 +209,11 @@ def test_gradient_and_hessian_match_finite_differences(base, route):
 def _all_elements(pre: Precomputed) -> Precomputed:
     """``pre`` with both cubatures replaced by all elements at unit weight (exact energies)."""
     t = pre.mesh.n_tets
-    return dataclasses.replace(pre, cubature_elements=np.arange(t), cubature_weights=np.ones(t),
-                               lb_cubature_elements=np.arange(t), lb_cubature_weights=np.ones(t))
+    return dataclasses.replace(
+        pre, elastic=dataclasses.replace(pre.elastic, cubature_elements=np.arange(t),
+                                         cubature_weights=np.ones(t)),
+        examples=dataclasses.replace(pre.examples, lb_cubatures=LBCubatures(
+            np.arange(t), np.ones(t), pre.examples.lb_cubatures.errors)))
 
 
 #: |end rotation| / θ left at weights (½, ½) of twists by ±θ = ±0.8 rad by the routes
@@ -223,8 +238,8 @@ def test_opposite_twists_average_to_the_rest_shape(base, route):
     theta = 0.8
     pre = _with_twists(base, [theta, -theta])
     mirror = _mirror(pre)
-    L = pre.lb_basis()
-    example, opposite = (L @ c.ravel() for c in pre.example_coefficients)
+    L = pre.shape.lb_basis()
+    example, opposite = (L @ c.ravel() for c in pre.examples.example_coefficients)
     size = _m_norm(pre, example)
     mirrored = _m_norm(pre, mirror(example) - opposite.reshape(-1, 3)) / size
     assert mirrored < 1e-12, f"the mirror maps example 1 to example 2 only to {mirrored:.1e}"
@@ -272,9 +287,9 @@ def test_reduced_targets_agree_with_the_euclidean_target(base, route):
         f"{route} target differs from the Euclidean one by {error:.4f} (M-norm, relative)"
     )
     if route == "modal":  # the gap is at least U's error on the examples themselves
-        L = pre.lb_basis()
-        c = pre.example_coefficients.reshape(2, -1)
-        projection = max(_m_norm(pre, pre.U @ (pre.lb_to_reduced @ ck) - L @ ck)
+        L = pre.shape.lb_basis()
+        c = pre.examples.example_coefficients.reshape(2, -1)
+        projection = max(_m_norm(pre, pre.U @ (pre.examples.lb_to_reduced @ ck) - L @ ck)
                          / _m_norm(pre, L @ ck) for ck in c)
         # compared with the gap of exact energies (all elements), a property of span U,
         # not of the cubature: measured 0.125 < 0.187

@@ -236,11 +236,12 @@ def test_precompute_reports_and_stores_each_examples_method(tmp_path):
             {"shape": "cylinder.py", "pose": "twist", "parameters": twist}]},
     }, base_dir=tmp_path)
     pre = precompute(scene)
-    assert pre.alignment_methods == ["overlay", "intrinsic"]
-    assert pre.alignment_residuals[0] < 1e-8 and pre.alignment_residuals[1] < 0.5
+    assert pre.examples.alignment_methods == ["overlay", "intrinsic"]
+    assert pre.examples.alignment_residuals[0] < 1e-8 and pre.examples.alignment_residuals[1] < 0.5
     again = precompute(scene)
-    assert again.from_cache and again.alignment_methods == ["overlay", "intrinsic"]
-    np.testing.assert_array_equal(again.alignment_residuals, pre.alignment_residuals)
+    assert again.stages.from_cache and again.examples.alignment_methods == ["overlay", "intrinsic"]
+    np.testing.assert_array_equal(again.examples.alignment_residuals,
+                                  pre.examples.alignment_residuals)
 
 
 def test_majorise_minimise_steps_never_increase_the_coupling_energy(bar, spectrum):

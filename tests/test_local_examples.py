@@ -251,9 +251,10 @@ def test_one_region_covering_the_object_reproduces_the_global_path():
     region = pre_local.local.regions[0]
     assert region.cells.size == pre_local.mesh.n_tets
     np.testing.assert_allclose(pre_local.local.spring, np.eye(pre_local.r), atol=1e-12)
-    scale = np.abs(pre_global.example_coefficients).max()
-    np.testing.assert_allclose(region.example_coefficients, pre_global.example_coefficients,
-                               rtol=0, atol=1e-9 * scale)
+    scale = np.abs(pre_global.examples.example_coefficients).max()
+    np.testing.assert_allclose(region.example_coefficients,
+                               pre_global.examples.example_coefficients, rtol=0,
+                               atol=1e-9 * scale)
     steps = 40
     # the global path with the same exact target (the default tabulates it) and basis
     reference = reduced_simulation(scene, pre_global)

@@ -215,7 +215,7 @@ def test_posed_files_match_analytic_poses(posed_files, tmp_path):
              _ARC, {"mesh": "bar-bent.vtu"}]
     scene = _scene(posed_files, poses)
     pre = precompute(scene)
-    c = pre.example_coefficients
+    c = pre.examples.example_coefficients
     twist_error = np.linalg.norm(c[1] - c[0]) / np.linalg.norm(c[0])
     assert twist_error < 0.02, f"STL pair vs analytic twist: {twist_error:.3g}"
     np.testing.assert_allclose(c[3], c[2], rtol=0, atol=1e-9 * np.abs(c[2]).max())

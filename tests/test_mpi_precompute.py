@@ -87,7 +87,7 @@ def _rule_errors(pre, U_ref, q_ref, M) -> np.ndarray:
     ``U_ref q`` (the same full-space poses whatever the basis of ``pre``)."""
     q = (pre.U.T @ (M @ U_ref)) @ q_ref.T  # coordinates in pre's basis (r, P)
     args = (pre.mesh.points, pre.mesh.tets, pre.material, pre.U)
-    rule = ReducedForceModel(*args, pre.cubature_elements, pre.cubature_weights)
+    rule = ReducedForceModel(*args, pre.elastic.cubature_elements, pre.elastic.cubature_weights)
     exact = ReducedForceModel(*args, np.arange(pre.mesh.n_tets), np.ones(pre.mesh.n_tets))
     return np.array([np.linalg.norm(rule.force(x) - exact.force(x)) / np.linalg.norm(exact.force(x))
                      for x in q.T])
@@ -112,14 +112,14 @@ def test_two_ranks_equal_serial_and_write_once(tmp_path, monkeypatch, text):
 
     monkeypatch.setenv("LBSHAPE_CACHE", str(tmp_path / "cache-1"))
     serial = precompute(scene, save=False)
-    assert set(serial.stage_ranks.values()) == {1}
+    assert set(serial.stages.ranks.values()) == {1}
     monkeypatch.setenv("LBSHAPE_CACHE", str(parallel_cache))
     parallel = precompute(scene)
-    assert parallel.from_cache and parallel.stage_ranks == record["stage_ranks"]
+    assert parallel.stages.from_cache and parallel.stages.ranks == record["stage_ranks"]
 
     M = mass_matrix(serial.mesh, scene.material.density)
     np.testing.assert_array_equal(parallel.mesh.tets, serial.mesh.tets)
-    np.testing.assert_allclose(parallel.omega2, serial.omega2, rtol=1e-8)
+    np.testing.assert_allclose(parallel.elastic.omega2, serial.elastic.omega2, rtol=1e-8)
     assert _span_sine(serial.U, parallel.U, M) <= 1e-6
     # the two rules' force errors on the same held-out displacements
     q = training_poses(serial.U, np.ones(serial.r), count=20, magnitude=0.1,
@@ -128,17 +128,18 @@ def test_two_ranks_equal_serial_and_write_once(tmp_path, monkeypatch, text):
     assert 0 < errors[0].mean() < 0.5
     np.testing.assert_allclose(errors[1], errors[0], rtol=1e-3, atol=1e-6)
     if scene.has_examples:
-        np.testing.assert_allclose(parallel.eigenvalues, serial.eigenvalues, rtol=1e-8)
-        scale = np.abs(serial.example_descriptors).max()
-        np.testing.assert_allclose(parallel.example_descriptors, serial.example_descriptors,
-                                   rtol=0, atol=1e-6 * scale)
+        np.testing.assert_allclose(parallel.shape.eigenvalues, serial.shape.eigenvalues, rtol=1e-8)
+        scale = np.abs(serial.examples.example_descriptors).max()
+        np.testing.assert_allclose(parallel.examples.example_descriptors,
+                                   serial.examples.example_descriptors, rtol=0,
+                                   atol=1e-6 * scale)
         # the projection of the LB basis onto span U does not depend on U's columns
-        projected = [pre.U @ pre.projection for pre in (serial, parallel)]
+        projected = [pre.U @ pre.examples.projection for pre in (serial, parallel)]
         np.testing.assert_allclose(projected[1], projected[0], rtol=0,
                                    atol=1e-6 * np.abs(projected[0]).max())
         for key in ("train", "holdout"):
-            assert parallel.lb_cubature_errors[key] == pytest.approx(
-                serial.lb_cubature_errors[key], rel=1e-3, abs=1e-6)
+            assert parallel.examples.lb_cubatures.named_errors[key] == pytest.approx(
+                serial.examples.lb_cubatures.named_errors[key], rel=1e-3, abs=1e-6)
     else:
         assert parallel.frame.mass == pytest.approx(serial.frame.mass, rel=1e-12)
         np.testing.assert_allclose(parallel.frame.center, serial.frame.center, atol=1e-12)

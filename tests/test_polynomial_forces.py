@@ -96,19 +96,20 @@ def test_the_engines_use_the_polynomials(demo):
     """The demo (StVK, small mesh) gets the polynomials; its reduced run equals the run
     with the element sum over every element to round-off, while the cubature differs."""
     scene, pre = demo
-    assert pre.force_model == "polynomial" and "forces" in pre.stage_seconds
+    assert pre.elastic.force_model == "polynomial" and "forces" in pre.stages.seconds
     assert isinstance(reduced_force_model(pre), PolynomialForceModel)
     runs = {name: reduced_simulation(scene, p, exact_forces=exact).run(100).states
             for name, p, exact in [
                 ("polynomial", pre, False), ("element sum", pre, True),
-                ("cubature", dataclasses.replace(pre, force_model="cubature"), False)]}
+                ("cubature", dataclasses.replace(pre, elastic=dataclasses.replace(
+                    pre.elastic, force_model="cubature")), False)]}
     scale = np.abs(runs["element sum"]).max()
     assert np.abs(runs["polynomial"] - runs["element sum"]).max() <= 1e-9 * scale
     assert np.abs(runs["cubature"] - runs["element sum"]).max() > 1e-4 * scale
     cubature_scene = dataclasses.replace(scene, reduced=dataclasses.replace(
         scene.reduced, forces="cubature"))
     assert "forces" not in stage_names(cubature_scene)
-    assert precompute(cubature_scene).force_model == "cubature"
+    assert precompute(cubature_scene).elastic.force_model == "cubature"
 
 
 @pytest.mark.slow

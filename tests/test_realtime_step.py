@@ -52,7 +52,7 @@ def test_compiled_stress_and_tangent_match_numpy(material):
 def test_force_and_tangent_into_matches_the_reference(demo, material):
     _, pre = demo
     model = ReducedForceModel(pre.mesh.points, pre.mesh.tets, material, pre.U,
-                              pre.cubature_elements, pre.cubature_weights)
+                              pre.elastic.cubature_elements, pre.elastic.cubature_weights)
     q = 0.2 * np.random.default_rng(1).standard_normal(pre.r)
     f, K = model.force_and_tangent(q)
     f_into, K_into = np.zeros(pre.r), np.zeros((pre.r, pre.r))
@@ -66,7 +66,7 @@ def test_converged_step_matches_the_generic_implicit_stepper(demo, integrator):
     """No examples, gravity ramp and a torque: the same equations, two implementations."""
     scene, pre = demo
     model = ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U,
-                              pre.cubature_elements, pre.cubature_weights)
+                              pre.elastic.cubature_elements, pre.elastic.cubature_weights)
     rng = np.random.default_rng(2)
     pattern = 50.0 * rng.standard_normal(pre.r)
     profile = TimeProfile("ramp", 0.0, 0.02)
@@ -139,7 +139,7 @@ def test_the_step_allocates_no_arrays(demo):
 def test_a_newton_failure_ends_the_run_with_the_step_named(demo):
     scene, pre = demo
     model = ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U,
-                              pre.cubature_elements, pre.cubature_weights)
+                              pre.elastic.cubature_elements, pre.elastic.cubature_weights)
     huge = TimedLoad(1e9 * np.ones(pre.r), TimeProfile("constant", 0.0, 0.0))
     record = ReducedSimulation(model, r=pre.r, dt=1e-3, loads=[huge], newton_iterations=None,
                                max_iterations=2).run(50)

@@ -30,7 +30,7 @@ def _m_norm(u, mass):
 def test_precompute_is_cached_and_runtime_changes_reuse_it(demo, caplog):
     scene, pre = demo
     again = precompute(scene)
-    assert again.from_cache and again.key == pre.key
+    assert again.stages.from_cache and again.key == pre.key
     np.testing.assert_array_equal(again.U, pre.U)
     # runtime-only changes keep the key
     faster = dataclasses.replace(
@@ -58,12 +58,12 @@ def test_mesh_file_change_invalidates_the_cache(tmp_path):
         '[fixed]\nregion = "z > 0.999"\n[simulation]\nsteps = 3\n'
     )
     first = precompute(load_scene(str(scene_path)))
-    assert not first.from_cache
-    assert precompute(load_scene(str(scene_path))).from_cache
+    assert not first.stages.from_cache
+    assert precompute(load_scene(str(scene_path))).stages.from_cache
     data = bytearray(mesh_path.read_bytes())
     data[-20:-19] = b" " if data[-20:-19] != b" " else b"\n"  # one byte, same mesh
     mesh_path.write_bytes(bytes(data))
-    assert not precompute(load_scene(str(scene_path))).from_cache
+    assert not precompute(load_scene(str(scene_path))).stages.from_cache
 
 
 def test_examples_pull_the_object_to_the_example_shape(demo):
@@ -80,20 +80,21 @@ def test_examples_pull_the_object_to_the_example_shape(demo):
                                                       poses=scene.examples.poses[:1]))
     first = precompute(quiet)
     stiffest = float(np.linalg.eigvalsh(ReducedForceModel(
-        first.mesh.points, first.mesh.tets, first.material, first.U, first.cubature_elements,
-        first.cubature_weights).tangent(np.zeros(first.r))).max())
+        first.mesh.points, first.mesh.tets, first.material, first.U,
+        first.elastic.cubature_elements,
+        first.elastic.cubature_weights).tangent(np.zeros(first.r))).max())
     k_ex = 100.0 * stiffest
     quiet = dataclasses.replace(
         quiet, examples=dataclasses.replace(quiet.examples, stiffness=k_ex),
         damping=dataclasses.replace(scene.damping, alpha=2.0 * np.sqrt(k_ex)))
     pre1 = precompute(quiet)
     elastic = ReducedForceModel(pre1.mesh.points, pre1.mesh.tets, pre1.material, pre1.U,
-                                pre1.cubature_elements, pre1.cubature_weights)
+                                pre1.elastic.cubature_elements, pre1.elastic.cubature_weights)
     out = simulate(quiet, pre1, steps=300)
     assert out.stats["stable"]
     # the example in reduced coordinates, through the precompute's target basis
-    q1 = pre1.lb_to_reduced_for(clamped=pre1.target_boundary == "clamped") \
-        @ pre1.example_coefficients[0].ravel()
+    q1 = pre1.examples.lb_to_reduced_for(clamped=pre1.examples.target_boundary == "clamped") \
+        @ pre1.examples.example_coefficients[0].ravel()
     # the static balance, by Newton in the reduced space
     q = q1.copy()
     for _ in range(30):

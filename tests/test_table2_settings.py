@@ -58,7 +58,7 @@ def runs(monkeypatch):
 
     def counted(scene, pre, *, method="reduced", **kwargs):
         examples = scene.examples is not None and scene.examples.stiffness > 0
-        calls.append((method, scene.reduced.m, pre.force_model, examples))
+        calls.append((method, scene.reduced.m, pre.elastic.force_model, examples))
         return original(scene, pre, method=method, **kwargs)
 
     monkeypatch.setattr(simulate_module, "simulate", counted)
@@ -84,7 +84,7 @@ def test_both_settings_errors_with_and_without_examples_from_one_bench(demo, run
     """The demo at its own m, r, s with cubature forces (the paper's setting of a scene
     the paper has no row for) beside its polynomial forces."""
     scene, pre = demo
-    assert pre.force_model == "polynomial"
+    assert pre.elastic.force_model == "polynomial"
     repeats = 2
     paper = paper_setting(scene, PAPER_TABLE2)
     result = bench_scene(scene, steps=STEPS, repeats=repeats, pre=pre, paper=paper)
@@ -184,7 +184,7 @@ def test_a_scene_already_at_the_setting_and_without_examples_runs_nothing_twice(
     scene, pre = demo
     plain = without_examples(scene)
     own = PaperSetting(plain.reduced.m, plain.reduced.r, plain.reduced.s, PAPER_SOURCE,
-                       forces=pre.force_model)
+                       forces=pre.elastic.force_model)
     result = bench_scene(plain, steps=STEPS, repeats=2, pre=pre, paper=own,
                          methods=("full", "reduced"))
     assert sorted(runs) == sorted([("full", 10, "polynomial", False),

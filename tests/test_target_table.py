@@ -74,7 +74,7 @@ def _separation(offsets: np.ndarray) -> float:
 
 
 def test_precompute_tabulates_and_checks_the_target(two):
-    table = two.target_table
+    table = two.examples.target_table
     assert table is not None and table.kind == "segment"
     assert table.check.max_error <= table.check.tolerance, table.check
     assert table.check.checks >= 40
@@ -84,7 +84,7 @@ def test_precompute_tabulates_and_checks_the_target(two):
 def test_table_matches_the_exact_target_at_fresh_weights(which, request):
     """Independent of the precompute's own check: new random weights, a tight solver."""
     pre = request.getfixturevalue(which)
-    table = pre.target_table
+    table = pre.examples.target_table
     exact = _exact(pre)
     rng = np.random.default_rng(99)
     spread = _separation(exact.offsets)
@@ -102,7 +102,7 @@ def test_table_matches_the_exact_target_at_fresh_weights(which, request):
 
 
 def _metric(pre) -> np.ndarray:
-    basis = pre.lb_basis(clamped=pre.target_boundary == "clamped")
+    basis = pre.shape.lb_basis(clamped=pre.examples.target_boundary == "clamped")
     volume_mass = mass_matrix(pre.mesh, 1.0)
     return basis.T @ (volume_mass @ basis)
 
@@ -111,7 +111,7 @@ def test_hermite_slopes_match_finite_differences(two):
     exact = _exact(two)
     t, h = 0.37, 1e-4
     def z(s):
-        return exact.solve(np.array([1 - s, s]), start=two.target_table.z(
+        return exact.solve(np.array([1 - s, s]), start=two.examples.target_table.z(
             np.array([1 - s, s]))).z
 
     finite = (z(t + h) - z(t - h)) / (2 * h)
@@ -145,7 +145,7 @@ def test_a_table_that_cannot_meet_its_tolerance_is_refused(two):
 
 
 def test_table_round_trips_through_the_cache_arrays(three):
-    table = three.target_table
+    table = three.examples.target_table
     again = TargetTable.from_arrays(table.to_arrays())
     w = np.array([0.2, 0.5, 0.3])
     np.testing.assert_array_equal(again.z(w), table.z(w))
@@ -155,10 +155,10 @@ def test_table_round_trips_through_the_cache_arrays(three):
 def test_lb_table_route_is_the_default_and_falls_back_without_a_table(two):
     assert resolve_route("auto", "stvk") == "lb-table"
     setup = target_solver(two, "lb-table")
-    assert setup.solver.table is two.target_table
+    assert setup.solver.table is two.examples.target_table
     driver = example_driver(two, route="lb-table")
-    q = 0.5 * two.lb_to_reduced_for(clamped=two.target_boundary == "clamped") \
-        @ two.example_coefficients[0].ravel()
+    q = 0.5 * two.examples.lb_to_reduced_for(clamped=two.examples.target_boundary == "clamped") \
+        @ two.examples.example_coefficients[0].ravel()
     out = np.zeros(two.r)
     driver.target_into(q, out)
     info = example_driver(two, route="lb-exact").target(q)
@@ -166,12 +166,13 @@ def test_lb_table_route_is_the_default_and_falls_back_without_a_table(two):
     scale = np.linalg.norm(info.q_target)
     assert np.linalg.norm(out - info.q_target) < 1e-3 * scale
     # without a table the route solves the exact target at run time
-    bare = dataclasses.replace(two, target_table=None)
+    bare = dataclasses.replace(two, examples=dataclasses.replace(two.examples,
+                                                                 target_table=None))
     fallback = target_solver(bare, "lb-table")
     assert fallback.route == "lb-exact" and fallback.solver.max_iterations == 1
     # one warm-started Newton step per call tracks the exact target as the state moves
-    driver = ExampleDriver(bare.descriptor_matrix, bare.example_descriptors, fallback.solver,
-                           to_reduced=fallback.to_reduced)
+    driver = ExampleDriver(bare.examples.descriptor_matrix, bare.examples.example_descriptors,
+                           fallback.solver, to_reduced=fallback.to_reduced)
     exact = _exact(two)
     spread = _separation(exact.offsets)
     for t in np.linspace(0.0, 1.0, 40):
@@ -206,7 +207,7 @@ def test_a_non_stvk_material_is_tabulated_from_the_all_element_energy(cache):
                                                                      model="neohookean"))
     pre = precompute(scene)
     assert exact_route(pre) == "euclidean"
-    table = pre.target_table
+    table = pre.examples.target_table
     assert table is not None and table.check.max_error <= table.check.tolerance
     exact = _exact(pre)
     w = np.array([0.35, 0.65])

@@ -166,7 +166,7 @@ def test_tune_picks_the_cheapest_candidate_within_the_error():
     best = result.best
     variant = _variant(scene, *best.candidate)
     pre, base = precompute(variant), precompute(scene)
-    assert pre.force_model == best.forces
+    assert pre.elastic.force_model == best.forces
     full = simulate(scene, base, method="full", steps=STEPS)
     run = simulate(variant, pre, method="reduced", steps=STEPS)
     expected = trajectory_error(run.displacements, full.displacements,

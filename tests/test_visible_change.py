@@ -78,8 +78,8 @@ def test_each_demo_example_is_closest_to_itself_and_rest_to_rest(demo):
     _, pre = demo
     rest = np.zeros_like(pre.mesh.points)
     assert closest_example(pre, rest)[0] == REST
-    for k in range(len(pre.example_names)):
-        u = pre.example_rest_points(k) - pre.mesh.points
+    for k in range(len(pre.shape.example_names)):
+        u = pre.examples.rest_points(k) - pre.mesh.points
         closest, distances = closest_example(pre, u)
         assert closest == k and distances[str(k)] < 1e-8, distances
         # a third of the way from rest the shape is still nearer rest, two thirds on the example

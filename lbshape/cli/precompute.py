@@ -65,26 +65,26 @@ def precompute_summary(name: str, *, force: bool = False) -> dict:
     """Precompute one scene (no progress bars) and return its one-row summary."""
     scene = load_scene(name)
     pre = precompute(scene, force=force)
-    return {"scene": scene.name, "origin": "cache" if pre.from_cache else "computed",
+    return {"scene": scene.name, "origin": "cache" if pre.stages.from_cache else "computed",
             "key": pre.key, "n_vertices": pre.mesh.n_vertices, "n_tets": pre.mesh.n_tets,
-            "m": "—" if pre.eigenvalues is None else str(pre.eigenvalues.size), "r": pre.r,
-            "s": int(pre.cubature_elements.size),
-            "stage_seconds": float(sum(pre.stage_seconds.values()))}
+            "m": "—" if pre.shape is None else str(pre.shape.eigenvalues.size), "r": pre.r,
+            "s": int(pre.elastic.cubature_elements.size),
+            "stage_seconds": float(sum(pre.stages.seconds.values()))}
 
 
 def precompute_record(pre) -> dict:
     """The JSON summary of one precompute: sizes, cubature errors, and per stage the wall
     time (s), the peak memory (MB, summed over the ranks) and the number of MPI ranks it
     ran on (of the run that built the artifact)."""
-    return {"scene": pre.scene, "origin": "cache" if pre.from_cache else "computed",
+    return {"scene": pre.scene, "origin": "cache" if pre.stages.from_cache else "computed",
             "key": pre.key, "n_vertices": pre.mesh.n_vertices, "n_tets": pre.mesh.n_tets,
-            "m": None if pre.eigenvalues is None else int(pre.eigenvalues.size), "r": pre.r,
-            "s": int(pre.cubature_elements.size), "forces": pre.force_model,
-            "cubature_errors": pre.cubature_errors,
-            "stage_seconds": dict(pre.stage_seconds),
-            "stage_peak_mb": dict(pre.stage_peak_mb),
-            "stage_ranks": dict(pre.stage_ranks),
-            "total_seconds": float(sum(pre.stage_seconds.values()))}
+            "m": None if pre.shape is None else int(pre.shape.eigenvalues.size), "r": pre.r,
+            "s": int(pre.elastic.cubature_elements.size), "forces": pre.elastic.force_model,
+            "cubature_errors": pre.elastic.cubature_errors,
+            "stage_seconds": dict(pre.stages.seconds),
+            "stage_peak_mb": dict(pre.stages.peak_mb),
+            "stage_ranks": dict(pre.stages.ranks),
+            "total_seconds": float(sum(pre.stages.seconds.values()))}
 
 
 def run_one(name: str, *, force: bool = False, as_json: bool = False) -> int:
@@ -97,32 +97,34 @@ def run_one(name: str, *, force: bool = False, as_json: bool = False) -> int:
     if as_json:
         print(json.dumps(precompute_record(pre), indent=2))
         return 0
-    origin = "cache" if pre.from_cache else "computed"
+    origin = "cache" if pre.stages.from_cache else "computed"
+    errors = pre.elastic.cubature_errors
     print(f"precompute {scene.name} ({origin}, key {pre.key[:16]}): n={pre.mesh.n_vertices} "
-          f"vertices, {pre.mesh.n_tets} tets, r={pre.r}, s={pre.cubature_elements.size}, "
-          f"cubature error train {pre.cubature_errors.get('train', float('nan')):.3g} / "
-          f"held-out {pre.cubature_errors.get('holdout', float('nan')):.3g}; reduced forces: "
-          + ("exact polynomials (every element)" if pre.force_model == "polynomial"
+          f"vertices, {pre.mesh.n_tets} tets, r={pre.r}, s={pre.elastic.cubature_elements.size}, "
+          f"cubature error train {errors.get('train', float('nan')):.3g} / "
+          f"held-out {errors.get('holdout', float('nan')):.3g}; reduced forces: "
+          + ("exact polynomials (every element)" if pre.elastic.force_model == "polynomial"
              else "the cubature"))
     if pre.has_examples:
-        residuals = ", ".join(f"{r:.3f}" for r in pre.alignment_residuals)
-        print(f"  shape space: m={pre.eigenvalues.size}, {len(pre.example_names)} examples, "
-              f"alignment residuals [{residuals}], methods [{', '.join(pre.alignment_methods)}]")
+        residuals = ", ".join(f"{r:.3f}" for r in pre.examples.alignment_residuals)
+        methods = ", ".join(pre.examples.alignment_methods)
+        print(f"  shape space: m={pre.shape.m}, {len(pre.shape.example_names)} examples, "
+              f"alignment residuals [{residuals}], methods [{methods}]")
     if pre.has_local_examples:
         for region in pre.local.regions:
             residuals = ", ".join(f"{r:.3f}" for r in region.alignment_residuals)
             print(f"  region {region.name}: {region.vertices.size} vertices, "
                   f"m={region.m}, examples {[int(k) for k in region.examples]}, "
                   f"alignment residuals [{residuals}], methods [{', '.join(region.methods)}]")
-    total = sum(pre.stage_seconds.values())
+    total = sum(pre.stages.seconds.values())
     print("  stage times (s): " + ", ".join(
-        f"{name} {seconds:.2f}" for name, seconds in pre.stage_seconds.items())
-        + f"; total {total:.2f}" + (" (when computed)" if pre.from_cache else ""))
-    if pre.stage_peak_mb:
+        f"{name} {seconds:.2f}" for name, seconds in pre.stages.seconds.items())
+        + f"; total {total:.2f}" + (" (when computed)" if pre.stages.from_cache else ""))
+    if pre.stages.peak_mb:
         print("  stage peak memory (MB): " + ", ".join(
-            f"{name} {mb:.0f}" for name, mb in pre.stage_peak_mb.items())
-            + f"; peak {max(pre.stage_peak_mb.values()):.0f}")
-    print("  " + stage_ranks_text(pre.stage_ranks))
+            f"{name} {mb:.0f}" for name, mb in pre.stages.peak_mb.items())
+            + f"; peak {max(pre.stages.peak_mb.values()):.0f}")
+    print("  " + stage_ranks_text(pre.stages.ranks))
     return 0
 
 

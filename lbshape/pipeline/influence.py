@@ -202,8 +202,9 @@ def is_free_body(pre: Precomputed) -> bool:
 def descriptor(pre: Precomputed, u: np.ndarray) -> np.ndarray:
     """(3m,) LB descriptor ``λ ⊙ (Φᵀ M₁ u)`` of a displacement u (n, 3) in m (row-major, 3i + c)."""
     volume_mass = mass_matrix(pre.mesh, 1.0)[0::3, 0::3]  # M₁ (n, n), m³
-    coefficients = np.asarray(pre.eigenvectors.T @ (volume_mass @ np.asarray(u).reshape(-1, 3)))
-    return coefficients.reshape(-1) * np.repeat(pre.eigenvalues, 3)
+    coefficients = np.asarray(pre.shape.eigenvectors.T
+                              @ (volume_mass @ np.asarray(u).reshape(-1, 3)))
+    return coefficients.reshape(-1) * np.repeat(pre.shape.eigenvalues, 3)
 
 
 def manifold_residual(pre: Precomputed, u: np.ndarray) -> float:
@@ -211,7 +212,7 @@ def manifold_residual(pre: Precomputed, u: np.ndarray) -> float:
     convex hull of the example descriptors over ``max_k ‖e_k‖`` (see the module docstring)."""
     if not pre.has_examples:
         raise LbshapeError(f"scene {pre.scene!r} has no examples: no example manifold")
-    examples = pre.example_descriptors
+    examples = pre.examples.example_descriptors
     d = descriptor(pre, u)
     w = simplex_weights(examples, d)
     scale = float(np.linalg.norm(examples, axis=1).max())
@@ -279,7 +280,8 @@ def closest_example(pre: Precomputed, u: np.ndarray, example_descriptors=None
             E = region.example_descriptors(pre.material.density)
             closest[region.name], distances[region.name] = nearest_shape(d, E, region.examples)
         return closest, distances
-    examples = pre.example_descriptors if example_descriptors is None else example_descriptors
+    examples = (pre.examples.example_descriptors if example_descriptors is None
+                else example_descriptors)
     if examples is None:
         raise LbshapeError(f"scene {pre.scene!r} has no examples to be closest to")
     return nearest_shape(descriptor(pre, u), examples)

@@ -112,6 +112,7 @@ from lbshape.pipeline.precomputed import (
     LBCubatures,
     LocalExamples,
     Precomputed,
+    ShapeBasis,
     artifact,
     required_arrays,
 )
@@ -539,18 +540,20 @@ def _projections(scene: Scene, mesh: TetMesh, U: np.ndarray, fixed: np.ndarray,
         return None, local._replace(space=local.space.projected(mesh, scene.material, U))
     density = scene.material.density
     spectrum, targets = shape.spectrum, shape.targets
+    names = [example_label(p) for p in scene.examples.poses]
     space = make_shape_space(
         spectrum.eigenvalues, spectrum.eigenvectors, spectrum.mass, mesh.points, U,
-        shape.coefficients, shape.embedded.alignments,
-        [example_label(p) for p in scene.examples.poses], density=density,
+        shape.coefficients, shape.embedded.alignments, names, density=density,
     )
     return GlobalExamples(
-        spectrum=spectrum, example_coefficients=space.example_coefficients,
+        shape=ShapeBasis(spectrum.eigenvalues, spectrum.eigenvectors, tuple(names), mesh,
+                         fixed),
+        density=density, example_coefficients=space.example_coefficients,
         projection=space.projection,
         projection_clamped=reduced_projection(U, targets.phi_clamped, spectrum.mass, density),
         alignment_residuals=space.alignment_residuals,
-        alignment_methods=np.array([METHODS.index(m) for m in space.alignment_methods],
-                                   dtype=np.int64),
+        alignment_method_codes=np.array([METHODS.index(m) for m in space.alignment_methods],
+                                        dtype=np.int64),
         target_table=targets.table, target_clamped=targets.clamped,
         lb_cubatures=shape.lb_cubatures), None
 

@@ -7,6 +7,17 @@ both directions: :func:`artifact` turns the stages' results into (arrays, meta),
 cached artifact of a scene must hold. Bump :data:`PIPELINE_VERSION` whenever what is
 stored, or what it means, changes.
 
+**Parts.** A :class:`Precomputed` is composed of records, each present as a whole or
+None: :class:`ElasticSpace` (every scene: U, ω², the reduced force model),
+:class:`ShapeBasis` (scenes with examples, global or local: the object's LB eigenpairs
+and the examples' names), :class:`GlobalExamples` (global examples: coefficients, maps
+to reduced coordinates, target table, LB cubatures; also what the example stages hand
+to :func:`artifact`), the local-example shape space
+(:class:`~lbshape.shapespace.local_examples.LocalShapeSpace`), a free body's
+:class:`~lbshape.dynamics.fictitious.FrameTensors`, and :class:`StageReport` (how the
+artifact was built). ``pre.U``, ``pre.r``, ``pre.has_examples`` and
+``pre.has_local_examples`` are kept on the record itself.
+
 **Shape-space maps** (:mod:`lbshape.shapespace.projections`): ``projection`` is stored
 in the reduced coordinates of the dynamics, ``T = Uᵀ M L`` (U orthonormal in the
 elastic mass ``M = ρ M₃``): the examples' reduced coordinates are ``T c`` with no
@@ -62,170 +73,62 @@ class ForceCoefficients(NamedTuple):
     pair_quartic: np.ndarray  #: (P, P) D̃
 
 
-class LBCubatures(NamedTuple):
-    """The per-example cubatures of the LB displacement subspace (the ``lb`` route)."""
-
-    elements: np.ndarray  #: (k, s) int64, one row per example, padded with element -1
-    weights: np.ndarray  #: (k, s), padded with weight 0
-    errors: np.ndarray  #: (2,) the largest training and held-out errors over the examples
-
-
-class GlobalExamples(NamedTuple):
-    """What the example stages of a scene with global examples store."""
-
-    spectrum: LBSpectrum  #: the object's LB spectrum (m pairs)
-    example_coefficients: np.ndarray  #: (k, m, 3)
-    projection: np.ndarray  #: (r, 3m) ``T = Uᵀ M L``
-    projection_clamped: np.ndarray  #: (r, 3m) the same for the clamped basis L_F
-    alignment_residuals: np.ndarray  #: (k,)
-    alignment_methods: np.ndarray  #: (k,) int: index into ``basis_choice.METHODS``
-    target_table: TargetTable | None  #: the exact target tabulated, or None
-    target_clamped: bool  #: the table and LB cubatures use the clamped basis
-    lb_cubatures: LBCubatures
-
-
-class LocalExamples(NamedTuple):
-    """What the stages of a scene with local examples (regions) store."""
-
-    space: LocalShapeSpace
-    spectrum: LBSpectrum  #: the whole object's LB spectrum (pictures, measurements)
-
-
 @dataclass(frozen=True)
-class Precomputed:
-    """Everything the runtime of a scene needs (n-sized arrays only for output).
+class ElasticSpace:
+    """The reduced elastic dynamics of every scene: the basis, its frequencies and the
+    reduced force model.
 
     Attributes:
-        scene: scene name.
-        key: cache key.
-        mesh: object rest mesh.
-        material: the scene's material.
-        fixed_vertices: (f,) fixed vertex indices (empty for a free object).
-        U: (3n, r) nonlinear basis, ``Uᵀ M U = I`` (M the elastic mass).
+        U: (3n, r) nonlinear basis, ``Uᵀ M U = I`` (M the elastic mass, kg), in √kg⁻¹
+            (q in √kg·m).
         omega2: (k,) squared angular frequencies of the linear modes used (rad²/s²).
-        cubature_elements: (s,) element indices; ``cubature_weights`` (s,).
-        cubature_errors: training and held-out relative force errors.
+        cubature_elements: (s,) int64 element indices of the force cubature.
+        cubature_weights: (s,) their non-negative weights (dimensionless).
+        cubature_errors: the cubature's relative force errors: ``train``, ``holdout``,
+            ``tolerance`` and ``reached_tolerance``.
         force_model: the reduced elastic force of the engines: ``"polynomial"`` (exact,
             :attr:`force_coefficients`) or ``"cubature"``.
         force_coefficients: the :class:`ForceCoefficients` of the polynomial force
             model, or None.
-        eigenvalues: (m,) object's LB eigenvalues (1/m²) or None without examples.
-        eigenvectors: (n, m) object's LB eigenvectors (M₃-orthonormal) or None.
-        example_coefficients: (k, m, 3) example LB displacement coefficients or None.
-        projection: (r, 3m) ``T = Uᵀ M L``: LB displacement coefficients c to reduced
-            coordinates ``q = T c`` (:func:`~lbshape.shapespace.projections.reduced_projection`),
-            or None.
-        projection_clamped: (r, 3m) the same for the clamped basis ``L_F`` (faded to
-            zero at the fixed vertices), or None.
-        target_table: the :class:`~lbshape.shapespace.target_table.TargetTable` of the
-            exact target in the :attr:`target_boundary` LB basis, or None (no examples,
-            more than 3, or refused by its check).
-        target_boundary: ``"clamped"`` when the target routes use the LB basis faded to
-            zero at the fixed vertices (only with
-            :data:`~lbshape.pipeline.precompute.CLAMPED_TARGETS` and when it keeps the
-            examples' elements healthy,
-            :func:`~lbshape.shapespace.example_shapes.clamp_is_safe`), else ``"free"``;
-            the table and the per-example LB cubature use it.
-        alignment_residuals: (k,) basis alignment residuals or None.
-        alignment_method_codes: (k,) int index into
-            :data:`~lbshape.shapespace.basis_choice.METHODS` of each example's
-            alignment method (:attr:`alignment_methods`), or None.
-        lb_cubature_elements, lb_cubature_weights: cubature of the LB displacement
-            subspace (basis :meth:`lb_basis`), or None: (s,) shared by the examples or
-            (k, s) one row per example (padded with element -1, weight 0);
-            ``lb_cubature_errors`` (largest over the examples).
-        example_names: (k,) labels.
-        local: the local-example shape space (scenes with regions), or None.
-        frame: reduced rigid-frame tensors of a free body, or None (fixed object).
-        stage_seconds: wall time per stage (s) of the run that built the artifact.
-        stage_peak_mb: largest resident memory (MB) of the process during each stage of
-            that run; under MPI the sum of every rank's peak (the job's memory).
-        stage_ranks: the number of MPI ranks each stage of that run was distributed
-            over (1: rank 0 alone, or a serial run).
-        from_cache: True when loaded from the cache.
     """
 
-    scene: str
-    key: str
-    mesh: TetMesh
-    material: Material
-    fixed_vertices: np.ndarray
     U: np.ndarray
     omega2: np.ndarray
     cubature_elements: np.ndarray
     cubature_weights: np.ndarray
     cubature_errors: dict
-    eigenvalues: np.ndarray | None = None
-    eigenvectors: np.ndarray | None = None
-    example_coefficients: np.ndarray | None = None
-    projection: np.ndarray | None = None
-    alignment_residuals: np.ndarray | None = None
-    alignment_method_codes: np.ndarray | None = None
-    lb_cubature_elements: np.ndarray | None = None
-    lb_cubature_weights: np.ndarray | None = None
-    lb_cubature_errors: dict = field(default_factory=dict)
-    projection_clamped: np.ndarray | None = None
-    target_table: TargetTable | None = None
-    target_boundary: str = "free"
-    example_names: tuple[str, ...] = ()
-    local: LocalShapeSpace | None = None
-    frame: FrameTensors | None = None
-    stage_seconds: dict = field(default_factory=dict)
-    stage_peak_mb: dict = field(default_factory=dict)
-    stage_ranks: dict = field(default_factory=dict)
-    from_cache: bool = False
     force_model: str = "cubature"
     force_coefficients: ForceCoefficients | None = None
 
     @property
     def r(self) -> int:
+        """The number of reduced coordinates."""
         return int(self.U.shape[1])
 
-    @property
-    def alignment_methods(self) -> list[str]:
-        """(k,) each example's basis alignment method (``overlay`` or ``intrinsic``)."""
-        codes = [] if self.alignment_method_codes is None else self.alignment_method_codes
-        return [METHODS[int(c)] for c in codes]
+
+@dataclass(frozen=True)
+class ShapeBasis:
+    """The object's LB basis, which both kinds of examples (global and local) share.
+    Present whenever the scene has examples.
+
+    Attributes:
+        eigenvalues: (m,) the object's LB eigenvalues (1/m²), constant mode excluded.
+        eigenvectors: (n, m) Φ, M₃-orthonormal (M₃ the volume mass, m³).
+        example_names: (k,) the scene's example labels.
+        mesh: the object's rest mesh (the same as :attr:`Precomputed.mesh`).
+        fixed_vertices: (f,) the fixed vertices (the clamped basis is zero there).
+    """
+
+    eigenvalues: np.ndarray
+    eigenvectors: np.ndarray
+    example_names: tuple[str, ...]
+    mesh: TetMesh
+    fixed_vertices: np.ndarray
 
     @property
-    def has_examples(self) -> bool:
-        """Global examples (the whole object's shape space)."""
-        return self.example_coefficients is not None
-
-    @property
-    def has_local_examples(self) -> bool:
-        """Local examples by region (:attr:`local`)."""
-        return self.local is not None
-
-    # --- shape-space maps in the elastic reduced coordinates (see the module docstring)
-    @property
-    def lb_to_reduced(self) -> np.ndarray:
-        """(r, 3m) ``T``: maps LB displacement coefficients c to reduced coordinates q."""
-        return self.projection
-
-    @property
-    def descriptor_matrix(self) -> np.ndarray:
-        """(3m, r) ``D``: λ-weighted LB coefficients of ``U q`` are ``D q``."""
-        return descriptor_matrix(self.eigenvalues, self.projection, self.material.density)
-
-    @property
-    def example_descriptors(self) -> np.ndarray:
-        """(k, 3m) λ-weighted example displacement coefficients."""
-        return example_descriptors(self.eigenvalues, self.example_coefficients)
-
-    def example_rest_points(self, index: int, *, clamped: bool = False) -> np.ndarray:
-        """(n, 3) example ``index`` reconstructed on the object's mesh (its rest shape);
-        ``clamped``: with the clamped basis (no displacement at the fixed vertices)."""
-        return self.mesh.points + self.target_eigenvectors(clamped) @ \
-            self.example_coefficients[index]
-
-    def example_energy_elements(self, *, clamped: bool = False) -> np.ndarray:
-        """(e,) int64 the elements the example energies sum over
-        (:func:`~lbshape.shapespace.example_shapes.energy_elements` of the rest shapes
-        of :meth:`example_rest_points`)."""
-        k = self.example_coefficients.shape[0]
-        return energy_elements(self.mesh.points, self.mesh.tets, [
-            self.example_rest_points(i, clamped=clamped) for i in range(k)])
+    def m(self) -> int:
+        """The number of LB eigenpairs."""
+        return int(self.eigenvalues.shape[0])
 
     def target_eigenvectors(self, clamped: bool = False) -> np.ndarray:
         """(n, m) Φ, or Φ_F faded to zero at the fixed vertices when ``clamped``."""
@@ -237,11 +140,192 @@ class Precomputed:
         """(3n, 3m) dense ``L = Φ ⊗ I₃`` (node-major rows, column 3i+k); ``clamped``: L_F."""
         return block_basis(self.target_eigenvectors(clamped))
 
+
+class LBCubatures(NamedTuple):
+    """The cubature of the LB displacement subspace (the ``lb`` route, basis
+    :meth:`ShapeBasis.lb_basis`)."""
+
+    #: (k, s) int64, one row per example, padded with element -1 (or (s,) shared)
+    elements: np.ndarray
+    weights: np.ndarray  #: (k, s) (or (s,)), padded with weight 0
+    errors: np.ndarray  #: (2,) the largest training and held-out errors over the examples
+
+    @property
+    def named_errors(self) -> dict[str, float]:
+        """:attr:`errors` as ``{"train": …, "holdout": …}``."""
+        return {"train": float(self.errors[0]), "holdout": float(self.errors[1])}
+
+
+@dataclass(frozen=True)
+class GlobalExamples:
+    """The shape space of a scene with global examples (the whole object's): what its
+    example stages produce and the artifact stores, in the elastic reduced coordinates
+    (see the module docstring).
+
+    Attributes:
+        shape: the LB basis the coefficients are in (:attr:`Precomputed.shape`).
+        density: ρ (kg/m³) of the elastic mass ``M = ρ M₃`` U is orthonormal in.
+        example_coefficients: (k, m, 3) the examples' LB displacement coefficients (m).
+        projection: (r, 3m) ``T = Uᵀ M L``: LB displacement coefficients c to reduced
+            coordinates ``q = T c``
+            (:func:`~lbshape.shapespace.projections.reduced_projection`).
+        alignment_residuals: (k,) basis alignment residuals.
+        alignment_method_codes: (k,) int index into
+            :data:`~lbshape.shapespace.basis_choice.METHODS` of each example's
+            alignment method (:attr:`alignment_methods`).
+        projection_clamped: (r, 3m) the same as :attr:`projection` for the clamped basis
+            ``L_F`` (faded to zero at the fixed vertices), or None.
+        target_table: the :class:`~lbshape.shapespace.target_table.TargetTable` of the
+            exact target in the :attr:`target_boundary` LB basis, or None (more than 3
+            examples, or refused by its check).
+        target_clamped: the target routes use the LB basis faded to zero at the fixed
+            vertices (only with :data:`~lbshape.pipeline.precompute.CLAMPED_TARGETS` and
+            when it keeps the examples' elements healthy,
+            :func:`~lbshape.shapespace.example_shapes.clamp_is_safe`); the table and the
+            per-example LB cubatures use it.
+        lb_cubatures: the per-example cubatures of the LB displacement subspace, or None.
+    """
+
+    shape: ShapeBasis
+    density: float
+    example_coefficients: np.ndarray
+    projection: np.ndarray
+    alignment_residuals: np.ndarray
+    alignment_method_codes: np.ndarray | None = None
+    projection_clamped: np.ndarray | None = None
+    target_table: TargetTable | None = None
+    target_clamped: bool = False
+    lb_cubatures: LBCubatures | None = None
+
+    @property
+    def k(self) -> int:
+        """The number of examples."""
+        return int(self.example_coefficients.shape[0])
+
+    @property
+    def alignment_methods(self) -> list[str]:
+        """(k,) each example's basis alignment method (``overlay`` or ``intrinsic``)."""
+        codes = [] if self.alignment_method_codes is None else self.alignment_method_codes
+        return [METHODS[int(c)] for c in codes]
+
+    @property
+    def target_boundary(self) -> str:
+        """``"clamped"`` or ``"free"``: the LB basis of the target routes
+        (:attr:`target_clamped`)."""
+        return "clamped" if self.target_clamped else "free"
+
+    @property
+    def lb_to_reduced(self) -> np.ndarray:
+        """(r, 3m) ``T``: maps LB displacement coefficients c to reduced coordinates q."""
+        return self.projection
+
     def lb_to_reduced_for(self, *, clamped: bool) -> np.ndarray:
         """(r, 3m) the map of LB coefficients to reduced coordinates for L or L_F."""
         if clamped and self.projection_clamped is not None:
             return self.projection_clamped
         return self.lb_to_reduced
+
+    @property
+    def descriptor_matrix(self) -> np.ndarray:
+        """(3m, r) ``D``: λ-weighted LB coefficients of ``U q`` are ``D q``."""
+        return descriptor_matrix(self.shape.eigenvalues, self.projection, self.density)
+
+    @property
+    def example_descriptors(self) -> np.ndarray:
+        """(k, 3m) λ-weighted example displacement coefficients."""
+        return example_descriptors(self.shape.eigenvalues, self.example_coefficients)
+
+    def rest_points(self, index: int, *, clamped: bool = False) -> np.ndarray:
+        """(n, 3) example ``index`` reconstructed on the object's mesh (its rest shape, m);
+        ``clamped``: with the clamped basis (no displacement at the fixed vertices)."""
+        return self.shape.mesh.points + self.shape.target_eigenvectors(clamped) @ \
+            self.example_coefficients[index]
+
+    def energy_elements(self, *, clamped: bool = False) -> np.ndarray:
+        """(e,) int64 the elements the example energies sum over
+        (:func:`~lbshape.shapespace.example_shapes.energy_elements` of the rest shapes
+        of :meth:`rest_points`)."""
+        mesh = self.shape.mesh
+        return energy_elements(mesh.points, mesh.tets, [
+            self.rest_points(i, clamped=clamped) for i in range(self.k)])
+
+
+class LocalExamples(NamedTuple):
+    """What the stages of a scene with local examples (regions) produce."""
+
+    space: LocalShapeSpace
+    spectrum: LBSpectrum  #: the whole object's LB spectrum (pictures, measurements)
+
+
+@dataclass(frozen=True)
+class StageReport:
+    """How the artifact was built (per stage name).
+
+    Attributes:
+        seconds: wall time per stage (s) of the run that built the artifact.
+        peak_mb: largest resident memory (MB) of the process during each stage of that
+            run; under MPI the sum of every rank's peak (the job's memory).
+        ranks: the number of MPI ranks each stage of that run was distributed over
+            (1: rank 0 alone, or a serial run).
+        from_cache: True when loaded from the cache.
+    """
+
+    seconds: dict = field(default_factory=dict)
+    peak_mb: dict = field(default_factory=dict)
+    ranks: dict = field(default_factory=dict)
+    from_cache: bool = False
+
+
+@dataclass(frozen=True)
+class Precomputed:
+    """Everything the runtime of a scene needs (n-sized arrays only for output),
+    composed of its parts, each present as a whole or None.
+
+    Attributes:
+        scene: scene name.
+        key: cache key.
+        mesh: object rest mesh.
+        material: the scene's material.
+        fixed_vertices: (f,) fixed vertex indices (empty for a free object).
+        elastic: the basis U and the reduced force model (:class:`ElasticSpace`).
+        shape: the object's LB basis (:class:`ShapeBasis`), or None without examples.
+        examples: the global examples' shape space (:class:`GlobalExamples`), or None.
+        local: the local-example shape space (scenes with regions), or None.
+        frame: reduced rigid-frame tensors of a free body, or None (fixed object).
+        stages: how the artifact was built (:class:`StageReport`).
+    """
+
+    scene: str
+    key: str
+    mesh: TetMesh
+    material: Material
+    fixed_vertices: np.ndarray
+    elastic: ElasticSpace
+    shape: ShapeBasis | None = None
+    examples: GlobalExamples | None = None
+    local: LocalShapeSpace | None = None
+    frame: FrameTensors | None = None
+    stages: StageReport = field(default_factory=StageReport)
+
+    @property
+    def U(self) -> np.ndarray:
+        """(3n, r) the elastic basis (:attr:`ElasticSpace.U`)."""
+        return self.elastic.U
+
+    @property
+    def r(self) -> int:
+        """The number of reduced coordinates."""
+        return self.elastic.r
+
+    @property
+    def has_examples(self) -> bool:
+        """Global examples (the whole object's shape space, :attr:`examples`)."""
+        return self.examples is not None
+
+    @property
+    def has_local_examples(self) -> bool:
+        """Local examples by region (:attr:`local`)."""
+        return self.local is not None
 
     # --- the stored form
     @classmethod
@@ -250,31 +334,26 @@ class Precomputed:
         """The precompute stored as (arrays, meta) by :func:`artifact`."""
         mesh = TetMesh(np.asarray(arrays["points"]), np.asarray(arrays["tets"]),
                        *_groups_from_arrays(arrays))
-        has_examples = "example_coefficients" in arrays
-        return cls(
-            scene=scene.name, key=key, mesh=mesh, material=scene.material,
-            fixed_vertices=np.asarray(arrays["fixed"], dtype=np.int64),
+        fixed = np.asarray(arrays["fixed"], dtype=np.int64)
+        polynomial = "poly_K" in arrays
+        elastic = ElasticSpace(
             U=np.asarray(arrays["U"]), omega2=np.asarray(arrays["omega2"]),
             cubature_elements=np.asarray(arrays["cub_elements"], dtype=np.int64),
             cubature_weights=np.asarray(arrays["cub_weights"]),
             cubature_errors=meta.get("cubature_errors", {}),
-            eigenvalues=arrays.get("eigenvalues"),
-            eigenvectors=arrays.get("eigenvectors"),
-            example_coefficients=arrays.get("example_coefficients") if has_examples else None,
-            projection=arrays.get("projection") if has_examples else None,
-            alignment_residuals=arrays.get("alignment_residuals") if has_examples else None,
-            alignment_method_codes=arrays.get("alignment_methods") if has_examples else None,
-            lb_cubature_elements=(np.asarray(arrays["lb_cub_elements"], dtype=np.int64)
-                                  if has_examples else None),
-            lb_cubature_weights=arrays.get("lb_cub_weights") if has_examples else None,
-            lb_cubature_errors=({"train": float(arrays["lb_cub_errors"][0]),
-                                 "holdout": float(arrays["lb_cub_errors"][1])}
-                                if has_examples else {}),
-            projection_clamped=arrays.get("projection_clamped") if has_examples else None,
-            target_table=TargetTable.from_arrays(arrays) if has_examples else None,
-            target_boundary=("clamped" if has_examples and int(np.asarray(
-                arrays.get("target_clamped", [0]))[0]) else "free"),
-            example_names=tuple(meta.get("example_names", ())),
+            force_model="polynomial" if polynomial else "cubature",
+            force_coefficients=(ForceCoefficients(np.asarray(arrays["poly_K"]),
+                                                  np.asarray(arrays["poly_cubic"]),
+                                                  np.asarray(arrays["poly_quartic"]))
+                                if polynomial else None))
+        shape = (ShapeBasis(arrays["eigenvalues"], arrays["eigenvectors"],
+                            tuple(meta.get("example_names", ())), mesh, fixed)
+                 if "eigenvalues" in arrays else None)
+        return cls(
+            scene=scene.name, key=key, mesh=mesh, material=scene.material,
+            fixed_vertices=fixed, elastic=elastic, shape=shape,
+            examples=(_examples_from_arrays(arrays, shape, scene.material.density)
+                      if "example_coefficients" in arrays else None),
             local=(LocalShapeSpace.from_arrays(meta["local_regions"], arrays,
                                                meta.get("local_representation_errors", {}))
                    if "local_regions" in meta else None),
@@ -282,16 +361,27 @@ class Precomputed:
                                           else np.asarray(arrays[f"frame_{name}"]))
                                    for name in FRAME_FIELDS})
                    if "frame_G" in arrays else None),
-            stage_seconds=dict(meta.get("stage_seconds", {})),
-            stage_peak_mb=dict(meta.get("stage_peak_mb", {})),
-            stage_ranks=dict(meta.get("stage_ranks", {})),
-            from_cache=from_cache,
-            force_model="polynomial" if "poly_K" in arrays else "cubature",
-            force_coefficients=(ForceCoefficients(np.asarray(arrays["poly_K"]),
-                                                  np.asarray(arrays["poly_cubic"]),
-                                                  np.asarray(arrays["poly_quartic"]))
-                                if "poly_K" in arrays else None),
+            stages=StageReport(seconds=dict(meta.get("stage_seconds", {})),
+                               peak_mb=dict(meta.get("stage_peak_mb", {})),
+                               ranks=dict(meta.get("stage_ranks", {})),
+                               from_cache=from_cache),
         )
+
+
+def _examples_from_arrays(arrays: dict, shape: ShapeBasis, density: float) -> GlobalExamples:
+    """Inverse of :func:`_example_arrays`."""
+    return GlobalExamples(
+        shape=shape, density=float(density),
+        example_coefficients=arrays["example_coefficients"],
+        projection=arrays["projection"],
+        alignment_residuals=arrays["alignment_residuals"],
+        alignment_method_codes=arrays.get("alignment_methods"),
+        projection_clamped=arrays.get("projection_clamped"),
+        target_table=TargetTable.from_arrays(arrays),
+        target_clamped=bool(int(np.asarray(arrays.get("target_clamped", [0]))[0])),
+        lb_cubatures=LBCubatures(np.asarray(arrays["lb_cub_elements"], dtype=np.int64),
+                                 arrays["lb_cub_weights"], np.asarray(arrays["lb_cub_errors"])),
+    )
 
 
 def artifact(scene: Scene, *, mesh: TetMesh, fixed: np.ndarray, U: np.ndarray,
@@ -350,12 +440,12 @@ def _example_arrays(examples: GlobalExamples) -> dict[str, np.ndarray]:
         **({} if table is None else table.to_arrays()),
         "projection_clamped": examples.projection_clamped,
         "target_clamped": np.array([int(examples.target_clamped)], dtype=np.int64),
-        "eigenvalues": examples.spectrum.eigenvalues,
-        "eigenvectors": examples.spectrum.eigenvectors,
+        "eigenvalues": examples.shape.eigenvalues,
+        "eigenvectors": examples.shape.eigenvectors,
         "example_coefficients": examples.example_coefficients,
         "projection": examples.projection,
         "alignment_residuals": examples.alignment_residuals,
-        "alignment_methods": np.asarray(examples.alignment_methods, dtype=np.int64),
+        "alignment_methods": np.asarray(examples.alignment_method_codes, dtype=np.int64),
     }
 
 

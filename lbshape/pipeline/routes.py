@@ -7,10 +7,10 @@ routes differ in the coordinates z, the basis B that maps them to displacements
 
 * ``modal`` (the paper's): z = reduced coordinates q (r,), ``B = U`` (3n, r), the
   elastic cubature of the precompute; the examples enter through the direct
-  projection ``q_k = T c_k`` (``T`` = :attr:`Precomputed.lb_to_reduced`).
+  projection ``q_k = T c_k`` (``T`` = :attr:`GlobalExamples.lb_to_reduced`).
 * ``lb``: z = LB displacement coefficients c (3m,), ``B = L = Φ ⊗ I₃`` (3n, 3m),
   the cubature trained on the LB displacement subspace by the precompute's
-  ``lb-cubature`` stage (:attr:`Precomputed.lb_cubature_elements`; the scene's s,
+  ``lb-cubature`` stage (:attr:`GlobalExamples.lb_cubatures`; the scene's s,
   seeded, poses as large as the examples); the target maps to reduced
   coordinates through ``T``.
 * ``lb-exact`` (StVK only): z = c, ``B = L``, the energy summed over all elements
@@ -29,9 +29,9 @@ routes differ in the coordinates z, the basis B that maps them to displacements
   Newton step(s) per time step.
 
 In every route example k's energy is that of its rest shape ``X_k = X + B_Φ c_k``
-(the example reconstructed on the object's mesh, :meth:`Precomputed.example_rest_points`),
+(the example reconstructed on the object's mesh, :meth:`GlobalExamples.rest_points`),
 so ``E_k(0) = 0`` and a single example is its own target, summed over the same
-elements (:meth:`Precomputed.example_energy_elements`: those no example's
+elements (:meth:`GlobalExamples.energy_elements`: those no example's
 reconstruction squeezes, :mod:`lbshape.shapespace.example_shapes`; the ``modal``
 route's cubature keeps its elements among them, the ``lb`` cubature is trained on them).
 
@@ -39,7 +39,7 @@ route's cubature keeps its elements among them, the ``lb`` cubature is trained o
 clamped there, so the examples' LB displacements ``Φ c_k`` keep a part at the fixed
 vertices that no reduced coordinate can represent. With ``boundary="clamped"`` (the
 default when the precompute found it safe, see
-:attr:`~lbshape.pipeline.precomputed.Precomputed.target_boundary`) every route uses
+:attr:`~lbshape.pipeline.precomputed.GlobalExamples.target_boundary`) every route uses
 the clamped basis ``L_F = Φ_F ⊗ I₃`` (Φ faded to zero at the fixed vertices,
 :func:`lbshape.shapespace.clamped_basis.clamped_eigenvectors`) for the examples' rest
 shapes, the target coordinates and the direct projection; ``boundary="free"`` keeps Φ
@@ -92,7 +92,7 @@ class InterpolationRoute:
         basis: (3n, p) node-major B: the displacement of coordinates z is ``B z``
             in metres (``U`` or ``L``). For output and error measurements only.
         elements: (s,) element indices the energies sum over (every one of
-            :meth:`Precomputed.example_energy_elements` for ``euclidean`` and ``lb-exact``).
+            :meth:`GlobalExamples.energy_elements` for ``euclidean`` and ``lb-exact``).
         weights: (s,) their non-negative weights (dimensionless).
         cubature_errors: the cubature's relative force errors (``train``,
             ``holdout``) as recorded by the precompute; empty without a cubature.
@@ -157,7 +157,7 @@ def target_solver(
         tracking: ``max_iterations`` warm-started Newton steps per call by design (see
             :class:`~lbshape.shapespace.interpolation.TargetSolver`).
         boundary: ``"clamped"`` or ``"free"`` LB basis; default: the precompute's
-            :attr:`~lbshape.pipeline.precomputed.Precomputed.target_boundary` (``lb-table``:
+            :attr:`~lbshape.pipeline.precomputed.GlobalExamples.target_boundary` (``lb-table``:
             that one only).
 
     Returns:
@@ -169,16 +169,17 @@ def target_solver(
     """
     if route not in ROUTES:
         raise LbshapeError(f"unknown interpolation route {route!r} (routes: {', '.join(ROUTES)})")
-    boundary = pre.target_boundary if boundary is None else boundary
+    if boundary is None:
+        boundary = "free" if pre.examples is None else pre.examples.target_boundary
     if boundary not in BOUNDARIES:
         raise LbshapeError(f"boundary must be one of {BOUNDARIES}, got {boundary!r}")
     check_precomputed(pre)
     clamped = boundary == "clamped"
     if route == "lb-table":
-        if boundary != pre.target_boundary:
-            raise LbshapeError(f"the lb-table route is tabulated in the {pre.target_boundary} "
-                               "LB basis only")
-        if pre.target_table is None:
+        if boundary != pre.examples.target_boundary:
+            raise LbshapeError("the lb-table route is tabulated in the "
+                               f"{pre.examples.target_boundary} LB basis only")
+        if pre.examples.target_table is None:
             fallback = "lb-exact" if pre.material.model == "stvk" else "lb"
             log.info("no target table in the precompute of %s: the lb-table route follows the "
                      "%s target with %d warm-started Newton step(s) per time step", pre.scene,
@@ -205,15 +206,15 @@ def target_solver(
 def _table_route(pre: Precomputed, *, clamped: bool) -> InterpolationRoute:
     """The ``lb-table`` route: the precompute's table, mapped to reduced coordinates."""
     started = time.perf_counter()
-    k = pre.example_coefficients.shape[0]
-    lb_to_reduced = pre.lb_to_reduced_for(clamped=clamped)
-    table = pre.target_table
+    k = pre.examples.example_coefficients.shape[0]
+    lb_to_reduced = pre.examples.lb_to_reduced_for(clamped=clamped)
+    table = pre.examples.target_table
     table.set_reduced_map(lb_to_reduced)
-    solver = TableSolver(table, [None] * k, pre.example_coefficients.reshape(k, -1))
+    solver = TableSolver(table, [None] * k, pre.examples.example_coefficients.reshape(k, -1))
     check = table.check
     return InterpolationRoute(
         route="lb-table", solver=solver, to_reduced=lb_to_reduced,
-        basis=pre.lb_basis(clamped=clamped), elements=np.zeros(0, dtype=np.int64),
+        basis=pre.shape.lb_basis(clamped=clamped), elements=np.zeros(0, dtype=np.int64),
         weights=np.zeros(0), seconds=time.perf_counter() - started,
         cubature_errors={} if check is None else {"table_max_error": check.max_error})
 
@@ -233,39 +234,40 @@ class _RouteEnergies(NamedTuple):
 def _route_energies(pre: Precomputed, route: str, *, clamped: bool) -> _RouteEnergies:
     """The example energies of ``route`` (not ``lb-table``) on the examples' rest shapes,
     over the example energies' elements (see the module docstring)."""
-    k = pre.example_coefficients.shape[0]
-    coefficients = pre.example_coefficients.reshape(k, -1)
+    k = pre.examples.example_coefficients.shape[0]
+    coefficients = pre.examples.example_coefficients.reshape(k, -1)
     tets, material = pre.mesh.tets, pre.material
-    lb_to_reduced = pre.lb_to_reduced_for(clamped=clamped)
-    rests = [pre.example_rest_points(i, clamped=clamped) for i in range(k)]
-    kept = pre.example_energy_elements(clamped=clamped)  # n-sized: set-up only
+    lb_to_reduced = pre.examples.lb_to_reduced_for(clamped=clamped)
+    rests = [pre.examples.rest_points(i, clamped=clamped) for i in range(k)]
+    kept = pre.examples.energy_elements(clamped=clamped)  # n-sized: set-up only
     if route in ("euclidean", "lb-exact"):
         energy = EuclideanExampleEnergy if route == "euclidean" else StVKPolynomialEnergy
-        basis = pre.lb_basis(clamped=clamped)
+        basis = pre.shape.lb_basis(clamped=clamped)
         models = [energy(x, tets[kept], material, basis) for x in rests]
         return _RouteEnergies(models, coefficients, lb_to_reduced, basis, kept,
                               np.ones(kept.size), {})
     if route == "modal":
-        inside = np.isin(pre.cubature_elements, kept)
+        inside = np.isin(pre.elastic.cubature_elements, kept)
         if not inside.all():  # none on the built-in scenes (docs/architecture.md)
-            share = pre.cubature_weights[~inside].sum() / pre.cubature_weights.sum()
+            share = pre.elastic.cubature_weights[~inside].sum() / pre.elastic.cubature_weights.sum()
             log.warning("modal route: %d of %d cubature elements are squeezed by the "
                         "examples and left out (%.1f %% of the weight); the others keep "
                         "their weights", int((~inside).sum()), inside.size, 100 * share)
         basis = pre.U
-        elements, weights = pre.cubature_elements[inside], pre.cubature_weights[inside]
+        elements = pre.elastic.cubature_elements[inside]
+        weights = pre.elastic.cubature_weights[inside]
         models = [ReducedForceModel(x, tets, material, basis, elements, weights)
                   for x in rests]
         return _RouteEnergies(models, coefficients @ lb_to_reduced.T, None, basis, elements,
-                              weights, dict(pre.cubature_errors))
+                              weights, dict(pre.elastic.cubature_errors))
     rules = _lb_cubature(pre, k)
-    basis = pre.lb_basis(clamped=clamped)
+    basis = pre.shape.lb_basis(clamped=clamped)
     models = [ReducedForceModel(x, tets, material, basis, e, w)
               for x, (e, w) in zip(rests, rules, strict=True)]
     elements = np.unique(np.concatenate([e for e, _ in rules]))
     return _RouteEnergies(models, coefficients, lb_to_reduced, basis, elements,
                           np.ones(elements.size),
-                          dict(getattr(pre, "lb_cubature_errors", {}) or {}))
+                          pre.examples.lb_cubatures.named_errors)
 
 
 def example_driver(pre: Precomputed, *, route: str, **options):
@@ -277,8 +279,8 @@ def example_driver(pre: Precomputed, *, route: str, **options):
         **options: keyword options of :func:`target_solver`.
     """
     setup = target_solver(pre, route, **options)
-    return ExampleDriver(pre.descriptor_matrix, pre.example_descriptors, setup.solver,
-                         to_reduced=setup.to_reduced)
+    return ExampleDriver(pre.examples.descriptor_matrix, pre.examples.example_descriptors,
+                         setup.solver, to_reduced=setup.to_reduced)
 
 
 def exact_route(pre: Precomputed) -> str:
@@ -294,19 +296,20 @@ def check_precomputed(pre: Precomputed) -> None:
     (n, m), its eigenvalues (m,), the example coefficients (k, m, 3), the basis U
     (3n, r) and the direct projection (r, 3m) agree in n, m and r.
     """
-    if not pre.has_examples or pre.eigenvectors is None or pre.projection is None \
-            or pre.eigenvalues is None:
+    if not pre.has_examples or pre.shape is None or pre.shape.eigenvectors is None \
+            or pre.examples.projection is None or pre.shape.eigenvalues is None:
         raise LbshapeError(
             f"scene {pre.scene!r} has no examples: there is no interpolation target to set up"
         )
     n = pre.mesh.n_vertices
-    phi = np.asarray(pre.eigenvectors)
+    phi = np.asarray(pre.shape.eigenvectors)
     if phi.ndim != 2 or phi.shape[0] != n:
         raise LbshapeError(f"LB eigenvectors must have shape (n={n}, m), got {phi.shape}")
     m = phi.shape[1]
-    if np.shape(pre.eigenvalues) != (m,):
-        raise LbshapeError(f"expected {m} LB eigenvalues, got shape {np.shape(pre.eigenvalues)}")
-    c = np.asarray(pre.example_coefficients)
+    if np.shape(pre.shape.eigenvalues) != (m,):
+        raise LbshapeError(
+            f"expected {m} LB eigenvalues, got shape {np.shape(pre.shape.eigenvalues)}")
+    c = np.asarray(pre.examples.example_coefficients)
     if c.ndim != 3 or c.shape[0] < 1 or c.shape[2] != 3:
         raise LbshapeError(f"example coefficients must have shape (k, m, 3), got {c.shape}")
     if c.shape[1] != m:
@@ -319,24 +322,24 @@ def check_precomputed(pre: Precomputed) -> None:
     r = pre.r
     if pre.U.shape[0] != 3 * n:
         raise LbshapeError(f"basis U must have shape (3n={3 * n}, r), got {pre.U.shape}")
-    if np.shape(pre.projection) != (r, 3 * m):
+    if np.shape(pre.examples.projection) != (r, 3 * m):
         raise LbshapeError(
-            f"direct projection must have shape (r={r}, 3m={3 * m}), got {np.shape(pre.projection)}"
+            f"direct projection must have shape (r={r}, 3m={3 * m}), "
+            f"got {np.shape(pre.examples.projection)}"
         )
 
 
 def _lb_cubature(pre: Precomputed, k: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """The precompute's LB-subspace cubature per example: k pairs (elements (s_k,),
     weights (s_k,)); a shared (s,) rule is repeated."""
-    elements = getattr(pre, "lb_cubature_elements", None)
-    weights = getattr(pre, "lb_cubature_weights", None)
-    if elements is None or weights is None:
+    lb = pre.examples.lb_cubatures
+    if lb is None or lb.elements is None or lb.weights is None:
         raise LbshapeError(
             f"the precompute of scene {pre.scene!r} has no LB-subspace cubature; "
             "re-run 'lbshape precompute --force' for the 'lb' interpolation route"
         )
-    elements = np.asarray(elements, dtype=np.int64)
-    weights = np.asarray(weights, dtype=float)
+    elements = np.asarray(lb.elements, dtype=np.int64)
+    weights = np.asarray(lb.weights, dtype=float)
     if elements.ndim == 1:
         return [(elements, weights)] * k
     if elements.shape[0] != k or weights.shape != elements.shape:

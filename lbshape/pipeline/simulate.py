@@ -198,17 +198,17 @@ def reduced_force_model(pre: Precomputed, *, exact_forces: bool = False):
         every = np.arange(pre.mesh.n_tets, dtype=np.int64)
         return ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U, every,
                                  np.ones(pre.mesh.n_tets))
-    if pre.force_model == "polynomial":
-        return PolynomialForceModel.from_arrays(*pre.force_coefficients)
+    if pre.elastic.force_model == "polynomial":
+        return PolynomialForceModel.from_arrays(*pre.elastic.force_coefficients)
     return ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U,
-                             pre.cubature_elements, pre.cubature_weights)
+                             pre.elastic.cubature_elements, pre.elastic.cubature_weights)
 
 
 def force_elements(pre: Precomputed) -> int:
     """How many elements the reduced force sums over: every one for the polynomials, s
     for the cubature."""
-    return pre.mesh.n_tets if pre.force_model == "polynomial" else int(
-        pre.cubature_elements.size)
+    return pre.mesh.n_tets if pre.elastic.force_model == "polynomial" else int(
+        pre.elastic.cubature_elements.size)
 
 
 def _contact(scene: Scene, pre: Precomputed, center):
@@ -252,8 +252,8 @@ def full_simulation(scene: Scene, pre: Precomputed) -> FullSpaceSimulator:
     k_ex = example_stiffness(scene, pre)
     examples, local = None, None
     if k_ex > 0 and pre.has_examples:
-        examples = FullSpaceExamples(pre.eigenvalues, pre.eigenvectors,
-                                     pre.example_coefficients, k_ex)
+        examples = FullSpaceExamples(pre.shape.eigenvalues, pre.shape.eigenvectors,
+                                     pre.examples.example_coefficients, k_ex)
     elif k_ex > 0:  # local examples (example_stiffness is 0 without any examples)
         local = (FullSpaceLocalForce(pre.mesh, pre.material, pre.local), k_ex)
     contact = None
@@ -331,7 +331,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "dt": scene.simulation.dt, "steps": record.steps,
         "t_interp_ms": t_interp, "t_total_ms": t_total,
         "stable": bool(record.stable), "max_displacement": max_disp, "phase_ms": phase_ms,
-        "forces": "full" if method == "full" else pre.force_model,
+        "forces": "full" if method == "full" else pre.elastic.force_model,
     }
     totals = record.t_total_ms[WARMUP_STEPS:] if record.steps > WARMUP_STEPS else record.t_total_ms
     output = SimulationOutput(stats, record.times, frames, record.message, phase_ms=phase_ms,

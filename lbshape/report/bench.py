@@ -457,7 +457,7 @@ def bench_scene(
         settings = (paper_result, lbshape)
     return SceneBenchmark(scene.name, float(scene.simulation.dt), steps, repeats, WARMUP_STEPS,
                           rows, tuple(timings[m] for m in methods), effects,
-                          force_model=pre.force_model, settings=settings)
+                          force_model=pre.elastic.force_model, settings=settings)
 
 
 #: the key of the paper's setting's reduced runs among a benchmark's interleaved jobs
@@ -468,7 +468,7 @@ def _runs_setting(scene, pre, paper: PaperSetting) -> bool:
     """True when the scene as written already runs ``paper``'s sizes and force model."""
     red = scene.reduced
     return ((int(red.m), int(red.r), int(red.s)) == (paper.m, paper.r, paper.s)
-            and pre.force_model == paper.forces)
+            and pre.elastic.force_model == paper.forces)
 
 
 def _full_reference(scene, pre, *, steps: int):
@@ -789,14 +789,14 @@ def speed_error_sweep(
             free = _errors_apart_from_examples(variant, pre, outputs["reduced"],
                                                references[m], references_none, m,
                                                steps=steps, mass=mass)
-        holdout = pre.cubature_errors.get("holdout")
+        holdout = pre.elastic.cubature_errors.get("holdout")
         total = timing.summary("t_total_ms")
         points.append(SweepPoint(
-            m=m, r=pre.r, s_max=s, s=int(pre.cubature_elements.size),
+            m=m, r=pre.r, s_max=s, s=int(pre.elastic.cubature_elements.size),
             t_interp_ms=timing.summary("t_interp_ms")["median"], t_total_ms=total["median"],
             t_total_min_ms=total["min"], t_total_max_ms=total["max"], error_vs_full=error,
             cubature_holdout_error=None if holdout is None else float(holdout),
-            forces=pre.force_model, r_asked=r, **free,
+            forces=pre.elastic.force_model, r_asked=r, **free,
         ))
         log.info("sweep %s: %s", scene.name, points[-1])
     return tuple(points)

@@ -136,8 +136,8 @@ def simulation_figures(out: Path) -> dict:
     twist = {name: end_twist_degrees(pre.mesh.points, run.displacements[-1])
              for name, run in runs.items()}
     rest = pre.mesh.points
-    example_twist = [end_twist_degrees(rest, pre.example_rest_points(k) - rest)
-                     for k in range(len(pre.example_names))]
+    example_twist = [end_twist_degrees(rest, pre.examples.rest_points(k) - rest)
+                     for k in range(len(pre.shape.example_names))]
 
     compared = [("no examples (reduced)", runs["reduced_no_examples"]),
                 ("examples (reduced)", runs["reduced"]),
@@ -156,11 +156,11 @@ def simulation_figures(out: Path) -> dict:
     summary = {
         "scene": scene.name,
         "precompute_seconds": precompute_seconds,
-        "precompute_from_cache": pre.from_cache,
-        "stage_seconds": pre.stage_seconds,
-        "alignment_residuals": [float(r) for r in pre.alignment_residuals],
-        "alignment_methods": pre.alignment_methods,
-        "cubature_errors": pre.cubature_errors,
+        "precompute_from_cache": pre.stages.from_cache,
+        "stage_seconds": pre.stages.seconds,
+        "alignment_residuals": [float(r) for r in pre.examples.alignment_residuals],
+        "alignment_methods": pre.examples.alignment_methods,
+        "cubature_errors": pre.elastic.cubature_errors,
         **{name: run.stats for name, run in runs.items()},
         "error_vs_full": error,
         "speedup_t_total": runs["full"].stats["t_total_ms"] / runs["reduced"].stats["t_total_ms"],

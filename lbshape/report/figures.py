@@ -199,24 +199,24 @@ def examples_figures(scene, pre, out_dir: str | Path) -> tuple[Path, Path]:
     """``examples_on_object.png`` and ``examples_raw.png`` in ``out_dir``.
 
     The first shows the object at rest and each example reconstructed on the
-    object's mesh from its LB coefficients (``pre.example_rest_points(k)``); the
+    object's mesh from its LB coefficients (``pre.examples.rest_points(k)``); the
     second the example meshes as given, posed.
     """
     if not pre.has_examples or scene.examples is None:
         raise LbshapeError(f"scene {scene.name} has no examples to draw")
     out_dir = Path(out_dir)
-    count = len(pre.example_names)
+    count = len(pre.shape.example_names)
     captions = [example_caption(k, pose) for k, pose in enumerate(scene.examples.poses)]
     if len(captions) != count:
         raise LbshapeError(f"scene {scene.name} has {len(captions)} examples, its precompute "
                            f"{count}")
-    reconstructed = [pre.mesh.with_points(pre.example_rest_points(k)) for k in range(count)]
+    reconstructed = [pre.mesh.with_points(pre.examples.rest_points(k)) for k in range(count)]
     on_object = render_shapes(
         [pre.mesh, *reconstructed],
-        ["object (rest)", *(f"{caption}, on object (m={pre.eigenvalues.size})"
+        ["object (rest)", *(f"{caption}, on object (m={pre.shape.eigenvalues.size})"
                             for caption in captions)],
         out_dir / "examples_on_object.png",
-        scalars=[None, *(np.linalg.norm(pre.example_rest_points(k) - pre.mesh.points, axis=1)
+        scalars=[None, *(np.linalg.norm(pre.examples.rest_points(k) - pre.mesh.points, axis=1)
                          for k in range(count))],
         scalar_name="|x_k - X| (m)",
     )
@@ -335,8 +335,8 @@ def eigenfunctions_figure(scene, pre, path: str | Path, *, count: int = 4) -> Pa
     Uses the precomputed spectrum, or computes ``scene.reduced.m`` pairs for a
     scene without examples.
     """
-    if pre.eigenvectors is not None:
-        values, vectors = pre.eigenvalues, pre.eigenvectors
+    if pre.shape is not None:
+        values, vectors = pre.shape.eigenvalues, pre.shape.eigenvectors
     else:
         spectrum = lb_spectrum(pre.mesh, max(count, scene.reduced.m))
         values, vectors = spectrum.eigenvalues, spectrum.eigenvectors
@@ -521,10 +521,10 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
         messages.append(output.message)
         count = len(output.times)
         picks = np.unique(np.linspace(0, count - 1, frames + 1).round().astype(int)[1:])
-        shown = rest if index == 0 else every.example_rest_points(index - 1)
+        shown = rest if index == 0 else every.examples.rest_points(index - 1)
         picked = body_deformations(scalar_mass, rest, np.asarray(output.displacements)[picks])
         final = picked[-1]
-        closest.append(closest_example(every, final, every.example_descriptors)[0])
+        closest.append(closest_example(every, final, every.examples.example_descriptors)[0])
         rows.append([every.mesh.with_points(shown),
                      *(_deformed(pre, output.displacements[i]) for i in picks)])
         captions = [f"{name} t={output.times[i]:.2f} s" for i in picks]
@@ -798,8 +798,8 @@ def examples_comparison(scene, pre, output, path: str | Path, *,
             (f"examples ({method}), influence{frame} {final}\n"
              f"visible change {100 * influence.visible_change:.1f} %, "
              f"{_closest_caption(influence.closest_example, range(len(names)))}", output)]
-    shown = [(f"{names[k]} (on object)", pre.example_rest_points(k))
-             for k in range(len(pre.example_names))]
+    shown = [(f"{names[k]} (on object)", pre.examples.rest_points(k))
+             for k in range(len(pre.shape.example_names))]
     extent = np.ptp(pre.mesh.points, axis=0)
     bar = not scene.is_free and extent[2] >= 2.5 * max(extent[0], extent[1])
     free = {"fixed_camera": True, "zoom": TRAJECTORY_ZOOM} if scene.is_free else {}

@@ -9,7 +9,7 @@ vertices:
   fresh subprocess, so the peak memory is that size's own: wall time, the peak resident
   memory of the process (``wait4``'s ``ru_maxrss``; under MPI the largest rank), and the
   per-stage seconds and peak memory the precompute records
-  (:attr:`~lbshape.pipeline.precomputed.Precomputed.stage_seconds`, ``stage_peak_mb``,
+  (:attr:`~lbshape.pipeline.precomputed.StageReport.seconds`, ``peak_mb``,
   rank 0's). With ``ranks > 1`` the subprocess is
   ``mpirun --allow-run-as-root -n ranks``.
 * **per-step time** — the reduced simulation of every size in this process (threads as
@@ -193,8 +193,8 @@ def run_scaling(sizes: Sequence[float] = DEFAULT_SIZES, *, scene: str = DEFAULT_
             point = ScalingPoint(
                 size=float(size), n_vertices=pre.mesh.n_vertices, n_tets=pre.mesh.n_tets,
                 ranks=ranks, wall_seconds=wall, peak_mb=peak,
-                stage_seconds=dict(pre.stage_seconds), stage_peak_mb=dict(pre.stage_peak_mb),
-                target_table=(pre.target_table is not None) if pre.has_examples else None,
+                stage_seconds=dict(pre.stages.seconds), stage_peak_mb=dict(pre.stages.peak_mb),
+                target_table=(pre.examples.target_table is not None) if pre.has_examples else None,
                 r=int(pre.r))
             points.append(point)
             runs.append((loaded, pre))

@@ -421,11 +421,11 @@ def _trial(variant, reference, mass, *, steps: int, repeats: int) -> Trial:
     t_total = float(np.median([run.stats["t_total_ms"] for run in runs]))
     if runs[0].message:
         return Trial(red.m, red.r, red.s, s, t_interp, t_total,
-                     note=f"stopped: {runs[0].message}", forces=pre.force_model)
+                     note=f"stopped: {runs[0].message}", forces=pre.elastic.force_model)
     err = trajectory_error(runs[0].displacements, reference.displacements, mass,
                            times=runs[0].times, times_full=reference.times)
     return Trial(red.m, red.r, red.s, s, t_interp, t_total, float(err),
-                 forces=pre.force_model)
+                 forces=pre.elastic.force_model)
 
 
 # ----------------------------------------------------------------------------- output
