@@ -27,10 +27,8 @@ from lbshape.dynamics.drag import DragSpring, explicit_stiffness_limit
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.simulate import WARMUP_STEPS, reduced_simulation
+from lbshape.pipeline.simulation import DRAG_RATE
 from lbshape.scene.schema import Scene
-
-#: the drag spring's default stiffness per kg of the object (N/m per kg = 1/s²)
-DRAG_RATE = 2000.0
 #: at most this much simulated time (s) is owed per frame: a slower frame lets the
 #: simulation fall behind the clock instead of spiralling
 MAX_FRAME_DEBT = 0.1
