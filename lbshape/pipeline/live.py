@@ -29,6 +29,7 @@ from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.simulate import WARMUP_STEPS, reduced_simulation
 from lbshape.pipeline.simulation import DRAG_RATE
 from lbshape.scene.schema import Scene
+
 #: at most this much simulated time (s) is owed per frame: a slower frame lets the
 #: simulation fall behind the clock instead of spiralling
 MAX_FRAME_DEBT = 0.1

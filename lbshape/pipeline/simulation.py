@@ -1,10 +1,11 @@
 """The engine-agnostic handle of a running scene: :class:`Simulation`.
 
 A :class:`Simulation` holds a scene, its precompute, the method and the engine that
-:mod:`lbshape.pipeline.simulate` sets up for it (:func:`~lbshape.pipeline.simulate.reduced_simulation`
-for ``reduced`` and ``euclidean``, :func:`~lbshape.pipeline.simulate.full_simulation` for
-``full``), and drives it through the engine protocol (:class:`lbshape.dynamics.engine.Engine`):
-the same calls, the same units and the same (n, 3) displacement for every method::
+:mod:`lbshape.pipeline.simulate` sets up for it
+(:func:`~lbshape.pipeline.simulate.reduced_simulation` for ``reduced`` and ``euclidean``,
+:func:`~lbshape.pipeline.simulate.full_simulation` for ``full``), and drives it through the
+engine protocol (:class:`lbshape.dynamics.engine.Engine`): the same calls, the same units
+and the same (n, 3) displacement for every method::
 
     sim = simulation(scene, pre, method="reduced")
     for _ in range(300):
