@@ -85,7 +85,7 @@ def _check_snippet(out: dict, n: int, dt: float, steps: int) -> None:
         assert result["shape"] == [n, 3]  # every engine: (n, 3)
         assert result["time"] == pytest.approx(steps * dt, rel=1e-12)
         assert result["max"] > 0.0
-        assert result["rest"] == 0.0 and result["state_time"] == 0.0
+        assert result["rest"] <= 1e-12 and result["state_time"] == 0.0  # round-off: free body
         assert result["stable"] and result["record_steps"] == steps
         assert result["after_reset"] == pytest.approx(steps * dt, rel=1e-12)
 

@@ -52,7 +52,7 @@ print(f"{scene.name}: {steps} steps, r = {pre.r}; relative error at the end {err
 fig, ax = plt.subplots(figsize=(6, 3.5))
 ax.plot(times, 100 * error, color="tab:blue")
 ax.set_xlabel("time (s)")
-ax.set_ylabel("relative error (%)")
+ax.set_ylabel("|u_reduced - u_full| / max |u_full| (%)")
 ax.set_title(f"{scene.name}: reduced (r = {pre.r}) against full ({pre.mesh.n_vertices} vertices)")
 ax.grid(alpha=0.3)
 fig.tight_layout()
