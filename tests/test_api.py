@@ -156,8 +156,8 @@ def test_scene_from_arrays_in_memory_writes_only_the_cache(tmp_path):
             material={"young": 2e5, "density": 1000.0}, reduced={"m": 6, "r": 10, "s": 20},
             examples=[{"pose": "twist", "parameters": {"angle": 0.8, "axis": "x"}}, bent],
             example_stiffness=500.0, dt=0.005, steps=10)
-        pre = lbshape.precompute(scene)
-        sim = lbshape.simulation(scene, pre)
+        sim = lbshape.simulation(scene)  # precomputes it (into the cache)
+        pre = sim.pre
         record = sim.run(10)
         again = lbshape.precompute(lbshape.Scene.from_mesh(
             (points.copy(), tets.copy()), name="bar-in-memory", fixed="x < 1e-6",
