@@ -9,6 +9,10 @@ number, an unsafe region expression or a missing mesh file raises
 path, e.g. ``scene bar.toml: unknown key 'material.yung'``. The schema is in
 :mod:`lbshape.scene.schema`; the choices come from the modules that own them
 (shapes, poses, materials, interpolation routes, integrators, load profiles).
+
+A document built in code (:func:`lbshape.scene.build.scene_from_mesh`) may give a
+:class:`~lbshape.geometry.mesh.TetMesh` for an object's or an example's ``mesh`` (or an
+example's ``rest``): a mesh in memory, checked as a file's mesh is.
 """
 
 from __future__ import annotations
