@@ -218,7 +218,8 @@ def test_from_mesh_examples_from_code():
             "example_stiffness": 1.0}, "'examples.pose[0].pose' must be one of"),
     (None, {"examples": [np.zeros((3, 3))], "example_stiffness": 1.0}, "posed points"),
     (None, {"examples": [{"pose": "arc", "parameters": {"angle": 1}}]},
-     "missing required key 'examples.stiffness'"),
+     "examples need example_stiffness"),
+    (None, {"example_stiffness": 10.0}, "'examples.pose' needs at least 1 entries"),
     (None, {"loads": [{"type": "gravity"}]}, "'loads[0].vector'"),
 ])
 def test_bad_input_to_from_mesh_is_a_one_line_error(mesh, options, message):

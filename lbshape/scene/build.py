@@ -98,10 +98,11 @@ def scene_from_mesh(
     if examples or example_stiffness is not None:
         if isinstance(examples, Mapping | TetMesh | np.ndarray):
             raise LbshapeError(f"{label}: 'examples' must be a list of example poses")
-        data["examples"] = {"pose": [_example(entry, obj, f"{label}: examples[{k}]")
+        if example_stiffness is None:  # the keyword's name, not the file's key path
+            raise LbshapeError(f"{label}: examples need example_stiffness (k_ex in 1/s^2)")
+        data["examples"] = {"stiffness": _plain(example_stiffness),
+                            "pose": [_example(entry, obj, f"{label}: examples[{k}]")
                                      for k, entry in enumerate(examples)]}
-        if example_stiffness is not None:
-            data["examples"]["stiffness"] = _plain(example_stiffness)
     for key, value in (("loads", loads), ("planes", planes), ("regions", regions)):
         if value:
             data[key] = _plain(list(value))
