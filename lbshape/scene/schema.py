@@ -2,8 +2,8 @@
 
 A scene is a TOML file read and validated by :mod:`lbshape.scene.reader`, or built in
 code around a mesh in memory (``Scene.from_mesh``, :mod:`lbshape.scene.build`, through
-the same checks); these classes only hold what it found. Nothing here builds meshes, applies poses or
-selects vertices: that is :mod:`lbshape.pipeline.meshes`.
+the same checks); these classes only hold what it found. Nothing here builds meshes,
+applies poses or selects vertices: that is :mod:`lbshape.pipeline.meshes`.
 
 Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
 
