@@ -233,3 +233,39 @@ def test_simulation_rejects_an_unknown_method():
     scene = lbshape.Scene.from_mesh(_box(), fixed="x < 1e-6")
     with pytest.raises(LbshapeError, match="method must be one of"):
         lbshape.simulation(scene, object(), method="implicit")
+
+
+@pytest.mark.parametrize("method", ["reduced", "full"])
+def test_grab_pulls_and_state_comes_back(method):
+    scene = lbshape.load_scene("demo")
+    sim = lbshape.simulation(scene, lbshape.precompute(scene), method=method)
+    assert sim.set_examples(False) is False and sim.set_examples(True) is True
+    sim.run(5)
+    state = sim.state
+    after = sim.run(5)
+    again = (sim.reset(state), sim.run(5))[1]
+    np.testing.assert_array_equal(again.states, after.states)
+    # a pull towards 2 cm along +x of a bottom vertex (the top is fixed), from the same state
+    sim.reset(state)
+    bottom = np.flatnonzero(sim.rest_points[:, 2] < 1e-3)
+    vertex = int(bottom[np.argmax(sim.rest_points[bottom, 0])])
+    start = sim.points()[vertex].copy()
+    target = start + [0.02, 0.0, 0.0]
+    sim.grab(vertex, target)
+    assert sim.drag.stiffness == pytest.approx(sim.drag_stiffness)
+    sim.run(20)
+    pulled = np.linalg.norm(sim.points()[vertex] - target)
+    sim.release()
+    assert sim.drag is None
+    sim.reset(state)
+    sim.run(20)
+    free = np.linalg.norm(sim.points()[vertex] - target)
+    assert pulled < 0.9 * free  # the pull brought it nearer its target
+    sim.grab(vertex)  # default target: where it is
+    sim.move(start)
+    np.testing.assert_array_equal(sim.drag.target, start)
+    sim.reset()  # rest at t = 0, the pull released
+    assert sim.time == 0.0 and sim.drag is None
+    assert np.abs(sim.displacement()).max() == 0.0
+    with pytest.raises(LbshapeError, match="vertex must be an index"):
+        sim.grab(sim.n_vertices)
