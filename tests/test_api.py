@@ -102,8 +102,9 @@ def test_snippet_runs_in_a_fresh_interpreter_for_every_method():
 
 def test_snippet_runs_a_free_body():
     steps = 5
+    # the free-body engine and the full one (euclidean is the reduced engine, another target)
     out = json.loads(_python(SNIPPET.format(scene="bar-s-cuboid", steps=steps,
-                                            methods=("reduced",))))
+                                            methods=("reduced", "full"))))
     scene = lbshape.load_scene("bar-s-cuboid")
     assert scene.is_free
     pre = lbshape.precompute(scene)  # cached by the interpreter above
