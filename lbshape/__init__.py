@@ -1,5 +1,18 @@
 """lbshape: real-time example-based elastic materials in Laplace-Beltrami shape space.
 
+The public API (:mod:`lbshape.api`, names in ``__all__``)::
+
+    import lbshape
+    scene = lbshape.load_scene("bar-cuboid")            # or lbshape.Scene.from_mesh(mesh, ...)
+    pre = lbshape.precompute(scene)                     # cached
+    sim = lbshape.simulation(scene, pre, method="reduced")   # "reduced" | "euclidean" | "full"
+    for _ in range(300):
+        sim.step()
+    u = sim.displacement()                              # (n, 3) world displacement, m
+
+``import lbshape`` is light: the API's modules (numerics, FEM) load on the first use of
+one of its names.
+
 Conventions used throughout the package:
 
 * SI units (metres, kilograms, seconds, pascals).
@@ -9,4 +22,51 @@ Conventions used throughout the package:
   ``u[3*i + c]`` the component ``c`` of vertex ``i``.
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
 __version__ = "0.1.0"
+
+__all__ = [
+    "LbshapeError",
+    "RunRecord",
+    "Scene",
+    "Simulation",
+    "SolverError",
+    "TetMesh",
+    "lb_spectrum",
+    "load_scene",
+    "precompute",
+    "read_mesh",
+    "simulation",
+]
+
+if TYPE_CHECKING:
+    from lbshape.api import (
+        LbshapeError,
+        RunRecord,
+        Scene,
+        Simulation,
+        SolverError,
+        TetMesh,
+        lb_spectrum,
+        load_scene,
+        precompute,
+        read_mesh,
+        simulation,
+    )
+
+
+def __getattr__(name: str):
+    """The API's names, loaded from :mod:`lbshape.api` on first use (PEP 562)."""
+    if name in __all__:
+        value = getattr(importlib.import_module("lbshape.api"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'lbshape' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *__all__])

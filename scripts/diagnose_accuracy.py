@@ -34,6 +34,7 @@ import time
 
 import numpy as np
 
+from lbshape.dynamics.engine import NewtonSettings
 from lbshape.dynamics.rigid_frame import best_rigid_frame
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
@@ -56,6 +57,7 @@ SCENES = ("bar-cuboid", "cross", "car", "teddy-global", "teddy-local")
 STRIDE = 5
 #: relative Newton residual of the converged variants
 CONVERGED_RTOL = 1e-10
+CONVERGED_NEWTON = NewtonSettings(CONVERGED_RTOL, 20)
 JSON_PATH = RESULTS_DIR / "accuracy_diagnosis.json"
 MD_PATH = RESULTS_DIR / "accuracy_diagnosis.md"
 
@@ -191,9 +193,9 @@ def diagnose(name: str) -> dict:
                                           points=pre.mesh.points),
                "reduced": error(u_red, u_full, mass)}
         if not free:
-            u_conv, _ = reduced(sc, what="converged", rtol=CONVERGED_RTOL)
+            u_conv, _ = reduced(sc, what="converged", newton=CONVERGED_NEWTON)
             row["reduced_converged_newton"] = error(u_conv, u_full, mass)
-            u_exact, _ = reduced(sc, what="exact forces", rtol=CONVERGED_RTOL,
+            u_exact, _ = reduced(sc, what="exact forces", newton=CONVERGED_NEWTON,
                                  exact_forces=True)
         else:
             u_exact, _ = reduced(sc, what="exact forces", exact_forces=True)

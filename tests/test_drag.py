@@ -1,6 +1,8 @@
-"""The user's drag spring (:mod:`lbshape.dynamics.drag`) in both engines, against closed
-forms: a fixed object's static equilibrium under the spring (complete basis, small pull:
-linear elasticity) and a free body's momentum and angular momentum impulse over a step."""
+"""The user's drag (:class:`~lbshape.dynamics.engine.Drag`, reduced by
+:mod:`lbshape.dynamics.drag`) in the engines, against closed forms: a fixed object's static
+equilibrium under the spring (complete basis, small pull: linear elasticity), the same pull
+on the full-space engine, and a free body's momentum and angular momentum impulse over a
+step."""
 
 from __future__ import annotations
 
@@ -8,9 +10,11 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from lbshape.dynamics.drag import DragSpring, explicit_stiffness_limit
+from lbshape.dynamics.drag import explicit_stiffness_limit
+from lbshape.dynamics.engine import Drag
 from lbshape.dynamics.fictitious import frame_tensors
 from lbshape.dynamics.free_body import FreeBodySimulation
+from lbshape.dynamics.full import FullSpaceSimulator
 from lbshape.dynamics.reduced import ReducedSimulation
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
@@ -46,9 +50,8 @@ def test_fixed_object_settles_where_spring_and_elasticity_balance(clamped):
     k = 5e4
     elastic = _elastic(mesh, U)
     sim = ReducedSimulation(elastic, r=U.shape[1], dt=0.01, integrator="backward-euler",
-                            alpha=30.0)
-    drag = DragSpring(vertex, rows, mesh.points[vertex], k, mesh.points[vertex] + offset)
-    sim.set_drag(drag)
+                            alpha=30.0, basis=U, rest_points=mesh.points)
+    sim.set_drag(Drag(vertex, mesh.points[vertex] + offset, k))
     for _ in range(400):
         sim.step()
     _, K0 = elastic.force_and_tangent(np.zeros(U.shape[1]))
@@ -74,7 +77,7 @@ def test_free_body_gets_the_spring_impulse_and_its_moment():
     U = V[:, 6:14]
     frame = frame_tensors(mesh.points, mesh.tets, mass, U)
     dt = 1e-3
-    sim = FreeBodySimulation(_elastic(mesh, U), frame, dt=dt)
+    sim = FreeBodySimulation(_elastic(mesh, U), frame, dt=dt, basis=U, rest_points=mesh.points)
     vertex = int(np.argmax(mesh.points[:, 2]))
     rows = U[3 * vertex:3 * vertex + 3]
     body_point = mesh.points[vertex] - frame.center
@@ -82,8 +85,9 @@ def test_free_body_gets_the_spring_impulse_and_its_moment():
     limit = explicit_stiffness_limit(rows, dt, mass=frame.mass,
                                      arm=float(np.linalg.norm(body_point)),
                                      inertia=float(np.linalg.eigvalsh(frame.inertia0)[0]))
-    k = min(2e4, limit)
-    sim.set_drag(DragSpring(vertex, rows, body_point, k, target))
+    k = min(2e4, limit)  # the engine caps the stiffness asked for
+    sim.set_drag(Drag(vertex, target, 2e4))
+    assert sim.drag.stiffness == k
     sim.step()
     force = k * (target - mesh.points[vertex])  # at the start of the step (rest)
     rigid = sim.rigid
@@ -94,6 +98,33 @@ def test_free_body_gets_the_spring_impulse_and_its_moment():
     sim.set_drag(None)
     sim.step()
     assert np.allclose(sim.rigid.momentum, dt * force, rtol=1e-12, atol=1e-15)
+
+
+def test_full_and_reduced_engines_hold_the_same_pull_and_let_go(clamped):
+    """One drag on the full-space engine and on the reduced engine (complete basis) of the
+    same fixed bar: the same steady displacement of the vertex; released, back to rest."""
+    mesh, U = clamped
+    vertex = int(np.argmax(mesh.points @ np.array([1.0, 1.0, 10.0])))
+    target = mesh.points[vertex] + np.array([2e-4, -1e-4, 0.5e-4])
+    drag = Drag(vertex, target, 5e4)
+    fixed = np.flatnonzero(mesh.points[:, 2] <= 1e-9)
+    options = dict(dt=0.01, integrator="backward-euler", alpha=30.0)
+    full = FullSpaceSimulator(mesh, MATERIAL, fixed_vertices=fixed, **options)
+    reduced = ReducedSimulation(_elastic(mesh, U), r=U.shape[1], basis=U,
+                                rest_points=mesh.points, **options)
+    moved = {}
+    for name, sim in (("full", full), ("reduced", reduced)):
+        sim.set_drag(drag)
+        for _ in range(300):
+            sim.step()
+        moved[name] = sim.displacement()[vertex]
+        assert 0.0 < moved[name] @ (target - mesh.points[vertex])
+        sim.set_drag(None)
+        for _ in range(300):
+            sim.step()
+        assert np.abs(sim.displacement()).max() < 1e-3 * np.linalg.norm(moved[name])
+    np.testing.assert_allclose(moved["reduced"], moved["full"], rtol=0,
+                               atol=0.02 * np.linalg.norm(moved["full"]))
 
 
 def test_explicit_limit_is_the_mobility_bound():

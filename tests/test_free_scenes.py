@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from lbshape.dynamics.engine import NewtonSettings
 from lbshape.dynamics.free_body import PHASES as FREE_BODY_PHASES
 from lbshape.dynamics.reduced import PHASES as FIXED_PHASES
 from lbshape.elastic.element_kernels import mass_matrix
@@ -183,7 +184,7 @@ def test_real_time_tolerances_follow_the_converged_free_body(monkeypatch):
     fast = real_time.run(300, stride=5)
     monkeypatch.setattr(free_body, "SWEEP_RTOL", 1e-9)
     converged = reduced_simulation(scene, pre)
-    converged.rtol = 1e-10
+    converged.newton = NewtonSettings(1e-10, converged.newton.max_iterations)
     tight = converged.run(300, stride=5)
     assert np.mean(fast.newton_iterations) < np.mean(tight.newton_iterations)
     assert real_time.total_sweeps > 300  # the wall impact was swept (408 sweeps)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from conftest import rel
 
+from lbshape.dynamics.engine import NewtonSettings
 from lbshape.dynamics.full import FullSpaceSimulator
 from lbshape.dynamics.loads import (
     TimedLoad,
@@ -60,7 +61,7 @@ def test_local_examples_full_space_is_the_reduced_method_in_a_complete_basis():
     full_sim = FullSpaceSimulator(
         mesh, MATERIAL, dt=dt, fixed_vertices=fixed, alpha=1.0, beta=1e-4, loads=[load],
         local_examples=(FullSpaceLocalForce(mesh, MATERIAL, space, tolerance=1e-10), k_ex),
-        newton_rtol=1e-12)
+        newton=NewtonSettings(1e-12, 20))
     weights = []
     full = full_sim.run(steps, on_step=lambda i, t, u: weights.append(full_sim.weights.copy()))
 
@@ -70,7 +71,8 @@ def test_local_examples_full_space_is_the_reduced_method_in_a_complete_basis():
                                   tolerance=1e-10)
     reduced = ReducedSimulation(elastic, r=free.size, dt=dt, alpha=1.0, beta=1e-4,
                                 loads=[TimedLoad(U.T @ load.pattern, load.profile)],
-                                driver=driver, k_ex=k_ex, rtol=1e-12, energy_factor=None)
+                                driver=driver, k_ex=k_ex, newton=NewtonSettings(1e-12, 20),
+                                energy_factor=None)
     record = reduced.run(steps)
     assert record.stable, record.message
     u_reduced = (np.asarray(record.states) @ U.T).reshape(full.displacements().shape)

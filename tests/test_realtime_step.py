@@ -10,6 +10,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
+from lbshape.dynamics.engine import NewtonSettings
 from lbshape.dynamics.integrators import make_stepper
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.reduced import REALTIME_RTOL, ReducedSimulation
@@ -73,7 +74,8 @@ def test_converged_step_matches_the_generic_implicit_stepper(demo, integrator):
     dt, alpha, beta = 1e-3, 0.5, 0.01
     fast = ReducedSimulation(model, r=pre.r, dt=dt, integrator=integrator, alpha=alpha,
                              beta=beta, loads=[TimedLoad(pattern, profile)],
-                             newton_iterations=None, rtol=1e-12)
+                             newton_iterations=None,
+                             newton=NewtonSettings(1e-12, 20))
     _, K0 = model.force_and_tangent(np.zeros(pre.r))
     reference = make_stepper(integrator, np.eye(pre.r), model.force_and_tangent, dt=dt,
                              external=lambda t: profile(t) * pattern, alpha=alpha, beta=beta,
@@ -93,7 +95,7 @@ def test_the_real_time_tolerance_stays_on_the_converged_trajectory(demo):
     (200x margin); it costs under 2 updates per step on average (measured 1.97)."""
     scene, pre = demo
     realtime = reduced_simulation(scene, pre).run(200)
-    converged = reduced_simulation(scene, pre, rtol=1e-12).run(200)
+    converged = reduced_simulation(scene, pre, newton=NewtonSettings(1e-12, 20)).run(200)
     q1, qc = realtime.states, converged.states
     difference = np.abs(q1 - qc).max() / np.abs(qc).max()
     assert realtime.stable and converged.stable
@@ -142,6 +144,6 @@ def test_a_newton_failure_ends_the_run_with_the_step_named(demo):
                               pre.elastic.cubature_elements, pre.elastic.cubature_weights)
     huge = TimedLoad(1e9 * np.ones(pre.r), TimeProfile("constant", 0.0, 0.0))
     record = ReducedSimulation(model, r=pre.r, dt=1e-3, loads=[huge], newton_iterations=None,
-                               max_iterations=2).run(50)
+                               newton=NewtonSettings(REALTIME_RTOL, 2)).run(50)
     assert not record.stable and record.steps < 50
     assert "Newton did not converge at step" in record.message, record.message

@@ -92,13 +92,24 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from lbshape.dynamics.contact import PlaneContact
-from lbshape.dynamics.drag import DragSpring
+from lbshape.dynamics.drag import DragSpring, explicit_stiffness_limit
+from lbshape.dynamics.engine import (
+    Drag,
+    EngineState,
+    NewtonSettings,
+    OnStep,
+    basis_rows,
+    check_run,
+    forget_warm_starts,
+    restore_arrays,
+    snapshot,
+)
 from lbshape.dynamics.fictitious import FrameTensors
 from lbshape.dynamics.free_body_kernels import (
     KICK_ROTATION_FAILED,
@@ -121,7 +132,7 @@ from lbshape.dynamics.kernels import axpy, lu_solve, predict
 from lbshape.dynamics.loads import TimeProfile
 from lbshape.dynamics.record import RunRecord
 from lbshape.dynamics.reduced import PHASES as FIXED_PHASES
-from lbshape.dynamics.reduced import REALTIME_RTOL
+from lbshape.dynamics.reduced import REALTIME_NEWTON
 from lbshape.dynamics.rigid_frame import RigidState, rotation_error
 from lbshape.dynamics.sanity import DeformationBound
 from lbshape.errors import LbshapeError, SolverError
@@ -246,12 +257,22 @@ class FreeBodyRecord(RunRecord):
 
     def displacements(self, basis: np.ndarray | None = None) -> np.ndarray:
         """(f, n, 3) world displacements ``x − X = c + R (X̄ + U q) − X`` (m); basis = U."""
-        if basis is None or self.rest_points is None:
-            raise LbshapeError("free-body displacements need the basis U and the rest points")
-        n = self.rest_points.shape[0]
-        local = self.body_points[None] + (self.states @ np.asarray(basis).T).reshape(-1, n, 3)
-        world = np.einsum("fij,fnj->fni", self.rotations, local) + self.centers[:, None, :]
-        return world - self.rest_points[None]
+        return world_displacements(self.centers, self.rotations, self.states, basis,
+                                   self.rest_points, self.body_points)
+
+
+def world_displacements(centers: np.ndarray, rotations: np.ndarray, states: np.ndarray,
+                        basis: np.ndarray | None, rest_points: np.ndarray | None,
+                        body_points: np.ndarray | None) -> np.ndarray:
+    """(f, n, 3) world displacements ``x − X = c + R (X̄ + U q) − X`` (m) of a free body at
+    f instants: centres (f, 3) m, rotations (f, 3, 3), deformations q (f, r), the basis U
+    (3n, r), the rest points X (n, 3) m and the body points X̄ = X − X_cm (n, 3) m."""
+    if basis is None or rest_points is None:
+        raise LbshapeError("free-body displacements need the basis U and the rest points")
+    n = rest_points.shape[0]
+    local = body_points[None] + (states @ np.asarray(basis).T).reshape(-1, n, 3)
+    world = np.einsum("fij,fnj->fni", rotations, local) + centers[:, None, :]
+    return world - rest_points[None]
 
 
 class FreeBodySimulation:
@@ -270,12 +291,15 @@ class FreeBodySimulation:
         velocity: (3,) initial velocity of the centre of mass (m/s, world).
         angular_velocity: (3,) initial angular velocity (rad/s, world).
         q0, qd0: (r,) initial deformation and its rate (default 0).
-        newton_rtol: relative Newton tolerance (the fixed objects' real-time
-            :data:`~lbshape.dynamics.reduced.REALTIME_RTOL`; 1e-8 took 1.24 ms per step on
-            the car against 1.07 ms, the same error against full to 4 digits);
-            ``max_iterations`` per step.
+        newton: the :class:`~lbshape.dynamics.engine.NewtonSettings` (default the fixed
+            objects' real-time :data:`~lbshape.dynamics.reduced.REALTIME_NEWTON`: rtol
+            :data:`~lbshape.dynamics.reduced.REALTIME_RTOL` — 1e-8 took 1.24 ms per step
+            on the car against 1.07 ms, the same error against full to 4 digits — and 20
+            iterations per step).
         rest_points: (n, 3) rest positions X (m), for the world displacements of the
-            record (optional).
+            record, :meth:`displacement` and :meth:`set_drag` (optional).
+        basis: (3n, r) the basis U, for :meth:`displacement` and :meth:`set_drag`
+            (optional).
         reuse_contact: reuse the previous step's last contact evaluation at the start
             of a step (same configuration; ``False`` evaluates it again, for checks).
         deformation_bound: the object's :class:`~lbshape.dynamics.sanity.DeformationBound`
@@ -307,11 +331,11 @@ class FreeBodySimulation:
         angular_velocity: Sequence[float] = (0.0, 0.0, 0.0),
         q0: np.ndarray | None = None,
         qd0: np.ndarray | None = None,
-        newton_rtol: float = REALTIME_RTOL,
-        max_iterations: int = 20,
+        newton: NewtonSettings = REALTIME_NEWTON,
         rest_points: np.ndarray | None = None,
         reuse_contact: bool = True,
         deformation_bound: DeformationBound | None = None,
+        basis: np.ndarray | None = None,
     ):
         self.rest_points = None if rest_points is None else np.asarray(rest_points, dtype=float)
         scheme = get_scheme(integrator)
@@ -323,6 +347,7 @@ class FreeBodySimulation:
         self.loads = list(loads)
         self._loads = LoadStack(self.loads, r)
         self.drag: DragSpring | None = None
+        self._drag_stiffness = 0.0  # the stiffness asked for (the spring's may be capped)
         self.driver = driver if (driver is not None and k_ex > 0.0) else None
         self.k_ex = float(k_ex) if self.driver is not None else 0.0
         self._in_place = self.driver is not None and hasattr(self.driver, "weights_into") \
@@ -330,7 +355,9 @@ class FreeBodySimulation:
         self.contact = contact
         self.reuse_contact = bool(reuse_contact)
         self.deformation_bound = deformation_bound
-        self.rtol, self.max_iterations = float(newton_rtol), int(max_iterations)
+        self.newton = newton
+        self.basis = None if basis is None else np.asarray(basis, dtype=float)
+        self._examples = (self.driver, self.k_ex)  # the configured example force
         self._into = hasattr(elastic, "force_and_tangent_into")
         self.q_target = np.zeros(r)
         q = np.zeros(r) if q0 is None else np.array(q0, dtype=float)
@@ -352,6 +379,7 @@ class FreeBodySimulation:
         self.sweeps = 0  # rigid kick + deformation solve passes of the last step (1: no sweep)
         self.total_sweeps = 0  # the same, summed over every step taken
         self._initial_state(q, qd, velocity, omega_world)
+        self._initial = self.state
 
     def _allocate(self, r: int) -> None:
         """The structures of the step (:mod:`lbshape.dynamics.free_body_kernels`) and the
@@ -404,12 +432,35 @@ class FreeBodySimulation:
         self.energy0 = self.energy()
         self.work = 0.0
 
-    def set_drag(self, drag: DragSpring | None) -> None:
-        """A user's drag spring (:class:`~lbshape.dynamics.drag.DragSpring`: a world point
-        force at a body point, evaluated at the start of each step and held over it; keep
-        its stiffness below :func:`~lbshape.dynamics.drag.explicit_stiffness_limit`) from
-        the next step on, or ``None`` to release it. The first drag adds one load to the
-        stack (zero while released)."""
+    def set_drag(self, drag: Drag | None) -> None:
+        """A user's point pull (:class:`~lbshape.dynamics.engine.Drag`) from the next step
+        on, or ``None`` to release it (needs ``basis`` and ``rest_points``): a
+        :class:`~lbshape.dynamics.drag.DragSpring` on the vertex's rows of the basis, a world
+        point force at the body point evaluated at the start of each step and held over it,
+        its stiffness capped at :func:`~lbshape.dynamics.drag.explicit_stiffness_limit`
+        (:attr:`drag` holds the capped spring). A drag on the same vertex with the same
+        stiffness moves the spring's target. The first drag adds one load to the stack
+        (zero while released)."""
+        if drag is None:
+            self._set_drag_spring(None)
+            return
+        if (self.drag is not None and self.drag.vertex == drag.vertex
+                and self._drag_stiffness == drag.stiffness):
+            self.drag.move(drag.target)
+            return
+        rows = basis_rows(self.basis, drag.vertex, "a drag")
+        if self.rest_points is None:
+            raise LbshapeError("a drag needs the rest points (give rest_points=...)")
+        body_point = self.rest_points[drag.vertex] - self.frame.center
+        limit = explicit_stiffness_limit(
+            rows, self.dt, mass=self.frame.mass, arm=float(np.linalg.norm(body_point)),
+            inertia=float(np.linalg.eigvalsh(self.frame.inertia0)[0]))
+        self._set_drag_spring(DragSpring(drag.vertex, rows, body_point,
+                                         min(drag.stiffness, limit), drag.target))
+        self._drag_stiffness = drag.stiffness
+
+    def _set_drag_spring(self, drag: DragSpring | None) -> None:
+        """The drag spring (or ``None``) into the load stack."""
         if drag is not None and self.drag is None and len(self._loads.profiles) == len(
                 self.loads):
             slot = FreeLoad(np.zeros(3), np.zeros((self.r, 3, 3)), np.zeros((3, 3)),
@@ -419,6 +470,52 @@ class FreeBodySimulation:
         if drag is None and len(self._loads.profiles) > len(self.loads):
             self._loads.forces[-1] = 0.0
             self._loads.P[-1] = self._loads.Z0[-1] = self._loads.Z1[-1] = 0.0
+
+    def set_examples(self, on: bool) -> bool:
+        """The configured example force (the constructor's ``driver``, ``k_ex``) on or off
+        from the next step on; returns whether it acts."""
+        driver, k_ex = self._examples if on else (None, 0.0)
+        self.set_example_force(driver, k_ex)
+        return self.driver is not None
+
+    def displacement(self) -> np.ndarray:
+        """(n, 3) world displacement ``c + R (X̄ + U q) − X`` of every vertex (m); needs
+        ``basis`` and ``rest_points``."""
+        state = self._now
+        body = None if self.rest_points is None else self.rest_points - self.frame.center
+        return world_displacements(state.c[None], state.R[None], state.q[None], self.basis,
+                                   self.rest_points, body)[0]
+
+    def _live_arrays(self) -> dict[str, np.ndarray]:
+        """The arrays that carry state and caches from one step to the next, by role."""
+        return {"now": self._now.data, "next": self._next.data,
+                "kick": self._kick_arrays.data, "solve": self._solve.data,
+                "scratch": self._scratch.data, "q_target": self.q_target, "dq": self._dq,
+                "dqt": self._dqt, "velocity": self._velocity, "omega": self._omega,
+                "rate6": self._rate6}
+
+    _SCALARS = ("time", "steps_taken", "work", "energy0", "_elastic_energy",
+                "_contact_calls", "sweeps", "total_sweeps")
+
+    @property
+    def state(self) -> EngineState:
+        """A snapshot (copies) of the state and the step's caches."""
+        return snapshot(self.time, self._live_arrays(),
+                        {name: getattr(self, name) for name in self._SCALARS})
+
+    def reset(self, state: EngineState | None = None) -> None:
+        """Back to ``state`` (from :attr:`state`) or, with ``None``, to the initial state at
+        t = 0 (the example target's warm start forgotten); examples and drag stay as
+        switched. The contact is evaluated afresh at the next step."""
+        if state is None:
+            state = self._initial
+            forget_warm_starts(self.driver)
+            forget_warm_starts(self._examples[0])
+        scalars = restore_arrays(state, self._live_arrays())
+        for name in self._SCALARS:
+            setattr(self, name, type(getattr(self, name))(scalars[name]))
+        self._contact_calls = -1  # the contact's arrays hold another configuration
+        self.phase_seconds = np.zeros((0, len(PHASES)))
 
     def set_example_force(self, driver, k_ex: float) -> None:
         """Switch the example force: ``driver`` and ``k_ex`` (1/s²) as in the
@@ -627,9 +724,9 @@ class FreeBodySimulation:
                               + self._ca_dt * qd_norm + qa_norm)
             if touching:
                 noise += self.contact.round_off(self._next.c, self._next.q)
-            if norm <= self.rtol * scale or norm <= noise:
+            if norm <= self.newton.rtol * scale or norm <= noise:
                 break
-            if iteration == self.max_iterations:
+            if iteration == self.newton.max_iterations:
                 raise SolverError(
                     f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
                     f"residual {norm / scale:.3e} after {iteration} iterations")
@@ -788,17 +885,13 @@ class FreeBodySimulation:
         return iterations
 
     # ------------------------------------------------------------------- run
-    def run(self, steps: int, *, stride: int = 1,
-            on_step: Callable[[int, float, np.ndarray], None] | None = None
+    def run(self, steps: int, *, stride: int = 1, on_step: OnStep | None = None
             ) -> FreeBodyRecord:
         """Advance ``steps`` steps keeping every ``stride``-th state (and the initial one);
         a failure ends the run with ``stable=False`` and the message. ``on_step`` is
         called after each step (outside its timing) with (step index from 0, time in s,
         q (r,))."""
-        stride = int(stride)
-        if int(steps) < 1 or stride < 1:
-            raise LbshapeError(f"steps and stride must be >= 1, got {steps} and {stride}")
-        steps = int(steps)
+        steps, stride = check_run(steps, stride)
         sampled = {key: [] for key in ("times", "states", "centers", "rotations", "momenta",
                                        "angular_momenta", "energies")}
         phases = np.zeros((steps, len(PHASES)))

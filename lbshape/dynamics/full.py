@@ -63,18 +63,25 @@ For a free body the steps above run in the best-fitting rigid frame of the curre
 shape (mass-weighted centre and polar-decomposition rotation): see
 :meth:`FullSpaceSimulator._update_free_target`.
 
+**A user's drag** (:meth:`FullSpaceSimulator.set_drag`): a spring ``k (x_target − x_i)``
+on one vertex, split as the reduced engine splits it (:mod:`lbshape.dynamics.drag`) into a
+spring ``k u_i`` (implicit: tangent ``k I₃`` on the vertex's free dofs, energy ``½ k |u_i|²``
+part of the potential) and the pull ``k (x_target − X_i)`` among the external loads, so
+that Newton's residual is measured against the pull, not against the vanishing difference
+of the drag and the elastic force at rest.
+
 **Failure.** A non-finite state, a Newton failure, an energy blow-up or a failed
-target solve raises :class:`FullSpaceDiverged` (a
-:class:`~lbshape.errors.SolverError`) naming the step and time; its ``partial``
-attribute holds the :class:`~lbshape.dynamics.record.RunRecord` of what was computed,
-for the caller to save.
+target solve raises a :class:`~lbshape.errors.SolverError` from
+:meth:`FullSpaceSimulator.step` naming the step and time;
+:meth:`FullSpaceSimulator.run` returns the record of what was computed with
+``stable=False`` and the message.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -86,6 +93,14 @@ from lbshape.dynamics.contact import (
     friction_force,
     plane_frictions,
     surface_vertices,
+)
+from lbshape.dynamics.engine import (
+    Drag,
+    EngineState,
+    NewtonSettings,
+    OnStep,
+    check_run,
+    snapshot,
 )
 from lbshape.dynamics.integrators import make_stepper
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
@@ -108,6 +123,8 @@ log = logging.getLogger(__name__)
 #: runs with a line search: the regularised friction is steep within its slip speed, and
 #: the car's wall impact took up to 23 iterations (2.6 per step on average)
 FRICTION_NEWTON_ITERATIONS = 60
+#: the full engine's default Newton settings (converged: the accuracy reference)
+FULL_NEWTON = NewtonSettings(1e-8, 20)
 
 
 @dataclass(frozen=True)
@@ -191,14 +208,6 @@ class FullSpaceContact:
         return force.ravel(), K, energy
 
 
-class FullSpaceDiverged(SolverError):
-    """The full-space simulation failed; ``partial`` holds what was computed."""
-
-    def __init__(self, message: str, partial: RunRecord):
-        super().__init__(message)
-        self.partial = partial
-
-
 class FullSpaceSimulator:
     """Implicit full-space FEM dynamics with the full-space example force.
 
@@ -218,9 +227,9 @@ class FullSpaceSimulator:
         initial_displacement: (n, 3) m, zero on fixed vertices (default 0).
         initial_velocity: (n, 3) m/s, zero on fixed vertices (default 0).
         target_tolerance: relative gradient tolerance of the target solve.
-        newton_rtol: relative Newton tolerance of the time step.
-        max_newton_iterations: Newton iterations per step before failing (with friction
-            at least :data:`FRICTION_NEWTON_ITERATIONS`).
+        newton: the :class:`~lbshape.dynamics.engine.NewtonSettings` of the time step
+            (default :data:`FULL_NEWTON`: rtol 1e-8, 20 iterations; with friction or a free
+            body's fitted example pull at least :data:`FRICTION_NEWTON_ITERATIONS`).
         contact: penalty contact with planes, or ``None``.
 
     Attributes:
@@ -252,13 +261,13 @@ class FullSpaceSimulator:
         initial_displacement: np.ndarray | None = None,
         initial_velocity: np.ndarray | None = None,
         target_tolerance: float = 1e-6,
-        newton_rtol: float = 1e-8,
-        max_newton_iterations: int = 20,
+        newton: NewtonSettings = FULL_NEWTON,
         contact: FullSpaceContact | None = None,
     ):
         n = mesh.n_vertices
+        self.newton, self.dt = newton, float(dt)
         self.contact = contact
-        friction = contact is not None and contact.has_friction
+        self._drag: Drag | None = None
         self.mesh = mesh
         self.material = material
         self.n_vertices = n
@@ -291,30 +300,41 @@ class FullSpaceSimulator:
         x0 = self._initial(initial_displacement, "initial_displacement")
         v0 = self._initial(initial_velocity, "initial_velocity")
         self._v_start = v0  # the friction's velocity while the stepper is set up
+        self._make_stepper(integrator, x0, v0, alpha, beta, K0_ff)
+        self._configured_k_ex = self._k_ex  # the example force set_examples switches
+        self._marks = np.zeros(3)  # start, after the target, end of the last step (s)
+        self._initial_state = self.state
+
+    def _make_stepper(self, integrator: str, x0, v0, alpha: float, beta: float,
+                      K0_ff: sp.csr_matrix) -> None:
+        """The :mod:`lbshape.dynamics.integrators` stepper on the free dofs."""
         # free body: the stiffness damping follows the body's rotation (see _corotate)
-        self._corotated_beta = float(beta) if (fixed.size == 0 and beta > 0) else 0.0
+        free_body = self.fixed_vertices.size == 0
+        self._corotated_beta = float(beta) if (free_body and beta > 0) else 0.0
         self._damping_rest = K0_ff if self._corotated_beta else None
         self._damping_now = K0_ff if self._corotated_beta else None
         if self._corotated_beta:
             beta = 0.0
         # a free body's global examples: the rigid-invariant fitted pull (_free_gap)
-        fitted_pull = bool(self._k_ex and self.fixed_vertices.size == 0 and self._local is None)
+        fitted_pull = bool(self._k_ex and free_body and self._local is None)
+        friction = self.contact is not None and self.contact.has_friction
+        newton = self.newton
         self.stepper = make_stepper(
             integrator,
             self._mass_ff,
             self._force_and_tangent,
-            dt=dt,
+            dt=self.dt,
             x0=x0,
             v0=v0,
-            external=self._external if (self._load_profiles or self._k_ex) else None,
+            external=self._external,
             alpha=alpha,
             beta=beta,
             damping_stiffness=K0_ff,
             potential=self._potential,
-            rtol=newton_rtol,
+            rtol=newton.rtol,
             atol=self._free_pull_round_off() if fitted_pull else 0.0,
-            max_iterations=(max(max_newton_iterations, FRICTION_NEWTON_ITERATIONS)
-                            if friction or fitted_pull else max_newton_iterations),
+            max_iterations=(max(newton.max_iterations, FRICTION_NEWTON_ITERATIONS)
+                            if friction or fitted_pull else newton.max_iterations),
             line_search=friction or fitted_pull,
             low_rank_tangent=(self._tangent_correction
                               if fitted_pull or self._corotated_beta else None),
@@ -422,6 +442,104 @@ class FullSpaceSimulator:
         u[self.free_dofs] = self.stepper.x if x is None else x
         return u.reshape(-1, 3)
 
+    def displacement(self) -> np.ndarray:
+        """(n, 3) world displacement ``x − X`` of every vertex (m), zero on fixed ones."""
+        return self.full_displacement()
+
+    # ------------------------------------------------------------ switches
+    def set_examples(self, on: bool) -> bool:
+        """The configured example force (global or local) on or off from the next step on;
+        returns whether it acts. The example spring's energy the switch adds or removes at
+        the current state counts as work for the energy monitor."""
+        k_ex = self._configured_k_ex if on else 0.0
+        if k_ex != self._k_ex:
+            x = self.stepper.x
+            before = self._example_energy(x)
+            self._k_ex = k_ex
+            self._pull_rigid = None  # the fitted pull's tangent part, of the last evaluation
+            self.stepper.credit_work(self._example_energy(x) - before)
+        return self.uses_examples
+
+    def set_drag(self, drag: Drag | None) -> None:
+        """A user's point pull from the next step on (``None``: released): the spring
+        ``k (x_target − x_i)`` on vertex i's free dofs, implicit (tangent ``k I₃``; see the
+        module docstring). The spring's energy the change adds or removes at the current
+        state counts as work for the energy monitor."""
+        x = self.stepper.x
+        before = self._drag_energy(x)
+        if drag is not None:
+            vertex = drag.vertex
+            if not 0 <= vertex < self.n_vertices:
+                raise LbshapeError(f"vertex must be an index from 0 to "
+                                   f"{self.n_vertices - 1}, got {vertex}")
+            dofs = 3 * vertex + np.arange(3)
+            free = self._free_mask[dofs]
+            self._drag_dofs = np.searchsorted(self.free_dofs, dofs[free])
+            self._drag_pull = drag.stiffness * (drag.target - self.mesh.points[vertex])[free]
+            size = self.free_dofs.size
+            self._drag_tangent = sp.csr_matrix(
+                (np.full(self._drag_dofs.size, drag.stiffness),
+                 (self._drag_dofs, self._drag_dofs)), shape=(size, size))
+        self._drag = drag
+        self.stepper.credit_work(self._drag_energy(x) - before)
+
+    # --------------------------------------------------------------- state
+    #: the engine's caches of the step that are replaced (not changed in place) and may
+    #: be absent (None)
+    _CACHES = ("_b", "weights", "target_coefficients", "_target_body", "_target_center",
+               "_pull_rigid")
+    _STEPPER_ARRAYS = ("_x", "_v", "_a", "_f", "_fext")
+    _STEPPER_SCALARS = ("_t", "_steps", "_work", "_energy", "_initial_energy")
+
+    def _target_solvers(self) -> list:
+        """The example target solvers (their warm starts are part of the state)."""
+        if self._local is not None:
+            return [region[3] for region in self._local._regions]
+        solver = getattr(self, "_target_solver", None)
+        return [] if solver is None else [solver]
+
+    @property
+    def state(self) -> EngineState:
+        """A snapshot (copies) of the stepper's state and the step's caches (the example
+        targets' warm starts included)."""
+        stepper = self.stepper
+        arrays = {name: getattr(stepper, name) for name in self._STEPPER_ARRAYS}
+        for name in self._CACHES:
+            value = getattr(self, name, None)
+            if value is not None:
+                arrays["cache" + name] = value
+        damping = getattr(self, "_damping_rigid", None)
+        if damping is not None:
+            arrays["cache_damping_rigid0"], arrays["cache_damping_rigid1"] = damping
+        for index, solver in enumerate(self._target_solvers()):
+            if solver._last is not None:  # the target solver's warm start
+                arrays[f"warm{index}"] = solver._last
+        scalars = {name: getattr(stepper, name) for name in self._STEPPER_SCALARS}
+        return snapshot(self.time, arrays, scalars)
+
+    def reset(self, state: EngineState | None = None) -> None:
+        """Back to ``state`` (from :attr:`state`) or, with ``None``, to the initial state at
+        t = 0; examples and drag stay as switched."""
+        saved = dict((self._initial_state if state is None else state).arrays)
+        restore = {}
+        for name in (*self._STEPPER_ARRAYS, *self._STEPPER_SCALARS):
+            if name not in saved:
+                raise LbshapeError(f"the state does not fit this engine ({name!r})")
+            value = saved[name]
+            restore[name] = value.item() if value.ndim == 0 else value.copy()
+        for name, value in restore.items():
+            setattr(self.stepper, name, value)
+        for name in self._CACHES:
+            value = saved.get("cache" + name)
+            setattr(self, name, None if value is None else value.copy())
+        damping = [saved.get(f"cache_damping_rigid{i}") for i in range(2)]
+        self._damping_rigid = None if damping[0] is None else tuple(d.copy() for d in damping)
+        if self._b is None:
+            self._b = np.zeros(self.free_dofs.size)
+        for index, solver in enumerate(self._target_solvers()):
+            warm = saved.get(f"warm{index}")
+            solver._last = None if warm is None else warm.copy()
+
     # ---------------------------------------------------------------- forces
     def _force_and_tangent(self, x: np.ndarray):
         f, K = self.elastic.force_and_tangent(self.full_displacement(x).reshape(-1))
@@ -448,6 +566,10 @@ class FullSpaceSimulator:
             rate = stepper.scheme.cv / stepper.dt
             f = f + self._deformation_damping(x, damping, v1, rate)
             K = (K + rate * damping).tocsr()  # + its rigid part (_tangent_correction)
+        if self._drag is not None:  # the spring k u_i on the vertex's free dofs, k I₃
+            f = f.copy()
+            f[self._drag_dofs] += self._drag.stiffness * x[self._drag_dofs]
+            K = (K + self._drag_tangent).tocsr()
         return f, K
 
     def _deformation_damping(self, x: np.ndarray, damping: sp.csr_matrix,
@@ -529,7 +651,14 @@ class FullSpaceSimulator:
         energy = self.elastic.energy(self.full_displacement(x).reshape(-1))
         if self.contact is not None:
             energy += self.contact.evaluate(self.full_displacement(x).reshape(-1))[2]
-        return energy + self._example_energy(x)
+        return energy + self._example_energy(x) + self._drag_energy(x)
+
+    def _drag_energy(self, x: np.ndarray) -> float:
+        """The drag spring's part of the potential ``½ k |u_i|²`` (J) at free dofs x."""
+        if self._drag is None:
+            return 0.0
+        u = x[self._drag_dofs]
+        return 0.5 * self._drag.stiffness * float(u @ u)
 
     def _example_energy(self, x: np.ndarray) -> float:
         """The example spring's energy (J) at free-dof displacements x (its part of the
@@ -580,8 +709,11 @@ class FullSpaceSimulator:
         return (positions - placed).ravel()
 
     def _external(self, t: float) -> np.ndarray:
+        """The loads at t, the example pull and a drag's pull (free dofs, N)."""
         scales = np.array([profile(t) for profile in self._load_profiles])
         load = scales @ self._load_patterns
+        if self._drag is not None:
+            load[self._drag_dofs] += self._drag_pull
         return load + self._b if self._k_ex else load
 
     def _update_target(self) -> None:
@@ -649,56 +781,58 @@ class FullSpaceSimulator:
         self._target_center = weights_m @ self._target_body / weights_m.sum()
         self._b = np.zeros(self.free_dofs.size)
 
-    # ------------------------------------------------------------------- run
-    def run(
-        self,
-        steps: int,
-        *,
-        stride: int = 1,
-        on_step: Callable[[int, float, np.ndarray], None] | None = None,
-    ) -> RunRecord:
+    # ------------------------------------------------------------------- step
+    def step(self) -> int:
+        """Advance one step: the example target from the state at the start of the step
+        (with examples), a free body's co-rotated damping, then the implicit step; returns
+        the Newton iterations. The wall times are left in ``_marks`` for :meth:`run`.
+
+        Raises:
+            SolverError: the step failed, named by its index and time; the state stays at
+                the last good step.
+        """
+        marks = self._marks
+        marks[0] = time.perf_counter()
+        if self._k_ex:
+            self._update_target_at_step()
+        marks[1] = time.perf_counter()
+        if self._corotated_beta:
+            self._corotate()
+        info = self.stepper.step()
+        marks[2] = time.perf_counter()
+        return info.iterations
+
+    def run(self, steps: int, *, stride: int = 1, on_step: OnStep | None = None) -> RunRecord:
         """Advance ``steps`` steps from the current state.
 
         Args:
             steps: number of steps, ≥ 1.
             stride: keep every ``stride``-th state (and the initial one), ≥ 1.
-            on_step: called after each step with (local step index, time in s,
+            on_step: called after each step with (step index from 0, time in s,
                 displacement (n, 3) in m).
 
         Returns:
-            The :class:`~lbshape.dynamics.record.RunRecord` (``stable`` True); its
-            states are the node-major displacements u (3n,) in m.
-
-        Raises:
-            FullSpaceDiverged: a step failed; its message names the step and time,
-                its ``partial`` holds the record up to the last good step.
+            The :class:`~lbshape.dynamics.record.RunRecord`; its states are the node-major
+            displacements u (3n,) in m. A failed step ends it with ``stable`` False and
+            the message (naming the step and time).
         """
-        steps, stride = int(steps), int(stride)
-        if steps < 1 or stride < 1:
-            raise LbshapeError(f"steps and stride must be >= 1, got {steps} and {stride}")
+        steps, stride = check_run(steps, stride)
         recorder = RunRecorder(stride=stride)
         u = self.full_displacement()
         recorder.start(self.time, u.reshape(-1))
         max_disp = _max_norm(u)
-        for index in range(1, steps + 1):
-            started = time.perf_counter()
+        marks = self._marks
+        for index in range(steps):
             try:
-                if self._k_ex:
-                    self._update_target_at_step()
-                interpolated = time.perf_counter()
-                if self._corotated_beta:
-                    self._corotate()
-                info = self.stepper.step()
+                iterations = self.step()
             except SolverError as exc:
                 log.error("full-space simulation stopped: %s", exc)
-                partial = recorder.record(stable=False, message=str(exc),
-                                          max_displacement=max_disp)
-                raise FullSpaceDiverged(str(exc), partial) from exc
-            finished = time.perf_counter()
+                return recorder.record(stable=False, message=str(exc),
+                                       max_displacement=max_disp)
             u = self.full_displacement()
             max_disp = max(max_disp, _max_norm(u))
-            recorder.step(self.time, u.reshape(-1), interp_seconds=interpolated - started,
-                          total_seconds=finished - started, iterations=info.iterations)
+            recorder.step(self.time, u.reshape(-1), interp_seconds=marks[1] - marks[0],
+                          total_seconds=marks[2] - marks[0], iterations=iterations)
             if on_step is not None:
                 on_step(index, self.time, u)
         return recorder.record(max_displacement=max_disp)

@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.linalg as sla
@@ -54,6 +54,17 @@ import scipy.linalg as sla
 from lbshape._jit import njit
 from lbshape.dynamics.contact import PlaneContact
 from lbshape.dynamics.drag import DragSpring
+from lbshape.dynamics.engine import (
+    Drag,
+    EngineState,
+    NewtonSettings,
+    OnStep,
+    basis_rows,
+    check_run,
+    forget_warm_starts,
+    restore_arrays,
+    snapshot,
+)
 from lbshape.dynamics.integrators import get_scheme
 from lbshape.dynamics.kernels import axpy, cholesky_in_place, cholesky_solve_in_place, predict
 from lbshape.dynamics.loads import TimedLoad
@@ -70,6 +81,8 @@ _ORIGIN, _IDENTITY3 = np.zeros(3), np.eye(3)
 #: within ~1e-6 (relative, mass norm) of converged Newton at 1 to 50 ms steps
 #: (``results/step_breakdown.md``, ``results/large_steps.md``)
 REALTIME_RTOL = 1e-5
+#: the real-time Newton settings of the reduced engines
+REALTIME_NEWTON = NewtonSettings(REALTIME_RTOL, 20)
 #: the parts of a step timed in :attr:`ReducedSimulation.phase_seconds`
 PHASES: tuple[str, ...] = ("weights", "target", "example_force", "internal_force_tangent",
                            "solve", "overhead")
@@ -97,18 +110,22 @@ class ReducedSimulation:
             built on the rest positions, ``x = X + U q``), implicit in q; or ``None``.
             Frictionless: friction is modelled on free bodies only.
         newton_iterations: ``None`` (default): iterate until the relative residual at the
-            accepted state is below ``rtol``; a number: that many updates from the
+            accepted state is below ``newton.rtol``; a number: that many updates from the
             predictor, residual unchecked (studies only).
-        rtol: relative Newton tolerance (:data:`REALTIME_RTOL`).
-        max_iterations: Newton updates before the step fails (``None`` mode).
+        newton: the :class:`~lbshape.dynamics.engine.NewtonSettings` (default
+            :data:`REALTIME_NEWTON`: :data:`REALTIME_RTOL`, 20 updates before the step
+            fails, ``None`` mode).
         energy_factor: blow-up factor of the energy monitor; ``None`` disables it.
         deformation_bound: the object's :class:`~lbshape.dynamics.sanity.DeformationBound`
             (a state beyond it stops the run), or ``None``.
+        basis: (3n, r) the basis U (m per unit of q), for :meth:`displacement` and
+            :meth:`set_drag`; optional.
+        rest_points: (n, 3) the rest positions X (m), for :meth:`set_drag`; optional.
 
     Attributes:
         x, v, a: (r,) state at :attr:`time`.
         q_target: (r,) the last target ``q*``.
-        drag: a user's :class:`~lbshape.dynamics.drag.DragSpring` (:meth:`set_drag`) or
+        drag: the user's :class:`~lbshape.dynamics.drag.DragSpring` (:meth:`set_drag`) or
             ``None``: its spring part is in the force and tangent, its pull in the loads.
         last_residual: relative Newton residual at the state the last step accepted
             (``None`` mode).
@@ -130,10 +147,11 @@ class ReducedSimulation:
         k_ex: float = 0.0,
         contact: PlaneContact | None = None,
         newton_iterations: int | None = None,
-        rtol: float = REALTIME_RTOL,
-        max_iterations: int = 20,
+        newton: NewtonSettings = REALTIME_NEWTON,
         energy_factor: float | None = 1e3,
         deformation_bound: DeformationBound | None = None,
+        basis: np.ndarray | None = None,
+        rest_points: np.ndarray | None = None,
     ):
         scheme = get_scheme(integrator)
         if not (np.isfinite(dt) and dt > 0):
@@ -153,7 +171,10 @@ class ReducedSimulation:
         self.driver = driver if (driver is not None and k_ex > 0.0) else None
         self.k_ex = float(k_ex) if self.driver is not None else 0.0
         self.newton_iterations = None if newton_iterations is None else int(newton_iterations)
-        self.rtol, self.max_iterations = float(rtol), int(max_iterations)
+        self.newton = newton
+        self.basis = None if basis is None else np.asarray(basis, dtype=float)
+        self.rest_points = None if rest_points is None else np.asarray(rest_points, dtype=float)
+        self._examples = (self.driver, self.k_ex)  # the configured example force
         self.energy_factor = energy_factor
         self.deformation_bound = deformation_bound
         # [c_a/h², k_v/h, k_a, c_v/h, j_v, k_ex]: the scheme's step rates and the spring
@@ -191,6 +212,7 @@ class ReducedSimulation:
         self._f_start, self._K_start = np.zeros(r), np.zeros((r, r))
         self._force_and_tangent(self.x)
         self._f_start[:], self._K_start[:] = self._f, self._K
+        self._initial = self.state
 
     @property
     def driver(self):
@@ -206,11 +228,31 @@ class ReducedSimulation:
         self._in_place = hasattr(driver, "weights_into") and hasattr(
             driver, "target_from_weights_into")
 
-    def set_drag(self, drag: DragSpring | None) -> None:
-        """A user's drag spring (:class:`~lbshape.dynamics.drag.DragSpring`, implicit in
-        the step) from the next step on, or ``None`` to release it."""
-        self.drag = drag
+    def set_drag(self, drag: Drag | None) -> None:
+        """A user's point pull (:class:`~lbshape.dynamics.engine.Drag`) from the next step
+        on, or ``None`` to release it: a :class:`~lbshape.dynamics.drag.DragSpring` on the
+        vertex's rows of the basis, implicit in the step (needs ``basis`` and
+        ``rest_points``). A drag on the same vertex with the same stiffness moves the
+        spring's target."""
+        if drag is None:
+            self.drag = None
+        elif (self.drag is not None and self.drag.vertex == drag.vertex
+              and self.drag.stiffness == drag.stiffness):
+            self.drag.move(drag.target)
+        else:
+            rows = basis_rows(self.basis, drag.vertex, "a drag")
+            if self.rest_points is None:
+                raise LbshapeError("a drag needs the rest points (give rest_points=...)")
+            self.drag = DragSpring(drag.vertex, rows, self.rest_points[drag.vertex],
+                                   drag.stiffness, drag.target)
         self._relinearise()
+
+    def set_examples(self, on: bool) -> bool:
+        """The configured example force (the constructor's ``driver``, ``k_ex``) on or off
+        from the next step on; returns whether it acts."""
+        driver, k_ex = self._examples if on else (None, 0.0)
+        self.set_example_force(driver, k_ex)
+        return self.driver is not None
 
     def set_example_force(self, driver, k_ex: float) -> None:
         """Switch the example force: ``driver`` and ``k_ex`` (1/s²) as in the
@@ -228,8 +270,46 @@ class ReducedSimulation:
 
     @property
     def stepper(self) -> ReducedSimulation:
-        """The simulation itself (it is its own stepper: ``x``, ``time``, ``rtol`` …)."""
+        """The simulation itself (it is its own stepper: ``x``, ``time``, ``newton`` …)."""
         return self
+
+    # ------------------------------------------------------------ protocol
+    def displacement(self) -> np.ndarray:
+        """(n, 3) world displacement ``U q`` of every vertex (m); needs ``basis``."""
+        if self.basis is None:
+            raise LbshapeError("displacement() needs the basis U (give basis=...)")
+        return (self.basis @ self.x).reshape(-1, 3)
+
+    def _live_arrays(self) -> dict[str, np.ndarray]:
+        """The arrays that carry state from one step to the next, by role."""
+        return {"x": self.x, "v": self.v, "a": self.a, "q_target": self.q_target,
+                "fext_old": self._fext_old, "f_start": self._f_start,
+                "K_start": self._K_start}
+
+    _SCALARS = ("time", "steps_taken", "_work", "_initial_energy", "_f_norm",
+                "last_residual")
+
+    @property
+    def state(self) -> EngineState:
+        """A snapshot (copies) of the state and the step's caches."""
+        scalars = {name: getattr(self, name) for name in self._SCALARS}
+        scalars["dragged"] = self.drag is not None  # the drag is in f_start, K_start
+        return snapshot(self.time, self._live_arrays(), scalars)
+
+    def reset(self, state: EngineState | None = None) -> None:
+        """Back to ``state`` (from :attr:`state`) or, with ``None``, to the initial state at
+        t = 0 (the example target's warm start forgotten); examples and drag stay as
+        switched (the force at the start of the step is evaluated again under a drag)."""
+        if state is None:
+            state = self._initial
+            forget_warm_starts(self.driver)
+            forget_warm_starts(self._examples[0])
+        scalars = restore_arrays(state, self._live_arrays())
+        for name in self._SCALARS:
+            setattr(self, name, type(getattr(self, name))(scalars[name]))
+        self.phase_seconds = np.zeros((0, len(PHASES)))
+        if self.drag is not None or scalars["dragged"]:
+            self._relinearise()
 
     # --------------------------------------------------------------- pieces
     def _external_into(self, t: float, out: np.ndarray) -> None:
@@ -331,14 +411,14 @@ class ReducedSimulation:
             if not np.isfinite(norms[0]):
                 raise SolverError(f"non-finite residual at step {index} (t = {t1:.6g} s)")
             self.last_residual = norms[0] / scale if scale > 0 else 0.0
-            if norms[0] <= max(self.rtol * scale, norms[1]):
+            if norms[0] <= max(self.newton.rtol * scale, norms[1]):
                 solves += clock() - middle
                 break
-            if updates == self.max_iterations:
+            if updates == self.newton.max_iterations:
                 raise SolverError(
                     f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
                     f"residual {self.last_residual:.3e} after {updates} iterations "
-                    f"(rtol {self.rtol:g}); the step dt = {self.dt:g} s may be too large")
+                    f"(rtol {self.newton.rtol:g}); the step dt = {self.dt:g} s may be too large")
             self._update(index, t1)
             updates += 1
             solves += clock() - middle
@@ -422,13 +502,7 @@ class ReducedSimulation:
         self._f_norm = _norm(self._f_start)
 
     # ------------------------------------------------------------------ run
-    def run(
-        self,
-        steps: int,
-        *,
-        stride: int = 1,
-        on_step: Callable[[int, float, np.ndarray], None] | None = None,
-    ) -> RunRecord:
+    def run(self, steps: int, *, stride: int = 1, on_step: OnStep | None = None) -> RunRecord:
         """Advance ``steps`` steps; a solver failure ends the run with ``stable=False``.
 
         Args:
@@ -441,6 +515,7 @@ class ReducedSimulation:
             reduced coordinates q (r,). The split of each step's time into
             :data:`PHASES` is kept in :attr:`phase_seconds`.
         """
+        steps, stride = check_run(steps, stride)
         recorder = RunRecorder(stride=stride)
         recorder.start(self.time, self.x)
         phases = np.zeros((steps, len(PHASES)))

@@ -9,7 +9,8 @@ advances it by as many steps of the scene's dt as the wall time given
 not spiral). What a user does goes through its methods, whether it comes from the mouse,
 a key or a scripted event: :meth:`~LiveSession.grab` / :meth:`~LiveSession.move` /
 :meth:`~LiveSession.release` a drag spring on a vertex
-(:class:`~lbshape.dynamics.drag.DragSpring`: reduced through the vertex's three rows of U),
+(:class:`~lbshape.dynamics.engine.Drag`, which the engine reduces through the vertex's
+three rows of U),
 :meth:`~LiveSession.set_examples` on and off, :meth:`~LiveSession.pause`,
 :meth:`~LiveSession.step_once`, :meth:`~LiveSession.reset` to rest. The world positions
 of all vertices (n-sized) are formed only for drawing (:meth:`~LiveSession.points`).
@@ -23,14 +24,13 @@ import time
 
 import numpy as np
 
-from lbshape.dynamics.drag import DragSpring, explicit_stiffness_limit
+from lbshape.dynamics.engine import Drag
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.simulate import WARMUP_STEPS, reduced_simulation
+from lbshape.pipeline.simulation import DRAG_RATE
 from lbshape.scene.schema import Scene
 
-#: the drag spring's default stiffness per kg of the object (N/m per kg = 1/s²)
-DRAG_RATE = 2000.0
 #: at most this much simulated time (s) is owed per frame: a slower frame lets the
 #: simulation fall behind the clock instead of spiralling
 MAX_FRAME_DEBT = 0.1
@@ -43,8 +43,8 @@ class LiveSession:
         scene: the scene (its dt, loads, planes, examples).
         pre: its precompute.
         drag_stiffness: the drag spring's stiffness in N/m (default :data:`DRAG_RATE`
-            times the object's mass). A free body's drag is explicit in the state and
-            capped at :func:`~lbshape.dynamics.drag.explicit_stiffness_limit`.
+            times the object's mass). A free body's drag is explicit in the state: its
+            engine caps it at :func:`~lbshape.dynamics.drag.explicit_stiffness_limit`.
 
     Attributes:
         sim: the engine.
@@ -76,7 +76,7 @@ class LiveSession:
         self.sim = reduced_simulation(scene, pre)
         self._driver, self._k_ex = self.sim.driver, self.sim.k_ex
         self.examples_on = self._driver is not None
-        self.drag: DragSpring | None = None
+        self.drag: Drag | None = None
 
     def _warm_up(self) -> None:
         """A few steps of a throwaway engine, so the compiled kernels are loaded before the
@@ -167,10 +167,10 @@ class LiveSession:
         return self.paused
 
     def reset(self) -> None:
-        """Back to rest at t = 0 (a new engine); the examples switch is kept, a drag
-        released."""
-        self.sim = reduced_simulation(self.scene, self.pre)
+        """Back to rest at t = 0; the examples switch is kept, a drag released."""
         self.drag = None
+        self.sim.set_drag(None)
+        self.sim.reset()
         self._debt = 0.0
         self.set_examples(self.examples_on)
 
@@ -179,28 +179,16 @@ class LiveSession:
         """Example force on (``True``), off (``False``) or toggled (``None``); returns
         whether it acts (always False for a scene without examples)."""
         on = (not self.examples_on) if on is None else bool(on)
-        self.examples_on = on and self.has_examples
-        if self.examples_on:
-            self.sim.set_example_force(self._driver, self._k_ex)
-        else:
-            self.sim.set_example_force(None, 0.0)
+        self.examples_on = self.sim.set_examples(on and self.has_examples)
         return self.examples_on
 
     def grab(self, vertex: int, target: np.ndarray | None = None) -> None:
         """Start pulling ``vertex`` towards ``target`` (3,) world, m (default: where it
         is), replacing any earlier drag."""
         vertex = self._check_vertex(vertex)
-        rows = self._basis[3 * vertex:3 * vertex + 3]
-        stiffness = self.drag_stiffness
-        if self.free:
-            frame = self.pre.frame
-            arm = float(np.linalg.norm(self._body[vertex]))
-            limit = explicit_stiffness_limit(rows, self.dt, mass=frame.mass, arm=arm,
-                                             inertia=float(np.linalg.eigvalsh(frame.inertia0)[0]))
-            stiffness = min(stiffness, limit)
         if target is None:
             target = self.vertex_position(vertex)
-        self.drag = DragSpring(vertex, rows, self._body[vertex], stiffness, target)
+        self.drag = Drag(vertex, target, self.drag_stiffness)
         self.sim.set_drag(self.drag)
         self.drags += 1
 
@@ -208,7 +196,7 @@ class LiveSession:
         """Pull the grabbed vertex towards ``target`` (3,) world, m (nothing without a drag)."""
         if self.drag is None:
             return
-        self.drag.move(target)
+        self.drag = Drag(self.drag.vertex, target, self.drag.stiffness)
         self.sim.set_drag(self.drag)
 
     def release(self) -> None:

@@ -31,8 +31,11 @@ from lbshape.scene.schema import ExamplePose, MeshSource, Selection
 
 
 def build_mesh(source: MeshSource) -> TetMesh:
-    """The mesh of a source: the built-in shape's or the user's gmsh script run, or the
-    file read (a surface file tetrahedralised at ``source.size``)."""
+    """The mesh of a source: the built-in shape's or the user's gmsh script run, the
+    file read (a surface file tetrahedralised at ``source.size``), or the mesh held in
+    memory (returned as it is)."""
+    if source.mesh is not None:
+        return source.mesh
     if source.shape is not None:
         return build_shape(source.shape, size=source.size)
     if source.script is not None:
@@ -58,7 +61,7 @@ def write_mesh(source: MeshSource, path: str | Path) -> TetMesh:
         return write_shape(source.shape, path, size=source.size)
     if source.script is not None:
         return write_script(source.script, path, size=source.size)
-    mesh = read_mesh_file(source.mesh_file, size=source.size)
+    mesh = build_mesh(source)
     write_msh(mesh, path)
     return mesh
 
@@ -79,7 +82,8 @@ def posed_example(pose: ExamplePose, rest: TetMesh) -> TetMesh:
 
 def posed_file_meshes(pose: ExamplePose, object_mesh: TetMesh) -> tuple[TetMesh, TetMesh]:
     """(posed, rest) meshes, with one connectivity, of an example given as a posed file
-    (a mesh file without analytic pose; a built-in shape without pose is at rest).
+    or a posed mesh in memory (without analytic pose; a built-in shape without pose is
+    at rest).
 
     The vertex correspondence between a posed mesh and its rest is what makes its
     displacement well defined, so it is required:
@@ -94,7 +98,7 @@ def posed_file_meshes(pose: ExamplePose, object_mesh: TetMesh) -> tuple[TetMesh,
     Raises:
         LbshapeError: no correspondence (the message says which files to give).
     """
-    name = pose.source.mesh_file.name
+    name = pose.source.label
     if pose.rest is None:
         posed = build_mesh(pose.source)
         if not _same_connectivity(posed, object_mesh):
@@ -104,7 +108,8 @@ def posed_file_meshes(pose: ExamplePose, object_mesh: TetMesh) -> tuple[TetMesh,
                 "give its un-posed mesh as 'rest' (same mesh before posing)")
         return posed, object_mesh
     rest_file = pose.rest.mesh_file
-    if is_surface_file(pose.source.mesh_file) and is_surface_file(rest_file):
+    if (rest_file is not None and pose.source.mesh_file is not None
+            and is_surface_file(pose.source.mesh_file) and is_surface_file(rest_file)):
         pair = posed_surface_pair(rest_file, pose.source.mesh_file, size=pose.source.size)
         if pair is None:
             raise LbshapeError(
@@ -114,7 +119,7 @@ def posed_file_meshes(pose: ExamplePose, object_mesh: TetMesh) -> tuple[TetMesh,
     posed, rest = build_mesh(pose.source), build_mesh(pose.rest)
     if not _same_connectivity(posed, rest):
         raise LbshapeError(
-            f"posed example {name} and its rest {rest_file.name} have different meshes "
+            f"posed example {name} and its rest {pose.rest.label} have different meshes "
             f"({posed.n_vertices} vs {rest.n_vertices} vertices, or other tets); both must "
             "be the same mesh, or surfaces with the same triangles")
     return posed, rest

@@ -35,18 +35,18 @@ from pathlib import Path
 import numpy as np
 
 from lbshape.dynamics.contact import PlaneContact
+from lbshape.dynamics.engine import NewtonSettings
 from lbshape.dynamics.free_body import PHASES as FREE_BODY_PHASES
 from lbshape.dynamics.free_body import FreeBodySimulation, FreeLoad
 from lbshape.dynamics.full import (
     FullSpaceContact,
-    FullSpaceDiverged,
     FullSpaceExamples,
     FullSpaceSimulator,
     rigid_velocity,
 )
 from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord
-from lbshape.dynamics.reduced import PHASES, REALTIME_RTOL, ReducedSimulation
+from lbshape.dynamics.reduced import PHASES, REALTIME_NEWTON, ReducedSimulation
 from lbshape.dynamics.sanity import DeformationBound
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.polynomial_forces import PolynomialForceModel
@@ -143,15 +143,16 @@ def example_stiffness(scene: Scene, pre: Precomputed) -> float:
 
 
 def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced",
-                       newton_iterations: int | None = None, rtol: float = REALTIME_RTOL,
+                       newton_iterations: int | None = None,
+                       newton: NewtonSettings = REALTIME_NEWTON,
                        exact_forces: bool = False) -> ReducedSimulation:
     """The :class:`~lbshape.dynamics.reduced.ReducedSimulation` of a scene.
 
     ``method`` picks the example target's route: the scene's
     ``reduced.interpolation`` for ``reduced``, the all-element baseline for
     ``euclidean``. ``newton_iterations``: ``None`` (the default) iterates Newton until the
-    relative residual is below ``rtol`` (:data:`~lbshape.dynamics.reduced.REALTIME_RTOL`, the
-    real-time tolerance); a number fixes the updates per step, residual unchecked (studies).
+    relative residual is below ``newton.rtol`` (:data:`~lbshape.dynamics.reduced.REALTIME_NEWTON`,
+    the real-time settings); a number fixes the updates per step, residual unchecked (studies).
     ``exact_forces``: the reduced elastic force summed element by element over every
     element with weight 1 instead of the precompute's force model
     (:func:`reduced_force_model`; a check of the force model's share of the error; slow).
@@ -173,12 +174,13 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
         driver = local_example_driver(pre.mesh, pre.material, pre.local,
                                       route=local_route(route, pre.material))
     if scene.is_free:
-        return _free_body_simulation(scene, pre, elastic, driver, k_ex)
+        return _free_body_simulation(scene, pre, elastic, driver, k_ex, newton)
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
         k_ex=k_ex, contact=_contact(scene, pre, None), newton_iterations=newton_iterations,
-        rtol=rtol, deformation_bound=deformation_bound(pre),
+        newton=newton, deformation_bound=deformation_bound(pre), basis=pre.U,
+        rest_points=pre.mesh.points,
     )
 
 
@@ -219,7 +221,8 @@ def _contact(scene: Scene, pre: Precomputed, center):
                                  center=center)
 
 
-def _free_body_simulation(scene: Scene, pre: Precomputed, elastic, driver, k_ex: float):
+def _free_body_simulation(scene: Scene, pre: Precomputed, elastic, driver, k_ex: float,
+                          newton: NewtonSettings = REALTIME_NEWTON):
     """The :class:`~lbshape.dynamics.free_body.FreeBodySimulation` of a free scene."""
     if pre.frame is None:
         raise LbshapeError(f"scene {scene.name}: the precompute has no rigid frame tensors")
@@ -237,7 +240,8 @@ def _free_body_simulation(scene: Scene, pre: Precomputed, elastic, driver, k_ex:
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
         k_ex=k_ex, contact=_contact(scene, pre, pre.frame.center),
         velocity=scene.initial.velocity, angular_velocity=scene.initial.angular_velocity,
-        rest_points=pre.mesh.points, deformation_bound=deformation_bound(pre),
+        rest_points=pre.mesh.points, deformation_bound=deformation_bound(pre), basis=pre.U,
+        newton=newton,
     )
 
 
@@ -280,10 +284,7 @@ def run_full_space(scene: Scene, pre: Precomputed, *, steps: int, stride: int = 
     A divergence does not raise: the record of what was computed comes back with
     ``stable`` False and the failure message.
     """
-    try:
-        return full_simulation(scene, pre).run(steps, stride=stride, on_step=on_step)
-    except FullSpaceDiverged as exc:
-        return exc.partial
+    return full_simulation(scene, pre).run(steps, stride=stride, on_step=on_step)
 
 
 def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",

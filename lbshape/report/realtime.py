@@ -28,8 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
+from lbshape.dynamics.engine import NewtonSettings
 from lbshape.dynamics.free_body import PHASES as FREE_BODY_PHASES
-from lbshape.dynamics.reduced import PHASES, REALTIME_RTOL
+from lbshape.dynamics.reduced import PHASES, REALTIME_NEWTON, REALTIME_RTOL
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
 from lbshape.pipeline.simulate import (
@@ -232,7 +233,8 @@ def newton_study(scene, pre, *, steps: int, repeats: int = 3,
     first: dict = {}
     for _ in range(repeats):
         for label, iterations, rtol in variants:
-            sim = reduced_simulation(scene, pre, newton_iterations=iterations, rtol=rtol)
+            newton = NewtonSettings(rtol, REALTIME_NEWTON.max_iterations)
+            sim = reduced_simulation(scene, pre, newton_iterations=iterations, newton=newton)
             record = sim.run(steps, stride=max(1, math.ceil(steps / MAX_FRAMES)))
             times[label].append(record.mean_ms(warmup=WARMUP_STEPS)[1])
             phases[label].append(phase_medians(sim))

@@ -9,6 +9,10 @@ number, an unsafe region expression or a missing mesh file raises
 path, e.g. ``scene bar.toml: unknown key 'material.yung'``. The schema is in
 :mod:`lbshape.scene.schema`; the choices come from the modules that own them
 (shapes, poses, materials, interpolation routes, integrators, load profiles).
+
+A document built in code (:func:`lbshape.scene.build.scene_from_mesh`) may give a
+:class:`~lbshape.geometry.mesh.TetMesh` for an object's or an example's ``mesh`` (or an
+example's ``rest``): a mesh in memory, checked as a file's mesh is.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from lbshape.dynamics.loads import PROFILES, TimeProfile
 from lbshape.elastic.materials import MODELS, Material
 from lbshape.elastic.polynomial_forces import FORCE_CHOICES, check_force_choice
 from lbshape.errors import LbshapeError
+from lbshape.geometry.mesh import TetMesh, check_mesh
 from lbshape.geometry.mesh_files import SURFACE_FORMATS, is_surface_file
 from lbshape.geometry.poses import POSE_CHOICES, POSE_PARAMETERS, POSES
 from lbshape.geometry.regions import parse_region
@@ -288,6 +293,11 @@ def mesh_source(text: str | Path, *, size: float | None = None,
 def _mesh_source(t: _Table, ctx: _Context) -> MeshSource:
     if ("shape" in t.data) == ("mesh" in t.data):
         raise ctx.error(f"'{t.path}' needs exactly one of 'shape' or 'mesh'")
+    if isinstance(t.data.get("mesh"), TetMesh):  # a scene built in code
+        if "size" in t.data:
+            raise ctx.error(f"'{t.key('size')}' applies to built-in shapes and surface "
+                            "files, not to a mesh in memory")
+        return _memory_source(t, "mesh", ctx)
     if "shape" in t.data:
         shape = t.string("shape")
         size = t.number("size", None, low=0.0, open_low=True, unit="m")
@@ -315,6 +325,15 @@ def _mesh_path(t: _Table, key: str, ctx: _Context) -> Path:
     return _existing_path(t, key, ctx, what="mesh file")
 
 
+def _memory_source(t: _Table, key: str, ctx: _Context) -> MeshSource:
+    """A mesh given in memory (a :class:`TetMesh` value, only from code: see
+    :func:`lbshape.scene.build.scene_from_mesh`), checked as a file's mesh is."""
+    try:
+        return MeshSource(mesh=check_mesh(t.data[key], source=f"'{t.key(key)}'"))
+    except LbshapeError as exc:
+        raise ctx.error(str(exc)) from None
+
+
 def _existing_path(t: _Table, key: str, ctx: _Context, *, what: str) -> Path:
     path = Path(t.string(key)).expanduser()
     path = path if path.is_absolute() else ctx.base_dir / path
@@ -324,7 +343,8 @@ def _existing_path(t: _Table, key: str, ctx: _Context, *, what: str) -> Path:
 
 
 def _rest_is_surface(t: _Table, ctx: _Context) -> bool:
-    return "rest" in t.data and is_surface_file(_mesh_path(t, "rest", ctx))
+    return ("rest" in t.data and not isinstance(t.data["rest"], TetMesh)
+            and is_surface_file(_mesh_path(t, "rest", ctx)))
 
 
 def _example_pose(t: _Table, ctx: _Context) -> ExamplePose:
@@ -333,9 +353,12 @@ def _example_pose(t: _Table, ctx: _Context) -> ExamplePose:
     landmarks = t.int_pairs("landmarks")
     rest = None
     if "rest" in t.data:
-        if source.mesh_file is None or pose is not None or "parts" in t.data:
+        if "mesh" not in t.data or pose is not None or "parts" in t.data:
             raise ctx.error(f"'{t.key('rest')}' is the rest shape of a posed mesh file: it "
                             "needs 'mesh' and no 'pose' or 'parts'")
+    if "rest" in t.data and isinstance(t.data["rest"], TetMesh):
+        rest = _memory_source(t, "rest", ctx)
+    elif "rest" in t.data:
         path = _mesh_path(t, "rest", ctx)
         size = t.number("size", None) if is_surface_file(path) else None
         rest = MeshSource(mesh_file=path, size=size)

@@ -1,8 +1,9 @@
 """The scene schema: frozen dataclasses that hold a validated scene, as plain data.
 
-A scene is a TOML file read and validated by :mod:`lbshape.scene.reader`; these
-classes only hold what it found. Nothing here builds meshes, applies poses or
-selects vertices: that is :mod:`lbshape.pipeline.meshes`.
+A scene is a TOML file read and validated by :mod:`lbshape.scene.reader`, or built in
+code around a mesh in memory (``Scene.from_mesh``, :mod:`lbshape.scene.build`, through
+the same checks); these classes only hold what it found. Nothing here builds meshes,
+applies poses or selects vertices: that is :mod:`lbshape.pipeline.meshes`.
 
 Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
 
@@ -111,16 +112,18 @@ k_ex, fixed region, local regions); :meth:`Scene.runtime_fields` holds the rest
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
+from typing import ClassVar
 
 from lbshape.dynamics.contact import ContactPlane
 from lbshape.dynamics.loads import TimeProfile
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
-from lbshape.io.cache import file_digest
+from lbshape.geometry.mesh import TetMesh
+from lbshape.io.cache import cache_key, file_digest
 
 __all__ = [
     "LOAD_TYPES",
@@ -136,6 +139,7 @@ __all__ = [
     "Scene",
     "Selection",
     "Simulation",
+    "mesh_arrays_digest",
 ]
 
 #: load types (patterns: :mod:`lbshape.dynamics.loads`)
@@ -148,7 +152,9 @@ PoseValue = float | str
 @dataclass(frozen=True)
 class MeshSource:
     """Where a mesh comes from: a built-in shape, a user's gmsh script (each with an
-    optional size) or a mesh file; exactly one of ``shape``, ``script``, ``mesh_file``.
+    optional size), a mesh file, or a mesh held in memory (a scene built in code,
+    :func:`lbshape.scene.build.scene_from_mesh`); exactly one of ``shape``, ``script``,
+    ``mesh_file``, ``mesh``.
 
     Attributes:
         shape: built-in shape name, or ``None``.
@@ -159,24 +165,42 @@ class MeshSource:
             default or the surface as given.
         script: absolute path of a user's gmsh Python script
             (:func:`lbshape.geometry.shapes.build_script`), or ``None``.
+        mesh: a checked :class:`~lbshape.geometry.mesh.TetMesh` in memory, or ``None``;
+            compared and keyed by :attr:`mesh_digest` (its arrays' SHA-256).
     """
 
     shape: str | None = None
     mesh_file: Path | None = None
     size: float | None = None
     script: Path | None = None
+    mesh: TetMesh | None = field(default=None, compare=False, repr=False)
+    mesh_digest: str | None = field(default=None, init=False)
+
+    def __post_init__(self) -> None:
+        if self.mesh is not None:
+            object.__setattr__(self, "mesh_digest", mesh_arrays_digest(self.mesh))
+
+    @property
+    def in_memory(self) -> bool:
+        """The mesh is held in memory (no file, shape or script behind it)."""
+        return self.mesh is not None
 
     @property
     def label(self) -> str:
         """A short name for captions: the shape's name or the file's name."""
         if self.shape is not None:
             return self.shape
+        if self.mesh is not None:
+            return f"mesh in memory ({self.mesh.n_vertices} vertices)"
         return Path(self.script if self.script is not None else self.mesh_file).name
 
     def key(self) -> dict:
-        """What identifies the mesh: shape and size, or the script's or file's SHA-256."""
+        """What identifies the mesh: shape and size, the script's or file's SHA-256, or an
+        in-memory mesh's arrays' digest (:func:`mesh_arrays_digest`)."""
         if self.shape is not None:
             return {"shape": self.shape, "size": self.size}
+        if self.mesh is not None:
+            return {"mesh_arrays_sha256": self.mesh_digest}
         if self.script is not None:
             if not self.script.is_file():
                 raise LbshapeError(f"gmsh script not found: {self.script}")
@@ -185,6 +209,14 @@ class MeshSource:
             raise LbshapeError(f"mesh file not found: {self.mesh_file}")
         key = {"mesh_sha256": file_digest(self.mesh_file)}
         return key if self.size is None else {**key, "size": self.size}
+
+
+def mesh_arrays_digest(mesh: TetMesh) -> str:
+    """SHA-256 over what defines a mesh in memory: its points (n, 3), tets (t, 4) and
+    named groups (vertex and cell indices), by value and dtype."""
+    return cache_key("mesh", mesh.points, mesh.tets,
+                     {name: idx for name, idx in mesh.vertex_groups.items()},
+                     {name: idx for name, idx in mesh.cell_groups.items()})
 
 
 @dataclass(frozen=True)
@@ -294,8 +326,10 @@ class ExamplePose:
 
     @property
     def is_posed_file(self) -> bool:
-        """A mesh file without analytic pose: the file holds the posed shape."""
-        return self.pose is None and not self.parts and self.source.mesh_file is not None
+        """A mesh file (or a mesh in memory) without analytic pose: it holds the posed
+        shape."""
+        return self.pose is None and not self.parts and (
+            self.source.mesh_file is not None or self.source.mesh is not None)
 
     def key(self) -> dict:
         key = {} if self.rest is None else {"rest": self.rest.key()}
@@ -405,6 +439,12 @@ class Scene:
     description: str = ""
     initial: Initial = field(default_factory=Initial)
     source: Path | None = None
+
+    #: ``Scene.from_mesh(mesh, *, name, fixed, material, examples, loads, dt, steps, ...)``:
+    #: a scene built in code from a mesh in memory, no file needed
+    #: (:func:`lbshape.scene.build.scene_from_mesh`, validated by the reader's checks; bound
+    #: by :mod:`lbshape.scene`, which is imported with this module)
+    from_mesh: ClassVar[Callable[..., Scene]]
 
     @property
     def is_free(self) -> bool:

@@ -1,0 +1,144 @@
+"""The engine protocol (:mod:`lbshape.dynamics.engine`) on every engine: the reduced engine
+of a fixed object, its full-space reference, and a free body's reduced engine — stepping,
+runs, world displacements, snapshots and resets (bit for bit), the examples switch and a
+drag."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lbshape.dynamics.engine import Drag, Engine, EngineState, NewtonSettings
+from lbshape.errors import LbshapeError, SolverError
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulate import full_simulation, reduced_simulation
+from lbshape.scene import load_scene
+from lbshape.scene.reader import scene_from_dict
+
+STEPS = 12
+
+#: a small free bar thrown at a floor, with the demo's examples
+FREE = {
+    "name": "free-demo",
+    "object": {"shape": "demo-bar"},
+    "material": {"young": 1e6, "density": 1000.0},
+    "damping": {"beta": 0.005},
+    "reduced": {"m": 6, "r": 10, "s": 20},
+    "initial": {"velocity": [0.0, 0.0, -1.0], "angular_velocity": [0.0, 0.0, 0.3]},
+    "loads": [{"type": "gravity", "vector": [0.0, 0.0, -9.81]}],
+    "planes": [{"point": [0.0, 0.0, -0.02], "normal": [0.0, 0.0, 1.0], "stiffness": 1e5}],
+    "examples": {"stiffness": 2000.0, "pose": [
+        {"shape": "demo-cylinder", "pose": "twist",
+         "parameters": {"angle": 1.0, "axis": "z", "anchor": "max"}}]},
+    "simulation": {"dt": 0.002, "steps": 100},
+}
+
+
+@pytest.fixture(scope="module")
+def demo():
+    scene = load_scene("demo")
+    return scene, precompute(scene, progress=False)
+
+
+@pytest.fixture(scope="module")
+def free():
+    scene = scene_from_dict(FREE, name="free-demo")
+    return scene, precompute(scene, progress=False)
+
+
+@pytest.fixture(params=["reduced", "full", "free-body"])
+def engine(request, demo, free):
+    """``(engine, precompute, scene)`` of each kind."""
+    if request.param == "free-body":
+        scene, pre = free
+        return reduced_simulation(scene, pre), pre, scene
+    scene, pre = demo
+    make = reduced_simulation if request.param == "reduced" else full_simulation
+    return make(scene, pre), pre, scene
+
+
+def _equal_records(a, b) -> None:
+    np.testing.assert_array_equal(a.times, b.times)
+    np.testing.assert_array_equal(a.states, b.states)
+    np.testing.assert_array_equal(a.newton_iterations, b.newton_iterations)
+
+
+def test_every_engine_has_the_protocol(engine):
+    sim, pre, scene = engine
+    assert isinstance(sim, Engine)
+    assert isinstance(sim.newton, NewtonSettings) and sim.dt == scene.simulation.dt
+    assert sim.time == 0.0
+    iterations = sim.step()
+    assert isinstance(iterations, int | np.integer) and iterations >= 0
+    assert sim.time == pytest.approx(sim.dt, rel=1e-12)
+    u = sim.displacement()
+    assert u.shape == (pre.mesh.n_vertices, 3) and np.isfinite(u).all()
+    assert np.abs(u).max() > 0
+
+
+def test_run_records_and_ends_on_a_failure_without_raising(engine):
+    sim, pre, _ = engine
+    record = sim.run(STEPS, stride=4)
+    assert record.stable and record.steps == STEPS and len(record.times) == 4
+    frames = record.displacements(None if record.states.shape[1] == 3 * pre.mesh.n_vertices
+                                  else pre.U)
+    np.testing.assert_allclose(frames[-1], sim.displacement(), rtol=0,
+                               atol=1e-12 * np.abs(frames[-1]).max())
+    calls = []
+
+    def failing() -> int:
+        calls.append(1)
+        raise SolverError(f"Newton did not converge at step {len(calls)} (t = 0 s)")
+
+    sim.step = failing  # the run steps through step()
+    stopped = sim.run(5)
+    assert not stopped.stable and stopped.steps == 0 and "at step 1" in stopped.message
+    with pytest.raises(LbshapeError):
+        sim.run(0)
+
+
+def test_reset_reproduces_the_run_bit_for_bit(engine):
+    sim, _, _ = engine
+    first = sim.run(STEPS)
+    sim.reset()
+    assert sim.time == 0.0
+    _equal_records(sim.run(STEPS), first)
+    # a snapshot in the middle of a run: the rest of the run again from it
+    sim.reset()
+    sim.run(STEPS // 2)
+    middle = sim.state
+    assert isinstance(middle, EngineState) and middle.time == sim.time
+    rest = sim.run(STEPS - STEPS // 2)
+    sim.reset(middle)
+    assert sim.time == middle.time
+    _equal_records(sim.run(STEPS - STEPS // 2), rest)
+
+
+def test_examples_switch(engine):
+    sim, _, _ = engine
+    assert sim.set_examples(True) is True
+    with_examples = sim.run(STEPS)
+    assert sim.set_examples(False) is False
+    sim.reset()
+    without = sim.run(STEPS)
+    assert not np.array_equal(without.states, with_examples.states)
+    assert sim.set_examples(True) is True
+    sim.reset()
+    _equal_records(sim.run(STEPS), with_examples)
+
+
+def test_drag_pulls_the_vertex_towards_the_target_and_lets_go(engine):
+    sim, pre, _ = engine
+    free_run = sim.run(STEPS)
+    vertex = int(np.argmin(pre.mesh.points[:, 2]))  # a bottom vertex (free in each scene)
+    u_free = sim.displacement()[vertex]
+    pull = np.array([0.02, 0.0, 0.0])
+    sim.reset()
+    target = pre.mesh.points[vertex] + pull
+    sim.set_drag(Drag(vertex, target, 2000.0 * pre.material.density * pre.mesh.volume()))
+    sim.run(STEPS)
+    u_dragged = sim.displacement()[vertex]
+    assert (u_dragged - u_free) @ pull > 0.05 * pull @ pull
+    sim.set_drag(None)
+    sim.reset()
+    _equal_records(sim.run(STEPS), free_run)
