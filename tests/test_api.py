@@ -167,7 +167,7 @@ def test_scene_from_arrays_in_memory_writes_only_the_cache(tmp_path):
             example_stiffness=500.0, dt=0.005, steps=10))
         print(json.dumps({"stable": record.stable, "shape": list(sim.displacement().shape),
                           "moved": float(abs(sim.displacement()).max()),
-                          "cached": again.from_cache, "key": again.key == pre.key}))
+                          "cached": again.stages.from_cache, "key": again.key == pre.key}))
     """, cwd=work, env={"LBSHAPE_CACHE": str(cache), "TMPDIR": str(tmp)})
     result = json.loads(out)
     assert result == {"stable": True, "shape": [_box().n_vertices, 3],

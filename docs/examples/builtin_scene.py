@@ -25,7 +25,7 @@ print(f"{scene.name}: {scene.description}")
 #    ($LBSHAPE_CACHE, else ~/.cache/lbshape); later calls read it back.
 pre = lbshape.precompute(scene)
 print(f"mesh: {pre.mesh.n_vertices} vertices, {pre.mesh.n_tets} tets; basis r = {pre.r}"
-      f" ({'from the cache' if pre.from_cache else 'computed'})")
+      f" ({'from the cache' if pre.stages.from_cache else 'computed'})")
 
 # 3. A simulation with the paper's reduced method ("euclidean" and "full" drive the same way).
 sim = lbshape.simulation(scene, pre, method="reduced")
