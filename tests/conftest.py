@@ -8,6 +8,11 @@ whole session) starts a virtual X server when the live window's tests run;
 
 Helpers, imported by the test modules (``from conftest import rel``):
 :func:`rel`, :func:`central_difference_errors` and :func:`observed_rates`.
+
+Layout: ``tests/<subpackage>/test_*.py`` mirrors the package, without ``__init__.py``
+files (pytest's default ``prepend`` import mode), so every test file's basename is
+unique across the folders; this conftest stays at ``tests/``, whose folder pytest puts
+on ``sys.path`` when it loads it, so ``from conftest import ...`` works in every folder.
 """
 
 from __future__ import annotations
@@ -33,7 +38,7 @@ def private_cache(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session", autouse=True)
 def live_display(request):
-    """A virtual X display for the whole session when ``tests/test_live.py`` is collected
+    """A virtual X display for the whole session when ``tests/live/test_live.py`` is collected
     and no ``DISPLAY`` is set (and Xvfb is installed): VTK settles on a window class at
     the first render of the process, so the live window's display must exist before any
     off-screen picture of an earlier test. Yields the display's name or None."""

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-PACKAGE = Path(__file__).resolve().parents[1] / "lbshape"
+PACKAGE = Path(__file__).resolve().parents[2] / "lbshape"
 #: optional heavy packages that may only be imported inside functions
 HEAVY = ("dolfinx", "petsc4py", "slepc4py", "pyvista", "matplotlib", "gmsh")
 #: subpackage -> subpackages it must never import (the data path runs one way:

@@ -2,7 +2,7 @@
 derivatives' factorisation of K), U keeps them exactly
 after the linear modes, a load's linear static solution then lies in span U (it does not
 without them), and a scene's responses are what its loads ask for. The example
-responses appended after the basis: ``tests/test_example_responses.py``."""
+responses appended after the basis: ``tests/elastic/test_example_responses.py``."""
 
 from __future__ import annotations
 

@@ -22,7 +22,7 @@ from lbshape.errors import LbshapeError, SolverError
 from lbshape.geometry.mesh import TetMesh, gmsh_session
 from lbshape.geometry.primitives import structured_box
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PYTHON = str(REPO / ".venv" / "bin" / "python") if (REPO / ".venv").is_dir() else sys.executable
 
 #: ν = 0 makes the axial problem exactly one-dimensional (no lateral contraction)

@@ -30,7 +30,7 @@ from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
 from lbshape.scene.reader import scene_from_dict
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PYTHON = str(REPO / ".venv" / "bin" / "python") if (REPO / ".venv").is_dir() else sys.executable
 SIZE = (1.0, 0.6, 0.4)
 

@@ -24,7 +24,7 @@ from lbshape.pipeline.precompute import precompute
 from lbshape.report.live import LiveEvent, LiveWindow, read_events, virtual_display
 from lbshape.scene import load_scene
 
-REPOSITORY = Path(__file__).resolve().parents[1]
+REPOSITORY = Path(__file__).resolve().parents[2]
 #: steps of the deterministic runs (paused, stepped by events): 0.3 s of the demo
 STEPS = 300
 

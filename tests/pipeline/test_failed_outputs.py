@@ -18,7 +18,7 @@ from lbshape.io.cache import artifact_lock
 from lbshape.pipeline.precompute import precompute
 from lbshape.scene import load_scene
 
-DEMO = Path(__file__).resolve().parents[1] / "lbshape" / "scene" / "builtin" / "demo.toml"
+DEMO = Path(__file__).resolve().parents[2] / "lbshape" / "scene" / "builtin" / "demo.toml"
 
 
 def _scene_file(folder: Path, name: str, **replace: str) -> Path:

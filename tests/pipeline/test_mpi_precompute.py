@@ -23,7 +23,7 @@ from lbshape.pipeline.precompute import precompute
 from lbshape.scene import load_scene
 
 PYTHON = sys.executable
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 BAR = """\
 name = "mpi-bar"

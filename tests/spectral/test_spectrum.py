@@ -28,7 +28,7 @@ from lbshape.spectral.spectrum import (
     lb_spectrum,
 )
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PYTHON = str(REPO / ".venv" / "bin" / "python") if (REPO / ".venv").is_dir() else sys.executable
 
 
