@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import pytest
+
 from lbshape.pipeline.influence import without_examples
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import reduced_simulation
@@ -36,6 +38,7 @@ def _rebound_speed(scene, pre, dt: float) -> tuple[float, int]:
     return -min(speeds), most
 
 
+@pytest.mark.slow
 def test_car_rebound_does_not_depend_on_the_step():
     scene = without_examples(load_scene("car"))
     pre = precompute(scene)

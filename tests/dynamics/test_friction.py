@@ -239,7 +239,7 @@ def test_line_search_tames_a_saturating_force():
 
 
 # ------------------------------------------------------------- closed forms
-@pytest.mark.parametrize("method", ["reduced", "full"])
+@pytest.mark.parametrize("method", ["reduced", pytest.param("full", marks=pytest.mark.slow)])
 def test_block_held_by_friction_only_creeps(block, method):
     """tan θ / μ = ½: the block moves only by the regularisation's creep."""
     theta, mu = math.atan(0.25), 0.5
@@ -252,7 +252,7 @@ def test_block_held_by_friction_only_creeps(block, method):
     assert x[-1] <= 0.01 * 0.5 * G * math.sin(theta) * times[-1] ** 2
 
 
-@pytest.mark.parametrize("method", ["reduced", "full"])
+@pytest.mark.parametrize("method", ["reduced", pytest.param("full", marks=pytest.mark.slow)])
 def test_block_slides_at_the_coulomb_acceleration(block, method):
     theta, mu = math.radians(30.0), 0.3
     times, x, v = block.slide(theta, mu, duration=0.6, method=method)
@@ -262,7 +262,7 @@ def test_block_slides_at_the_coulomb_acceleration(block, method):
     assert abs(measured / expected - 1) <= 0.02, (measured, expected)
 
 
-@pytest.mark.parametrize("method", ["reduced", "full"])
+@pytest.mark.parametrize("method", ["reduced", pytest.param("full", marks=pytest.mark.slow)])
 def test_thrown_block_stops_after_the_coulomb_distance(block, method):
     mu, v0 = 0.5, 2.0
     times, x, v = block.slide(0.0, mu, v0=v0, duration=0.6, method=method)  # stops at 0.41 s

@@ -116,7 +116,7 @@ def test_a_load_static_solution_lies_in_span_u_only_with_responses(clamped):
     assert outside(plain) > 0.5, "the test needs a load the plain basis misses"
 
 
-@pytest.mark.parametrize("name", ["teddy-local", "demo"])
+@pytest.mark.parametrize("name", [pytest.param("teddy-local", marks=pytest.mark.slow), "demo"])
 def test_scene_responses_answer_its_loads(name):
     scene = load_scene(name)
     mesh = build_mesh(scene.object)

@@ -147,6 +147,7 @@ def _cli(args, env_display, tmp_path):
                           text=True, timeout=300)
 
 
+@pytest.mark.slow
 def test_scripted_run_prints_paced_stats_and_a_screenshot(display, demo, tmp_path):
     shot = tmp_path / "live.png"
     result = _cli(["demo", "--seconds", "2", "--screenshot", str(shot), "--json"], display,
@@ -165,6 +166,7 @@ def test_scripted_run_prints_paced_stats_and_a_screenshot(display, demo, tmp_pat
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 def test_a_divergence_stops_the_window_with_the_step(display, demo, tmp_path):
     vertex = _corner(demo[1].mesh.points)
     events = tmp_path / "events.json"

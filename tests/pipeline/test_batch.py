@@ -59,6 +59,7 @@ def test_artifact_lock_is_exclusive_between_open_files(tmp_path):
         fcntl.flock(other.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
 
 
+@pytest.mark.slow
 def test_precompute_batch_with_a_bad_scene(tmp_path, capsys):
     code = main(["precompute", "demo", str(_bad_scene(tmp_path)), "-j", "1"])
     assert code != 0
@@ -70,6 +71,7 @@ def test_precompute_batch_with_a_bad_scene(tmp_path, capsys):
     assert err.strip().splitlines()[-1].startswith("error: 1 of 2 scenes failed")
 
 
+@pytest.mark.slow
 def test_concurrent_precomputes_of_one_scene_leave_one_valid_entry(tmp_path, monkeypatch,
                                                                    capsys):
     cache = tmp_path / "cache"
@@ -92,6 +94,7 @@ def test_concurrent_precomputes_of_one_scene_leave_one_valid_entry(tmp_path, mon
     assert np.isfinite(arrays["U"]).all() and meta["scene"] == "demo"
 
 
+@pytest.mark.slow
 def test_bench_batch_with_a_bad_scene(tmp_path, capsys):
     code = main(["bench", "demo", str(_bad_scene(tmp_path)), "--json", "--steps", str(STEPS),
                  "--repeats", "1", "--out-dir", str(tmp_path / "out")])

@@ -151,8 +151,8 @@ def test_reduced_error_against_full_falls_as_r_grows(demo):
     [
         {"dt": 1.0 / 60.0},
         {"twist": np.pi},
-        {"stiffness": 1e5},
-        {"poisson": 0.45},
+        pytest.param({"stiffness": 1e5}, marks=pytest.mark.slow),
+        pytest.param({"poisson": 0.45}, marks=pytest.mark.slow),
     ],
     ids=["dt-1/60", "twist-180", "stiff-examples", "nu-0.45"],
 )

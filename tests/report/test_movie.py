@@ -85,6 +85,7 @@ def test_mp4_frame_count_and_even_size(tmp_path):
     assert (gif.path.name, mp4.path.name) == ("d.gif", "d.mp4")
 
 
+@pytest.mark.slow
 def test_render_movie_shows_reduced_and_full_from_the_written_trajectories(tmp_path):
     from lbshape.report.animation import read_states
 

@@ -169,6 +169,7 @@ def test_planes_act_on_a_fixed_object_in_every_method():
         assert sags[method, True] >= -0.001 - 1e-3, (method, sags)  # the plane holds it
 
 
+@pytest.mark.slow
 def test_real_time_tolerances_follow_the_converged_free_body(monkeypatch):
     """The car's wall impact (contact sweeps, friction) at the real-time Newton and sweep
     tolerances against both tightened by 4–5 orders: 1.4e-6 apart over 300 steps

@@ -151,6 +151,7 @@ def _final_difference(scene_global, scene_whole, *, method: str, steps: int):
             float(np.linalg.norm(whole - reference) / np.linalg.norm(reference)), top)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("posed", [False, True], ids=["analytic", "posed-files"])
 def test_one_region_over_the_object_is_the_global_run_with_default_settings(files, posed):
     """The demo (300 reduced steps, default route, boundary and anchoring) with one

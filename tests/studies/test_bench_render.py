@@ -148,6 +148,7 @@ def test_bench_command_rejects_too_few_steps_without_output(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_bench_script_writes_table_and_sweep(tmp_path, load_script):
     from lbshape.scene import load_scene
 
@@ -194,6 +195,7 @@ def test_bench_script_writes_table_and_sweep(tmp_path, load_script):
 
 
 # ----------------------------------------------------------------------- render
+@pytest.mark.slow
 def test_render_command_writes_non_blank_pngs(tmp_path):
     out = tmp_path / "figures"
     assert main(["render", "demo", "--out", str(out), "--steps", "30"]) == 0
@@ -233,6 +235,7 @@ def test_figure3_panels_for_a_same_and_other_topology_pair(tmp_path):
         figure3(dataclasses.replace(same, examples=None), other, tmp_path / "x.png")
 
 
+@pytest.mark.slow
 def test_figure6_measures_local_against_global_examples_on_one_object(tmp_path):
     import meshio
 

@@ -109,6 +109,7 @@ def test_sweep_forces_follow_the_material():
         pareto.sweep_forces(rubber, ("polynomial",))
 
 
+@pytest.mark.slow
 def test_sweep_runs_the_polynomials_once_per_r_and_the_cubature_per_r_and_s():
     from lbshape.report.bench import speed_error_sweep
     from lbshape.scene import load_scene

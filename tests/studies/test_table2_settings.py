@@ -198,6 +198,7 @@ def test_a_scene_already_at_the_setting_and_without_examples_runs_nothing_twice(
     assert "| same run (no examples) |" in md
 
 
+@pytest.mark.slow
 def test_free_body_rows_and_settings_split_the_error(runs):
     """A free bar (Figure 4): its rows and both settings carry the centre-of-mass path,
     rotation and body-frame deformation errors of independent runs."""

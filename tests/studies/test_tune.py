@@ -142,6 +142,7 @@ def test_no_candidate_within_the_budget_is_said_plainly():
 
 
 # ------------------------------------------------------------------- real runs
+@pytest.mark.slow
 def test_tune_picks_the_cheapest_candidate_within_the_error():
     from lbshape.elastic.element_kernels import mass_matrix
     from lbshape.pipeline.precompute import precompute
