@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.linalg as sla
+from conftest import golden
 
 from lbshape.dynamics.drag import DragSpring, explicit_stiffness_limit
 from lbshape.dynamics.fictitious import frame_tensors
@@ -54,8 +55,9 @@ def test_fixed_object_settles_where_spring_and_elasticity_balance(clamped):
     _, K0 = elastic.force_and_tangent(np.zeros(U.shape[1]))
     # K q + k U_iᵀ (U_i q − offset) = 0
     expected = np.linalg.solve(K0 + k * rows.T @ rows, k * rows.T @ offset)
-    # measured: 5.1e-5 (the StVK nonlinearity at a 0.1 mm pull)
-    assert np.linalg.norm(sim.x - expected) < 1e-3 * np.linalg.norm(expected)
+    # the StVK nonlinearity at a 0.1 mm pull
+    limit = golden("drag.static_equilibrium_error").limit
+    assert np.linalg.norm(sim.x - expected) < limit * np.linalg.norm(expected)
     # the vertex lies between rest and target, pulled most of the way along the offset
     moved = rows @ sim.x
     assert 0.0 < moved @ offset < offset @ offset

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import golden
 
 from lbshape.elastic.basis import append_directions, nonlinear_basis
 from lbshape.elastic.element_kernels import mass_matrix
@@ -132,7 +133,8 @@ def test_teddy_with_global_examples_follows_the_full_reference():
     full = run_full_space(scene, pre, steps=steps, stride=5)
     M = mass_matrix(pre.mesh, scene.material.density)
     error = trajectory_error(reduced.displacements(pre.U), full.displacements(), M)
-    assert error < 0.03, f"reduced vs full {error:.3f}"
+    assert error < golden("example_responses.teddy_global_error").limit, \
+        f"reduced vs full {error:.3f}"
 
 
 @pytest.mark.slow
@@ -152,5 +154,5 @@ def test_the_figure4_bar_holds_its_example_pull_in_free_flight():
     mass = mass_matrix(pre.mesh, scene.material.density)
     split = free_body_error(reduced.displacements(pre.U), full.displacements(None),
                             pre.mesh.points, mass)
-    assert split.deformation < 0.015, split
+    assert split.deformation < golden("example_responses.figure4_bar_deformation").limit, split
     assert split.rotation_deg < 0.05 and split.com_path < 1e-3, split

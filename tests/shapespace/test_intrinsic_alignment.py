@@ -10,6 +10,7 @@ import re
 
 import numpy as np
 import pytest
+from conftest import golden
 
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
@@ -70,18 +71,30 @@ def _choose(bar, spectrum, example):
     return embedded.alignment, rest, offered_spectrum(rest, count)
 
 
-# (example, chosen method, residual limit, transfer-error limit); limits are about twice
-# the values measured by scripts/bench_alignment.py (results/alignment.md)
+def _map_limits(key: str) -> tuple[float, float]:
+    """(residual limit, transfer-error limit) of a known map: about twice the values
+    measured by scripts/bench_alignment.py (results/alignment.md)."""
+    return tuple(golden(f"intrinsic_alignment.known_maps.{key}.{what}").limit
+                 for what in ("residual", "transfer"))
+
+
+# (example, chosen method, residual limit, transfer-error limit)
 KNOWN_MAPS = {
-    "remeshed": (lambda: box((0.2, 0.2, 1.0), 0.07), "overlay", 0.14, 0.12),  # 0.067, 0.055
-    "scaled": (lambda: structured_box((0.4, 0.4, 2.0), (4, 4, 16)), "overlay", 1e-6, 1e-6),
-    "stretched 2x": (lambda: structured_box((0.2, 0.2, 2.0), (4, 4, 24)), "intrinsic", 0.19,
-                     0.03),  # 0.093, 0.014
-    "cylinder 5:1": (lambda: cylinder(0.1128, 1.0, 0.06), "overlay", 0.21, 0.23),  # 0.102, 0.112
-    "cylinder 8:1": (lambda: cylinder(0.1128, 1.8, 0.06), "intrinsic", 0.36, 0.3),  # 0.160, 0.140
-    "cylinder 2:1": (lambda: cylinder(0.2, 0.8, 0.08), "intrinsic", 0.5, 0.16),  # 0.274, 0.079
-    "finer": (lambda: structured_box((0.2, 0.2, 1.0), (6, 6, 24)), "overlay", 0.07, 0.12),
-    "coarser": (lambda: structured_box((0.2, 0.2, 1.0), (3, 3, 10)), "overlay", 0.19, 0.2),
+    "remeshed": (lambda: box((0.2, 0.2, 1.0), 0.07), "overlay", *_map_limits("remeshed")),
+    "scaled": (lambda: structured_box((0.4, 0.4, 2.0), (4, 4, 16)), "overlay",
+               *_map_limits("scaled")),
+    "stretched 2x": (lambda: structured_box((0.2, 0.2, 2.0), (4, 4, 24)), "intrinsic",
+                     *_map_limits("stretched")),
+    "cylinder 5:1": (lambda: cylinder(0.1128, 1.0, 0.06), "overlay",
+                     *_map_limits("cylinder_5_1")),
+    "cylinder 8:1": (lambda: cylinder(0.1128, 1.8, 0.06), "intrinsic",
+                     *_map_limits("cylinder_8_1")),
+    "cylinder 2:1": (lambda: cylinder(0.2, 0.8, 0.08), "intrinsic",
+                     *_map_limits("cylinder_2_1")),
+    "finer": (lambda: structured_box((0.2, 0.2, 1.0), (6, 6, 24)), "overlay",
+              *_map_limits("finer")),
+    "coarser": (lambda: structured_box((0.2, 0.2, 1.0), (3, 3, 10)), "overlay",
+                *_map_limits("coarser")),
 }
 
 
@@ -133,14 +146,16 @@ def test_sign_flips_and_swapped_degenerate_modes_come_out_right(bar, spectrum):
                                descriptor_functions(scrambled, xi, M))
     C = solve_map(problem)
     # Φ_ex C = Φ G C ≈ Φ  ⇒  C ≈ Gᵀ
-    assert np.abs(C - G.T).max() < 1e-8, np.abs(C - G.T).max()  # measured 2e-11
-    assert spectral_distortion(C, values, values) < 1e-4  # measured 2.7e-5
+    limit = golden("intrinsic_alignment.scrambled_copy_map_error").limit
+    assert np.abs(C - G.T).max() < limit, np.abs(C - G.T).max()
+    assert spectral_distortion(C, values, values) < golden(
+        "intrinsic_alignment.scrambled_copy_distortion").limit
 
 
 def test_reflection_of_a_symmetric_shape_aligns_with_both_methods():
     """An L-beam mirrored (a reflection, then brought back by the frame alignment's proper
-    rotation): both candidate maps align it (measured residuals: overlay 0.023, intrinsic
-    0.171) and the overlay is kept."""
+    rotation): both candidate maps align it (golden values: the residuals) and the overlay
+    is kept."""
     beam = build_shape("l-beam")
     beam_spectrum = lb_spectrum(beam, M)
     mirrored = beam.with_points(beam.points * np.array([-1.0, 1.0, 1.0]))
@@ -150,8 +165,9 @@ def test_reflection_of_a_symmetric_shape_aligns_with_both_methods():
     rest = mirrored.with_points(aligned.points)
     found = {a.method: a for a, _ in candidate_alignments(
         beam_spectrum, beam, frame, rest, lambda count: offered_spectrum(rest, count))}
-    assert found["overlay"].residual < 0.05, found["overlay"].residual
-    assert found["intrinsic"].residual < 0.35, found["intrinsic"].residual
+    for method in ("overlay", "intrinsic"):
+        limit = golden(f"intrinsic_alignment.mirrored_{method}_residual").limit
+        assert found[method].residual < limit, (method, found[method].residual)
     embedded = embed_example(beam, beam_spectrum, mirrored, [mirrored.points])
     assert embedded.alignment.method == "overlay"
 
@@ -159,8 +175,7 @@ def test_reflection_of_a_symmetric_shape_aligns_with_both_methods():
 def test_example_of_other_proportions_asks_for_the_same_twist(bar, spectrum):
     """A 5:1 bar's examples twisted by 1 rad: a 3:1 cylinder (the issue's example
     proportions) and an 8:1 cylinder ask for an end twist within 15 % of the bar's own twisted
-    copy (measured 0.94–1.00), and the coefficients point the same way (cos ≥ 0.9;
-    measured ≥ 0.93)."""
+    copy, and the coefficients point the same way (cos > 0.9); measured: golden values."""
     def target(example):
         posed = apply_pose(example, "twist", angle=1.0, axis="z", anchor="max")
         embedded = embed_example(bar, spectrum, example, [posed.points])
@@ -172,9 +187,10 @@ def test_example_of_other_proportions_asks_for_the_same_twist(bar, spectrum):
     for example in (cylinder(0.15, 0.9, 0.06), cylinder(0.1128, 1.8, 0.06)):
         method, twist, c = target(example)
         assert method == "intrinsic"
-        assert abs(twist / own_twist - 1.0) < 0.15, (twist, own_twist)
+        limit = golden("intrinsic_alignment.other_proportions_twist").limit
+        assert abs(twist / own_twist - 1.0) < limit, (twist, own_twist)
         cosine = float((c * own).sum() / np.linalg.norm(c) / np.linalg.norm(own))
-        assert cosine > 0.9, cosine
+        assert cosine > golden("intrinsic_alignment.other_proportions_cosine").limit, cosine
 
 
 @pytest.mark.parametrize("pair", ["cube for a bar", "ball for an L-beam"])

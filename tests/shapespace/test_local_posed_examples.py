@@ -18,6 +18,7 @@ import tomllib
 import meshio
 import numpy as np
 import pytest
+from conftest import golden
 
 from lbshape.cli import main as cli_main
 from lbshape.elastic.materials import Material
@@ -96,8 +97,8 @@ def test_posed_files_in_regions_are_cut_on_their_rest_mesh(files):
     from_files, from_poses = precompute(posed).local, precompute(analytic).local
     for a, b in zip(from_files.regions, from_poses.regions, strict=True):
         scale = np.abs(b.example_coefficients).max()
-        # a real twist: measured 2.0e-3 (low) and 1.3e-3 (high) m^(5/2), 2.6x margin
-        assert scale > 5e-4
+        # a real twist
+        assert scale > golden("local_posed_examples.region_twist_scale").limit
         # the same vertices at the same positions: measured equal to the last bit
         np.testing.assert_allclose(a.example_coefficients, b.example_coefficients,
                                    rtol=0, atol=1e-9 * scale)
@@ -164,9 +165,10 @@ def test_one_region_over_the_object_is_the_global_run_with_default_settings(file
     steps = global_scene.simulation.steps
     top_error, field_error, top = _final_difference(global_scene, whole, method="reduced",
                                                     steps=steps)
-    assert top > 0.05  # the examples twist the bar: measured 0.106 m, 2.1x margin
-    assert top_error < 0.05, f"whole-object region vs global, final max |u|: {top_error:.3g}"
-    assert field_error < 0.05, f"whole-object region vs global, final u: {field_error:.3g}"
+    assert top > golden("local_posed_examples.whole_region_top").limit  # a real twist
+    limit = golden("local_posed_examples.whole_region_difference").limit
+    assert top_error < limit, f"whole-object region vs global, final max |u|: {top_error:.3g}"
+    assert field_error < limit, f"whole-object region vs global, final u: {field_error:.3g}"
 
 
 def test_one_region_over_the_object_is_the_global_run_in_full_space(files):
@@ -177,8 +179,9 @@ def test_one_region_over_the_object_is_the_global_run_in_full_space(files):
     top_error, field_error, top = _final_difference(
         _demo(files, posed=True, whole=False), _demo(files, posed=True, whole=True),
         method="full", steps=40)
-    assert top > 1e-2  # measured 0.072 m after 40 steps (7x margin): a real motion
-    assert top_error < 0.05 and field_error < 0.05, (top_error, field_error)
+    assert top > golden("local_posed_examples.whole_region_full_top").limit  # a real motion
+    limit = golden("local_posed_examples.whole_region_full_difference").limit
+    assert top_error < limit and field_error < limit, (top_error, field_error)
 
 
 # ------------------------------------------------------------------ numbering

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import golden
 
 from lbshape.dynamics.sanity import DeformationBound
 from lbshape.errors import LbshapeError, SolverError
@@ -24,8 +25,7 @@ from lbshape.report.machine import machine_description
 from lbshape.scene import load_scene
 
 #: the issue's target: final displacement within 20 % of the full method at the same dt.
-#: Measured: demo 4.7-4.9 %, L-beam 0.5-1.9 % (at least 4x margin).
-TARGET = 0.20
+TARGET = golden("realtime_steps.final_difference").limit
 
 
 def _final_max(frames: np.ndarray) -> float:
