@@ -25,7 +25,7 @@ from lbshape.report.machine import machine_description
 from lbshape.scene import load_scene
 
 #: the issue's target: final displacement within 20 % of the full method at the same dt.
-TARGET = golden("realtime_steps.final_difference").limit
+TARGET = golden("large_steps.final_difference").limit
 
 
 def _final_max(frames: np.ndarray) -> float:
