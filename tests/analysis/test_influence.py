@@ -196,7 +196,8 @@ def test_influence_is_zero_when_the_examples_are_the_rest_shape(demo):
     assert effect.final is None  # u_none = 0: relative influence undefined
 
 
-@pytest.mark.parametrize("method", [pytest.param("reduced", marks=pytest.mark.slow), "full"])
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["reduced", "full"])
 def test_free_body_influence_is_zero_when_the_examples_are_the_rest_shape(method):
     """A free bar thrown without loads, examples equal to its rest shape: it flies
     undeformed with and without them (influence 0 in the body frame, although its

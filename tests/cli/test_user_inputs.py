@@ -293,6 +293,7 @@ def test_default_outputs_outside_the_repository(tmp_path, monkeypatch):
     assert demo.default_out() == RESULTS_DIR / "demo"
 
 
+@pytest.mark.slow
 def test_user_scene_render_defaults_to_the_current_folder_with_a_comparison(
         tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)

@@ -334,6 +334,7 @@ def test_engines_refuse_bad_friction(block):
         ReducedSimulation(block.elastic, r=block.U.shape[1], dt=DT, contact=rubbing)
 
 
+@pytest.mark.slow
 def test_car_passes_a_contact_that_begins_at_round_off():
     """The car's nose reaches the wall at exactly t = 0.140 s (0.7 m at 5 m/s): its
     vertices touch to round-off (depth 6e-16 m), where friction makes the residual

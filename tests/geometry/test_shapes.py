@@ -72,7 +72,9 @@ def test_default_mesh_hits_target_and_is_one_valid_body(name):
     assert again.n_vertices == n_v
 
 
-@pytest.mark.parametrize("name", list(SHAPES))
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if n in _SLOW_SHAPES else n for n in SHAPES]
+)
 def test_named_groups_are_present_and_cover_the_body(name):
     mesh = built(name)
     for group in SHAPES[name].groups:

@@ -171,6 +171,7 @@ def test_one_region_over_the_object_is_the_global_run_with_default_settings(file
     assert field_error < limit, f"whole-object region vs global, final u: {field_error:.3g}"
 
 
+@pytest.mark.slow
 def test_one_region_over_the_object_is_the_global_run_in_full_space(files):
     """The full-space reference of the posed-file demo with one region over the bar is
     the global full run (the 5 % target; measured 1.4e-16). Posed files read as rest
