@@ -7,19 +7,30 @@ whole session) starts a virtual X server when the live window's tests run;
 ``load_script`` loads a benchmark script of ``scripts/``.
 
 Helpers, imported by the test modules (``from conftest import rel``):
-:func:`rel`, :func:`central_difference_errors` and :func:`observed_rates`.
+:func:`rel`, :func:`central_difference_errors`, :func:`observed_rates` and
+:func:`golden` (a measured value and the test's limit, from ``tests/golden.toml``).
+
+Layout: ``tests/<subpackage>/test_*.py`` mirrors the package, without ``__init__.py``
+files (pytest's default ``prepend`` import mode), so every test file's basename is
+unique across the folders; this conftest stays at ``tests/``, whose folder pytest puts
+on ``sys.path`` when it loads it, so ``from conftest import ...`` works in every folder.
 """
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import sys
+import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+GOLDEN = Path(__file__).resolve().with_name("golden.toml")
+BOUNDS = ("below", "at_most", "above", "at_least")
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -33,7 +44,7 @@ def private_cache(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session", autouse=True)
 def live_display(request):
-    """A virtual X display for the whole session when ``tests/test_live.py`` is collected
+    """A virtual X display for the whole session when ``tests/live/test_live.py`` is collected
     and no ``DISPLAY`` is set (and Xvfb is installed): VTK settles on a window class at
     the first render of the process, so the live window's display must exist before any
     off-screen picture of an earlier test. Yields the display's name or None."""
@@ -105,3 +116,58 @@ def observed_rates(errors, steps) -> np.ndarray:
     errors = np.asarray(errors, dtype=float)
     steps = np.asarray(steps, dtype=float).reshape((-1,) + (1,) * (errors.ndim - 1))
     return np.log(errors[:-1] / errors[1:]) / np.log(steps[:-1] / steps[1:])
+
+
+@dataclass(frozen=True)
+class Golden:
+    """A measured value a test compares against, with the test's limit.
+
+    Attributes:
+        key: the entry's dotted name in ``tests/golden.toml`` (``"<file>.<name>"``).
+        measured: the value measured, or (lowest, highest) over the cases of ``what``,
+            in the unit of ``limit``.
+        limit: the number the test compares against.
+        bound: "below" (<), "at_most" (<=), "above" (>) or "at_least" (>=).
+        what: the quantity, its unit and the cases measured.
+        test: the test that measures it (pytest node id from the repository root).
+    """
+
+    key: str
+    measured: float | tuple[float, float]
+    limit: float
+    bound: str
+    what: str
+    test: str
+
+
+@functools.cache
+def golden_table() -> dict:
+    """``tests/golden.toml`` as nested dicts (read once)."""
+    return tomllib.loads(GOLDEN.read_text(encoding="utf-8"))
+
+
+def golden_keys(table: dict | None = None, prefix: str = "") -> list[str]:
+    """Dotted names of every entry of ``tests/golden.toml`` (tables holding a ``limit``)."""
+    table = golden_table() if table is None else table
+    keys = []
+    for name, value in table.items():
+        if isinstance(value, dict):
+            key = f"{prefix}{name}"
+            keys += [key] if "limit" in value else golden_keys(value, f"{key}.")
+    return keys
+
+
+def golden(key: str) -> Golden:
+    """The entry ``key`` (``"<file>.<name>"``) of ``tests/golden.toml``.
+
+    Example: ``assert error < golden("drag.static_equilibrium_error").limit``.
+    """
+    entry = golden_table()
+    for part in key.split("."):
+        if not isinstance(entry, dict) or part not in entry:
+            raise KeyError(f"no golden value {key!r} in {GOLDEN}")
+        entry = entry[part]
+    measured = entry["measured"]
+    return Golden(key=key, measured=tuple(measured) if isinstance(measured, list) else measured,
+                  limit=entry["limit"], bound=entry["bound"], what=entry["what"],
+                  test=entry["test"])
