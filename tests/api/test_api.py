@@ -21,7 +21,7 @@ from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.primitives import structured_box
 from lbshape.pipeline.precompute_key import scene_cache_key
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 API_NAMES = ["LbshapeError", "RunRecord", "Scene", "Simulation", "SolverError", "TetMesh",
              "lb_spectrum", "load_scene", "precompute", "read_mesh", "simulation"]
 
