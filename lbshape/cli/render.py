@@ -13,7 +13,7 @@ from pathlib import Path
 
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.simulate import METHODS
-from lbshape.report.animation import simulation_movie
+from lbshape.studies.animation import simulation_movie
 from lbshape.report.figures import (
     FIGURE3_SCENES,
     FIGURE3_STEPS,

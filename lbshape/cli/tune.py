@@ -17,7 +17,7 @@ import math
 from pathlib import Path
 
 from lbshape.errors import LbshapeError
-from lbshape.report.tune import (
+from lbshape.studies.tune import (
     DEFAULT_BUDGET_MS,
     default_out,
     tune_scene,

@@ -58,7 +58,7 @@ from lbshape.pipeline.influence import (
 from lbshape.pipeline.meshes import example_mesh
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import example_influence, simulate
-from lbshape.report.bench import m_norms
+from lbshape.studies.bench import m_norms
 from lbshape.report.render import (
     render_animation,
     render_eigenfunctions,

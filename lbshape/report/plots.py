@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from lbshape.io.atomic import write_atomic
-from lbshape.report.bench import TARGET_ERROR, TARGET_T_TOTAL_MS, SweepPoint
+from lbshape.studies.bench import TARGET_ERROR, TARGET_T_TOTAL_MS, SweepPoint
 
 
 def pyplot():
@@ -48,7 +48,7 @@ def speed_error_plot(points: Sequence[SweepPoint], path: str | Path, *, scene: s
 
     Args:
         points: the sweep, the scene's own m first (see
-            :func:`lbshape.report.bench.speed_error_sweep`).
+            :func:`lbshape.studies.bench.speed_error_sweep`).
         path: the PNG to write.
         scene, steps, dt: for the title (dt in s).
     """

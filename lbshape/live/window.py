@@ -1,9 +1,9 @@
-"""The on-screen window of ``lbshape live``: a :class:`~lbshape.pipeline.live.LiveSession`
+"""The on-screen window of ``lbshape live``: a :class:`~lbshape.live.session.LiveSession`
 stepped to the wall clock and drawn with pyvista/VTK (imported inside functions).
 
 A repeating VTK timer calls :meth:`LiveWindow.frame`: it feeds the scripted events that
 are due, advances the session by the wall time since the last frame
-(:meth:`~lbshape.pipeline.live.LiveSession.advance`: whole steps of the scene's dt,
+(:meth:`~lbshape.live.session.LiveSession.advance`: whole steps of the scene's dt,
 capped), moves the drawn surface's points in place, updates the corner text (simulated
 time, mean step cost, frame rate) and renders. Contact planes are the off-screen
 pictures' rectangles (:func:`lbshape.report.render.plane_rectangles`), reaching far, drawn
@@ -39,7 +39,7 @@ import numpy as np
 
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.io.atomic import write_atomic
-from lbshape.pipeline.live import LiveSession
+from lbshape.live.session import LiveSession
 from lbshape.report.figures import view_vector_of
 from lbshape.report.render import (
     PLANE_COLOR,
@@ -230,7 +230,7 @@ def plane_grid(pv, corners: np.ndarray, spacing: float, *, most: int = 200):
 
 
 class LiveWindow:
-    """The window of a :class:`~lbshape.pipeline.live.LiveSession` (see the module
+    """The window of a :class:`~lbshape.live.session.LiveSession` (see the module
     docstring). Make it, then :meth:`run`.
 
     Args:

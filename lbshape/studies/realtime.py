@@ -39,8 +39,8 @@ from lbshape.pipeline.simulate import (
     reduced_simulation,
     simulate,
 )
-from lbshape.report.bench import TARGET_T_TOTAL_MS, SceneBenchmark, trajectory_error
-from lbshape.report.machine import load_text, machine_description, threads_text
+from lbshape.studies.bench import TARGET_T_TOTAL_MS, SceneBenchmark, trajectory_error
+from lbshape.io.machine import load_text, machine_description, threads_text
 
 #: the paper's Table 2 (Zhu et al. [2] and the paper's method), ms per step, by our scene
 #: names: (DOFs, tets, example vertices, m, r, s, [2] t_interp, [2] t_total, ours

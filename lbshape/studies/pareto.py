@@ -2,7 +2,7 @@
 (``lbshape bench --sweep``).
 
 For each scene the reduced method is run over a grid of settings —
-:func:`lbshape.report.bench.speed_error_sweep` — and each configuration's median
+:func:`lbshape.studies.bench.speed_error_sweep` — and each configuration's median
 per-step time is set against its trajectory error versus the ``full`` reference with
 the same m (``max_t ‖u − u_full‖_M / max_t ‖u_full‖_M``, examples active in both).
 
@@ -55,8 +55,8 @@ from lbshape.elastic.polynomial_forces import (
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
 from lbshape.pipeline.meshes import build_mesh
-from lbshape.report.bench import DEFAULT_OUT, SweepPoint, speed_error_sweep
-from lbshape.report.machine import load_text, machine_description, threads_text
+from lbshape.studies.bench import DEFAULT_OUT, SweepPoint, speed_error_sweep
+from lbshape.io.machine import load_text, machine_description, threads_text
 from lbshape.report.plots import pyplot, save_figure
 
 log = logging.getLogger(__name__)
@@ -295,7 +295,7 @@ def pareto_markdown(sweeps: Sequence[ParetoSweep], machine: dict) -> str:
             "A free body (no m sweep) is measured as Table 2 measures it: also without its "
             "examples (`k_ex = 0` in both methods), and split into the centre-of-mass path, "
             "the rotation (degrees) and the body-frame deformation "
-            "(`lbshape.report.free_body_error`). Its target is each of the whole-field errors "
+            "(`lbshape.analysis.free_body`). Its target is each of the whole-field errors "
             "with and without examples, the centre path and the deformation of both runs "
             f"≤ {FREE_BODY_TARGET_ERROR:.0%} at ≤ {TARGET_MS:g} ms per step; the largest of "
             "them is its *worst judged error*, which its front, verdict and plot use (the "

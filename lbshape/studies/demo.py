@@ -40,7 +40,7 @@ from lbshape.io.paths import output_root
 from lbshape.pipeline.influence import compare_runs, end_twist_degrees, without_examples
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
-from lbshape.report.bench import trajectory_error
+from lbshape.studies.bench import trajectory_error
 from lbshape.report.figures import (
     comparison_animation,
     comparison_figure,

@@ -64,8 +64,8 @@ from lbshape.io.paths import output_root
 from lbshape.io.toml_writer import dumps
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import WARMUP_STEPS, force_elements, simulate
-from lbshape.report.bench import trajectory_error
-from lbshape.report.machine import load_text, machine_description, machine_text
+from lbshape.studies.bench import trajectory_error
+from lbshape.io.machine import load_text, machine_description, machine_text
 
 log = logging.getLogger(__name__)
 
@@ -159,7 +159,7 @@ class TuneResult:
         full_t_total_ms: per-step time of the ``full`` reference (ms).
         trials: every candidate, in the order tried.
         best: the cheapest candidate meeting E within the budget, or None.
-        machine: the conditions of the timings (:func:`~lbshape.report.machine.machine_description`
+        machine: the conditions of the timings (:func:`~lbshape.io.machine.machine_description`
             at the end of the search).
         budget_ms: the per-step time budget (ms).
     """

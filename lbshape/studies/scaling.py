@@ -49,7 +49,7 @@ from lbshape.io.atomic import write_text_atomic
 from lbshape.io.toml_writer import dumps
 from lbshape.pipeline.precompute import precompute, stage_names
 from lbshape.pipeline.simulate import WARMUP_STEPS, reduced_simulation
-from lbshape.report.machine import load_text, machine_description, machine_text
+from lbshape.io.machine import load_text, machine_description, machine_text
 from lbshape.report.plots import pyplot, save_figure
 from lbshape.scene import load_scene
 from lbshape.scene.reader import builtin_scene_names

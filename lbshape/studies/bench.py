@@ -12,13 +12,13 @@
   scene as written, both timed in the same interleaved repeats, each with its error
   against ``full`` with and without the scene's examples (:class:`SettingResult`);
 * free bodies: beside the whole-field error, the centre-of-mass path, the rotation
-  and the body-frame deformation errors (:mod:`lbshape.report.free_body_error`);
+  and the body-frame deformation errors (:mod:`lbshape.analysis.free_body`);
 * :func:`speed_error_sweep` — the reduced method's per-step time against its error
   versus ``full`` while r, s (and optionally m) vary.
 
-Timings are wall clock. The tables are written by :mod:`lbshape.report.tables`, the
+Timings are wall clock. The tables are written by :mod:`lbshape.studies.tables`, the
 plots drawn by :mod:`lbshape.report.plots`, the machine described by
-:mod:`lbshape.report.machine`.
+:mod:`lbshape.io.machine`.
 """
 
 from __future__ import annotations
@@ -38,8 +38,8 @@ from lbshape.pipeline.influence import has_example_force, is_free_body, without_
 from lbshape.pipeline.meshes import build_mesh
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import METHODS, WARMUP_STEPS, example_influence, simulate
-from lbshape.report.free_body_error import KEYS as FREE_BODY_KEYS
-from lbshape.report.free_body_error import free_body_error
+from lbshape.analysis.free_body import KEYS as FREE_BODY_KEYS
+from lbshape.analysis.free_body import free_body_error
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +50,7 @@ ROW_KEYS: tuple[str, ...] = (
 )
 #: the keys every row has after :data:`ROW_KEYS`: a free body's error split into its
 #: centre-of-mass path, rotation (degrees) and body-frame deformation
-#: (:mod:`lbshape.report.free_body_error`; None for a fixed object)
+#: (:mod:`lbshape.analysis.free_body`; None for a fixed object)
 ROW_EXTRA_KEYS: tuple[str, ...] = FREE_BODY_KEYS
 #: scenes benchmarked by default (the paper's first two Table 2 rows)
 DEFAULT_SCENES: tuple[str, ...] = ("bar-cuboid", "bar-cylinder")
@@ -250,7 +250,7 @@ def paper_setting(scene, paper_table: Mapping[str, Sequence]) -> PaperSetting:
         scene: the :class:`~lbshape.scene.schema.Scene`.
         paper_table: the paper's Table 2 by scene name, each row's columns (DOFs, tets,
             example vertices, m, r, s, …)
-            (:data:`lbshape.report.realtime.PAPER_TABLE2`).
+            (:data:`lbshape.studies.realtime.PAPER_TABLE2`).
 
     Returns:
         The scene's row's (m, r, s), or for a scene without a row its own (m, r, s)
@@ -285,7 +285,7 @@ class SettingResult:
             without an example force the same runs as ``error_vs_full``.
         examples: whether the scene's examples act on it (False: the "without examples"
             error is the same run).
-        free_body: a free body's :meth:`~lbshape.report.free_body_error.FreeBodyError.stats`
+        free_body: a free body's :meth:`~lbshape.analysis.free_body.FreeBodyError.stats`
             against ``full`` with the examples (None for a fixed object or a stopped run).
         free_body_no_examples: the same without the examples.
     """
@@ -626,7 +626,7 @@ def _error_vs_full(output, full, mass) -> float | None:
 
 
 def _free_body_vs_full(output, full, pre, mass) -> dict | None:
-    """A free body's :func:`~lbshape.report.free_body_error.free_body_error` stats of a run
+    """A free body's :func:`~lbshape.analysis.free_body.free_body_error` stats of a run
     against ``full`` (None for a fixed object, or if either run is missing or stopped)."""
     if not is_free_body(pre) or full is None or not (full.stats["stable"]
                                                      and output.stats["stable"]):
@@ -673,7 +673,7 @@ class SweepPoint:
             (``k_ex = 0`` in both methods; its only run when it has none); None for a
             fixed object.
         free_body, free_body_no_examples: a free body's
-            :meth:`~lbshape.report.free_body_error.FreeBodyError.stats` (centre path,
+            :meth:`~lbshape.analysis.free_body.FreeBodyError.stats` (centre path,
             rotation in degrees, body-frame deformation) with and without its examples
             (the same run twice for a free body without examples); None for a fixed object.
     """

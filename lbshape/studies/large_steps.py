@@ -27,8 +27,8 @@ from lbshape.geometry.mesh_files import write_msh
 from lbshape.geometry.shapes import build_shape
 from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.simulate import WARMUP_STEPS, reduced_simulation, run_full_space
-from lbshape.report.bench import trajectory_error
-from lbshape.report.machine import load_text, threads_text
+from lbshape.studies.bench import trajectory_error
+from lbshape.io.machine import load_text, threads_text
 from lbshape.report.plots import pyplot, save_figure
 from lbshape.scene.reader import scene_from_dict
 from lbshape.scene.schema import Scene
