@@ -7,7 +7,8 @@ whole session) starts a virtual X server when the live window's tests run;
 ``load_script`` loads a benchmark script of ``scripts/``.
 
 Helpers, imported by the test modules (``from conftest import rel``):
-:func:`rel`, :func:`central_difference_errors` and :func:`observed_rates`.
+:func:`rel`, :func:`central_difference_errors`, :func:`observed_rates` and
+:func:`user_mesh_scene` (also used by ``scripts/bench_large_steps.py``).
 """
 
 from __future__ import annotations
@@ -18,6 +19,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from lbshape.geometry.mesh_files import write_msh
+from lbshape.geometry.shapes import build_shape
+from lbshape.scene.reader import scene_from_dict
+from lbshape.scene.schema import Scene
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
@@ -44,7 +50,7 @@ def live_display(request):
     if not wanted or os.environ.get("DISPLAY") or shutil.which("Xvfb") is None:
         yield os.environ.get("DISPLAY")
         return
-    from lbshape.report.live import virtual_display
+    from lbshape.live.window import virtual_display
 
     with virtual_display() as name:
         yield name
@@ -105,3 +111,26 @@ def observed_rates(errors, steps) -> np.ndarray:
     errors = np.asarray(errors, dtype=float)
     steps = np.asarray(steps, dtype=float).reshape((-1,) + (1,) * (errors.ndim - 1))
     return np.log(errors[:-1] / errors[1:]) / np.log(steps[:-1] / steps[1:])
+
+
+def user_mesh_scene(folder: Path) -> Scene:
+    """A user's own mesh: the ``l-beam`` shape written to ``folder/l-beam.msh`` and a scene
+    that reads it — fixed at the end of its arm (x = 1 m), sagging under gravity and pulled
+    (k_ex = 2000 s⁻²) by a twisted and a bent copy of itself."""
+    write_msh(build_shape("l-beam"), Path(folder) / "l-beam.msh")
+    pose = {"mesh": "l-beam.msh"}
+    return scene_from_dict({
+        "object": {"mesh": "l-beam.msh"},
+        "material": {"model": "stvk", "young": 1e6, "poisson": 0.3, "density": 1000.0},
+        "damping": {"alpha": 0.5, "beta": 0.01},
+        "reduced": {"m": 8, "r": 20, "s": 40},
+        "examples": {"stiffness": 2000.0, "pose": [
+            {**pose, "pose": "twist", "parameters": {"angle": 0.8, "axis": "x",
+                                                      "anchor": "max"}},
+            {**pose, "pose": "arc", "parameters": {"angle": 0.5, "axis": "x",
+                                                    "anchor": "max", "direction": "z"}}]},
+        "fixed": {"region": "x > 0.999"},
+        "loads": [{"type": "gravity", "vector": [0.0, 0.0, -9.81]}],
+        "simulation": {"dt": 0.001, "steps": 400},
+    }, name="l-beam", base_dir=Path(folder))
+

@@ -10,13 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lbshape.analysis.norms import trajectory_error
 from lbshape.cli import main
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.pipeline.simulate import force_elements
-from lbshape.report.bench import ROW_EXTRA_KEYS, ROW_KEYS, trajectory_error
-from lbshape.report.realtime import NEWTON_VARIANTS
+from lbshape.studies.bench import ROW_EXTRA_KEYS, ROW_KEYS
+from lbshape.studies.realtime import NEWTON_VARIANTS
 
 STEPS = 15  # > the 10 warm-up steps
 

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 from lbshape.errors import LbshapeError
-from lbshape.pipeline.live import LiveSession
+from lbshape.live.session import LiveSession
+from lbshape.live.window import LiveEvent, LiveWindow, read_events, virtual_display
 from lbshape.pipeline.precompute import precompute
-from lbshape.report.live import LiveEvent, LiveWindow, read_events, virtual_display
 from lbshape.scene import load_scene
 
 REPOSITORY = Path(__file__).resolve().parents[1]

@@ -8,20 +8,16 @@ import math
 
 import numpy as np
 import pytest
+from conftest import user_mesh_scene
 
 from lbshape.dynamics.sanity import DeformationBound
 from lbshape.errors import LbshapeError, SolverError
+from lbshape.io.machine import machine_description
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import deformation_bound, reduced_simulation, run_full_space
-from lbshape.report.large_steps import (
-    LargeStepRow,
-    large_step_study,
-    large_steps_markdown,
-    user_mesh_scene,
-    with_step,
-)
-from lbshape.report.machine import machine_description
 from lbshape.scene import load_scene
+from lbshape.scene.variants import with_step
+from lbshape.studies.large_steps import LargeStepRow, large_step_study, large_steps_markdown
 
 #: the issue's target: final displacement within 20 % of the full method at the same dt.
 #: Measured: demo 4.7-4.9 %, L-beam 0.5-1.9 % (at least 4x margin).

@@ -32,11 +32,11 @@ from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.batch import expand_scenes, run_jobs, summary_table
 from lbshape.pipeline.simulate import WARMUP_STEPS
+from lbshape.scene import load_scene
 from lbshape.studies import pareto, scaling
 from lbshape.studies.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene, paper_setting
 from lbshape.studies.realtime import PAPER_TABLE2
 from lbshape.studies.tables import settings_payload, write_table2
-from lbshape.scene import load_scene
 
 
 def register(subparsers) -> None:

@@ -23,8 +23,8 @@ from lbshape.cli._mpi import require_one_rank
 from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
 from lbshape.live.session import LiveSession
-from lbshape.pipeline.precompute import precompute
 from lbshape.live.window import read_events, require_display, run_live
+from lbshape.pipeline.precompute import precompute
 from lbshape.scene import load_scene
 
 

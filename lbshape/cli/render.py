@@ -13,7 +13,6 @@ from pathlib import Path
 
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.simulate import METHODS
-from lbshape.studies.animation import simulation_movie
 from lbshape.report.figures import (
     FIGURE3_SCENES,
     FIGURE3_STEPS,
@@ -24,6 +23,7 @@ from lbshape.report.figures import (
     render_scene,
 )
 from lbshape.scene import load_scene
+from lbshape.studies.animation import simulation_movie
 
 
 def register(subparsers) -> None:

@@ -17,6 +17,7 @@ import math
 from pathlib import Path
 
 from lbshape.errors import LbshapeError
+from lbshape.scene import load_scene
 from lbshape.studies.tune import (
     DEFAULT_BUDGET_MS,
     default_out,
@@ -24,7 +25,6 @@ from lbshape.studies.tune import (
     verdict_line,
     write_tune,
 )
-from lbshape.scene import load_scene
 
 
 def _int_list(text: str) -> tuple[int, ...]:

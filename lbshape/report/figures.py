@@ -41,24 +41,18 @@ from pathlib import Path
 
 import numpy as np
 
+from lbshape.analysis.free_body import body_deformations
+from lbshape.analysis.influence import REST, visible_change
+from lbshape.analysis.norms import m_norms
+from lbshape.analysis.twist import end_twist_degrees
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import output_root
-from lbshape.pipeline.influence import (
-    REST,
-    body_deformations,
-    closest_example,
-    compare_runs,
-    end_twist_degrees,
-    has_example_force,
-    visible_change,
-    without_examples,
-)
+from lbshape.pipeline.influence import closest_example, compare_runs, has_example_force
 from lbshape.pipeline.meshes import example_mesh
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import example_influence, simulate
-from lbshape.studies.bench import m_norms
 from lbshape.report.render import (
     render_animation,
     render_eigenfunctions,
@@ -67,6 +61,7 @@ from lbshape.report.render import (
     scene_planes,
 )
 from lbshape.scene.schema import Examples
+from lbshape.scene.variants import without_examples
 from lbshape.shapespace.local_examples import anchor_fit, region_example_distance
 from lbshape.spectral.spectrum import lb_spectrum
 

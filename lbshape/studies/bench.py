@@ -30,16 +30,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lbshape.analysis.free_body import KEYS as FREE_BODY_KEYS
+from lbshape.analysis.free_body import free_body_error
+from lbshape.analysis.norms import trajectory_error
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.polynomial_forces import check_force_choice
 from lbshape.errors import LbshapeError
 from lbshape.io.paths import RESULTS_DIR
-from lbshape.pipeline.influence import has_example_force, is_free_body, without_examples
+from lbshape.pipeline.influence import has_example_force, is_free_body
 from lbshape.pipeline.meshes import build_mesh
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import METHODS, WARMUP_STEPS, example_influence, simulate
-from lbshape.analysis.free_body import KEYS as FREE_BODY_KEYS
-from lbshape.analysis.free_body import free_body_error
+from lbshape.scene.variants import with_reduced, without_examples
 
 log = logging.getLogger(__name__)
 
@@ -71,76 +73,6 @@ LBSHAPE_SOURCE = "the scene as written"
 
 
 # ----------------------------------------------------------------------------- error
-def m_norms(u: np.ndarray, mass) -> np.ndarray:
-    """(k,) mass norms ``sqrt(u(t)ᵀ M u(t))`` of a trajectory.
-
-    Args:
-        u: (k, n, 3) or (k, 3n) displacements in m (node-major).
-        mass: (3n, 3n) symmetric positive definite mass in kg (sparse or dense).
-
-    Returns:
-        (k,) norms in m·kg^½.
-    """
-    u = np.asarray(u, dtype=float)
-    flat = u.reshape(u.shape[0], -1)
-    if flat.shape[1] != mass.shape[0]:
-        raise LbshapeError(
-            f"displacements have {flat.shape[1]} components per sample, the mass matrix "
-            f"has {mass.shape[0]} rows"
-        )
-    squares = np.einsum("ti,ti->t", flat, np.asarray((mass @ flat.T).T))
-    return np.sqrt(np.maximum(squares, 0.0))
-
-
-def trajectory_error(
-    u: np.ndarray,
-    u_full: np.ndarray,
-    mass,
-    *,
-    times: np.ndarray | None = None,
-    times_full: np.ndarray | None = None,
-) -> float:
-    """Relative trajectory error ``max_t ‖u(t) − u_full(t)‖_M / max_t ‖u_full(t)‖_M``.
-
-    Args:
-        u: (k, n, 3) or (k, 3n) displacements in m.
-        u_full: the reference, same shape and same sample times.
-        mass: (3n, 3n) consistent elastic mass in kg.
-        times: (k,) sample times of ``u`` in s (checked against ``times_full``).
-        times_full: (k,) sample times of ``u_full`` in s.
-
-    Returns:
-        The dimensionless error (0 for identical trajectories).
-
-    Raises:
-        LbshapeError: different shapes or sample times, or a reference that never
-            moves (the relative error is undefined).
-    """
-    u, u_full = np.asarray(u, dtype=float), np.asarray(u_full, dtype=float)
-    if u.shape != u_full.shape or u.ndim not in (2, 3) or u.shape[0] == 0:
-        raise LbshapeError(
-            f"trajectories must have the same non-empty (k, n, 3) or (k, 3n) shape, "
-            f"got {u.shape} and {u_full.shape}"
-        )
-    if (times is None) != (times_full is None):
-        raise LbshapeError("give the sample times of both trajectories or of neither")
-    if times is not None:
-        times, times_full = np.asarray(times, dtype=float), np.asarray(times_full, dtype=float)
-        if times.shape != (u.shape[0],) or times_full.shape != (u.shape[0],):
-            raise LbshapeError(
-                f"sample times must have shape ({u.shape[0]},), got {times.shape} and "
-                f"{times_full.shape}"
-            )
-        scale = max(float(np.max(np.abs(times_full))), 1.0)
-        worst = float(np.max(np.abs(times - times_full)))
-        if worst > 1e-9 * scale:
-            raise LbshapeError(
-                f"trajectories are sampled at different times (largest difference {worst:.3g} s)"
-            )
-    reference = float(m_norms(u_full, mass).max())
-    if not reference > 0.0:
-        raise LbshapeError("the reference trajectory never moves: relative error undefined")
-    return float(m_norms(u - u_full, mass).max()) / reference
 
 
 # ------------------------------------------------------------------------ benchmark
@@ -417,7 +349,7 @@ def bench_scene(
     variant = variant_pre = None
     failure = ""
     if paper is not None and not _runs_setting(scene, pre, paper):
-        variant = _variant(scene, m=paper.m, r=paper.r, s=paper.s, forces=paper.forces)
+        variant = with_reduced(scene, m=paper.m, r=paper.r, s=paper.s, forces=paper.forces)
         try:
             variant_pre = precompute(variant, progress=progress)
         except LbshapeError as exc:
@@ -700,16 +632,6 @@ class SweepPoint:
         return self.r if self.r_asked is None else self.r_asked
 
 
-def _variant(scene, *, m: int, r: int, s: int, forces: str | None = None):
-    """The scene with ``[reduced]`` m, r, s (and ``forces`` unless None: the scene's)."""
-    red = scene.reduced
-    linear = red.linear_modes if red.linear_modes <= r else 0
-    return dataclasses.replace(
-        scene, reduced=dataclasses.replace(red, m=int(m), r=int(r), s=int(s),
-                                           linear_modes=linear,
-                                           forces=red.forces if forces is None else forces))
-
-
 def speed_error_sweep(
     scene,
     *,
@@ -774,7 +696,7 @@ def speed_error_sweep(
     references_none: dict[int, object] = {}  # free bodies: full without examples, per m
     points = []
     for m, r, s, choice in grid:
-        variant = _variant(scene, m=m, r=r, s=s, forces=choice)
+        variant = with_reduced(scene, m=m, r=r, s=s, forces=choice)
         pre = precompute(variant, progress=progress)
         if m not in references:
             references[m] = simulate(variant, pre, method="full", steps=steps)

@@ -54,10 +54,10 @@ from lbshape.elastic.polynomial_forces import (
 )
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
-from lbshape.pipeline.meshes import build_mesh
-from lbshape.studies.bench import DEFAULT_OUT, SweepPoint, speed_error_sweep
 from lbshape.io.machine import load_text, machine_description, threads_text
+from lbshape.pipeline.meshes import build_mesh
 from lbshape.report.plots import pyplot, save_figure
+from lbshape.studies.bench import DEFAULT_OUT, SweepPoint, speed_error_sweep
 
 log = logging.getLogger(__name__)
 

@@ -28,10 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
+from lbshape.analysis.norms import trajectory_error
 from lbshape.dynamics.free_body import PHASES as FREE_BODY_PHASES
 from lbshape.dynamics.reduced import PHASES, REALTIME_RTOL
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
+from lbshape.io.machine import load_text, machine_description, threads_text
 from lbshape.pipeline.simulate import (
     MAX_FRAMES,
     WARMUP_STEPS,
@@ -39,8 +41,7 @@ from lbshape.pipeline.simulate import (
     reduced_simulation,
     simulate,
 )
-from lbshape.studies.bench import TARGET_T_TOTAL_MS, SceneBenchmark, trajectory_error
-from lbshape.io.machine import load_text, machine_description, threads_text
+from lbshape.studies.bench import TARGET_T_TOTAL_MS, SceneBenchmark
 
 #: the paper's Table 2 (Zhu et al. [2] and the paper's method), ms per step, by our scene
 #: names: (DOFs, tets, example vertices, m, r, s, [2] t_interp, [2] t_total, ours

@@ -19,6 +19,8 @@ from pathlib import Path
 
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
+from lbshape.io.machine import load_text, machine_description, threads_text
+from lbshape.report.plots import speed_error_plot
 from lbshape.studies.bench import (
     DEFAULT_OUT,
     ROW_EXTRA_KEYS,
@@ -30,8 +32,6 @@ from lbshape.studies.bench import (
     SettingResult,
     SweepPoint,
 )
-from lbshape.io.machine import load_text, machine_description, threads_text
-from lbshape.report.plots import speed_error_plot
 from lbshape.studies.realtime import breakdown_lines
 
 _INTRO = (
