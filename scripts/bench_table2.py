@@ -37,7 +37,6 @@ from lbshape.studies.bench import (
     DEFAULT_SCENES,
     bench_scene,
     paper_setting,
-    speed_error_sweep,
 )
 from lbshape.studies.realtime import (
     PAPER_TABLE2,
@@ -45,6 +44,7 @@ from lbshape.studies.realtime import (
     newton_study_markdown,
     newton_study_payload,
 )
+from lbshape.studies.sweep import speed_error_sweep
 from lbshape.studies.tables import write_sweep, write_table2
 
 log = logging.getLogger(__name__)

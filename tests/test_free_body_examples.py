@@ -242,7 +242,7 @@ def test_a_free_body_sweep_measures_it_as_table2_does():
     from lbshape.analysis.free_body import free_body_error
     from lbshape.analysis.norms import trajectory_error
     from lbshape.scene.variants import without_examples
-    from lbshape.studies.bench import speed_error_sweep
+    from lbshape.studies.sweep import speed_error_sweep
 
     scene = scene_from_dict(SPINNING, name="spinning-bar")
     steps = 20

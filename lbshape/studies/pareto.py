@@ -57,7 +57,8 @@ from lbshape.io.atomic import write_json_atomic, write_text_atomic
 from lbshape.io.machine import load_text, machine_description, threads_text
 from lbshape.pipeline.meshes import build_mesh
 from lbshape.report.plots import pyplot, save_figure
-from lbshape.studies.bench import DEFAULT_OUT, SweepPoint, speed_error_sweep
+from lbshape.studies.bench import DEFAULT_OUT
+from lbshape.studies.sweep import SweepPoint, speed_error_sweep
 
 log = logging.getLogger(__name__)
 

@@ -30,9 +30,9 @@ from lbshape.studies.bench import (
     TARGET_T_TOTAL_MS,
     SceneBenchmark,
     SettingResult,
-    SweepPoint,
 )
 from lbshape.studies.realtime import breakdown_lines
+from lbshape.studies.sweep import SweepPoint
 
 _INTRO = (
     "Columns as in the paper's Table 2: DOFs (3 × vertices) and tetrahedra of the "
@@ -365,5 +365,6 @@ def write_sweep(points: Sequence[SweepPoint], out_dir: str | Path = DEFAULT_OUT,
                                  sweep_csv(points, scene=scene, steps=steps, repeats=repeats,
                                            dt=dt))
     png_path = speed_error_plot(points, out_dir / "speed_vs_error.png", scene=scene,
-                                steps=steps, dt=dt)
+                                steps=steps, dt=dt, target_error=TARGET_ERROR,
+                                target_ms=TARGET_T_TOTAL_MS)
     return csv_path, png_path
