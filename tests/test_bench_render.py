@@ -213,9 +213,9 @@ def test_render_command_writes_non_blank_pngs(tmp_path):
 
 
 def test_figure3_panels_for_a_same_and_other_topology_pair(tmp_path):
-    from lbshape.report.figures import figure3
     from lbshape.scene import load_scene
     from lbshape.scene.schema import MeshSource
+    from lbshape.studies.figures import figure3
 
     other = load_scene("demo")  # cylinder examples
     poses = tuple(dataclasses.replace(p, source=MeshSource(shape="demo-bar"))
@@ -240,8 +240,8 @@ def test_figure6_measures_local_against_global_examples_on_one_object(tmp_path):
     from lbshape.geometry.primitives import structured_box
     from lbshape.pipeline.precompute import precompute
     from lbshape.pipeline.simulate import simulate
-    from lbshape.report.figures import figure6
     from lbshape.scene.reader import scene_from_dict
+    from lbshape.studies.figures import figure6
 
     bar = structured_box((0.2, 0.2, 1.0), (2, 2, 8))
     meshio.write(tmp_path / "bar.vtu", meshio.Mesh(bar.points, [("tetra", bar.tets)]))

@@ -15,10 +15,10 @@ from lbshape.errors import LbshapeError
 from lbshape.geometry.primitives import structured_box
 from lbshape.pipeline.precompute import precompute, stage_names
 from lbshape.pipeline.simulate import METHODS, simulate
-from lbshape.report.figures import figure5
 from lbshape.report.render import render_shape_grid
 from lbshape.scene import load_scene
 from lbshape.scene.reader import scene_from_dict
+from lbshape.studies.figures import figure5
 from lbshape.studies.realtime import PAPER_TABLE2
 
 FREE = {
