@@ -30,8 +30,10 @@ import numpy as np
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
 from lbshape.io.machine import load_text, machine_description, machine_text
 from lbshape.io.paths import REPOSITORY, RESULTS_DIR
+from lbshape.live.display import virtual_display
+from lbshape.live.events import LiveEvent
 from lbshape.live.session import LiveSession
-from lbshape.live.window import LiveEvent, run_live, virtual_display
+from lbshape.live.window import run_live
 from lbshape.pipeline.precompute import precompute
 from lbshape.scene import load_scene
 

@@ -50,7 +50,7 @@ def live_display(request):
     if not wanted or os.environ.get("DISPLAY") or shutil.which("Xvfb") is None:
         yield os.environ.get("DISPLAY")
         return
-    from lbshape.live.window import virtual_display
+    from lbshape.live.display import virtual_display
 
     with virtual_display() as name:
         yield name

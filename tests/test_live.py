@@ -19,8 +19,10 @@ import numpy as np
 import pytest
 
 from lbshape.errors import LbshapeError
+from lbshape.live.display import virtual_display
+from lbshape.live.events import LiveEvent, read_events
 from lbshape.live.session import LiveSession
-from lbshape.live.window import LiveEvent, LiveWindow, read_events, virtual_display
+from lbshape.live.window import LiveWindow
 from lbshape.pipeline.precompute import precompute
 from lbshape.scene import load_scene
 

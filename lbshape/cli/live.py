@@ -22,8 +22,10 @@ from pathlib import Path
 from lbshape.cli._mpi import require_one_rank
 from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
+from lbshape.live.display import require_display
+from lbshape.live.events import read_events
 from lbshape.live.session import LiveSession
-from lbshape.live.window import read_events, require_display, run_live
+from lbshape.live.window import run_live
 from lbshape.pipeline.precompute import precompute
 from lbshape.scene import load_scene
 
