@@ -322,35 +322,7 @@ def pareto_markdown(sweeps: Sequence[ParetoSweep], machine: dict) -> str:
         lines.append(f"| {sweep.scene} | {sweep.paper}, {sweep.forces or '—'} | {measured} "
                      f"| {verdict(sweep)} |")
     for sweep in sweeps:
-        lines += ["", f"## {sweep.scene}: {sweep.steps} steps of {sweep.dt:g} s, "
-                  f"{sweep.repeats} reduced runs per configuration", ""]
-        free_head = free_rule = ""
-        if sweep.free:
-            lines.append("Centre path / rotation / deformation: the free-body split of the "
-                         "run with examples, then of the run without them.")
-            lines.append("")
-            free_head = ("| error, no examples | centre path / rotation / deformation "
-                         "| same, no examples | worst judged ")
-            free_rule = "|---|---|---|---"
-        lines += ["| forces | m | r (asked) | s (asked) | t_total ms [min, max] | t_interp ms "
-                  f"| error vs full {free_head}| Pareto | meets target | scene's |",
-                  f"|---|---|---|---|---|---|---{free_rule}|---|---|---|"]
-        front = {id(p) for p in pareto_front(sweep.points)}
-        good = {id(p) for p in meeting(sweep.points, error=sweep.target_error)}
-        for p in sorted(sweep.points, key=lambda p: (p.forces, p.m, p.r, p.s_max)):
-            error = "failed" if p.error_vs_full is None else f"{p.error_vs_full:.2%}"
-            free = ""
-            if sweep.free:
-                worst = judged_error(p)
-                free = (f"| {_percent(p.error_no_examples)} | {_split(p.free_body)} "
-                        f"| {_split(p.free_body_no_examples)} "
-                        f"| {'—' if worst is None else f'{worst:.2%}'} ")
-            lines.append(
-                f"| {p.forces} | {p.m} | {p.r} ({p.asked_r}) | {_s_cell(p)} | {p.t_total_ms:.3f} "
-                f"[{p.t_total_min_ms:.3f}, {p.t_total_max_ms:.3f}] | {p.t_interp_ms:.3f} "
-                f"| {error} {free}| {'yes' if id(p) in front else ''} "
-                f"| {'yes' if id(p) in good else ''} "
-                f"| {'yes' if sweep.is_paper(p) else ''} |")
+        lines += _sweep_lines(sweep)
     lines += [
         "",
         "## Conditions",
@@ -361,6 +333,41 @@ def pareto_markdown(sweeps: Sequence[ParetoSweep], machine: dict) -> str:
         "shared the cores, so times are upper bounds of an unloaded run.",
     ]
     return "\n".join(lines) + "\n"
+
+
+def _sweep_lines(sweep: ParetoSweep) -> list[str]:
+    """The section of ``pareto.md`` of one scene's sweep: every configuration's row."""
+    lines = []
+    lines += ["", f"## {sweep.scene}: {sweep.steps} steps of {sweep.dt:g} s, "
+              f"{sweep.repeats} reduced runs per configuration", ""]
+    free_head = free_rule = ""
+    if sweep.free:
+        lines.append("Centre path / rotation / deformation: the free-body split of the "
+                     "run with examples, then of the run without them.")
+        lines.append("")
+        free_head = ("| error, no examples | centre path / rotation / deformation "
+                     "| same, no examples | worst judged ")
+        free_rule = "|---|---|---|---"
+    lines += ["| forces | m | r (asked) | s (asked) | t_total ms [min, max] | t_interp ms "
+              f"| error vs full {free_head}| Pareto | meets target | scene's |",
+              f"|---|---|---|---|---|---|---{free_rule}|---|---|---|"]
+    front = {id(p) for p in pareto_front(sweep.points)}
+    good = {id(p) for p in meeting(sweep.points, error=sweep.target_error)}
+    for p in sorted(sweep.points, key=lambda p: (p.forces, p.m, p.r, p.s_max)):
+        error = "failed" if p.error_vs_full is None else f"{p.error_vs_full:.2%}"
+        free = ""
+        if sweep.free:
+            worst = judged_error(p)
+            free = (f"| {_percent(p.error_no_examples)} | {_split(p.free_body)} "
+                    f"| {_split(p.free_body_no_examples)} "
+                    f"| {'—' if worst is None else f'{worst:.2%}'} ")
+        lines.append(
+            f"| {p.forces} | {p.m} | {p.r} ({p.asked_r}) | {_s_cell(p)} | {p.t_total_ms:.3f} "
+            f"[{p.t_total_min_ms:.3f}, {p.t_total_max_ms:.3f}] | {p.t_interp_ms:.3f} "
+            f"| {error} {free}| {'yes' if id(p) in front else ''} "
+            f"| {'yes' if id(p) in good else ''} "
+            f"| {'yes' if sweep.is_paper(p) else ''} |")
+    return lines
 
 
 def _percent(value: float | None) -> str:
