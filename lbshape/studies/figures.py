@@ -273,7 +273,7 @@ class Figure5:
             removed), what the examples act on.
         visible_change: (k,) largest vertex distance between the final deformations
             with the example and without, over the rest bounding-box diagonal
-            (:func:`lbshape.pipeline.influence.visible_change`).
+            (:func:`lbshape.analysis.influence.visible_change`).
         closest: (k+1,) per run, ``"rest"`` or the index of the scene's example its
             final deformation is closest to in shape space (among all the scene's
             examples; :func:`lbshape.pipeline.influence.closest_example`).
