@@ -5,7 +5,7 @@ Usage: ``.venv/bin/python scripts/bench_live.py [--seconds S] [--out-dir results
 
 Each scene runs in the live window (:func:`lbshape.live.window.run_live`) for S seconds of
 wall time, paced to the clock, on the display set in ``DISPLAY`` or else a virtual X
-server started for the run (:func:`lbshape.live.window.virtual_display`; OpenGL is then
+server started for the run (:func:`lbshape.live.display.virtual_display`; OpenGL is then
 Mesa's software renderer). ``teddy-global`` (the paper's Figure 6 object) is dragged by
 its left leg's foot during the timed run (grab, two moves, release); ``demo`` and ``car``
 (a free body thrown over a floor into a wall, the planes drawn) run untouched. A second,

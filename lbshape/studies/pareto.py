@@ -2,7 +2,7 @@
 (``lbshape bench --sweep``).
 
 For each scene the reduced method is run over a grid of settings —
-:func:`lbshape.studies.bench.speed_error_sweep` — and each configuration's median
+:func:`lbshape.studies.sweep.speed_error_sweep` — and each configuration's median
 per-step time is set against its trajectory error versus the ``full`` reference with
 the same m (``max_t ‖u − u_full‖_M / max_t ‖u_full‖_M``, examples active in both).
 
