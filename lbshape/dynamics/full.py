@@ -229,6 +229,8 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         fitted_pull = bool(self._k_ex and free_body and self._local is None)
         friction = self.contact is not None and self.contact.has_friction
         newton = self.newton
+        #: the stepper's least Newton iterations (a line search's steps may need more)
+        self._newton_floor = FRICTION_NEWTON_ITERATIONS if friction or fitted_pull else 0
         self.stepper = make_stepper(
             integrator,
             self._mass_ff,
@@ -243,8 +245,7 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             potential=self._potential,
             rtol=newton.rtol,
             atol=self._free_pull_round_off() if fitted_pull else 0.0,
-            max_iterations=(max(newton.max_iterations, FRICTION_NEWTON_ITERATIONS)
-                            if friction or fitted_pull else newton.max_iterations),
+            max_iterations=max(newton.max_iterations, self._newton_floor),
             line_search=friction or fitted_pull,
             low_rank_tangent=(self._tangent_correction
                               if fitted_pull or self._corotated_beta else None),
@@ -280,6 +281,21 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         return u.reshape(-1)[self.free_dofs]
 
     # ---------------------------------------------------------------- state
+    @property
+    def newton(self) -> NewtonSettings:
+        """The step's Newton settings (assigning new ones changes the stepper's; with
+        friction or a free body's fitted pull at least :data:`FRICTION_NEWTON_ITERATIONS`
+        iterations)."""
+        return self._newton
+
+    @newton.setter
+    def newton(self, settings: NewtonSettings) -> None:
+        self._newton = settings
+        stepper = getattr(self, "stepper", None)
+        if stepper is not None:
+            stepper.rtol = settings.rtol
+            stepper.max_iterations = max(settings.max_iterations, self._newton_floor)
+
     @property
     def uses_examples(self) -> bool:
         """True when the example force is active (k_ex > 0 and at least one example)."""
