@@ -72,6 +72,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from lbshape.dynamics.kernels import norm as _norm
 from lbshape.errors import LbshapeError, SolverError
 
 log = logging.getLogger(__name__)
@@ -578,11 +579,6 @@ def _square_matrix(matrix: Matrix, name: str) -> Matrix:
     if matrix.ndim != 2 or matrix.shape[0] != matrix.shape[1] or matrix.shape[0] == 0:
         raise LbshapeError(f"{name} must be a non-empty square matrix, got shape {matrix.shape}")
     return matrix.tocsr() if sp.issparse(matrix) else matrix
-
-
-def _norm(vector: np.ndarray) -> float:
-    """Euclidean norm of a 1-D array (cheaper than ``np.linalg.norm`` for small ones)."""
-    return math.sqrt(float(vector @ vector))
 
 
 def _inf_norm(matrix: Matrix) -> float:

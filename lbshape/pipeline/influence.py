@@ -54,7 +54,7 @@ like the picture:
   the smallest ``‖d − e_k‖`` over the example descriptors e_k and ``‖d‖`` for rest
   (``example_distances`` lists them, relative to ``max_k ‖e_k‖``). With local
   examples, per region (``{region: …}``), on the region's descriptors
-  (:func:`lbshape.shapespace.local_examples.region_descriptor`), among the rest and
+  (:func:`lbshape.shapespace.local_space.region_descriptor`), among the rest and
   the region's own examples.
 
 The measures on arrays (mass norms, the influence ratios, visible change, nearest shape,
@@ -166,7 +166,7 @@ def manifold_residual(pre: Precomputed, u: np.ndarray) -> float:
 def local_residual(pre: Precomputed, u: np.ndarray) -> float:
     """Local examples: the largest region's relative eq. 5 residual of u (n, 3), each on
     the region's own descriptors
-    (:func:`lbshape.shapespace.local_examples.region_example_distance`)."""
+    (:func:`lbshape.shapespace.local_space.region_example_distance`)."""
     return max(region_example_distance(pre.mesh, region, u, density=pre.material.density)[0]
                for region in pre.local.regions)
 

@@ -175,7 +175,7 @@ def test_real_time_tolerances_follow_the_converged_free_body(monkeypatch):
     """The car's wall impact (contact sweeps, friction) at the real-time Newton and sweep
     tolerances against both tightened by 4–5 orders: 1.4e-6 apart over 300 steps
     (measured; about half the Newton iterations)."""
-    import lbshape.dynamics.free_body as free_body
+    import lbshape.dynamics.free_body_contact as free_body
     from lbshape.pipeline.simulate import reduced_simulation
 
     scene = load_scene("car")
