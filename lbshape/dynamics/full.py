@@ -88,9 +88,11 @@ from lbshape.dynamics.contact import (
     surface_vertices,
 )
 from lbshape.dynamics.integrators import make_stepper
+from lbshape.dynamics.linear_solvers import LINEAR_SOLVERS, make_linear_solver
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.dynamics.rigid_frame import best_rigid_frame
+from lbshape.elastic.assembly import CompiledElasticity
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.modes import rigid_body_modes
@@ -222,6 +224,13 @@ class FullSpaceSimulator:
         max_newton_iterations: Newton iterations per step before failing (with friction
             at least :data:`FRICTION_NEWTON_ITERATIONS`).
         contact: penalty contact with planes, or ``None``.
+        linear_solver: ``"reuse"``: compiled assembly
+            (:class:`~lbshape.elastic.assembly.CompiledElasticity`), one sparse
+            factorisation reused across Newton iterations and steps
+            (:class:`~lbshape.dynamics.linear_solvers.ReusedFactorSolver`) and the compiled
+            block evaluation of the example target; ``"lu-each-iteration"``: the former
+            path (numpy assembly, a SuperLU factorisation per Newton iteration), for
+            comparison runs. Same answers to round-off and the Newton tolerance.
 
     Attributes:
         free_dofs: (nf,) node-major indices of the free dofs (x = u[free_dofs]).
@@ -255,7 +264,12 @@ class FullSpaceSimulator:
         newton_rtol: float = 1e-8,
         max_newton_iterations: int = 20,
         contact: FullSpaceContact | None = None,
+        linear_solver: str = "reuse",
     ):
+        if linear_solver not in LINEAR_SOLVERS:
+            raise LbshapeError(f"linear_solver must be one of {LINEAR_SOLVERS}, "
+                               f"got {linear_solver!r}")
+        self._fast = linear_solver == "reuse"
         n = mesh.n_vertices
         self.contact = contact
         friction = contact is not None and contact.has_friction
@@ -272,6 +286,8 @@ class FullSpaceSimulator:
         self._free_mask = free_mask
 
         self.elastic = FullSpaceElasticity(mesh, material)
+        self._compiled = (CompiledElasticity(mesh, material, self.free_dofs) if self._fast
+                          else None)
         self.mass = mass_matrix(mesh, material.density)
         self._mass_ff = _submatrix(self.mass, self.free_dofs)
         K0 = self.elastic.tangent(np.zeros(3 * n))
@@ -295,6 +311,7 @@ class FullSpaceSimulator:
         self._corotated_beta = float(beta) if (fixed.size == 0 and beta > 0) else 0.0
         self._damping_rest = K0_ff if self._corotated_beta else None
         self._damping_now = K0_ff if self._corotated_beta else None
+        self._damping_data = None  # β Q K₀ Qᵀ on the compiled pattern (_corotate)
         if self._corotated_beta:
             beta = 0.0
         # a free body's global examples: the rigid-invariant fitted pull (_free_gap)
@@ -318,6 +335,8 @@ class FullSpaceSimulator:
             line_search=friction or fitted_pull,
             low_rank_tangent=(self._tangent_correction
                               if fitted_pull or self._corotated_beta else None),
+            linear_solver=(make_linear_solver(linear_solver, symmetric=not friction)
+                           if self._fast else None),
         )
 
     # ----------------------------------------------------------------- set-up
@@ -390,8 +409,8 @@ class FullSpaceSimulator:
         self._example_descriptors = flat * weights
         rests = example_rest_shapes(self.mesh.points, phi, coefficients)
         kept = energy_elements(self.mesh.points, self.mesh.tets, rests)
-        models = [EuclideanExampleEnergy(x, self.mesh.tets[kept], self.material, L)
-                  for x in rests]
+        models = [EuclideanExampleEnergy(x, self.mesh.tets[kept], self.material, L,
+                                         compiled=self._fast) for x in rests]
         self._target_solver = TargetSolver(models, flat, tolerance=tolerance)
         self._kM_ff = self._k_ex * self._mass_ff
 
@@ -424,22 +443,30 @@ class FullSpaceSimulator:
 
     # ---------------------------------------------------------------- forces
     def _force_and_tangent(self, x: np.ndarray):
-        f, K = self.elastic.force_and_tangent(self.full_displacement(x).reshape(-1))
-        f, K = f[self.free_dofs], self._restrict(K)
+        if self._compiled is not None:  # K on the compiled pattern; terms added in place
+            f, K = self._compiled.force_and_tangent(self.full_displacement(x).reshape(-1))
+            add = self._compiled.add_into
+        else:
+            f, K = self.elastic.force_and_tangent(self.full_displacement(x).reshape(-1))
+            f, K = f[self.free_dofs], self._restrict(K)
+
+            def add(K, matrix, constant=False):
+                return K + matrix
         if self.contact is not None:
             velocity, rate = self._contact_velocity(x)
             fc, Kc, _ = self.contact.evaluate(self.full_displacement(x).reshape(-1), velocity,
                                               rate)
             if Kc is not None:
                 f = f + fc[self.free_dofs]
-                K = (K + Kc[self.free_dofs][:, self.free_dofs]).tocsr()
+                K = add(K, Kc[self.free_dofs][:, self.free_dofs]).tocsr()
         if self._k_ex and self._target_body is not None:  # free body, global examples
             gap = self._free_gap(x, tangent=True)
             f = f + self._k_ex * (self._spring_ff @ gap)
-            K = K + self._kM_ff  # minus the rigid part W Wᵀ (_tangent_correction)
+            # minus the rigid part W Wᵀ (_tangent_correction)
+            K = add(K, self._kM_ff, constant=True)
         elif self._k_ex:
             f = f + self._k_ex * (self._spring_ff @ x)
-            K = K + self._kM_ff
+            K = add(K, self._kM_ff, constant=True)
         stepper = getattr(self, "stepper", None)  # None while the stepper is set up
         if self._corotated_beta and stepper is not None:
             # β Pᵀ R K₀ Rᵀ P v₁(x), v₁ the scheme's end-of-step velocity, linear in x
@@ -447,7 +474,10 @@ class FullSpaceSimulator:
             damping = self._corotated_beta * self._damping_now
             rate = stepper.scheme.cv / stepper.dt
             f = f + self._deformation_damping(x, damping, v1, rate)
-            K = (K + rate * damping).tocsr()  # + its rigid part (_tangent_correction)
+            if self._damping_data is not None and self._compiled.on_pattern(K):
+                K.data += rate * self._damping_data
+            else:
+                K = (K + rate * damping).tocsr()  # + its rigid part (_tangent_correction)
         return f, K
 
     def _deformation_damping(self, x: np.ndarray, damping: sp.csr_matrix,
@@ -524,6 +554,10 @@ class FullSpaceSimulator:
         _, R, _ = best_rigid_frame(self._scalar_mass, rest, rest + self.stepper.x.reshape(n, 3))
         Q = sp.kron(sp.identity(n, format="csr"), sp.csr_matrix(R), format="csr")
         self._damping_now = (Q @ self._damping_rest @ Q.T).tocsr()
+        self._damping_data = None  # on the compiled pattern, once per step
+        if self._compiled is not None:
+            values = self._compiled.pattern_values(self._damping_now)
+            self._damping_data = None if values is None else self._corotated_beta * values
 
     def _potential(self, x: np.ndarray) -> float:
         energy = self.elastic.energy(self.full_displacement(x).reshape(-1))

@@ -1,0 +1,142 @@
+"""Elastic energy over all elements in a block basis ``L = Φ ⊗ I₃``, compiled.
+
+The Euclidean example energy of the target search
+(:class:`~lbshape.shapespace.euclidean_energy.EuclideanExampleEnergy`) is
+``E(y) = Σ_e V_e Ψ(F_e(L y))`` with the LB block basis L (3n, 3m), ``y[3k + c]`` the
+coefficient of eigenvector k in component c. The block structure gives the element
+gradients in m columns instead of 3m: with ``(GΦ)_e[j, k] = Σ_a ∂_j N_a Φ[v_a, k]``
+(3, m),
+
+* ``H_e[c, j] = Σ_k y[3k + c] (GΦ)_e[j, k]`` (``H = F − I``),
+* ``g[3k + c] = Σ_e V_e Σ_j P_e[c, j] (GΦ)_e[j, k]``,
+* ``∇²E[3k + c, 3l + d] = Σ_e V_e Σ_{j,q} (GΦ)_e[j, k] A_e[3c + j, 3d + q] (GΦ)_e[q, l]``,
+
+the last one a single ``m × 3s × 6m`` matrix product (the six blocks c ≤ d; the others
+by symmetry), a third of the work of the general ``(3m) × 9s × (3m)`` product of
+:class:`~lbshape.elastic.reduced_forces.ReducedForceModel`. The stress and its
+derivative are the compiled ones (:mod:`lbshape.elastic.jit_densities`), the energy the
+numpy density's (:mod:`lbshape.elastic.energy_densities`). Same quantities as the
+general model to round-off.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lbshape._jit import njit
+from lbshape.elastic.element_kernels import ElementKernel
+from lbshape.elastic.energy_densities import density_model
+from lbshape.elastic.jit_densities import density_parameters, stress_and_tangent
+from lbshape.elastic.materials import Material
+from lbshape.errors import LbshapeError
+
+#: the component pairs (c, d), c ≤ d, of the Hessian's computed blocks
+_PAIRS = np.array([(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)], dtype=np.int64)
+
+
+def block_basis_factor(basis: np.ndarray, atol: float = 0.0) -> np.ndarray | None:
+    """Φ (n, m) when ``basis`` (3n, 3m) is exactly ``Φ ⊗ I₃`` (node-major rows ``3j + c``,
+    columns ``3k + c``), else None."""
+    basis = np.asarray(basis)
+    if basis.ndim != 2 or basis.shape[0] % 3 or basis.shape[1] % 3:
+        return None
+    n, m = basis.shape[0] // 3, basis.shape[1] // 3
+    blocks = basis.reshape(n, 3, m, 3)
+    phi = blocks[:, 0, :, 0]
+    expected = phi[:, None, :, None] * np.eye(3)[None, :, None, :]
+    exact = np.array_equal(blocks, expected) if atol == 0.0 else bool(
+        np.abs(blocks - expected).max() <= atol)
+    if not exact:
+        return None
+    return np.ascontiguousarray(phi)
+
+
+class BlockBasisEnergy:
+    """Energy, gradient and Hessian of ``E(y) = Σ_e V_e Ψ(F_e(L y))``, ``L = Φ ⊗ I₃``.
+
+    Args:
+        rest_points: (n, 3) rest shape in metres.
+        tets: (t, 4) the elements summed over.
+        material: the hyperelastic material.
+        phi: (n, m) the block basis' factor Φ.
+    """
+
+    def __init__(self, rest_points: np.ndarray, tets: np.ndarray, material: Material,
+                 phi: np.ndarray):
+        phi = np.asarray(phi, dtype=np.float64)
+        tets = np.asarray(tets)
+        if phi.ndim != 2 or phi.shape[0] != np.shape(rest_points)[0]:
+            raise LbshapeError(f"Φ must have shape (n, m), got {phi.shape}")
+        kernel = ElementKernel(rest_points, tets, material)
+        s, m = kernel.n_elements, phi.shape[1]
+        # (GΦ)_e[j, k] = Σ_a G[e, a, j] Φ[v_a, k]
+        self._gphi = np.ascontiguousarray(np.einsum("eaj,eak->ejk", kernel.gradients,
+                                                    phi[tets]))
+        self._x = self._gphi.reshape(3 * s, m)
+        self._volumes = np.ascontiguousarray(kernel.volumes)
+        self._code, self._parameters = density_parameters(material)
+        self._density = density_model(material)
+        self.n_elements, self.m = s, m
+        self.n_coordinates = 3 * m
+        self._h = np.empty((9, s))
+        self._p = np.empty((9, s))
+        self._a = np.empty((s, 9, 9))
+        self._pv = np.empty((3 * s, 3))
+        self._z = np.empty((3 * s, 6 * m))
+
+    def _gradients(self, y: np.ndarray) -> np.ndarray:
+        y = np.asarray(y, dtype=np.float64)
+        if y.shape != (self.n_coordinates,):
+            raise LbshapeError(f"coordinates must have shape ({self.n_coordinates},), "
+                               f"got {y.shape}")
+        # H[(e, j), c] = Σ_k (GΦ)[(e, j), k] Y[k, c]
+        Hej = self._x @ y.reshape(self.m, 3)  # (3s, 3)
+        self._h[...] = Hej.reshape(self.n_elements, 3, 3).transpose(2, 1, 0).reshape(9, -1)
+        return self._h
+
+    def energy(self, y: np.ndarray) -> float:
+        """E(y) in J."""
+        H = self._gradients(y)
+        return float(self._volumes @ self._density.energy_t(H.reshape(3, 3, -1)))
+
+    def force_and_tangent(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(∇E (3m,), ∇²E (3m, 3m))."""
+        return self.energy_force_and_tangent(y)[1:]
+
+    def energy_force_and_tangent(self, y: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        """(E J, ∇E (3m,), ∇²E (3m, 3m) symmetric) at y (3m,), sharing the element work."""
+        H = self._gradients(y)
+        energy = float(self._volumes @ self._density.energy_t(H.reshape(3, 3, -1)))
+        stress_and_tangent(self._code, self._parameters, H, self._p, self._a)
+        _weighted(self._gphi, self._volumes, self._p, self._a, _PAIRS, self._pv, self._z)
+        m = self.m
+        g = (self._x.T @ self._pv).reshape(-1)  # (m, 3) -> 3k + c
+        blocks = self._x.T @ self._z  # (m, 6m)
+        K = np.empty((m, 3, m, 3))
+        for p, (c, d) in enumerate(_PAIRS):
+            block = blocks[:, p * m:(p + 1) * m]
+            K[:, c, :, d] = block
+            if c != d:
+                K[:, d, :, c] = block.T
+        return energy, g, K.reshape(3 * m, 3 * m)
+
+
+@njit
+def _weighted(gphi, volumes, P9, A, pairs, pv, z):
+    """pv[(e, j), c] = V P[c, j]; z[(e, j), p m + l] = V Σ_q A[3c + j, 3d + q] GΦ[q, l]."""
+    s, _, m = gphi.shape
+    for e in range(s):
+        V = volumes[e]
+        for j in range(3):
+            row = 3 * e + j
+            for c in range(3):
+                pv[row, c] = V * P9[3 * c + j, e]
+            for p in range(pairs.shape[0]):
+                c = pairs[p, 0]
+                d = pairs[p, 1]
+                a0 = V * A[e, 3 * c + j, 3 * d]
+                a1 = V * A[e, 3 * c + j, 3 * d + 1]
+                a2 = V * A[e, 3 * c + j, 3 * d + 2]
+                for l in range(m):
+                    z[row, p * m + l] = a0 * gphi[e, 0, l] + a1 * gphi[e, 1, l] \
+                        + a2 * gphi[e, 2, l]
