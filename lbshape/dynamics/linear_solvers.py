@@ -156,7 +156,8 @@ class ReusedFactorSolver:
     calls (see the module docstring).
 
     Args:
-        symmetric: J is symmetric (Cholesky is tried); ``False`` (friction): SuperLU.
+        symmetric: J is symmetric; ``False`` (friction): its symmetric part is factorised
+            as the preconditioner (SuperLU of J where GMRES does not converge with it).
         rtol: relative residual of each solve.
         max_inner: GMRES iterations with a reused factor before J is factorised afresh.
         refactor_after: when a solve needed more GMRES iterations than this, the next
@@ -169,7 +170,7 @@ class ReusedFactorSolver:
     """
 
     def __init__(self, *, symmetric: bool = True, rtol: float = LINEAR_RTOL,
-                 max_inner: int = 20, refactor_after: int = 8):
+                 max_inner: int = 30, refactor_after: int = 12):
         self.symmetric = bool(symmetric)
         self.rtol = float(rtol)
         self.max_inner = int(max_inner)
@@ -177,6 +178,7 @@ class ReusedFactorSolver:
         self._factor = None
         self._stale = True
         self._pattern = None
+        self._woodbury = None  # (W, S, J₀⁻¹W, (I + S Wᵀ J₀⁻¹ W)⁻¹ S) of the factor
         self.factorisations = 0
         self.solves = 0
         self.inner_iterations = 0
@@ -186,9 +188,13 @@ class ReusedFactorSolver:
         self._stale = True
 
     def _factorise(self, J: sp.csr_matrix) -> None:
-        self._factor = factorise(J, symmetric=self.symmetric, previous=self._factor)
+        # a non-symmetric J (friction): Cholesky of its symmetric part as the
+        # preconditioner (GMRES solves J itself); LU of J where that fails
+        matrix = J if self.symmetric else _symmetric_part(J)
+        self._factor = factorise(matrix, symmetric=True, previous=self._factor)
         self.factorisations += 1
         self._stale = False
+        self._woodbury = None
 
     def newton_matrix(self, base: sp.spmatrix, K: sp.spmatrix) -> sp.csr_matrix:
         """``J = base + K`` (CSR, sorted): on K's own pattern when it holds base's (one
@@ -219,9 +225,10 @@ class ReusedFactorSolver:
             self._factorise(J)
             delta, iterations, converged = self._gmres(J, R, correction)
         if not converged and self._factor.kind != SuperLUFactor.kind:
-            # a Cholesky factor of an indefinite matrix (PETSc does not always report it):
-            # LU, as a direct solve
+            # a Cholesky factor of an indefinite matrix (PETSc does not always report it)
+            # or of a non-symmetric J's symmetric part: LU of J
             self._factor = SuperLUFactor(J)
+            self._woodbury = None
             self.factorisations += 1
             delta, iterations, converged = self._gmres(J, R, correction)
         if iterations > self.refactor_after:
@@ -234,12 +241,18 @@ class ReusedFactorSolver:
         solve = self._factor.solve
         if correction is not None and correction[0].size:
             W, S = np.asarray(correction[0], dtype=float), np.asarray(correction[1])
-            Z = solve(W)
-            small = np.eye(W.shape[1]) + S @ (W.T @ Z)
+            # the preconditioner: the factored matrix plus the low-rank part it was
+            # factorised with (Woodbury); GMRES absorbs the change of W S Wᵀ since then
+            kept = self._woodbury
+            if kept is None or kept[0].shape != W.shape or kept[1].shape != S.shape:
+                Z = solve(W)
+                kept = (W, S, Z, np.linalg.inv(np.eye(W.shape[1]) + S @ (W.T @ Z)) @ S)
+                self._woodbury = kept
+            W0, Z0, small0 = kept[0], kept[2], kept[3]
 
             def precondition(v):
                 y = solve(v)
-                return y - Z @ np.linalg.solve(small, S @ (W.T @ y))
+                return y - Z0 @ (small0 @ (W0.T @ y))
 
             def operator(v):
                 return J @ v + W @ (S @ (W.T @ v))
@@ -296,6 +309,13 @@ class ReusedFactorSolver:
         r = R - operator(x)
         converged = math.sqrt(float(r @ r)) <= 10.0 * target
         return x, steps + 1, converged
+
+
+def _symmetric_part(J: sp.csr_matrix) -> sp.csr_matrix:
+    """``(J + Jᵀ)/2`` (CSR, sorted)."""
+    sym = sp.csr_matrix(0.5 * (J + J.T))
+    sym.sort_indices()
+    return sym
 
 
 def _embed(base: sp.spmatrix, K: sp.csr_matrix) -> np.ndarray | None:
