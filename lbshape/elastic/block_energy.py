@@ -115,7 +115,7 @@ class BlockBasisEnergy:
             # the target search starts where the last one ended (other weights, same y)
             return last[1], last[2].copy(), last[3].copy()
         energy = _fused(self._code, self._parameters, self._gphi, self._volumes,
-                        np.ascontiguousarray(y.reshape(self.m, 3)), _PAIRS, self._pv, self._z)
+                        np.ascontiguousarray(y.reshape(self.m, 3)), self._pv, self._z)
         m = self.m
         g = (self._x.T @ self._pv).reshape(-1)  # (m, 3) -> 3k + c
         blocks = self._x.T @ self._z  # (m, 6m)
@@ -131,37 +131,50 @@ class BlockBasisEnergy:
 
 
 @njit
-def _fused(code, parameters, gphi, volumes, Y, pairs, pv, z):
-    """One pass over the elements: returns the energy, fills pv and z (:func:`_weighted`)."""
+def _fused(code, parameters, gphi, volumes, Y, pv, z):
+    """One pass over the elements: returns the energy (J) and fills
+    ``pv[(e, j), c] = V P[c, j]`` and ``z[(e, j), p m + l] = V Σ_q A[3c + j, 3d + q] GΦ[q, l]``
+    (p the index of the pair c ≤ d)."""
     s, _, m = gphi.shape
     H9 = np.empty((9, 1))
     P9 = np.empty((9, 1))
     A = np.empty((1, 9, 9))
     work = np.empty((6, 3, 3))
+    YT = np.ascontiguousarray(Y.T)  # (3, m)
     energy = 0.0
     for e in range(s):
         V = volumes[e]
+        g0 = gphi[e, 0]
+        g1 = gphi[e, 1]
+        g2 = gphi[e, 2]
         for c in range(3):
-            for j in range(3):
-                value = 0.0
-                for k in range(m):
-                    value += Y[k, c] * gphi[e, j, k]
-                H9[3 * c + j, 0] = value
+            yc = YT[c]
+            h0 = 0.0
+            h1 = 0.0
+            h2 = 0.0
+            for k in range(m):
+                h0 += yc[k] * g0[k]
+                h1 += yc[k] * g1[k]
+                h2 += yc[k] * g2[k]
+            H9[3 * c, 0] = h0
+            H9[3 * c + 1, 0] = h1
+            H9[3 * c + 2, 0] = h2
         _element(code, parameters, H9, P9, A, 0, work, True)
         energy += V * _energy(code, parameters, H9)
         for j in range(3):
             row = 3 * e + j
             for c in range(3):
                 pv[row, c] = V * P9[3 * c + j, 0]
-            for p in range(pairs.shape[0]):
-                c = pairs[p, 0]
-                d = pairs[p, 1]
-                a0 = V * A[0, 3 * c + j, 3 * d]
-                a1 = V * A[0, 3 * c + j, 3 * d + 1]
-                a2 = V * A[0, 3 * c + j, 3 * d + 2]
-                for l in range(m):
-                    z[row, p * m + l] = a0 * gphi[e, 0, l] + a1 * gphi[e, 1, l] \
-                        + a2 * gphi[e, 2, l]
+            p = 0
+            for c in range(3):
+                for d in range(c, 3):  # the order of _PAIRS
+                    a0 = V * A[0, 3 * c + j, 3 * d]
+                    a1 = V * A[0, 3 * c + j, 3 * d + 1]
+                    a2 = V * A[0, 3 * c + j, 3 * d + 2]
+                    zr = z[row, p * m:(p + 1) * m]
+                    for l in range(m):
+                        zr[l] = a0 * g0[l] + a1 * g1[l] + a2 * g2[l]
+                    p += 1
     return energy
 
 
