@@ -552,12 +552,20 @@ class FullSpaceSimulator:
             self._init_rigid_fit()
         rest = self.mesh.points
         _, R, _ = best_rigid_frame(self._scalar_mass, rest, rest + self.stepper.x.reshape(n, 3))
+        self._damping_data = None  # β Q K₀ Qᵀ on the compiled pattern
+        if self._compiled is not None:
+            if getattr(self, "_damping_rest_data", None) is None:
+                self._damping_rest_data = self._compiled.pattern_values(self._damping_rest)
+            rotated = (None if self._damping_rest_data is None
+                       else self._compiled.rotated(self._damping_rest_data, R))
+            if rotated is not None:
+                c = self._compiled
+                self._damping_now = sp.csr_matrix((rotated, c.indices, c.indptr),
+                                                  shape=self._damping_rest.shape)
+                self._damping_data = self._corotated_beta * rotated
+                return
         Q = sp.kron(sp.identity(n, format="csr"), sp.csr_matrix(R), format="csr")
         self._damping_now = (Q @ self._damping_rest @ Q.T).tocsr()
-        self._damping_data = None  # on the compiled pattern, once per step
-        if self._compiled is not None:
-            values = self._compiled.pattern_values(self._damping_now)
-            self._damping_data = None if values is None else self._corotated_beta * values
 
     def _potential(self, x: np.ndarray) -> float:
         energy = self.elastic.energy(self.full_displacement(x).reshape(-1))

@@ -76,6 +76,13 @@ class CompiledElasticity:
         rows_of = np.repeat(np.arange(nf, dtype=np.int64), counts)
         self._keys = rows_of * nf + self.indices  # sorted: the pattern's (row, col) keys
         self._constant: dict[int, tuple] = {}  # add_into's kept positions
+        # whole vertices free: rows 3I..3I+2 share their columns, in aligned triples
+        counts3 = counts.reshape(-1, 3) if nf % 3 == 0 else None
+        self._blocked = bool(
+            counts3 is not None and np.all(free.reshape(-1, 3) % 3 == np.arange(3))
+            and np.all(free.reshape(-1, 3)[:, 0] // 3 == free.reshape(-1, 3)[:, 2] // 3)
+            and np.all(counts3 == counts3[:, :1]) and np.all(counts3 % 3 == 0)
+            and np.all(self.indices.reshape(-1, 3) % 3 == np.arange(3)))
 
     def pattern_data(self, matrix: sp.spmatrix) -> tuple[np.ndarray, np.ndarray] | None:
         """(positions, values): ``matrix``'s (nf, nf) entries (duplicates summed) as distinct
@@ -100,6 +107,17 @@ class CompiledElasticity:
         data = np.zeros(self._nnz)
         data[found[0]] = found[1]
         return data
+
+    def rotated(self, data: np.ndarray, R: np.ndarray) -> np.ndarray | None:
+        """The data array of ``Q A Qᵀ``, ``Q = diag(R, …, R)``, for A given by its ``data``
+        on this pattern (each 3 × 3 vertex block ``R A_IJ Rᵀ``); None when the free dofs
+        do not form whole vertices (the pattern is then not made of 3 × 3 blocks)."""
+        if not self._blocked:
+            return None
+        out = np.empty_like(data)
+        _rotate_blocks(self.indptr, np.ascontiguousarray(data, dtype=np.float64),
+                       np.ascontiguousarray(R, dtype=np.float64), out)
+        return out
 
     def on_pattern(self, K: sp.spmatrix) -> bool:
         """K is a CSR matrix on this tangent's pattern."""
@@ -140,6 +158,28 @@ class CompiledElasticity:
                   self._gradients, self._volumes, self._slots, f, data)
         K = sp.csr_matrix((data, self.indices, self.indptr), shape=self._shape)
         return f, K
+
+
+@njit
+def _rotate_blocks(indptr, data, R, out):
+    """out: each 3 × 3 block B of data (rows 3I..3I+2, aligned column triples) as R B Rᵀ."""
+    B = np.empty((3, 3))
+    C = np.empty((3, 3))
+    for vertex in range((indptr.size - 1) // 3):
+        start0 = indptr[3 * vertex]
+        count = indptr[3 * vertex + 1] - start0
+        for p in range(0, count, 3):
+            for a in range(3):
+                start = indptr[3 * vertex + a] + p
+                for b in range(3):
+                    B[a, b] = data[start + b]
+            for a in range(3):  # C = R B
+                for b in range(3):
+                    C[a, b] = R[a, 0] * B[0, b] + R[a, 1] * B[1, b] + R[a, 2] * B[2, b]
+            for a in range(3):  # out = C Rᵀ
+                start = indptr[3 * vertex + a] + p
+                for b in range(3):
+                    out[start + b] = C[a, 0] * R[b, 0] + C[a, 1] * R[b, 1] + C[a, 2] * R[b, 2]
 
 
 @njit
