@@ -132,18 +132,19 @@ class CompiledElasticity:
         ``matrix``'s entries, else a new sparse sum. ``constant``: ``matrix`` does not
         change between calls (its positions are kept)."""
         if self.on_pattern(K):
-            found = None
-            if constant:
+            if constant:  # kept as a whole data array: one contiguous addition
                 kept = self._constant.get(id(matrix))
                 if kept is None or kept[0] is not matrix:
-                    kept = (matrix, self.pattern_data(matrix))
+                    kept = (matrix, self.pattern_values(matrix))
                     self._constant[id(matrix)] = kept
-                found = kept[1]
+                if kept[1] is not None:
+                    K.data += kept[1]
+                    return K
             else:
                 found = self.pattern_data(matrix)
-            if found is not None:
-                K.data[found[0]] += found[1]
-                return K
+                if found is not None:
+                    K.data[found[0]] += found[1]
+                    return K
         return (K + matrix).tocsr()
 
     def force_and_tangent(self, u: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
