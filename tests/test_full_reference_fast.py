@@ -89,6 +89,8 @@ def test_compiled_assembly_equals_the_numpy_assembly(bar, model):
     reference = K_old[free][:, free]
     assert abs(K - reference).max() <= 1e-13 * abs(reference).max()
     assert compiled.on_pattern(K)
+    energy = FullSpaceElasticity(mesh, mat).energy(u)
+    assert abs(compiled.energy(u) - energy) <= 1e-13 * energy
     # a matrix inside the pattern is added in place, one outside by a sparse sum
     mass = mass_matrix(mesh, mat.density)[free][:, free]
     total = compiled.add_into(K.copy(), mass, constant=True)

@@ -568,7 +568,8 @@ class FullSpaceSimulator:
         self._damping_now = (Q @ self._damping_rest @ Q.T).tocsr()
 
     def _potential(self, x: np.ndarray) -> float:
-        energy = self.elastic.energy(self.full_displacement(x).reshape(-1))
+        elastic = self.elastic if self._compiled is None else self._compiled
+        energy = elastic.energy(self.full_displacement(x).reshape(-1))
         if self.contact is not None:
             energy += self.contact.evaluate(self.full_displacement(x).reshape(-1))[2]
         return energy + self._example_energy(x)

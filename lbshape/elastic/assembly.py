@@ -18,6 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from lbshape._jit import njit
+from lbshape.elastic.block_energy import _energy
 from lbshape.elastic.element_kernels import ElementKernel
 from lbshape.elastic.jit_densities import _element, density_parameters
 from lbshape.elastic.materials import Material
@@ -147,6 +148,15 @@ class CompiledElasticity:
                     return K
         return (K + matrix).tocsr()
 
+    def energy(self, u: np.ndarray) -> float:
+        """Total strain energy (J) at the full node-major displacement u (3n,) m (every
+        element; the numpy densities' ``Ψ(I + H) − Ψ(I)``, compiled)."""
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        if u.shape != (self.n_dofs,):
+            raise LbshapeError(f"displacement must have shape ({self.n_dofs},), got {u.shape}")
+        return float(_energy_total(self._code, self._parameters, u, self._full_dofs,
+                                   self._gradients, self._volumes))
+
     def force_and_tangent(self, u: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
         """(force (nf,) N, tangent (nf, nf) N/m CSR) on the free dofs at the full
         node-major displacement u (3n,) m (``+∂E/∂u`` and its derivative)."""
@@ -159,6 +169,22 @@ class CompiledElasticity:
                   self._gradients, self._volumes, self._slots, f, data)
         K = sp.csr_matrix((data, self.indices, self.indptr), shape=self._shape)
         return f, K
+
+
+@njit
+def _energy_total(code, parameters, u, full_dofs, gradients, volumes):
+    H9 = np.empty((9, 1))
+    total = 0.0
+    for e in range(full_dofs.shape[0]):
+        G = gradients[e]
+        for i in range(3):
+            for j in range(3):
+                value = 0.0
+                for a in range(4):
+                    value += u[full_dofs[e, 3 * a + i]] * G[a, j]
+                H9[3 * i + j, 0] = value
+        total += volumes[e] * _energy(code, parameters, H9)
+    return total
 
 
 @njit
