@@ -308,6 +308,15 @@ def _number(value, digits: int = 1) -> str:
     return "—" if value is None else f"{value:.{digits}f}"
 
 
+def _contact_text(row: dict) -> str:
+    """The agreement up to the first contact, or why there is none."""
+    if row["first_contact_state"] == 0:
+        return "in contact from the start"
+    if row["agreement_to_first_contact"] is None:
+        return "—"
+    return f"{row['agreement_to_first_contact']:.1e} (state {row['first_contact_state']})"
+
+
 def markdown(payload: dict) -> str:
     lines = [
         "# Full-space reference: former and fast path",
@@ -338,9 +347,7 @@ def markdown(payload: dict) -> str:
             f"{_number(row.get('speedup'))}× | {_number(new['floor_ratio'], 2)} | "
             f"{_number(old['floor_ratio'], 2)} | {new.get('factorisations', '—')} | "
             f"{_number(new.get('gmres_iterations_per_solve'))} | {row['agreement']:.1e} | "
-            + (f"{row['agreement_to_first_contact']:.1e} (state "
-               f"{row['first_contact_state']})" if row["agreement_to_first_contact"]
-               is not None else "—") + " |")
+            + _contact_text(row) + " |")
     lines += [
         "",
         "ms/step: mean of the per-step totals (example target included). Floor ratio: a "
