@@ -21,7 +21,10 @@ in one process, interleaved (the order alternates between repeats). Written (ato
   with contact planes, up to its first contact (the first state of the former run with a
   surface vertex behind a plane);
 * factorisations and GMRES iterations of the fast path; the command, commit, date,
-  machine and threads (:func:`lbshape.report.machine.machine_description`).
+  machine and threads (:func:`lbshape.report.machine.machine_description`);
+* the levers side by side on the scene's Newton matrix at rest (:func:`levers`):
+  assembly numpy / compiled, SuperLU (two orderings) / CHOLMOD (with ordering, numeric
+  only) factorisations and solves, one example-energy evaluation general / block.
 
 The user-style scene: a 0.4 m hollow tube (outer radius 3 cm, wall 1 cm) from a gmsh
 script written here, about 2.2k vertices, held at its top, under gravity and a ramped
@@ -251,10 +254,56 @@ def run_path(scene, pre, path: str, steps: int) -> dict:
     return out
 
 
+def levers(scene, pre) -> dict:
+    """The levers side by side on the scene's Newton matrix at rest (ms, median of 3):
+    assembly (numpy, compiled), factorisation (SuperLU with COLAMD and with the
+    MMD(Aᵀ + A) ordering, CHOLMOD with its ordering, CHOLMOD numeric only), one solve with
+    each factor, and one example-energy evaluation (general, compiled block)."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from lbshape.dynamics.linear_solvers import CholmodFactor
+
+    old, new = simulator(scene, pre, PATHS[0]), simulator(scene, pre, PATHS[1])
+    x = np.zeros(new.free_dofs.size)
+    _, K = new._force_and_tangent(x)
+    solver = new.stepper._linear_solver
+    J = solver.newton_matrix(new.stepper._newton_base, K)
+    sym = J if solver.symmetric else sp.csr_matrix(0.5 * (J + J.T))
+    rhs = np.random.default_rng(0).normal(size=J.shape[0])
+    out = {"dofs": int(J.shape[0]), "nnz": int(J.nnz)}
+    out["assembly_numpy_ms"] = 1e3 * _seconds(lambda: old._force_and_tangent(x))
+    out["assembly_compiled_ms"] = 1e3 * _seconds(lambda: new._force_and_tangent(x))
+    csc = sp.csc_matrix(J)
+    for name, spec in (("superlu_colamd", "COLAMD"), ("superlu_mmd_at_plus_a", "MMD_AT_PLUS_A")):
+        out[f"{name}_factor_ms"] = 1e3 * _seconds(lambda spec=spec: spla.splu(csc,
+                                                                           permc_spec=spec))
+        lu = spla.splu(csc, permc_spec=spec)
+        out[f"{name}_solve_ms"] = 1e3 * _seconds(lambda lu=lu: lu.solve(rhs), 5)
+    out["cholmod_factor_ms"] = 1e3 * _seconds(lambda: CholmodFactor(sym).destroy())
+    factor = CholmodFactor(sym)
+    out["cholmod_numeric_refactor_ms"] = 1e3 * _seconds(lambda: factor.refactor(sym))
+    out["cholmod_solve_ms"] = 1e3 * _seconds(lambda: factor.solve(rhs), 5)
+    factor.destroy()
+    if new.uses_examples and new._local is None:
+        z = np.array(new._target_solver.offsets[0]) * 0.5
+        for key, sim in (("example_energy_general_ms", old), ("example_energy_block_ms", new)):
+            model = sim._target_solver.models[0]
+            block = getattr(model, "_block", None)
+
+            def evaluate(model=model, block=block):
+                if block is not None:
+                    block._last = None  # no kept evaluation: the full cost
+                model.energy_force_and_tangent(z)
+            out[key] = 1e3 * _seconds(evaluate)
+    return out
+
+
 def bench_scene(scene, steps: int, repeats: int) -> dict:
     """Both paths on one scene, interleaved over ``repeats``; the fastest repeat of each
     is reported (agreement from the last pair)."""
     pre = precompute(scene)
+    lever_times = levers(scene, pre)
     for path in PATHS:  # warm-up: compiled kernels loaded (or compiled), caches filled
         try:
             simulator(scene, pre, path).run(2)
@@ -283,6 +332,7 @@ def bench_scene(scene, steps: int, repeats: int) -> dict:
         "dt": float(scene.simulation.dt),
         "free_body": bool(pre.fixed_vertices.size == 0),
         "agreement": trajectory_difference(new["states"], old["states"], mass),
+        "levers": lever_times,
         "first_contact_state": contact,
         "agreement_to_first_contact": (
             trajectory_difference(new["states"][:contact + 1], old["states"][:contact + 1],
@@ -306,6 +356,22 @@ def _commit() -> str:
 
 def _number(value, digits: int = 1) -> str:
     return "—" if value is None else f"{value:.{digits}f}"
+
+
+def _lever_row(row: dict) -> str:
+    lev = row["levers"]
+    energy = (f"{_number(lev['example_energy_general_ms'], 2)} / "
+              f"{_number(lev['example_energy_block_ms'], 2)}"
+              if "example_energy_block_ms" in lev else "—")
+    return (f"| {row['scene']} | {lev['dofs']} | {lev['nnz']} | "
+            f"{_number(lev['assembly_numpy_ms'], 2)} / {_number(lev['assembly_compiled_ms'], 2)}"
+            f" | {_number(lev['superlu_colamd_factor_ms'], 2)} / "
+            f"{_number(lev['superlu_mmd_at_plus_a_factor_ms'], 2)} / "
+            f"{_number(lev['cholmod_factor_ms'], 2)} / "
+            f"{_number(lev['cholmod_numeric_refactor_ms'], 2)} | "
+            f"{_number(lev['superlu_colamd_solve_ms'], 3)} / "
+            f"{_number(lev['superlu_mmd_at_plus_a_solve_ms'], 3)} / "
+            f"{_number(lev['cholmod_solve_ms'], 3)} | {energy} |")
 
 
 def _contact_text(row: dict) -> str:
@@ -349,6 +415,15 @@ def markdown(payload: dict) -> str:
             f"{_number(new.get('gmres_iterations_per_solve'))} | {row['agreement']:.1e} | "
             + _contact_text(row) + " |")
     lines += [
+        "",
+        "Levers on each scene's Newton matrix at rest (ms, median of 3): assembly numpy / "
+        "compiled; factorisation SuperLU (COLAMD) / SuperLU (MMD(Aᵀ+A)) / CHOLMOD / "
+        "CHOLMOD numeric only; one solve SuperLU (COLAMD) / SuperLU (MMD) / CHOLMOD; one "
+        "example-energy evaluation general / compiled block (global examples).",
+        "",
+        "| scene | dofs | nnz | assembly | factorisation | solve | example energy |",
+        "|---|---:|---:|---|---|---|---|",
+        *[_lever_row(row) for row in payload["scenes"]],
         "",
         "ms/step: mean of the per-step totals (example target included). Floor ratio: a "
         "step's time over one assembly plus one factorisation of its own Newton matrix "
