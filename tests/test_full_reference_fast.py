@@ -231,3 +231,21 @@ def test_reused_factor_solver_handles_an_indefinite_matrix():
         R = rng.normal(size=n)
         delta = solver(shift, K, R)
         assert np.linalg.norm((shift + K) @ delta - R) <= 1e-10 * np.linalg.norm(R)
+
+
+def test_reused_factor_solver_stops_at_round_off_on_an_ill_conditioned_matrix():
+    """cond(J) ~ 1e14: the relative tolerance cannot be met by any solve; the round-off
+    level is, with the one factorisation (no refactorisation, no LU fallback)."""
+    n = 50
+    rng = np.random.default_rng(9)
+    Q, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    dense = (Q * np.logspace(0, 14, n)) @ Q.T
+    K = sp.csr_matrix(0.5 * (dense + dense.T))
+    base = sp.csr_matrix((n, n))
+    solver = ReusedFactorSolver()
+    R = rng.normal(size=n)
+    delta = solver(base, K, R)
+    assert np.linalg.norm(K @ delta - R) > 1e-11 * np.linalg.norm(R)  # not attainable
+    direct = np.linalg.solve(K.toarray(), R)
+    assert np.linalg.norm(K @ delta - R) <= 10 * np.linalg.norm(K @ direct - R) + 1e-300
+    assert solver.factorisations == 1

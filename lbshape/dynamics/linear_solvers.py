@@ -158,7 +158,8 @@ class ReusedFactorSolver:
     Args:
         symmetric: J is symmetric; ``False`` (friction): its symmetric part is factorised
             as the preconditioner (SuperLU of J where GMRES does not converge with it).
-        rtol: relative residual of each solve.
+        rtol: relative residual of each solve (or the round-off level of ``J δ``,
+            ``64 ε (‖J‖∞ ‖δ‖ + ‖R‖)``, where that is larger).
         max_inner: GMRES iterations with a reused factor before J is factorised afresh.
         refactor_after: when a solve needed more GMRES iterations than this, the next
             call factorises its J first.
@@ -179,6 +180,7 @@ class ReusedFactorSolver:
         self._stale = True
         self._pattern = None
         self._woodbury = None  # (W, S, J₀⁻¹W, (I + S Wᵀ J₀⁻¹ W)⁻¹ S) of the factor
+        self._norm = 0.0  # ‖J‖∞ of the factorised matrix (the round-off level)
         self.factorisations = 0
         self.solves = 0
         self.inner_iterations = 0
@@ -195,6 +197,7 @@ class ReusedFactorSolver:
         self.factorisations += 1
         self._stale = False
         self._woodbury = None
+        self._norm = _inf_norm(J)
 
     def newton_matrix(self, base: sp.spmatrix, K: sp.spmatrix) -> sp.csr_matrix:
         """``J = base + K`` (CSR, sorted): on K's own pattern when it holds base's (one
@@ -229,6 +232,7 @@ class ReusedFactorSolver:
             # or of a non-symmetric J's symmetric part: LU of J
             self._factor = SuperLUFactor(J)
             self._woodbury = None
+            self._norm = _inf_norm(J)
             self.factorisations += 1
             delta, iterations, converged = self._gmres(J, R, correction)
         if iterations > self.refactor_after:
@@ -267,7 +271,10 @@ class ReusedFactorSolver:
         self.inner_iterations += 1
         if norm_r == 0.0:
             return x, 1, True
-        target = self.rtol * norm_r
+        # the tolerance, or the round-off level of evaluating J x where that is larger
+        # (an ill-conditioned J: no solve, direct or not, gets its residual lower)
+        noise = 64.0 * np.finfo(float).eps * (self._norm * math.sqrt(float(x @ x)) + norm_r)
+        target = max(self.rtol * norm_r, noise)
         r = R - operator(x)
         beta = math.sqrt(float(r @ r))
         if beta <= target:
@@ -309,6 +316,11 @@ class ReusedFactorSolver:
         r = R - operator(x)
         converged = math.sqrt(float(r @ r)) <= 10.0 * target
         return x, steps + 1, converged
+
+
+def _inf_norm(J: sp.spmatrix) -> float:
+    """Largest absolute row sum of J."""
+    return float(abs(J).sum(axis=1).max()) if J.shape[0] else 0.0
 
 
 def _symmetric_part(J: sp.csr_matrix) -> sp.csr_matrix:
