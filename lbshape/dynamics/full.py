@@ -98,9 +98,11 @@ from lbshape.dynamics.engine import (
 from lbshape.dynamics.full_contact import FullSpaceContact
 from lbshape.dynamics.full_examples import FullSpaceExampleForce, FullSpaceExamples
 from lbshape.dynamics.integrators import make_stepper
+from lbshape.dynamics.linear_solvers import LINEAR_SOLVERS, make_linear_solver
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.dynamics.rigid_frame import best_rigid_frame
+from lbshape.elastic.assembly import CompiledElasticity
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.modes import rigid_body_modes
@@ -141,6 +143,13 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             (default :data:`FULL_NEWTON`: rtol 1e-8, 20 iterations; with friction or a free
             body's fitted example pull at least :data:`FRICTION_NEWTON_ITERATIONS`).
         contact: penalty contact with planes, or ``None``.
+        linear_solver: ``"reuse"``: compiled assembly
+            (:class:`~lbshape.elastic.assembly.CompiledElasticity`), one sparse
+            factorisation reused across Newton iterations and steps
+            (:class:`~lbshape.dynamics.linear_solvers.ReusedFactorSolver`) and the compiled
+            block evaluation of the example target; ``"lu-each-iteration"``: the former
+            path (numpy assembly, a SuperLU factorisation per Newton iteration), for
+            comparison runs. Same answers to round-off and the Newton tolerance.
 
     Attributes:
         free_dofs: (nf,) node-major indices of the free dofs (x = u[free_dofs]).
@@ -173,7 +182,13 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         target_tolerance: float = 1e-6,
         newton: NewtonSettings = FULL_NEWTON,
         contact: FullSpaceContact | None = None,
+        linear_solver: str = "reuse",
     ):
+        if linear_solver not in LINEAR_SOLVERS:
+            raise LbshapeError(f"linear_solver must be one of {LINEAR_SOLVERS}, "
+                               f"got {linear_solver!r}")
+        self._fast = linear_solver == "reuse"
+        self._linear_solver = linear_solver
         n = mesh.n_vertices
         self.newton, self.dt = newton, float(dt)
         self.contact = contact
@@ -191,6 +206,8 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         self._free_mask = free_mask
 
         self.elastic = FullSpaceElasticity(mesh, material)
+        self._compiled = (CompiledElasticity(mesh, material, self.free_dofs) if self._fast
+                          else None)
         self.mass = mass_matrix(mesh, material.density)
         self._mass_ff = _submatrix(self.mass, self.free_dofs)
         K0 = self.elastic.tangent(np.zeros(3 * n))
@@ -223,6 +240,7 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         self._corotated_beta = float(beta) if (free_body and beta > 0) else 0.0
         self._damping_rest = K0_ff if self._corotated_beta else None
         self._damping_now = K0_ff if self._corotated_beta else None
+        self._damping_data = None  # β Q K₀ Qᵀ on the compiled pattern (_corotate)
         if self._corotated_beta:
             beta = 0.0
         # a free body's global examples: the rigid-invariant fitted pull (_free_gap)
@@ -249,6 +267,8 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             line_search=friction or fitted_pull,
             low_rank_tangent=(self._tangent_correction
                               if fitted_pull or self._corotated_beta else None),
+            linear_solver=(make_linear_solver(self._linear_solver, symmetric=not friction)
+                           if self._fast else None),
         )
 
     # ----------------------------------------------------------------- set-up
@@ -412,22 +432,30 @@ class FullSpaceSimulator(FullSpaceExampleForce):
 
     # ---------------------------------------------------------------- forces
     def _force_and_tangent(self, x: np.ndarray):
-        f, K = self.elastic.force_and_tangent(self.full_displacement(x).reshape(-1))
-        f, K = f[self.free_dofs], self._restrict(K)
+        if self._compiled is not None:  # K on the compiled pattern; terms added in place
+            f, K = self._compiled.force_and_tangent(self.full_displacement(x).reshape(-1))
+            add = self._compiled.add_into
+        else:
+            f, K = self.elastic.force_and_tangent(self.full_displacement(x).reshape(-1))
+            f, K = f[self.free_dofs], self._restrict(K)
+
+            def add(K, matrix, constant=False):
+                return K + matrix
         if self.contact is not None:
             velocity, rate = self._contact_velocity(x)
             fc, Kc, _ = self.contact.evaluate(self.full_displacement(x).reshape(-1), velocity,
                                               rate)
             if Kc is not None:
                 f = f + fc[self.free_dofs]
-                K = (K + Kc[self.free_dofs][:, self.free_dofs]).tocsr()
+                K = add(K, Kc[self.free_dofs][:, self.free_dofs]).tocsr()
         if self._k_ex and self._target_body is not None:  # free body, global examples
             gap = self._free_gap(x, tangent=True)
             f = f + self._k_ex * (self._spring_ff @ gap)
-            K = K + self._kM_ff  # minus the rigid part W Wᵀ (_tangent_correction)
+            # minus the rigid part W Wᵀ (_tangent_correction)
+            K = add(K, self._kM_ff, constant=True)
         elif self._k_ex:
             f = f + self._k_ex * (self._spring_ff @ x)
-            K = K + self._kM_ff
+            K = add(K, self._kM_ff, constant=True)
         stepper = getattr(self, "stepper", None)  # None while the stepper is set up
         if self._corotated_beta and stepper is not None:
             # β Pᵀ R K₀ Rᵀ P v₁(x), v₁ the scheme's end-of-step velocity, linear in x
@@ -435,7 +463,10 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             damping = self._corotated_beta * self._damping_now
             rate = stepper.scheme.cv / stepper.dt
             f = f + self._deformation_damping(x, damping, v1, rate)
-            K = (K + rate * damping).tocsr()  # + its rigid part (_tangent_correction)
+            if self._damping_data is not None and self._compiled.on_pattern(K):
+                K.data += rate * self._damping_data
+            else:
+                K = (K + rate * damping).tocsr()  # + its rigid part (_tangent_correction)
         if self._drag is not None:  # the spring k u_i on the vertex's free dofs, k I₃
             f = f.copy()
             f[self._drag_dofs] += self._drag.stiffness * x[self._drag_dofs]
@@ -514,11 +545,24 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             self._init_rigid_fit()
         rest = self.mesh.points
         _, R, _ = best_rigid_frame(self._scalar_mass, rest, rest + self.stepper.x.reshape(n, 3))
+        self._damping_data = None  # β Q K₀ Qᵀ on the compiled pattern
+        if self._compiled is not None:
+            if getattr(self, "_damping_rest_data", None) is None:
+                self._damping_rest_data = self._compiled.pattern_values(self._damping_rest)
+            rotated = (None if self._damping_rest_data is None
+                       else self._compiled.rotated(self._damping_rest_data, R))
+            if rotated is not None:
+                c = self._compiled
+                self._damping_now = sp.csr_matrix((rotated, c.indices, c.indptr),
+                                                  shape=self._damping_rest.shape)
+                self._damping_data = self._corotated_beta * rotated
+                return
         Q = sp.kron(sp.identity(n, format="csr"), sp.csr_matrix(R), format="csr")
         self._damping_now = (Q @ self._damping_rest @ Q.T).tocsr()
 
     def _potential(self, x: np.ndarray) -> float:
-        energy = self.elastic.energy(self.full_displacement(x).reshape(-1))
+        elastic = self.elastic if self._compiled is None else self._compiled
+        energy = elastic.energy(self.full_displacement(x).reshape(-1))
         if self.contact is not None:
             energy += self.contact.evaluate(self.full_displacement(x).reshape(-1))[2]
         return energy + self._example_energy(x) + self._drag_energy(x)

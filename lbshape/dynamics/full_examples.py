@@ -94,7 +94,8 @@ class FullSpaceExampleForce:
         self._example_descriptors = flat * weights
         rests = example_rest_shapes(self.mesh.points, phi, coefficients)
         kept = energy_elements(self.mesh.points, self.mesh.tets, rests)
-        models = [EuclideanExampleEnergy(x, self.mesh.tets[kept], self.material, L)
+        models = [EuclideanExampleEnergy(x, self.mesh.tets[kept], self.material, L,
+                                         compiled=self._fast)
                   for x in rests]
         self._target_solver = TargetSolver(models, flat, tolerance=tolerance)
         self._kM_ff = self._k_ex * self._mass_ff
