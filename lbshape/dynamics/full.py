@@ -155,6 +155,9 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             negative α, β or k_ex, or an initial state that moves a fixed vertex.
     """
 
+    #: no timed parts of a step (the protocol's phase names)
+    phases: tuple[str, ...] = ()
+
     def __init__(
         self,
         mesh: TetMesh,
@@ -315,6 +318,10 @@ class FullSpaceSimulator(FullSpaceExampleForce):
     def displacement(self) -> np.ndarray:
         """(n, 3) world displacement ``x − X`` of every vertex (m), zero on fixed ones."""
         return self.full_displacement()
+
+    def displacements(self, record: RunRecord) -> np.ndarray:
+        """(f, n, 3) the world displacements (m) of a record of this engine."""
+        return record.displacements()
 
     # ------------------------------------------------------------ switches
     def set_examples(self, on: bool) -> bool:

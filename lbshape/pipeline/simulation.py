@@ -133,9 +133,7 @@ class Simulation:
     def displacements(self, record: RunRecord) -> np.ndarray:
         """(f, n, 3) the sampled world displacements (m) of a record of this simulation,
         as ``lbshape simulate`` stores them (``states.npz``)."""
-        if self.method == "full":
-            return record.displacements()
-        return record.displacements(self.pre.U)
+        return self.engine.displacements(record)
 
     @property
     def state(self) -> EngineState:
