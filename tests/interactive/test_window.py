@@ -20,10 +20,10 @@ import pytest
 from conftest import golden
 
 from lbshape.errors import LbshapeError
-from lbshape.live.display import virtual_display
-from lbshape.live.events import LiveEvent, read_events
-from lbshape.live.session import LiveSession
-from lbshape.live.window import LiveWindow
+from lbshape.interactive.display import virtual_display
+from lbshape.interactive.events import LiveEvent, read_events
+from lbshape.interactive.session import LiveSession
+from lbshape.interactive.window import LiveWindow
 from lbshape.pipeline.precompute import precompute
 from lbshape.scene import load_scene
 
@@ -242,5 +242,53 @@ def test_a_free_body_moves_in_view_with_its_planes(display):
         # the contact planes hold it: the floor at z = 0, the wall at x = 1.2 m
         points = session.points()
         assert points[:, 2].min() > -0.05 and points[:, 0].max() < 1.25
+    finally:
+        window.close()
+
+
+class _FakeClock:
+    """A wall clock that moves only when told."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_a_slow_renderer_drops_frames_not_simulated_time(display, demo):
+    """A renderer taking 0.2 s per frame (a stub; no timing): every frame steps the time
+    it owes, the simulated time stays on the clock and the corner says what is dropped;
+    the surface's points are written in place into the drawn array."""
+    scene, pre = demo
+    session = LiveSession(scene, pre)
+    window = LiveWindow(session, window_size=(320, 240))
+    clock = _FakeClock()
+    session._clock = window._clock = clock
+    window.plotter.show(auto_close=False, interactive_update=True)
+    renders = []
+
+    def slow_render():
+        clock.now += 0.2
+        renders.append(clock.now)
+
+    window.plotter.render = slow_render
+    try:
+        array = window.surface.GetPoints().GetData()
+        for _ in range(8):
+            window.frame()
+        assert window.frames == 8 and len(renders) == 8
+        # the wall time of every frame but the last is stepped; nothing dropped
+        assert session.time == pytest.approx(clock.now - 0.2, abs=session.dt)
+        assert session.dropped == 0.0 and window.behind_frames == 0
+        assert window.notice() == "drawing every 200th step"
+        assert "drawing every 200th step" in window._status.GetInput()
+        # the drawn points: the same VTK array, holding the session's points
+        assert window.surface.GetPoints().GetData() is array
+        np.testing.assert_array_equal(np.asarray(window.surface.points),
+                                      session.points()[window._ids])
+        stats_keys = ("points_ms", "text_ms", "gl_ms", "steps_per_frame")
+        window._wall = clock.now
+        assert all(key in window.stats() for key in stats_keys)
     finally:
         window.close()
