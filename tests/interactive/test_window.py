@@ -75,7 +75,7 @@ def test_a_drag_pulls_the_vertex_towards_the_target(display, demo):
     with_drag = np.linalg.norm(dragged.vertex_position(vertex) - target)
     without = np.linalg.norm(free.vertex_position(vertex) - target)
     # against the examples' pull
-    assert with_drag < golden("live.drag_distance_ratio").limit * without
+    assert with_drag < golden("window.drag_distance_ratio").limit * without
     assert stats["drags"] == 1
     # the drawn vertex is the simulated one
     assert np.allclose(dragged.points()[vertex], dragged.vertex_position(vertex))
@@ -90,7 +90,7 @@ def test_the_examples_switch_changes_shape_and_picture(display, demo, tmp_path):
     u_on, u_off = on.points() - rest, off.points() - rest
     change = np.linalg.norm(u_on - u_off, axis=1).max()
     # the largest vertex change against the largest displacement without examples
-    ratio = golden("live.examples_switch_change").limit
+    ratio = golden("window.examples_switch_change").limit
     assert change > ratio * np.linalg.norm(u_off, axis=1).max()
     import matplotlib.image
 
@@ -98,7 +98,7 @@ def test_the_examples_switch_changes_shape_and_picture(display, demo, tmp_path):
     b = matplotlib.image.imread(str(tmp_path / "off.png"))[..., :3]
     assert a.shape == b.shape == (360, 480, 3)
     changed = np.mean(np.abs(a - b).max(axis=2) > 0.1)
-    assert changed > golden("live.examples_switch_pixels").limit
+    assert changed > golden("window.examples_switch_pixels").limit
 
 
 def test_reset_returns_to_rest_and_keeps_the_switch(display, demo):
@@ -163,10 +163,10 @@ def test_scripted_run_prints_paced_stats_and_a_screenshot(display, demo, tmp_pat
     assert 2.0 <= stats["wall_time_s"] < 10.0
     assert stats["fps"] == pytest.approx(stats["frames"] / stats["wall_time_s"])
     # paced: never ahead of the clock; behind it only by the capped first frames
-    paced = golden("live.paced_sim_time").limit
+    paced = golden("window.paced_sim_time").limit
     assert paced * stats["wall_time_s"] <= stats["sim_time_s"] <= stats["wall_time_s"] + 1e-9
     assert stats["sim_time_s"] == pytest.approx(stats["steps"] * stats["dt"])
-    assert 0.0 < stats["t_total_ms"] < golden("live.step_ms").limit
+    assert 0.0 < stats["t_total_ms"] < golden("window.step_ms").limit
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -237,7 +237,7 @@ def test_a_free_body_moves_in_view_with_its_planes(display):
             session.step_once()
         window._draw()
         shift = session.center() - start
-        assert np.linalg.norm(shift) > golden("live.free_body_shift").limit
+        assert np.linalg.norm(shift) > golden("window.free_body_shift").limit
         assert np.allclose(np.array(plotter.camera.focal_point) - focus, shift, atol=1e-9)
         # the contact planes hold it: the floor at z = 0, the wall at x = 1.2 m
         points = session.points()
