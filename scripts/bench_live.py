@@ -142,16 +142,18 @@ def read_before(paths: list[Path]) -> list[dict]:
 
 def _table(rows: list[dict]) -> list[str]:
     lines = ["| scene | vertices | r | frames | fps | step (ms, mean) | drawing (ms / frame) "
-             "| points / text / render (ms) | steps per frame | simulated / wall time "
+             "| points / text / render (ms) | CPU (ms / frame) | steps per frame "
+             "| simulated / wall time "
              "| frames behind |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         lines.append(
             f"| {row['scene']}{' (dragged)' if row.get('dragged') else ''} "
             f"| {row['n_vertices']} | {row['r']} | {row['frames']} | {row['fps']:.1f} "
             f"| {row['t_total_ms']:.3f} | {row['render_ms']:.1f} "
             f"| {row['points_ms']:.2f} / {row['text_ms']:.2f} / {row['gl_ms']:.1f} "
-            f"| {row['steps_per_frame']:.0f} | {row['realtime_ratio']:.2f} "
+            f"| {row['cpu_ms']:.1f} | {row['steps_per_frame']:.0f} "
+            f"| {row['realtime_ratio']:.2f} "
             f"| {row['behind_frames']} |")
     return lines
 
@@ -200,7 +202,9 @@ def markdown(rows: list[dict], shots: list[Path], machine: dict, args, out_dir: 
         "moving the surface's points (written in place into the drawn VTK array), the "
         "corner text (a fixed-size text actor, touched only when its text changes, its "
         "numbers refreshed every 0.25 s) and the render itself, which is nearly all of it "
-        "and grows with the window's pixels (a software renderer). Simulated / wall time "
+        "and grows with the window's pixels (a software renderer). The CPU time per frame "
+        "is this process's (steps and drawing, every thread, the X server's excluded): "
+        "with the cores to itself a frame would take about that long. Simulated / wall time "
         "is 1 while the steps keep up: a renderer slower than the steps draws fewer "
         "frames, each covering more steps, and the corner says \"drawing every k-th step\" "
         "below 30 fps; \"simulation behind the clock\" only when the steps themselves "

@@ -73,7 +73,7 @@ GRID_SPACING = 0.5
 CAMERA_ZOOM = 1.0
 #: the order of the stats of a live run (``--json``); the first five are the contract's
 STATS_KEYS = ("frames", "fps", "sim_time_s", "wall_time_s", "t_total_ms", "scene", "steps",
-              "dt", "realtime_ratio", "render_ms", "points_ms", "text_ms", "gl_ms",
+              "dt", "realtime_ratio", "render_ms", "points_ms", "text_ms", "gl_ms", "cpu_ms",
               "steps_per_frame", "behind_frames", "dropped_sim_s", "examples_on", "drags",
               "paused", "n_vertices", "r", "threads", "window", "gl_renderer")
 
@@ -125,6 +125,8 @@ class LiveWindow:
         self._notice = ""
         self.error: Exception | None = None
         self._clock = time.perf_counter
+        self._cpu_clock = time.process_time
+        self._cpu_start = self._cpu_seconds = None
         self._start = self._last = None
         self._drag_depth = None
         self.gl_renderer = ""
@@ -385,6 +387,7 @@ class LiveWindow:
         now = self._clock()
         if self._start is None:
             self._start = self._last = now
+            self._cpu_start = self._cpu_clock()
         elapsed, self._last = now - self._last, now
         try:
             while self.events and self.events[0].t <= now - self._start:
@@ -406,6 +409,8 @@ class LiveWindow:
     def _stop(self, error: Exception | None) -> None:
         self.error = error
         self._wall = (self._clock() - self._start) if self._start is not None else 0.0
+        if self._cpu_start is not None:
+            self._cpu_seconds = self._cpu_clock() - self._cpu_start
         self.plotter.iren.interactor.TerminateApp()
 
     def save_screenshot(self, path: str | Path) -> Path:
@@ -458,7 +463,9 @@ class LiveWindow:
         """The run's numbers (:data:`STATS_KEYS`): frames and their rate, simulated and
         wall time, the mean step cost after the warm-up (``t_total_ms``), the mean drawing
         time of a frame (``render_ms``) and its parts (``points_ms``: moving the points,
-        ``text_ms``: the corner text, ``gl_ms``: the render), the steps a drawn frame
+        ``text_ms``: the corner text, ``gl_ms``: the render), the CPU time of this process
+        per frame (``cpu_ms``: steps and drawing, every thread; not the X server's), the
+        steps a drawn frame
         covers, the frames whose steps could not keep up (``behind_frames``) and the
         simulated time dropped then (``dropped_sim_s``), the switches."""
         session, wall = self.session, float(self._wall or 0.0)
@@ -480,6 +487,7 @@ class LiveWindow:
             "points_ms": per_frame(self.part_seconds["points"]),
             "text_ms": per_frame(self.part_seconds["text"]),
             "gl_ms": per_frame(self.part_seconds["gl"]),
+            "cpu_ms": per_frame(self._cpu_seconds or 0.0),
             "steps_per_frame": session.steps / self.frames if self.frames else 0.0,
             "behind_frames": self.behind_frames,
             "dropped_sim_s": session.dropped,
