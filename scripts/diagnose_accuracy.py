@@ -43,8 +43,8 @@ from lbshape.io.paths import RESULTS_DIR
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import (
     example_stiffness,
+    full_simulation,
     reduced_simulation,
-    run_full_space,
 )
 from lbshape.scene import load_scene
 from lbshape.scene.variants import without_examples
@@ -167,20 +167,22 @@ def diagnose(name: str) -> dict:
 
     def reduced(sc, model=pre, what="reduced", **kw):
         """(displacements, times); a run that stopped gives (None, None), its message kept."""
-        record = reduced_simulation(sc, model, **kw).run(steps, stride=STRIDE)
+        engine = reduced_simulation(sc, model, **kw)
+        record = engine.run(steps, stride=STRIDE)
         if not record.stable:
             stops[what] = record.message
             return None, None
-        return record.displacements(pre.U), record.times
+        return engine.displacements(record), record.times
 
     cubature = dataclasses.replace(pre, elastic=dataclasses.replace(
         pre.elastic, force_model="cubature"))  # the trained cubature
 
     def full(sc):
-        record = run_full_space(sc, pre, steps=steps, stride=STRIDE)
+        engine = full_simulation(sc, pre)
+        record = engine.run(steps, stride=STRIDE)
         if not record.stable:
             raise RuntimeError(f"{name}: full run stopped: {record.message}")
-        return record.displacements(), record.times
+        return engine.displacements(record), record.times
 
     has_examples = example_stiffness(scene, pre) > 0
     variants = [("examples", scene)] + ([("no_examples", without_examples(scene))]

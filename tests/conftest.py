@@ -51,18 +51,19 @@ def private_cache(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session", autouse=True)
 def live_display(request):
-    """A virtual X display for the whole session when ``tests/live/test_live.py`` is collected
+    """A virtual X display for the whole session when a test of the live window (one using the
+    ``display`` fixture of ``tests/interactive``) is collected
     and no ``DISPLAY`` is set (and Xvfb is installed): VTK settles on a window class at
     the first render of the process, so the live window's display must exist before any
     off-screen picture of an earlier test. Yields the display's name or None."""
     import os
     import shutil
 
-    wanted = any(Path(str(item.fspath)).name == "test_live.py" for item in request.session.items)
+    wanted = any("display" in getattr(item, "fixturenames", ()) for item in request.session.items)
     if not wanted or os.environ.get("DISPLAY") or shutil.which("Xvfb") is None:
         yield os.environ.get("DISPLAY")
         return
-    from lbshape.live.display import virtual_display
+    from lbshape.interactive.display import virtual_display
 
     with virtual_display() as name:
         yield name

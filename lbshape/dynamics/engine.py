@@ -5,7 +5,8 @@
 :class:`~lbshape.dynamics.full.FullSpaceSimulator` (full-space FEM, the reference) are
 driven the same way: :meth:`Engine.step` advances one step of ``dt``, :meth:`Engine.run`
 many (a solver failure ends the record with ``stable=False``), :meth:`Engine.displacement`
-gives the world displacement of every vertex, :attr:`Engine.state` and
+gives the world displacement of every vertex (:meth:`Engine.displacements` those of a
+run's record), :attr:`Engine.phases` names the timed parts of a step, :attr:`Engine.state` and
 :meth:`Engine.reset` take and restore snapshots, and the example force and a user's point
 pull (:class:`Drag`) are switched by :meth:`Engine.set_examples` and
 :meth:`Engine.set_drag`, which each engine maps to its own forces.
@@ -103,10 +104,13 @@ class Engine(Protocol):
     Attributes:
         dt: the time step (s).
         newton: the step's :class:`NewtonSettings`.
+        phases: the names of the parts of a step an engine times (the columns of its
+            ``phase_seconds`` after a :meth:`run`); empty for an engine that times none.
     """
 
     dt: float
     newton: NewtonSettings
+    phases: tuple[str, ...]
 
     @property
     def time(self) -> float:
@@ -130,6 +134,11 @@ class Engine(Protocol):
 
     def displacement(self) -> np.ndarray:
         """(n, 3) world displacement ``x − X`` of every vertex (m); n-sized: for output."""
+        ...
+
+    def displacements(self, record: RunRecord) -> np.ndarray:
+        """(f, n, 3) the world displacements (m) at the sampled times of a record of this
+        engine (its :meth:`run`), whatever its states are."""
         ...
 
     @property

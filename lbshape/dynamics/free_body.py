@@ -33,10 +33,8 @@ reaches a plane):
    ν₁ the contact (force, torque) and the velocity at the end of the previous sweep,
    until the end momenta settle (:data:`SWEEP_RTOL`, at most :data:`MAX_CONTACT_SWEEPS`
    passes): the fixed point is the trapezoidal contact impulse ``M₆ Δν = Δt F_loads +
-   ½ Δt (C₀ + C₁)`` of the rigid motion and the deformation together. The single pass
-   used the contact at t₀ only, with the deformation's share lagging by a step: an
-   impact then depended on the step size (the car's rebound off the wall without
-   examples: 3.12 m/s at 1 ms, 3.54 m/s at 0.25 ms; swept: 3.692 and 3.689 m/s).
+   ½ Δt (C₀ + C₁)`` of the rigid motion and the deformation together (why:
+   ``docs/decisions.md``, free bodies).
 
 **Friction** (a plane's μ > 0): see :mod:`lbshape.dynamics.free_body_contact`, where the
 contact's part of the step lives.
@@ -165,10 +163,7 @@ class FreeBodySimulation(FreeBodyContact):
         angular_velocity: (3,) initial angular velocity (rad/s, world).
         q0, qd0: (r,) initial deformation and its rate (default 0).
         newton: the :class:`~lbshape.dynamics.engine.NewtonSettings` (default the fixed
-            objects' real-time :data:`~lbshape.dynamics.reduced.REALTIME_NEWTON`: rtol
-            :data:`~lbshape.dynamics.reduced.REALTIME_RTOL` — 1e-8 took 1.24 ms per step
-            on the car against 1.07 ms, the same error against full to 4 digits — and 20
-            iterations per step).
+            objects' real-time :data:`~lbshape.dynamics.reduced.REALTIME_NEWTON`).
         rest_points: (n, 3) rest positions X (m), for the world displacements of the
             record, :meth:`displacement` and :meth:`set_drag` (optional).
         basis: (3n, r) the basis U, for :meth:`displacement` and :meth:`set_drag`
@@ -186,6 +181,8 @@ class FreeBodySimulation(FreeBodyContact):
         phase_seconds: (steps, len(PHASES)) wall time of each part of each step of the
             last :meth:`run` (s).
     """
+
+    phases: tuple[str, ...] = PHASES  #: the parts of a step timed in ``phase_seconds``
 
     def __init__(
         self,
@@ -352,12 +349,15 @@ class FreeBodySimulation(FreeBodyContact):
         return self.driver is not None
 
     def displacement(self) -> np.ndarray:
-        """(n, 3) world displacement ``c + R (X̄ + U q) − X`` of every vertex (m); needs
-        ``basis`` and ``rest_points``."""
+        """(n, 3) world displacement ``c + R (X̄ + U q) − X`` (m); needs basis, rest_points."""
         state = self._now
         body = None if self.rest_points is None else self.rest_points - self.frame.center
         return world_displacements(state.c[None], state.R[None], state.q[None], self.basis,
                                    self.rest_points, body)[0]
+
+    def displacements(self, record: FreeBodyRecord) -> np.ndarray:
+        """(f, n, 3) the world displacements ``c + R (X̄ + U q) − X`` (m) of a record."""
+        return record.displacements(self.basis)
 
     def _live_arrays(self) -> dict[str, np.ndarray]:
         """The arrays that carry state and caches from one step to the next, by role."""

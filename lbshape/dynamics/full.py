@@ -95,6 +95,7 @@ from lbshape.dynamics.engine import (
     check_run,
     snapshot,
 )
+from lbshape.dynamics.free_dofs import CsrRestriction, submatrix, vertex_indices
 from lbshape.dynamics.full_contact import FullSpaceContact
 from lbshape.dynamics.full_examples import FullSpaceExampleForce, FullSpaceExamples
 from lbshape.dynamics.integrators import make_stepper
@@ -164,6 +165,9 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             negative α, β or k_ex, or an initial state that moves a fixed vertex.
     """
 
+    #: no timed parts of a step (the protocol's phase names)
+    phases: tuple[str, ...] = ()
+
     def __init__(
         self,
         mesh: TetMesh,
@@ -196,7 +200,7 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         self.mesh = mesh
         self.material = material
         self.n_vertices = n
-        fixed = _vertex_indices(fixed_vertices, n)
+        fixed = vertex_indices(fixed_vertices, n)
         free_mask = np.ones(3 * n, dtype=bool)
         free_mask[(3 * fixed[:, None] + np.arange(3)).ravel()] = False
         if not free_mask.any():
@@ -209,9 +213,9 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         self._compiled = (CompiledElasticity(mesh, material, self.free_dofs) if self._fast
                           else None)
         self.mass = mass_matrix(mesh, material.density)
-        self._mass_ff = _submatrix(self.mass, self.free_dofs)
+        self._mass_ff = submatrix(self.mass, self.free_dofs)
         K0 = self.elastic.tangent(np.zeros(3 * n))
-        self._restrict = _CsrRestriction(K0, self.free_dofs)
+        self._restrict = CsrRestriction(K0, self.free_dofs)
         K0_ff = self._restrict(K0)
 
         self._load_patterns, self._load_profiles = self._check_loads(loads)
@@ -221,7 +225,7 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             if self._k_ex:
                 raise LbshapeError("give global or local examples, not both")
             self._local, self._k_ex = local_examples[0], float(local_examples[1])
-            self._spring_ff = _submatrix(self._local.mass, self.free_dofs)
+            self._spring_ff = submatrix(self._local.mass, self.free_dofs)
             self._kM_ff = self._k_ex * self._spring_ff
 
         x0 = self._initial(initial_displacement, "initial_displacement")
@@ -335,6 +339,10 @@ class FullSpaceSimulator(FullSpaceExampleForce):
     def displacement(self) -> np.ndarray:
         """(n, 3) world displacement ``x − X`` of every vertex (m), zero on fixed ones."""
         return self.full_displacement()
+
+    def displacements(self, record: RunRecord) -> np.ndarray:
+        """(f, n, 3) the world displacements (m) of a record of this engine."""
+        return record.displacements()
 
     # ------------------------------------------------------------ switches
     def set_examples(self, on: bool) -> bool:
@@ -638,6 +646,7 @@ class FullSpaceSimulator(FullSpaceExampleForce):
                 on_step(index, self.time, u)
         return recorder.record(max_displacement=max_disp)
 
+
 def rigid_velocity(mesh: TetMesh, density: float, velocity, angular_velocity) -> np.ndarray:
     """(n, 3) vertex velocities ``v + ω × (X − X_cm)`` (m/s) of a rigid motion (world)."""
     mass = mass_matrix(mesh, density)
@@ -645,53 +654,6 @@ def rigid_velocity(mesh: TetMesh, density: float, velocity, angular_velocity) ->
     center = weights @ mesh.points / weights.sum()
     arm = mesh.points - center
     return np.asarray(velocity, dtype=float) + np.cross(np.asarray(angular_velocity), arm)
-
-
-# -------------------------------------------------------------------- helpers
-class _CsrRestriction:
-    """Restrict CSR matrices with a fixed pattern (that of ``template``) to ``dofs``.
-
-    The rows and columns of ``dofs`` are selected by gathering the data array, so a
-    call costs one fancy index of the non-zeros and no sparse re-indexing.
-    """
-
-    def __init__(self, template: sp.csr_matrix, dofs: np.ndarray):
-        self._indices = template.indices
-        self._indptr = template.indptr
-        nnz = template.indices.size
-        marker = sp.csr_matrix(
-            (np.arange(1, nnz + 1, dtype=float), template.indices, template.indptr),
-            shape=template.shape,
-        )
-        sub = marker[dofs][:, dofs].tocsr()
-        sub.sort_indices()
-        self._gather = sub.data.astype(np.int64) - 1
-        self._sub_indices, self._sub_indptr = sub.indices, sub.indptr
-        self._shape = (dofs.size, dofs.size)
-
-    def __call__(self, matrix: sp.csr_matrix) -> sp.csr_matrix:
-        if not (np.array_equal(matrix.indptr, self._indptr)
-                and np.array_equal(matrix.indices, self._indices)):
-            raise LbshapeError("tangent does not have the expected sparsity pattern")
-        return sp.csr_matrix(
-            (matrix.data[self._gather], self._sub_indices.copy(), self._sub_indptr.copy()),
-            shape=self._shape,
-        )
-
-
-def _submatrix(matrix: sp.spmatrix, dofs: np.ndarray) -> sp.csr_matrix:
-    return sp.csr_matrix(matrix.tocsr()[dofs][:, dofs])
-
-
-def _vertex_indices(values, n: int) -> np.ndarray:
-    idx = np.asarray(values)
-    if idx.size == 0:
-        return np.zeros(0, dtype=np.int64)
-    if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
-        raise LbshapeError(f"fixed vertices must be a 1-D array of integers, got {idx.dtype}")
-    if idx.min() < 0 or idx.max() >= n:
-        raise LbshapeError(f"fixed vertex index out of range [0, {n})")
-    return np.unique(idx.astype(np.int64))
 
 
 def _max_norm(u: np.ndarray) -> float:

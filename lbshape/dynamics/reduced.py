@@ -134,6 +134,9 @@ class ReducedSimulation:
             last :meth:`run` (s).
     """
 
+    #: the parts of a step timed in ``phase_seconds``
+    phases: tuple[str, ...] = PHASES
+
     def __init__(
         self,
         elastic,
@@ -280,6 +283,12 @@ class ReducedSimulation:
         if self.basis is None:
             raise LbshapeError("displacement() needs the basis U (give basis=...)")
         return (self.basis @ self.x).reshape(-1, 3)
+
+    def displacements(self, record: RunRecord) -> np.ndarray:
+        """(f, n, 3) the world displacements ``U q`` (m) of a record of this engine."""
+        if self.basis is None:
+            raise LbshapeError("displacements() needs the basis U (give basis=...)")
+        return record.displacements(self.basis)
 
     def _live_arrays(self) -> dict[str, np.ndarray]:
         """The arrays that carry state from one step to the next, by role."""

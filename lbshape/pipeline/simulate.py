@@ -35,8 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from lbshape.dynamics.contact import PlaneContact
-from lbshape.dynamics.engine import NewtonSettings
-from lbshape.dynamics.free_body import PHASES as FREE_BODY_PHASES
+from lbshape.dynamics.engine import Engine, NewtonSettings
 from lbshape.dynamics.free_body import FreeBodySimulation, FreeLoad
 from lbshape.dynamics.full import (
     FullSpaceContact,
@@ -46,7 +45,7 @@ from lbshape.dynamics.full import (
 )
 from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord
-from lbshape.dynamics.reduced import PHASES, REALTIME_NEWTON, ReducedSimulation
+from lbshape.dynamics.reduced import REALTIME_NEWTON, ReducedSimulation
 from lbshape.dynamics.sanity import DeformationBound
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.polynomial_forces import PolynomialForceModel
@@ -106,13 +105,16 @@ class SimulationOutput:
     step_median_ms: float | None = None
 
 
-def phase_medians(sim) -> dict | None:
-    """The one phase record of a reduced engine's last run: ``{phase: median ms per step
-    after the warm-up}``, phases in the engine's order — a fixed object's
+def phase_medians(sim: Engine) -> dict | None:
+    """The one phase record of an engine's last run: ``{phase: median ms per step after
+    the warm-up}``, phases in the engine's order (:attr:`Engine.phases
+    <lbshape.dynamics.engine.Engine.phases>`: a fixed object's
     :data:`~lbshape.dynamics.reduced.PHASES`, a free body's
-    :data:`~lbshape.dynamics.free_body.PHASES` (the same names plus ``rigid`` and
-    ``contact``); ``None`` without timed steps."""
-    names = FREE_BODY_PHASES if isinstance(sim, FreeBodySimulation) else PHASES
+    :data:`~lbshape.dynamics.free_body.PHASES`, the same names plus ``rigid`` and
+    ``contact``); ``None`` without timed steps or for an engine that times none (full)."""
+    names = sim.phases
+    if not names:
+        return None
     phases = getattr(sim, "phase_seconds", np.zeros((0, len(names))))
     phases = phases[WARMUP_STEPS:] if len(phases) > WARMUP_STEPS else phases
     if not len(phases):
@@ -305,19 +307,15 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
     if out is not None:
         check_replaceable(out, RUN_FILES)  # refuse a folder of other files before the run
     stride = max(1, math.ceil(steps / MAX_FRAMES))
-    phase_ms = None
+    engine = (full_simulation(scene, pre) if method == "full"
+              else reduced_simulation(scene, pre, method=method))
     with _progress_bar(steps, label or f"{scene.name} [{method}]", progress) as on_step:
-        if method == "full":
-            record = run_full_space(scene, pre, steps=steps, stride=stride, on_step=on_step)
-        else:
-            sim = reduced_simulation(scene, pre, method=method)
-            record = sim.run(steps, stride=stride, on_step=on_step)
-            phase_ms = phase_medians(sim)
+        record = engine.run(steps, stride=stride, on_step=on_step)
+    phase_ms = phase_medians(engine)
+    frames = engine.displacements(record)
     if method == "full":
-        frames = record.displacements()
         r, s = 3 * (pre.mesh.n_vertices - pre.fixed_vertices.size), pre.mesh.n_tets
     else:
-        frames = record.displacements(pre.U)
         r, s = pre.r, force_elements(pre)
     t_interp, t_total = record.mean_ms(warmup=WARMUP_STEPS)
     max_disp = float(np.max(np.linalg.norm(frames, axis=2))) if frames.size else 0.0

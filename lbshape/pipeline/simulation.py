@@ -28,7 +28,12 @@ from lbshape.dynamics.record import RunRecord
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.precomputed import Precomputed
-from lbshape.pipeline.simulate import METHODS, full_simulation, reduced_simulation
+from lbshape.pipeline.simulate import (
+    METHODS,
+    example_stiffness,
+    full_simulation,
+    reduced_simulation,
+)
 from lbshape.scene.schema import Scene
 
 __all__ = ["DRAG_RATE", "METHODS", "Simulation", "simulation"]
@@ -54,6 +59,8 @@ class Simulation:
         scene, pre, method, engine: as given (``engine``: the one built).
         drag_stiffness: a point pull's default stiffness (N/m): :data:`DRAG_RATE` times
             the object's mass (a free body's engine caps it for stability).
+        has_examples: whether the scene has an example force to switch.
+        examples_on: whether it acts (:meth:`set_examples`).
     """
 
     def __init__(self, scene: Scene, pre: Precomputed, *, method: str = "reduced",
@@ -68,6 +75,8 @@ class Simulation:
         self.drag_stiffness = DRAG_RATE * float(pre.material.density * pre.mesh.volume())
         self._rest = np.asarray(pre.mesh.points, dtype=float)
         self._drag: Drag | None = None
+        self.has_examples = example_stiffness(scene, pre) > 0
+        self.examples_on = self.has_examples
 
     def __repr__(self) -> str:
         return (f"Simulation(scene={self.scene.name!r}, method={self.method!r}, "
@@ -103,6 +112,10 @@ class Simulation:
         """(n, 3) world positions ``X + u`` of every vertex (m)."""
         return self._rest + self.displacement()
 
+    def vertex_position(self, vertex: int) -> np.ndarray:
+        """(3,) the world position of one vertex (m), 0 <= vertex < n."""
+        return self.points()[self._check_vertex(vertex)]
+
     # ------------------------------------------------------------- stepping
     def step(self) -> int:
         """Advance one step of :attr:`dt`; returns its Newton iterations.
@@ -133,9 +146,7 @@ class Simulation:
     def displacements(self, record: RunRecord) -> np.ndarray:
         """(f, n, 3) the sampled world displacements (m) of a record of this simulation,
         as ``lbshape simulate`` stores them (``states.npz``)."""
-        if self.method == "full":
-            return record.displacements()
-        return record.displacements(self.pre.U)
+        return self.engine.displacements(record)
 
     @property
     def state(self) -> EngineState:
@@ -153,7 +164,8 @@ class Simulation:
     def set_examples(self, on: bool) -> bool:
         """The scene's example force on or off from the next step on; returns whether it
         acts (False for a scene without examples)."""
-        return bool(self.engine.set_examples(bool(on)))
+        self.examples_on = bool(self.engine.set_examples(bool(on)))
+        return self.examples_on
 
     def grab(self, vertex: int, target=None, stiffness: float | None = None) -> None:
         """Pull ``vertex`` towards ``target`` with a spring, from the next step on (what

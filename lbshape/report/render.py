@@ -1,4 +1,4 @@
-"""Off-screen pictures with pyvista (with :mod:`lbshape.live.window`, the on-screen window,
+"""Off-screen pictures with pyvista (with :mod:`lbshape.interactive.window`, the on-screen window,
 the only modules of lbshape that import it).
 
 All functions write a PNG atomically and return its path. Rendering is headless:

@@ -26,7 +26,7 @@ from lbshape.dynamics.reduced import REALTIME_RTOL
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.io.machine import load_text, threads_text
 from lbshape.pipeline.precomputed import Precomputed
-from lbshape.pipeline.simulate import WARMUP_STEPS, reduced_simulation, run_full_space
+from lbshape.pipeline.simulate import WARMUP_STEPS, full_simulation, reduced_simulation
 from lbshape.report.plots import pyplot, save_figure
 from lbshape.scene.schema import Scene
 from lbshape.scene.variants import with_step
@@ -96,15 +96,16 @@ def large_step_study(scene: Scene, pre: Precomputed, *, duration: float,
         stepped = with_step(scene, 1.0 / hz, duration)
         steps = stepped.simulation.steps
         stride = max(1, math.ceil(steps / 100))
-        full = run_full_space(stepped, pre, steps=steps, stride=stride)
-        full_frames = full.displacements()
+        full_engine = full_simulation(stepped, pre)
+        full = full_engine.run(steps, stride=stride)
+        full_frames = full_engine.displacements(full)
         full_final = _final_max(full_frames)
         sim = reduced_simulation(stepped, pre)
         record = sim.run(steps, stride=stride)
         reduced_final = difference = error = None
         step_ms = None
         if record.stable:
-            frames = record.displacements(pre.U)
+            frames = sim.displacements(record)
             reduced_final = _final_max(frames)
         if record.stable and full.stable:
             difference = abs(reduced_final - full_final) / full_final
@@ -114,10 +115,11 @@ def large_step_study(scene: Scene, pre: Precomputed, *, duration: float,
             else record.t_total_ms
         if totals.size:
             step_ms = float(np.median(totals))
-        unchecked = None
+        unchecked = unchecked_frames = None
         if not scene.is_free:  # a free body's step has no unchecked variant
-            unchecked = reduced_simulation(stepped, pre, newton_iterations=1).run(
-                steps, stride=stride)
+            unchecked_sim = reduced_simulation(stepped, pre, newton_iterations=1)
+            unchecked = unchecked_sim.run(steps, stride=stride)
+            unchecked_frames = unchecked_sim.displacements(unchecked)
         iterations = record.newton_iterations
         rows.append(LargeStepRow(
             scene=scene.name, hz=float(hz), dt=1.0 / hz, steps=steps, full_final=full_final,
@@ -126,7 +128,7 @@ def large_step_study(scene: Scene, pre: Precomputed, *, duration: float,
             max_updates=int(iterations.max()) if iterations.size else 0,
             step_ms=step_ms,
             reduced_message=record.message, full_message=full.message,
-            unchecked_final=(_final_max(unchecked.displacements(pre.U))
+            unchecked_final=(_final_max(unchecked_frames)
                              if unchecked is not None and unchecked.stable else None),
             unchecked_message="" if unchecked is None or unchecked.stable
             else unchecked.message))

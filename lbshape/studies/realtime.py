@@ -239,18 +239,18 @@ def newton_study(scene, pre, *, steps: int, repeats: int = 3,
             record = sim.run(steps, stride=max(1, math.ceil(steps / MAX_FRAMES)))
             times[label].append(record.mean_ms(warmup=WARMUP_STEPS)[1])
             phases[label].append(phase_medians(sim))
-            first.setdefault(label, record)
-    converged = first[labels[-1]]
+            first.setdefault(label, (sim, record))
+    converged_sim, converged = first[labels[-1]]
     out = []
     for label in labels:
-        record = first[label]
-        u = record.displacements(pre.U)
+        sim, record = first[label]
+        u = sim.displacements(record)
         stable = record.stable and full.message == ""
         error = trajectory_error(u, full.displacements, mass, times=record.times,
                                  times_full=full.times) if stable else None
         difference = None
         if record.stable and converged.stable:
-            difference = trajectory_error(u, converged.displacements(pre.U), mass)
+            difference = trajectory_error(u, converged_sim.displacements(converged), mass)
         measured = [p for p in phases[label] if p is not None]
         out.append(NewtonVariant(
             label=label, error_vs_full=error, difference=difference,

@@ -12,21 +12,21 @@ PACKAGE = Path(__file__).resolve().parents[2] / "lbshape"
 #: optional heavy packages that may only be imported inside functions
 HEAVY = ("dolfinx", "petsc4py", "slepc4py", "pyvista", "matplotlib", "gmsh")
 #: the layers from the top down (imports only point down):
-#: cli → studies → report → pipeline → scene → analysis → numerics; live (the interactive
+#: cli → studies → report → pipeline → scene → analysis → numerics; interactive (the live window
 #: session and window) → report, pipeline; api → pipeline, scene, spectral, geometry;
 #: io is used by any layer
 NUMERICS = ("geometry", "fem", "spectral", "elastic", "shapespace", "dynamics")
 #: subpackage -> subpackages it must never import
 FORBIDDEN = {
-    **{low: ("analysis", "scene", "pipeline", "report", "studies", "live", "api", "cli")
+    **{low: ("analysis", "scene", "pipeline", "report", "studies", "interactive", "api", "cli")
        for low in NUMERICS},
-    "analysis": ("scene", "pipeline", "report", "studies", "live", "api", "cli"),
-    "scene": ("pipeline", "report", "studies", "live", "api", "cli"),
-    "pipeline": ("report", "studies", "live", "api", "cli"),
-    "report": ("studies", "live", "api", "cli"),
-    "studies": ("live", "api", "cli"),
-    "live": ("studies", "api", "cli"),
-    "api": ("report", "studies", "live", "cli"),
+    "analysis": ("scene", "pipeline", "report", "studies", "interactive", "api", "cli"),
+    "scene": ("pipeline", "report", "studies", "interactive", "api", "cli"),
+    "pipeline": ("report", "studies", "interactive", "api", "cli"),
+    "report": ("studies", "interactive", "api", "cli"),
+    "studies": ("interactive", "api", "cli"),
+    "interactive": ("studies", "api", "cli"),
+    "api": ("report", "studies", "interactive", "cli"),
 }
 #: what runs work (a precompute or a simulation): report draws runs it is given, so it
 #: imports none of these modules or names

@@ -80,10 +80,14 @@ def test_run_records_and_ends_on_a_failure_without_raising(engine):
     sim, pre, _ = engine
     record = sim.run(STEPS, stride=4)
     assert record.stable and record.steps == STEPS and len(record.times) == 4
-    frames = record.displacements(None if record.states.shape[1] == 3 * pre.mesh.n_vertices
-                                  else pre.U)
+    frames = sim.displacements(record)  # the record's world displacements, every engine
+    assert frames.shape == (4, pre.mesh.n_vertices, 3)
     np.testing.assert_allclose(frames[-1], sim.displacement(), rtol=0,
                                atol=1e-12 * np.abs(frames[-1]).max())
+    # the timed parts of a step: named by the engine, one column each (none for full)
+    assert isinstance(sim.phases, tuple)
+    if sim.phases:
+        assert sim.phase_seconds.shape == (STEPS, len(sim.phases))
     calls = []
 
     def failing() -> int:

@@ -2,7 +2,7 @@
 
 :func:`read_events` reads a JSON list of :class:`LiveEvent` (drag, move, release,
 toggle the examples, pause, step, reset, screenshot); the window
-(:class:`lbshape.live.window.LiveWindow`) applies them as it applies the mouse and keys.
+(:class:`lbshape.interactive.window.LiveWindow`) applies them as it applies the mouse and keys.
 """
 
 from __future__ import annotations

@@ -1,19 +1,25 @@
-"""The on-screen window of ``lbshape live``: a :class:`~lbshape.live.session.LiveSession`
+"""The on-screen window of ``lbshape live``: a :class:`~lbshape.interactive.session.LiveSession`
 stepped to the wall clock and drawn with pyvista/VTK (imported inside functions).
 
 A repeating VTK timer calls :meth:`LiveWindow.frame`: it feeds the scripted events that
 are due, advances the session by the wall time since the last frame
-(:meth:`~lbshape.live.session.LiveSession.advance`: whole steps of the scene's dt,
-capped), moves the drawn surface's points in place, updates the corner text (simulated
-time, mean step cost, frame rate) and renders. Contact planes are the off-screen
-pictures' rectangles (:func:`lbshape.report.render.plane_rectangles`), reaching far, drawn
-as grids of lines (:func:`plane_grid`); the camera follows a free body's centre of mass.
+(:meth:`~lbshape.interactive.session.LiveSession.advance`: every step of the scene's dt
+that time owes), writes the new points into the drawn surface's point array in place,
+updates the corner text when it changes (at most every :data:`STATUS_PERIOD`) and
+renders. A renderer that cannot keep up draws fewer frames, each after more steps: the
+simulated time stays on the clock, and the corner says "drawing every k-th step"; only
+steps slower than the time they simulate put the simulation behind the clock (said
+there too). The corner text is a plain text actor of a fixed size (a corner annotation
+fits its font to the window at every change: about 80 ms of a software-rendered frame).
+Contact planes are the off-screen pictures' rectangles
+(:func:`lbshape.report.render.plane_rectangles`), reaching far, drawn as grids of lines
+(:func:`plane_grid`); the camera follows a free body's centre.
 
 Interaction (:data:`KEYS`): the left mouse button on the object picks the nearest
 vertex of the picked cell and drags it (the cursor is mapped to the plane through the
 vertex facing the camera; a spring pulls the vertex there, drawn as a line); elsewhere
 the left button turns the camera as usual. Keys pause, step, switch the examples and
-reset. Scripted events (:func:`lbshape.live.events.read_events`) go through the same
+reset. Scripted events (:func:`lbshape.interactive.events.read_events`) go through the same
 methods.
 
 The window needs an X display: a desktop, or a virtual one (``xvfb-run -a lbshape live
@@ -31,10 +37,10 @@ from pathlib import Path
 import numpy as np
 
 from lbshape.errors import LbshapeError, SolverError
+from lbshape.interactive.display import require_display
+from lbshape.interactive.events import LiveEvent
+from lbshape.interactive.session import LiveSession
 from lbshape.io.atomic import write_atomic
-from lbshape.live.display import require_display
-from lbshape.live.events import LiveEvent
-from lbshape.live.session import LiveSession
 from lbshape.report.figures import view_vector_of
 from lbshape.report.render import (
     PLANE_COLOR,
@@ -51,8 +57,12 @@ KEYS = {"space": "pause / resume", "n": "one step (paused)", "x": "examples on /
         "z": "reset to rest"}
 #: the timer's period (ms): frames follow as fast as the rendering allows
 TIMER_MS = 5
-#: the window's size in pixels
-WINDOW_SIZE = (960, 720)
+#: the window's size in pixels (a software renderer's frame costs about its pixel count)
+WINDOW_SIZE = (640, 480)
+#: the corner text's numbers are refreshed at most this often (s of wall time)
+STATUS_PERIOD = 0.25
+#: below this frame rate the corner says how many steps each drawn frame covers
+SMOOTH_FPS = 30.0
 #: contact planes reach this many times the size of the object and the planes' points
 #: beyond them (a free body moves far in a live run; the camera follows it)
 PLANE_REACH = 10.0
@@ -63,8 +73,9 @@ GRID_SPACING = 0.5
 CAMERA_ZOOM = 1.0
 #: the order of the stats of a live run (``--json``); the first five are the contract's
 STATS_KEYS = ("frames", "fps", "sim_time_s", "wall_time_s", "t_total_ms", "scene", "steps",
-              "dt", "realtime_ratio", "render_ms", "examples_on", "drags", "paused",
-              "n_vertices", "r", "threads", "window", "gl_renderer")
+              "dt", "realtime_ratio", "render_ms", "points_ms", "text_ms", "gl_ms", "cpu_ms",
+              "steps_per_frame", "behind_frames", "dropped_sim_s", "examples_on", "drags",
+              "paused", "n_vertices", "r", "threads", "window", "gl_renderer")
 
 
 def plane_grid(pv, corners: np.ndarray, spacing: float, *, most: int = 200):
@@ -83,14 +94,14 @@ def plane_grid(pv, corners: np.ndarray, spacing: float, *, most: int = 200):
 
 
 class LiveWindow:
-    """The window of a :class:`~lbshape.live.session.LiveSession` (see the module
+    """The window of a :class:`~lbshape.interactive.session.LiveSession` (see the module
     docstring). Make it, then :meth:`run`.
 
     Args:
         session: the session to step and draw.
         seconds: close after this much wall time (s); ``None``: when the user closes it.
         screenshot: a PNG of the last frame.
-        events: scripted events (:func:`lbshape.live.events.read_events`).
+        events: scripted events (:func:`lbshape.interactive.events.read_events`).
         window_size: (width, height) in pixels.
     """
 
@@ -107,8 +118,15 @@ class LiveWindow:
         self.screenshot_path = None if screenshot is None else Path(screenshot)
         self.events = list(events)
         self.frames, self.render_seconds = 0, 0.0
+        self.part_seconds = {"points": 0.0, "text": 0.0, "gl": 0.0}
+        self.behind_frames = 0
+        self._status_at, self._status_text = -math.inf, None
+        self._period = {"frames": 0, "steps": 0, "behind": False, "start": None}
+        self._notice = ""
         self.error: Exception | None = None
         self._clock = time.perf_counter
+        self._cpu_clock = time.process_time
+        self._cpu_start = self._cpu_seconds = None
         self._start = self._last = None
         self._drag_depth = None
         self.gl_renderer = ""
@@ -123,9 +141,12 @@ class LiveWindow:
         self._ids = np.asarray(base.point_data["vtkOriginalPointIds"])
         self.surface = base.copy()
         self.surface.points = session.points()[self._ids]
+        # the drawn points: a view of the VTK array, written in place each frame
+        self._surface_points = np.asarray(self.surface.points)
         self.actor = plotter.add_mesh(self.surface, color="#c8d2e0", show_edges=True,
                                       edge_color="#333333", line_width=0.3)
         self._line = pv.PolyData(np.zeros((2, 3)), lines=np.array([2, 0, 1]))
+        self._line_points = np.asarray(self._line.points)
         self._line_actor = plotter.add_mesh(self._line, color="#d62728", line_width=3,
                                             point_size=10, render_points_as_spheres=True,
                                             style="wireframe", pickable=False)
@@ -140,7 +161,9 @@ class LiveWindow:
         for corners in rectangles:
             plotter.add_mesh(plane_grid(pv, corners, spacing), color=PLANE_COLOR,
                              lighting=False, line_width=1.0, pickable=False)
-        self._status = plotter.add_text("", position="upper_left", font_size=10)
+        self._status = plotter.add_text(
+            " ", position=(8, self.window_size[1] - 8), font_size=9)
+        self._status.GetTextProperty().SetVerticalJustificationToTop()
         help_text = "left mouse on the object: drag a vertex | " + " | ".join(
             f"{key}: {what}" for key, what in KEYS.items()) + " | q: quit"
         plotter.add_text(help_text, position="lower_left", font_size=8)
@@ -188,11 +211,15 @@ class LiveWindow:
         self._drag_depth = None
         self._line_actor.SetVisibility(False)
 
-    def _show_drag(self) -> None:
+    def _show_drag(self, points: np.ndarray | None = None) -> None:
+        """The drag's line from the vertex (in ``points``, default the session's) to its
+        target, moved in place."""
         drag = self.session.drag
         if drag is None:
             return
-        self._line.points = np.array([self.session.vertex_position(drag.vertex), drag.target])
+        points = self.session.points() if points is None else points
+        self._line_points[0], self._line_points[1] = points[drag.vertex], drag.target
+        self._line.GetPoints().Modified()
         self._line_actor.SetVisibility(True)
 
     def apply(self, event: LiveEvent) -> None:
@@ -281,27 +308,67 @@ class LiveWindow:
 
     # -------------------------------------------------------------- loop
     def _draw(self) -> None:
-        """Move the surface to the current state, update the texts and render."""
-        session = self.session
-        started = self._clock()
-        self.surface.points = session.points()[self._ids]
-        self._follow()
-        self._show_drag()
-        wall = (self._last - self._start) if self._start is not None else 0.0
-        fps = self.frames / wall if wall > 0 else 0.0
-        state = "examples on" if session.examples_on else (
-            "examples off" if session.has_examples else "no examples")
-        self._status.SetText(2, f"{session.scene.name}  t = {session.time:.3f} s\n"
-                                f"step {session.mean_step_ms():.3f} ms   {fps:.1f} fps\n"
-                                f"{state}{'   PAUSED' if session.paused else ''}")
+        """Write the current points into the drawn surface in place, update the corner
+        text if it changed, and render."""
+        session, clock = self.session, self._clock
+        started = clock()
+        points = session.points()
+        self._surface_points[...] = points[self._ids]
+        self.surface.GetPoints().Modified()
+        self._follow(points)
+        self._show_drag(points)
+        marks = [started, clock()]
+        self._update_status(marks[1])
+        marks.append(clock())
         with quiet_vtk():
             self.plotter.render()
-        self.render_seconds += self._clock() - started
+        marks.append(clock())
+        for name, begin, end in zip(self.part_seconds, marks[:-1], marks[1:], strict=True):
+            self.part_seconds[name] += end - begin
+        self.render_seconds += marks[-1] - started
 
-    def _follow(self) -> None:
-        """A free body: the camera moves with its centre of mass (turning and zooming stay
-        the user's)."""
-        center = self.session.center()
+    def _update_status(self, now: float) -> None:
+        """The corner text: scene, simulated time, step cost, frame rate, switches and
+        what is dropped; its numbers at most every :data:`STATUS_PERIOD`, the text
+        actor touched only when the text changes."""
+        session, period = self.session, self._period
+        if now - self._status_at >= STATUS_PERIOD or self._status_text is None:
+            self._status_at = now
+            self._notice = self.notice()
+            period.update(frames=0, steps=0, behind=False, start=now)
+        state = "examples on" if session.examples_on else (
+            "examples off" if session.has_examples else "no examples")
+        text = (f"{session.scene.name}  t = {session.time:.2f} s\n"
+                f"step {session.mean_step_ms():.3f} ms   {self._fps:.1f} fps\n"
+                f"{state}{'   PAUSED' if session.paused else ''}"
+                + (f"\n{self._notice}" if self._notice else ""))
+        if text != self._status_text:
+            self._status.SetInput(text)
+            self._status_text = text
+
+    def notice(self) -> str:
+        """What the window drops, from the frames since the corner text's last refresh:
+        "simulation behind the clock" when the steps could not keep up; "drawing every
+        k-th step" when frames came slower than :data:`SMOOTH_FPS`; else ''."""
+        period = self._period
+        if period["behind"]:
+            return "simulation behind the clock"
+        span = (self._clock() - period["start"]) if period["start"] is not None else 0.0
+        if period["frames"] and span > 0 and period["frames"] / span < SMOOTH_FPS:
+            steps = period["steps"] / period["frames"]
+            if steps > 1:
+                return f"drawing every {ordinal(round(steps))} step"
+        return ""
+
+    @property
+    def _fps(self) -> float:
+        wall = (self._last - self._start) if self._start is not None else 0.0
+        return self.frames / wall if wall > 0 else 0.0
+
+    def _follow(self, points: np.ndarray | None = None) -> None:
+        """A free body: the camera moves with its centre (turning and zooming stay the
+        user's)."""
+        center = self.session.center(points)
         if center is None:
             return
         if self._followed is not None:
@@ -320,11 +387,17 @@ class LiveWindow:
         now = self._clock()
         if self._start is None:
             self._start = self._last = now
+            self._cpu_start = self._cpu_clock()
         elapsed, self._last = now - self._last, now
         try:
             while self.events and self.events[0].t <= now - self._start:
                 self.apply(self.events.pop(0))
-            self.session.advance(elapsed)
+            steps = self.session.advance(elapsed)
+            self._period["frames"] += 1
+            self._period["steps"] += steps
+            if self.session.behind:
+                self._period["behind"] = True
+                self.behind_frames += 1
             self._draw()
             self.frames += 1
         except Exception as exc:  # SolverError and the rest: re-raised by run()
@@ -336,6 +409,8 @@ class LiveWindow:
     def _stop(self, error: Exception | None) -> None:
         self.error = error
         self._wall = (self._clock() - self._start) if self._start is not None else 0.0
+        if self._cpu_start is not None:
+            self._cpu_seconds = self._cpu_clock() - self._cpu_start
         self.plotter.iren.interactor.TerminateApp()
 
     def save_screenshot(self, path: str | Path) -> Path:
@@ -387,8 +462,17 @@ class LiveWindow:
     def stats(self) -> dict:
         """The run's numbers (:data:`STATS_KEYS`): frames and their rate, simulated and
         wall time, the mean step cost after the warm-up (``t_total_ms``), the mean drawing
-        time of a frame (``render_ms``), the switches."""
+        time of a frame (``render_ms``) and its parts (``points_ms``: moving the points,
+        ``text_ms``: the corner text, ``gl_ms``: the render), the CPU time of this process
+        per frame (``cpu_ms``: steps and drawing, every thread; not the X server's), the
+        steps a drawn frame
+        covers, the frames whose steps could not keep up (``behind_frames``) and the
+        simulated time dropped then (``dropped_sim_s``), the switches."""
         session, wall = self.session, float(self._wall or 0.0)
+
+        def per_frame(seconds: float) -> float:
+            return 1e3 * seconds / self.frames if self.frames else 0.0
+
         values = {
             "frames": self.frames,
             "fps": self.frames / wall if wall > 0 else 0.0,
@@ -399,7 +483,14 @@ class LiveWindow:
             "steps": session.steps,
             "dt": session.dt,
             "realtime_ratio": session.steps * session.dt / wall if wall > 0 else 0.0,
-            "render_ms": 1e3 * self.render_seconds / self.frames if self.frames else 0.0,
+            "render_ms": per_frame(self.render_seconds),
+            "points_ms": per_frame(self.part_seconds["points"]),
+            "text_ms": per_frame(self.part_seconds["text"]),
+            "gl_ms": per_frame(self.part_seconds["gl"]),
+            "cpu_ms": per_frame(self._cpu_seconds or 0.0),
+            "steps_per_frame": session.steps / self.frames if self.frames else 0.0,
+            "behind_frames": self.behind_frames,
+            "dropped_sim_s": session.dropped,
             "examples_on": session.examples_on,
             "drags": session.drags,
             "paused": session.paused,
@@ -410,6 +501,12 @@ class LiveWindow:
             "gl_renderer": self.gl_renderer,
         }
         return {key: values[key] for key in STATS_KEYS}
+
+
+def ordinal(k: int) -> str:
+    """``1st``, ``2nd``, ``3rd``, ``4th`` … ``11th`` … ``22nd``."""
+    suffix = "th" if k % 100 in (11, 12, 13) else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
+    return f"{k}{suffix}"
 
 
 def gl_renderer(plotter) -> str:

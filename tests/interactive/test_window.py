@@ -20,10 +20,10 @@ import pytest
 from conftest import golden
 
 from lbshape.errors import LbshapeError
-from lbshape.live.display import virtual_display
-from lbshape.live.events import LiveEvent, read_events
-from lbshape.live.session import LiveSession
-from lbshape.live.window import LiveWindow
+from lbshape.interactive.display import virtual_display
+from lbshape.interactive.events import LiveEvent, read_events
+from lbshape.interactive.session import LiveSession
+from lbshape.interactive.window import LiveWindow
 from lbshape.pipeline.precompute import precompute
 from lbshape.scene import load_scene
 
@@ -75,7 +75,7 @@ def test_a_drag_pulls_the_vertex_towards_the_target(display, demo):
     with_drag = np.linalg.norm(dragged.vertex_position(vertex) - target)
     without = np.linalg.norm(free.vertex_position(vertex) - target)
     # against the examples' pull
-    assert with_drag < golden("live.drag_distance_ratio").limit * without
+    assert with_drag < golden("window.drag_distance_ratio").limit * without
     assert stats["drags"] == 1
     # the drawn vertex is the simulated one
     assert np.allclose(dragged.points()[vertex], dragged.vertex_position(vertex))
@@ -90,7 +90,7 @@ def test_the_examples_switch_changes_shape_and_picture(display, demo, tmp_path):
     u_on, u_off = on.points() - rest, off.points() - rest
     change = np.linalg.norm(u_on - u_off, axis=1).max()
     # the largest vertex change against the largest displacement without examples
-    ratio = golden("live.examples_switch_change").limit
+    ratio = golden("window.examples_switch_change").limit
     assert change > ratio * np.linalg.norm(u_off, axis=1).max()
     import matplotlib.image
 
@@ -98,7 +98,7 @@ def test_the_examples_switch_changes_shape_and_picture(display, demo, tmp_path):
     b = matplotlib.image.imread(str(tmp_path / "off.png"))[..., :3]
     assert a.shape == b.shape == (360, 480, 3)
     changed = np.mean(np.abs(a - b).max(axis=2) > 0.1)
-    assert changed > golden("live.examples_switch_pixels").limit
+    assert changed > golden("window.examples_switch_pixels").limit
 
 
 def test_reset_returns_to_rest_and_keeps_the_switch(display, demo):
@@ -163,10 +163,10 @@ def test_scripted_run_prints_paced_stats_and_a_screenshot(display, demo, tmp_pat
     assert 2.0 <= stats["wall_time_s"] < 10.0
     assert stats["fps"] == pytest.approx(stats["frames"] / stats["wall_time_s"])
     # paced: never ahead of the clock; behind it only by the capped first frames
-    paced = golden("live.paced_sim_time").limit
+    paced = golden("window.paced_sim_time").limit
     assert paced * stats["wall_time_s"] <= stats["sim_time_s"] <= stats["wall_time_s"] + 1e-9
     assert stats["sim_time_s"] == pytest.approx(stats["steps"] * stats["dt"])
-    assert 0.0 < stats["t_total_ms"] < golden("live.step_ms").limit
+    assert 0.0 < stats["t_total_ms"] < golden("window.step_ms").limit
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -237,10 +237,58 @@ def test_a_free_body_moves_in_view_with_its_planes(display):
             session.step_once()
         window._draw()
         shift = session.center() - start
-        assert np.linalg.norm(shift) > golden("live.free_body_shift").limit
+        assert np.linalg.norm(shift) > golden("window.free_body_shift").limit
         assert np.allclose(np.array(plotter.camera.focal_point) - focus, shift, atol=1e-9)
         # the contact planes hold it: the floor at z = 0, the wall at x = 1.2 m
         points = session.points()
         assert points[:, 2].min() > -0.05 and points[:, 0].max() < 1.25
+    finally:
+        window.close()
+
+
+class _FakeClock:
+    """A wall clock that moves only when told."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_a_slow_renderer_drops_frames_not_simulated_time(display, demo):
+    """A renderer taking 0.2 s per frame (a stub; no timing): every frame steps the time
+    it owes, the simulated time stays on the clock and the corner says what is dropped;
+    the surface's points are written in place into the drawn array."""
+    scene, pre = demo
+    session = LiveSession(scene, pre)
+    window = LiveWindow(session, window_size=(320, 240))
+    clock = _FakeClock()
+    session._clock = window._clock = clock
+    window.plotter.show(auto_close=False, interactive_update=True)
+    renders = []
+
+    def slow_render():
+        clock.now += 0.2
+        renders.append(clock.now)
+
+    window.plotter.render = slow_render
+    try:
+        array = window.surface.GetPoints().GetData()
+        for _ in range(8):
+            window.frame()
+        assert window.frames == 8 and len(renders) == 8
+        # the wall time of every frame but the last is stepped; nothing dropped
+        assert session.time == pytest.approx(clock.now - 0.2, abs=session.dt)
+        assert session.dropped == 0.0 and window.behind_frames == 0
+        assert window.notice() == "drawing every 200th step"
+        assert "drawing every 200th step" in window._status.GetInput()
+        # the drawn points: the same VTK array, holding the session's points
+        assert window.surface.GetPoints().GetData() is array
+        np.testing.assert_array_equal(np.asarray(window.surface.points),
+                                      session.points()[window._ids])
+        stats_keys = ("points_ms", "text_ms", "gl_ms", "steps_per_frame")
+        window._wall = clock.now
+        assert all(key in window.stats() for key in stats_keys)
     finally:
         window.close()
