@@ -11,9 +11,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from lbshape.api import METHODS, load_scene
 from lbshape.errors import LbshapeError
-from lbshape.pipeline.simulate import METHODS
-from lbshape.scene import load_scene
 from lbshape.studies.animation import simulation_movie
 from lbshape.studies.figures import (
     FIGURE3_SCENES,

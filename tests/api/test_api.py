@@ -22,8 +22,17 @@ from lbshape.geometry.primitives import structured_box
 from lbshape.pipeline.precompute_key import scene_cache_key
 
 ROOT = Path(__file__).resolve().parents[2]
-API_NAMES = ["LbshapeError", "RunRecord", "Scene", "Simulation", "SolverError", "TetMesh",
-             "lb_spectrum", "load_scene", "precompute", "read_mesh", "simulation"]
+API_NAMES = sorted([
+    "LbshapeError", "RunRecord", "Scene", "Simulation", "SolverError", "TetMesh",
+    "lb_spectrum", "load_scene", "precompute", "read_mesh", "simulation",
+    # a run with its outputs and its error against the full reference
+    "METHODS", "RUN_FILES", "SimulationOutput", "WARMUP_STEPS", "compare", "run_error",
+    "simulate", "write_outputs",
+    # building blocks of the command line: meshes, modes, several scenes
+    "Material", "SHAPES", "SURFACE_FORMATS", "build_mesh", "expand_scenes", "get_shape",
+    "linear_modes", "mesh_source", "region_vertices", "run_collectively", "run_jobs",
+    "summary_table", "write_mesh",
+])
 
 
 def _python(code: str, *, cwd: Path | None = None, env: dict | None = None) -> str:
