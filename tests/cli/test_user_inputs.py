@@ -443,3 +443,22 @@ def test_a_fresh_precompute_prints_no_compiler_build_log(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     assert any((tmp_path / "xdg" / "fenics").rglob("*.c")), "no form was compiled"
     assert "build_ext" not in done.stderr and "gcc" not in done.stderr, done.stderr[-2000:]
+
+
+def test_render_follows_the_output_folder_rule_of_simulate(tmp_path, capsys):
+    """A folder holding other files is refused before any work; one holding only an
+    earlier render's files is replaced as a whole."""
+    foreign = tmp_path / "notes"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    assert main(["render", "demo", "--steps", "3", "--out", str(foreign)]) == 2
+    assert "holds other files (notes.txt)" in capsys.readouterr().err
+    assert sorted(p.name for p in foreign.iterdir()) == ["notes.txt"]
+    earlier = tmp_path / "figs"
+    earlier.mkdir()
+    (earlier / "stale_render.png").write_bytes(b"old")
+    assert main(["render", "demo", "--steps", "3", "--out", str(earlier)]) == 0
+    out = capsys.readouterr().out
+    assert not (earlier / "stale_render.png").exists()
+    assert (earlier / "simulation.png").exists() and str(earlier / "simulation.png") in out
+    assert ".tmp" not in out
