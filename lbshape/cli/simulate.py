@@ -93,7 +93,8 @@ def compare_line(stats: dict) -> str:
     if stats.get("error_vs_full") is None:
         return f"{head}: {stats.get('compare_message') or 'unavailable'}"
     final = stats["final_error_vs_full"]
-    line = (f"{head}: {stats['speed_up']:.1f}x faster (t_total {stats['t_total_ms']:.3f} vs "
+    speed = "" if stats["speed_up"] is None else f"{stats['speed_up']:.1f}x faster "
+    line = (f"{head}: {speed}(t_total {stats['t_total_ms']:.3f} vs "
             f"{stats['full_t_total_ms']:.3f} ms per step), error {stats['error_vs_full']:.2%} "
             f"over the trajectory, {'undefined' if final is None else f'{final:.2%}'} at the "
             "final frame")

@@ -123,3 +123,24 @@ def test_the_progress_bar_counts_steps_not_states(demo, capsys, method):
     bars = capsys.readouterr().err.replace("\r", "\n")
     counts = re.findall(r"(\d+)/12 ", bars)
     assert counts and counts[-1] == "12" and max(map(int, counts)) == 12, bars
+
+
+@pytest.mark.slow
+def test_a_free_body_compare_splits_the_error():
+    """A free bar: the comparison adds the centre path / rotation / deformation split of
+    lbshape.analysis.free_body, and the summary line names it."""
+    from lbshape.analysis.free_body import KEYS, free_body_error
+    from lbshape.cli.simulate import compare_line
+
+    scene = lbshape.load_scene("bar-s-cuboid")
+    pre = lbshape.precompute(scene)
+    output = lbshape.simulate(scene, pre, steps=STEPS, compare="full")
+    stats = output.stats
+    assert list(stats)[-len(COMPARE_KEYS) - len(KEYS):] == COMPARE_KEYS + list(KEYS)
+    full = lbshape.simulate(scene, pre, method="full", steps=STEPS)
+    mass = mass_matrix(pre.mesh, pre.material.density)
+    expected = free_body_error(output.displacements, full.displacements, pre.mesh.points,
+                               mass).stats()
+    for key, value in expected.items():
+        assert stats[key] == pytest.approx(value, rel=1e-9), key
+    assert "centre path" in compare_line(stats) and "rotation" in compare_line(stats)
