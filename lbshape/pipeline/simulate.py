@@ -430,14 +430,15 @@ def compare(scene: Scene, pre: Precomputed, output: SimulationOutput, *,
     _check_compare(reference, output.stats["method"])
     keys = COMPARE_KEYS + (FREE_BODY_KEYS if is_free_body(pre) else ())
     result = dict.fromkeys(keys)
+    if not output.stats["stable"]:
+        result["compare_message"] = "no comparison: the run stopped before its last step"
+        return result
     try:
         full = simulate(scene, pre, method="full", steps=output.stats["steps"],
                         progress=progress, label=f"{scene.name} [full] (reference)")
         message = full.message
     except LbshapeError as exc:
         full, message = None, str(exc)
-    if not message and not output.stats["stable"]:
-        message = "the run stopped before its last step"
     if message:
         result["compare_message"] = f"full reference unavailable: {message}"
         return result
