@@ -1,6 +1,8 @@
 """lbshape: real-time example-based elastic materials in Laplace-Beltrami shape space.
 
-The public API (:mod:`lbshape.api`, names in ``__all__``)::
+The public API: the names in ``__all__`` (a scene, its precompute, a simulation, a run
+with its error against the full reference); :mod:`lbshape.api` also holds the building
+blocks the command line uses (meshes, modes, several scenes at once)::
 
     import lbshape
     scene = lbshape.load_scene("bar-cuboid")            # or lbshape.Scene.from_mesh(mesh, ...)
@@ -31,30 +33,40 @@ __version__ = "0.1.0"
 
 __all__ = [
     "LbshapeError",
+    "METHODS",
     "RunRecord",
     "Scene",
     "Simulation",
+    "SimulationOutput",
     "SolverError",
     "TetMesh",
+    "compare",
     "lb_spectrum",
     "load_scene",
     "precompute",
     "read_mesh",
+    "run_error",
+    "simulate",
     "simulation",
 ]
 
 if TYPE_CHECKING:
     from lbshape.api import (
+        METHODS,
         LbshapeError,
         RunRecord,
         Scene,
         Simulation,
+        SimulationOutput,
         SolverError,
         TetMesh,
+        compare,
         lb_spectrum,
         load_scene,
         precompute,
         read_mesh,
+        run_error,
+        simulate,
         simulation,
     )
 

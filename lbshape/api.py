@@ -1,6 +1,8 @@
 """The public API: a scene, its precompute and a simulation, in a few calls.
 
-Re-exported by :mod:`lbshape` (``lbshape.load_scene``, …). Units are SI throughout
+The names of the first two groups below are re-exported by :mod:`lbshape`
+(``lbshape.load_scene``, …); the building blocks of the third are reached as
+``lbshape.api.<name>``. Units are SI throughout
 (m, kg, s, Pa); a vector field on the object's n vertices is an (n, 3) array in the
 mesh's vertex order::
 
@@ -43,29 +45,104 @@ What each name is:
   (eigenvalues in 1/m², eigenvectors (n, m)).
 * :class:`LbshapeError` — every error of bad input, one line; :class:`SolverError` (a
   subclass) — a solver that failed (a step, an eigenproblem).
+
+A run with its outputs, and its error against the full-space reference (what
+``lbshape simulate`` does)::
+
+    out = lbshape.simulate(scene, pre, method="reduced", out="runs/bar",
+                           compare="full")   # stats.json, states.npz, trajectory
+    out.stats["error_vs_full"], out.stats["speed_up"]
+    error = lbshape.compare(scene, pre, out)  # or afterwards: the same keys as a dict
+
+* :func:`simulate` — run a scene for its steps (or ``steps``) with one of
+  :data:`METHODS`; returns a :class:`SimulationOutput` (``stats``, sampled ``times``
+  (k,) s and ``displacements`` (k, n, 3) m, ``message`` of a stopped run). With ``out``
+  the folder is written (:func:`write_outputs`: ``stats.json``, ``states.npz``, the
+  ParaView trajectory; only :data:`RUN_FILES`, a folder holding anything else is
+  refused); ``influence=True`` adds the example influence; ``compare="full"`` runs the
+  full reference once and adds its error and speed-up (:func:`compare`).
+* :func:`compare` — the ``full`` reference of a run, run once, and the run's error
+  against it: ``{"error_vs_full", "final_error_vs_full", "full_t_total_ms",
+  "speed_up", "compare_message"}`` (+ a free body's centre / rotation / deformation
+  split); a reference that stops gives ``None`` values and the reason, never an error.
+* :func:`run_error` — the error of one run's trajectory against a reference's (the one
+  computation behind :func:`compare` and the benchmark's ``error_vs_full``).
+* :data:`WARMUP_STEPS` — steps left out of the per-step timing means.
+
+Building blocks the command line uses (meshes, modes, several scenes at once; in
+``lbshape.api`` only):
+
+* :func:`mesh_source` — what a mesh argument names (a built-in shape in :data:`SHAPES`,
+  a gmsh script, a mesh file, a surface in :data:`SURFACE_FORMATS`); :func:`build_mesh`
+  makes its :class:`TetMesh`, :func:`write_mesh` writes it as ``.msh``;
+  :func:`get_shape` a built-in shape's description (unknown names list the shapes).
+* :func:`linear_modes` — the lowest linear elastic vibration modes of a mesh for a
+  :class:`Material` (Pa, kg/m³), a region clamped by :func:`region_vertices`.
+* :func:`run_collectively` — read inputs on MPI rank 0 and solve on every rank.
+* :func:`expand_scenes`, :func:`run_jobs`, :func:`summary_table` — several scenes (names,
+  TOML paths, globs) as jobs in worker processes, and their summary table.
 """
 
 from __future__ import annotations
 
 from lbshape.dynamics.record import RunRecord
+from lbshape.elastic.materials import Material
+from lbshape.elastic.modes import linear_modes
 from lbshape.errors import LbshapeError, SolverError
+from lbshape.fem.mpi import run_collectively
 from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.mesh_files import SURFACE_FORMATS
 from lbshape.geometry.mesh_files import read_mesh_file as read_mesh
+from lbshape.geometry.regions import region_vertices
+from lbshape.geometry.shapes import SHAPES, get_shape
+from lbshape.pipeline.batch import expand_scenes, run_jobs, summary_table
+from lbshape.pipeline.meshes import build_mesh, write_mesh
 from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulate import (
+    METHODS,
+    RUN_FILES,
+    WARMUP_STEPS,
+    SimulationOutput,
+    compare,
+    run_error,
+    simulate,
+    write_outputs,
+)
 from lbshape.pipeline.simulation import Simulation, simulation
-from lbshape.scene import Scene, load_scene
+from lbshape.scene import Scene, load_scene, mesh_source
 from lbshape.spectral.spectrum import lb_spectrum
 
 __all__ = [
     "LbshapeError",
+    "METHODS",
+    "Material",
+    "RUN_FILES",
     "RunRecord",
+    "SHAPES",
+    "SURFACE_FORMATS",
     "Scene",
     "Simulation",
+    "SimulationOutput",
     "SolverError",
     "TetMesh",
+    "WARMUP_STEPS",
+    "build_mesh",
+    "compare",
+    "expand_scenes",
+    "get_shape",
     "lb_spectrum",
+    "linear_modes",
     "load_scene",
+    "mesh_source",
     "precompute",
     "read_mesh",
+    "region_vertices",
+    "run_collectively",
+    "run_error",
+    "run_jobs",
+    "simulate",
     "simulation",
+    "summary_table",
+    "write_mesh",
+    "write_outputs",
 ]

@@ -28,11 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
+from lbshape.api import WARMUP_STEPS, expand_scenes, load_scene, run_jobs, summary_table
 from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
-from lbshape.pipeline.batch import expand_scenes, run_jobs, summary_table
-from lbshape.pipeline.simulate import WARMUP_STEPS
-from lbshape.scene import load_scene
 from lbshape.studies import pareto, scaling
 from lbshape.studies.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene, paper_setting
 from lbshape.studies.realtime import PAPER_TABLE2

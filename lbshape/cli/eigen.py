@@ -6,11 +6,8 @@ solve); only rank 0 prints.
 
 from __future__ import annotations
 
+from lbshape.api import build_mesh, lb_spectrum, mesh_source, run_collectively
 from lbshape.cli._output import MESH_HELP, print_json
-from lbshape.fem.mpi import run_collectively
-from lbshape.pipeline.meshes import build_mesh
-from lbshape.scene import mesh_source
-from lbshape.spectral.spectrum import lb_spectrum
 
 DEFAULT_M = 10
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from lbshape.api import load_scene, precompute
 from lbshape.cli._mpi import require_one_rank
 from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
@@ -26,8 +27,6 @@ from lbshape.interactive.display import require_display
 from lbshape.interactive.events import read_events
 from lbshape.interactive.session import LiveSession
 from lbshape.interactive.window import run_live
-from lbshape.pipeline.precompute import precompute
-from lbshape.scene import load_scene
 
 
 def register(subparsers) -> None:

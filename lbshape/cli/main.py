@@ -57,13 +57,24 @@ class ProgressAwareHandler(logging.Handler):
             self.handleError(record)
 
 
+def quiet_other_libraries(record: logging.LogRecord) -> bool:
+    """A handler filter: every record of lbshape's own loggers, only warnings and errors
+    of the others. The form compiler's C build (FFCx through cffi and setuptools) logs
+    ``running build_ext`` and each gcc command line at INFO on the root logger and lowers
+    that logger's level to INFO while it builds: those lines never reach the terminal."""
+    return record.levelno >= logging.WARNING or record.name.split(".")[0] == "lbshape"
+
+
 def configure_logging(*, verbose: bool = False) -> None:
     """The command line's logging: ``LEVEL: message`` lines on stderr through
     :class:`ProgressAwareHandler`; lbshape at INFO with ``verbose``, else WARNING;
-    Python warnings (``warnings.warn``) go the same way."""
+    other libraries' warnings and errors only (:func:`quiet_other_libraries`); Python
+    warnings (``warnings.warn``) go the same way."""
     handler = ProgressAwareHandler()
     handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
-    # the root logger stays at WARNING: the form compiler's build log goes there
+    handler.addFilter(quiet_other_libraries)
+    # the root logger stays at WARNING (the form compiler's build may lower it while it
+    # compiles: the handler's filter keeps its build log out)
     logging.basicConfig(level=logging.WARNING, handlers=[handler], force=True)
     logging.getLogger("lbshape").setLevel(logging.INFO if verbose else logging.WARNING)
     logging.captureWarnings(True)

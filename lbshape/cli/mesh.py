@@ -5,10 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lbshape.geometry.mesh_files import SURFACE_FORMATS
-from lbshape.geometry.shapes import SHAPES, get_shape
-from lbshape.pipeline.meshes import write_mesh
-from lbshape.scene import mesh_source
+from lbshape.api import SHAPES, SURFACE_FORMATS, get_shape, mesh_source, write_mesh
 
 
 def register(subparsers) -> None:

@@ -8,13 +8,15 @@ modes …`` distributes the solve); only rank 0 prints.
 
 from __future__ import annotations
 
+from lbshape.api import (
+    Material,
+    build_mesh,
+    linear_modes,
+    mesh_source,
+    region_vertices,
+    run_collectively,
+)
 from lbshape.cli._output import MESH_HELP, print_json
-from lbshape.elastic.materials import Material
-from lbshape.elastic.modes import linear_modes
-from lbshape.fem.mpi import run_collectively
-from lbshape.geometry.regions import region_vertices
-from lbshape.pipeline.meshes import build_mesh
-from lbshape.scene import mesh_source
 
 DEFAULT_R = 10
 

@@ -18,11 +18,9 @@ import sys
 
 from mpi4py import MPI
 
+from lbshape.api import expand_scenes, load_scene, precompute, run_jobs, summary_table
 from lbshape.cli._mpi import errors_on_rank_zero, require_one_rank
 from lbshape.errors import LbshapeError
-from lbshape.pipeline.batch import expand_scenes, run_jobs, summary_table
-from lbshape.pipeline.precompute import precompute
-from lbshape.scene import load_scene
 
 
 def register(subparsers) -> None:

@@ -4,6 +4,10 @@ Off-screen PNGs of a scene (the bars add Figure 3, teddy-local Figure 6: its run
 teddy-global's); ``--movie`` adds ``simulation.gif`` (and ``simulation.mp4``
 where the encoder is installed): the method and the ``full`` reference side by side,
 frames read from the trajectories written to ``OUT/runs/METHOD``.
+
+One rule with ``simulate``: ``OUT`` is replaced as a whole once the render ends (an
+earlier render's PNGs never stay beside the new ones); a folder holding other files
+than a render's (:data:`RENDER_FILES`, :data:`RENDER_FOLDERS`) is refused before any work.
 """
 
 from __future__ import annotations
@@ -11,9 +15,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from lbshape.api import METHODS, load_scene
 from lbshape.errors import LbshapeError
-from lbshape.pipeline.simulate import METHODS
-from lbshape.scene import load_scene
+from lbshape.io.atomic import atomic_folder, check_replaceable
 from lbshape.studies.animation import simulation_movie
 from lbshape.studies.figures import (
     FIGURE3_SCENES,
@@ -46,47 +50,59 @@ def register(subparsers) -> None:
     parser.set_defaults(func=run)
 
 
+#: what a render writes in its folder: a folder holding anything else is refused
+#: before any work, one holding only these is replaced as a whole (as ``simulate`` does)
+RENDER_FILES = ("*.png", "*.json", "*.gif", "*.mp4")
+#: the sub-folders a render writes (the movie's runs)
+RENDER_FOLDERS = ("runs",)
+
+
 def run(args) -> int:
     if args.steps is not None and args.steps < 1:
         raise LbshapeError(f"--steps must be >= 1, got {args.steps}")
     if not args.fps > 0:
         raise LbshapeError(f"--fps must be > 0, got {args.fps}")
     scene = load_scene(args.scene)
-    out = args.out or default_out(scene.name)
-    created = not out.exists()
+    out = check_replaceable(args.out or default_out(scene.name), RENDER_FILES, RENDER_FOLDERS)
+    lines: list[str] = []
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        with atomic_folder(out, RENDER_FILES, RENDER_FOLDERS) as folder:
+            message = _render(scene, folder, args, lines)
     except OSError as exc:
-        raise LbshapeError(f"cannot create output folder {out}: {exc.strerror}") from None
-    try:
-        rendered = render_scene(scene, out, steps=args.steps, method=args.method, progress=True)
-        for path in rendered.paths:
-            print(f"render {scene.name}: {path}")
-        if scene.name in FIGURE3_SCENES:
-            same, other = (load_scene(name) for name in FIGURE3_SCENES)
-            steps = args.steps or min(FIGURE3_STEPS, same.simulation.steps)
-            result = figure3(same, other, out / "figure3.png", steps=steps, progress=True)
-            print(f"render {scene.name}: {result.path} (reduced vs full final frame: "
-                  f"{result.reduced_vs_full_final:.2%})")
-        if scene.name == FIGURE6_SCENES[1]:
-            figure = figure6(*(load_scene(name) for name in FIGURE6_SCENES),
-                             out / "figure6.png", steps=args.steps, progress=True)
-            print(f"render {scene.name}: {figure.path} and {figure.difference} (local vs "
-                  f"global: up to {figure.difference_max:.3f} m = "
-                  f"{figure.difference_max / figure.height:.1%} of the height; in the "
-                  f"regions up to {max(figure.difference_by_region.values()):.1%})")
-        if args.movie:
-            movie = simulation_movie(scene, out, method=args.method, steps=args.steps,
-                                     fps=args.fps, progress=True)
-            for file in movie.movies:
-                print(f"render {scene.name}: {file.path} ({file.frames} frames, "
-                      f"{file.size[1]}x{file.size[0]} px, {' | '.join(movie.methods)})")
-    except LbshapeError:
-        if created and out.is_dir() and not any(out.iterdir()):
-            out.rmdir()  # leave nothing behind on bad input
-        raise
-    message = "; ".join(filter(None, [rendered.message, movie.message if args.movie else ""]))
+        raise LbshapeError(f"cannot write output folder {out}: {exc.strerror}") from None
+    for line in lines:  # the paths where the files are now
+        print(line.replace(str(folder), str(out)))
     if message:
         print(f"error: simulation stopped: {message}", file=sys.stderr)
         return 3
     return 0
+
+
+def _render(scene, out: Path, args, lines: list[str]) -> str:
+    """Render everything of ``scene`` into ``out``; the lines to print in ``lines``;
+    returns the message of a run that stopped ('' if none)."""
+    rendered = render_scene(scene, out, steps=args.steps, method=args.method, progress=True)
+    for path in rendered.paths:
+        lines.append(f"render {scene.name}: {path}")
+    if scene.name in FIGURE3_SCENES:
+        same, other = (load_scene(name) for name in FIGURE3_SCENES)
+        steps = args.steps or min(FIGURE3_STEPS, same.simulation.steps)
+        result = figure3(same, other, out / "figure3.png", steps=steps, progress=True)
+        lines.append(f"render {scene.name}: {result.path} (reduced vs full final frame: "
+                     f"{result.reduced_vs_full_final:.2%})")
+    if scene.name == FIGURE6_SCENES[1]:
+        figure = figure6(*(load_scene(name) for name in FIGURE6_SCENES),
+                         out / "figure6.png", steps=args.steps, progress=True)
+        lines.append(f"render {scene.name}: {figure.path} and {figure.difference} (local vs "
+                     f"global: up to {figure.difference_max:.3f} m = "
+                     f"{figure.difference_max / figure.height:.1%} of the height; in the "
+                     f"regions up to {max(figure.difference_by_region.values()):.1%})")
+    movie_message = ""
+    if args.movie:
+        movie = simulation_movie(scene, out, method=args.method, steps=args.steps,
+                                 fps=args.fps, progress=True)
+        movie_message = movie.message
+        for file in movie.movies:
+            lines.append(f"render {scene.name}: {file.path} ({file.frames} frames, "
+                         f"{file.size[1]}x{file.size[0]} px, {' | '.join(movie.methods)})")
+    return "; ".join(filter(None, [rendered.message, movie_message]))

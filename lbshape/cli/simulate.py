@@ -1,5 +1,11 @@
 """``lbshape simulate SCENE [--method reduced|euclidean|full] [--steps N] [--out DIR] [--json]
-[--no-influence]``.
+[--no-influence] [--compare full]``.
+
+``--compare full`` runs the full-space reference once and prints one more line, the
+speed-up and the error against it (the trajectory error Table 2 uses and the final
+frame's); ``stats.json`` gains ``error_vs_full``, ``final_error_vs_full``,
+``full_t_total_ms``, ``speed_up`` and ``compare_message`` (a reference that stops is
+reported there, the run's own result is still written and the exit code is 0).
 
 A scene with examples is run a second time without them for the example influence
 (its own progress bar says so); ``--no-influence`` skips that run and its stats keys.
@@ -18,14 +24,12 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from lbshape.api import METHODS, RUN_FILES, load_scene, precompute, simulate
 from lbshape.cli._mpi import require_one_rank
 from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import FAILED_MARKER, check_replaceable
 from lbshape.io.paths import output_root
-from lbshape.pipeline.precompute import precompute
-from lbshape.pipeline.simulate import METHODS, RUN_FILES, simulate
-from lbshape.scene import load_scene
 
 
 def register(subparsers) -> None:
@@ -42,6 +46,10 @@ def register(subparsers) -> None:
     parser.add_argument("--no-influence", action="store_true",
                         help="skip the second run without examples (the example influence "
                         "keys are then absent)")
+    parser.add_argument("--compare", choices=("full",), default=None,
+                        help="also run the full-space reference once and report the speed-up "
+                        "and the error against it (one line; keys error_vs_full, "
+                        "final_error_vs_full, full_t_total_ms, speed_up in stats.json)")
     parser.set_defaults(func=run)
 
 
@@ -54,7 +62,8 @@ def run(args) -> int:
     check_replaceable(out, RUN_FILES)  # before the precompute
     pre = precompute(scene, progress=not args.json)
     result = simulate(scene, pre, method=args.method, steps=args.steps, out=out,
-                      influence=not args.no_influence, progress=not args.json)
+                      influence=not args.no_influence, progress=not args.json,
+                      compare=args.compare)
     if args.json:
         print_json(result.stats)
     else:
@@ -69,7 +78,33 @@ def run(args) -> int:
             print(f"simulate {s['scene']}: example influence {final} (ratio of the maxima "
                   f"over time {peak}, {s['influence_frame']} frame) against the same scene "
                   "without examples")
+        if args.compare is not None and not result.message:
+            print(compare_line(s))
     if result.message:
         print(f"error: simulation stopped: {result.message}", file=sys.stderr)
         return 3
     return 0
+
+
+def compare_line(stats: dict) -> str:
+    """The one line of ``--compare full``: speed-up and error against the reference, or
+    why the reference is unavailable."""
+    head = f"simulate {stats['scene']} [{stats['method']}] vs full"
+    if stats.get("error_vs_full") is None:
+        return f"{head}: {stats.get('compare_message') or 'unavailable'}"
+    final = stats["final_error_vs_full"]
+    speed = "" if stats["speed_up"] is None else f"{stats['speed_up']:.1f}x faster "
+    line = (f"{head}: {speed}(t_total {stats['t_total_ms']:.3f} vs "
+            f"{stats['full_t_total_ms']:.3f} ms per step), error {stats['error_vs_full']:.2%} "
+            f"over the trajectory, {'undefined' if final is None else f'{final:.2%}'} at the "
+            "final frame")
+    if "com_path_error" in stats:
+        parts = [f"centre path {_percent(stats['com_path_error'])}",
+                 f"rotation {stats['rotation_error_deg']:.3g} deg",
+                 f"deformation {_percent(stats['body_deformation_error'])}"]
+        line += f" ({', '.join(parts)})"
+    return line
+
+
+def _percent(value) -> str:
+    return "undefined" if value is None else f"{value:.2%}"

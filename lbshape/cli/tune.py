@@ -16,8 +16,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from lbshape.api import load_scene
 from lbshape.errors import LbshapeError
-from lbshape.scene import load_scene
 from lbshape.studies.tune import (
     DEFAULT_BUDGET_MS,
     default_out,

@@ -127,16 +127,19 @@ def write_npz_atomic(path: str | Path, **arrays: np.ndarray) -> Path:
     return write_atomic(path, save)
 
 
-def check_replaceable(folder: str | Path, owned: Iterable[str]) -> Path:
+def check_replaceable(folder: str | Path, owned: Iterable[str],
+                      owned_folders: Iterable[str] = ()) -> Path:
     """Check that ``folder`` may be replaced as a whole by :func:`atomic_folder`.
 
     It may when it does not exist, or is a folder holding only files whose names match
     one of the glob patterns ``owned`` (the files its writer makes), :data:`FAILED_MARKER`
-    or hidden temporaries of this module (``.*.tmp*``).
+    or hidden temporaries of this module (``.*.tmp*``), and sub-folders named in
+    ``owned_folders``.
 
     Args:
         folder: the output folder.
         owned: glob patterns of the writer's file names, e.g. ``("stats.json", "*.vtu")``.
+        owned_folders: names of the sub-folders the writer makes (e.g. ``("runs",)``).
 
     Returns:
         ``folder`` as an absolute path.
@@ -152,9 +155,10 @@ def check_replaceable(folder: str | Path, owned: Iterable[str]) -> Path:
     if not folder.is_dir():
         raise LbshapeError(f"output folder {folder} exists and is not a folder")
     patterns = (*owned, FAILED_MARKER, ".*.tmp*")
+    folders = set(owned_folders)
     foreign = sorted(entry.name for entry in folder.iterdir()
-                     if entry.is_dir() or not any(fnmatch.fnmatchcase(entry.name, p)
-                                                  for p in patterns))
+                     if (entry.name not in folders if entry.is_dir()
+                         else not any(fnmatch.fnmatchcase(entry.name, p) for p in patterns)))
     if foreign:
         raise LbshapeError(f"output folder {folder} holds other files ({', '.join(foreign[:3])}"
                            f"{', ...' if len(foreign) > 3 else ''}); choose a new or empty "
@@ -163,7 +167,8 @@ def check_replaceable(folder: str | Path, owned: Iterable[str]) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_folder(folder: str | Path, owned: Iterable[str]) -> Iterator[Path]:
+def atomic_folder(folder: str | Path, owned: Iterable[str],
+                  owned_folders: Iterable[str] = ()) -> Iterator[Path]:
     """A temporary folder beside ``folder`` that replaces ``folder`` when the block succeeds.
 
     The block writes its files into the temporary (hidden: ``.<name>.<random>.tmp``,
@@ -176,18 +181,19 @@ def atomic_folder(folder: str | Path, owned: Iterable[str]) -> Iterator[Path]:
     Args:
         folder: the output folder (its parent is created).
         owned: glob patterns of the files the writer makes (see :func:`check_replaceable`).
+        owned_folders: names of the sub-folders the writer makes.
 
     Yields:
         The temporary folder's path.
     """
-    owned = tuple(owned)
-    folder = check_replaceable(folder, owned)
+    owned, owned_folders = tuple(owned), tuple(owned_folders)
+    folder = check_replaceable(folder, owned, owned_folders)
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
     try:
         os.chmod(tmp, 0o777 & ~_umask())
         yield tmp
-        check_replaceable(folder, owned)  # nothing foreign arrived meanwhile
+        check_replaceable(folder, owned, owned_folders)  # nothing foreign arrived meanwhile
         old = folder.with_name(f".{folder.name}.{secrets.token_hex(4)}.old")
         if os.path.lexists(folder):
             os.rename(folder, old)

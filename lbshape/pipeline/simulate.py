@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lbshape.analysis.free_body import KEYS as FREE_BODY_KEYS
+from lbshape.analysis.reference import reference_error
 from lbshape.dynamics.contact import PlaneContact
 from lbshape.dynamics.engine import Engine, NewtonSettings
 from lbshape.dynamics.free_body import FreeBodySimulation, FreeLoad
@@ -59,7 +61,12 @@ from lbshape.io.atomic import (
     write_npz_atomic,
 )
 from lbshape.io.trajectory import TrajectoryWriter
-from lbshape.pipeline.influence import Influence, compare_runs, has_example_force
+from lbshape.pipeline.influence import (
+    Influence,
+    compare_runs,
+    has_example_force,
+    is_free_body,
+)
 from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.responses import mesh_load_patterns
 from lbshape.pipeline.routes import example_driver
@@ -79,6 +86,12 @@ MAX_FRAMES = 100
 #: the files of a run's output folder (glob patterns); a folder holding anything else is
 #: never replaced
 RUN_FILES = ("stats.json", "states.npz", "trajectory.pvd", "trajectory_*.vtu")
+#: the references :func:`compare` runs
+COMPARE_REFERENCES = ("full",)
+#: the keys :func:`compare` adds to a run's stats (a free body also
+#: :data:`lbshape.analysis.free_body.KEYS`)
+COMPARE_KEYS = ("error_vs_full", "final_error_vs_full", "full_t_total_ms", "speed_up",
+                "compare_message")
 
 
 @dataclass(frozen=True)
@@ -116,10 +129,20 @@ def phase_medians(sim: Engine) -> dict | None:
     if not names:
         return None
     phases = getattr(sim, "phase_seconds", np.zeros((0, len(names))))
-    phases = phases[WARMUP_STEPS:] if len(phases) > WARMUP_STEPS else phases
+    phases = phases[warmup_steps(len(phases)):]
     if not len(phases):
         return None
     return dict(zip(names, (1e3 * np.median(phases, axis=0)).tolist(), strict=True))
+
+
+def warmup_steps(steps: int) -> int:
+    """How many of a run's first ``steps`` steps the timing means leave out:
+    :data:`WARMUP_STEPS`, or half of a shorter run (its first step, where the kernels
+    and caches warm up, always; none of a one-step run). ``stats["timed_steps"]`` is
+    ``steps`` minus this."""
+    if steps > WARMUP_STEPS:
+        return WARMUP_STEPS
+    return steps // 2
 
 
 def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[TimedLoad]:
@@ -288,7 +311,7 @@ def run_full_space(scene: Scene, pre: Precomputed, *, steps: int, stride: int = 
 def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
              steps: int | None = None, out: Path | None = None,
              influence: bool = False, progress: bool = False,
-             label: str | None = None) -> SimulationOutput:
+             label: str | None = None, compare: str | None = None) -> SimulationOutput:
     """Run ``scene`` with ``method`` for ``steps`` (default: the scene's) steps.
 
     With ``influence`` and a scene whose examples act (``k_ex > 0``), the same
@@ -297,13 +320,17 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
     is written by :func:`write_outputs` (a run that stopped: only ``FAILED.txt``); a
     folder holding other files is refused before the run. ``progress``: a progress
     bar per run on stderr (``label`` names it; default the scene and method), updated
-    outside the steps' timing.
+    outside the steps' timing. ``compare="full"``: the full reference is run once and the
+    stats gain its error and speed-up (:func:`compare`, keys :data:`COMPARE_KEYS`); a
+    reference that stops is reported there (``compare_message``), never as an error.
     """
     if method not in METHODS:
         raise LbshapeError(f"method must be one of {METHODS}, got {method!r}")
     steps = scene.simulation.steps if steps is None else int(steps)
     if steps < 1:
         raise LbshapeError(f"steps must be >= 1, got {steps}")
+    if compare is not None:
+        _check_compare(compare, method)
     if out is not None:
         check_replaceable(out, RUN_FILES)  # refuse a folder of other files before the run
     stride = max(1, math.ceil(steps / MAX_FRAMES))
@@ -317,7 +344,8 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         r, s = 3 * (pre.mesh.n_vertices - pre.fixed_vertices.size), pre.mesh.n_tets
     else:
         r, s = pre.r, force_elements(pre)
-    t_interp, t_total = record.mean_ms(warmup=WARMUP_STEPS)
+    warmup = warmup_steps(record.steps)
+    t_interp, t_total = record.mean_ms(warmup=warmup)
     max_disp = float(np.max(np.linalg.norm(frames, axis=2))) if frames.size else 0.0
     stats = {
         "scene": scene.name, "method": method,
@@ -327,16 +355,105 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "t_interp_ms": t_interp, "t_total_ms": t_total,
         "stable": bool(record.stable), "max_displacement": max_disp, "phase_ms": phase_ms,
         "forces": "full" if method == "full" else pre.elastic.force_model,
+        "timed_steps": int(record.steps - warmup),
+        **_force_stats(pre, method),
     }
-    totals = record.t_total_ms[WARMUP_STEPS:] if record.steps > WARMUP_STEPS else record.t_total_ms
+    totals = record.t_total_ms[warmup:]
     output = SimulationOutput(stats, record.times, frames, record.message, phase_ms=phase_ms,
                               step_median_ms=float(np.median(totals)) if totals.size else None)
     if influence and record.stable and has_example_force(scene, pre):
         stats.update(example_influence(scene, pre, output, method=method, steps=steps,
                                        progress=progress)[0].stats())
+    if compare is not None and record.stable:
+        stats.update(_reference_stats(scene, pre, output, compare, progress))
     if out is not None:
         write_outputs(Path(out), pre, output)
     return output
+
+
+def _force_stats(pre: Precomputed, method: str) -> dict:
+    """``{"force_model", "force_elements"}``: which elastic force ran — ``"polynomial"``
+    (the exact reduced polynomials, summed over every element), ``"cubature"`` (the
+    reduced cubature over its s elements) or ``"full"`` (full-space FEM over every
+    element) — and over how many elements."""
+    if method == "full":
+        return {"force_model": "full", "force_elements": int(pre.mesh.n_tets)}
+    return {"force_model": pre.elastic.force_model, "force_elements": force_elements(pre)}
+
+
+def _check_compare(reference: str, method: str) -> None:
+    if reference not in COMPARE_REFERENCES:
+        raise LbshapeError(f"compare must be one of {COMPARE_REFERENCES}, got {reference!r}")
+    if method == reference:
+        raise LbshapeError(f"--compare {reference}: the {method} method is the reference "
+                           "itself; compare a reduced or euclidean run with it")
+
+
+def run_error(output: SimulationOutput, reference: SimulationOutput | None,
+              pre: Precomputed, mass=None) -> dict | None:
+    """A run's error against a reference run of the same scene, steps and sample times:
+    :func:`lbshape.analysis.reference.reference_error` (``error_vs_full``,
+    ``final_error_vs_full`` and a free body's centre / rotation / deformation split).
+
+    The one computation behind :func:`compare` and the benchmark's ``error_vs_full``.
+    ``mass``: the (3n, 3n) consistent mass in kg (default: built from ``pre``). None when
+    the reference is missing or either run stopped.
+    """
+    if reference is None or not (reference.stats["stable"] and output.stats["stable"]):
+        return None
+    if mass is None:
+        mass = mass_matrix(pre.mesh, pre.material.density)
+    return reference_error(output.displacements, reference.displacements, mass,
+                           times=output.times, times_full=reference.times,
+                           rest=pre.mesh.points if is_free_body(pre) else None)
+
+
+def compare(scene: Scene, pre: Precomputed, output: SimulationOutput, *,
+            reference: str = "full", progress: bool = False) -> dict:
+    """Run the ``full`` reference of ``output`` once (same scene, precompute and steps)
+    and measure ``output`` against it (:func:`run_error`).
+
+    Returns:
+        ``{"error_vs_full", "final_error_vs_full", "full_t_total_ms", "speed_up",
+        "compare_message"}`` — the trajectory error (Table 2's), the final-frame
+        error, the reference's mean step time in ms, its ratio to the run's
+        ``t_total_ms``, and None; a free body adds
+        :data:`lbshape.analysis.free_body.KEYS`. A reference that stops (or cannot
+        run) gives None values and ``compare_message`` saying why: it never raises
+        and never changes ``output``.
+
+    Raises:
+        LbshapeError: ``reference`` is not ``"full"``, or ``output`` is a full run.
+    """
+    _check_compare(reference, output.stats["method"])
+    keys = COMPARE_KEYS + (FREE_BODY_KEYS if is_free_body(pre) else ())
+    result = dict.fromkeys(keys)
+    if not output.stats["stable"]:
+        result["compare_message"] = "no comparison: the run stopped before its last step"
+        return result
+    try:
+        full = simulate(scene, pre, method="full", steps=output.stats["steps"],
+                        progress=progress, label=f"{scene.name} [full] (reference)")
+        message = full.message
+    except LbshapeError as exc:
+        full, message = None, str(exc)
+    if message:
+        result["compare_message"] = f"full reference unavailable: {message}"
+        return result
+    try:
+        result.update(run_error(output, full, pre))
+    except LbshapeError as exc:  # e.g. a reference that never moves
+        result["compare_message"] = f"error vs full unavailable: {exc}"
+    result["full_t_total_ms"] = full.stats["t_total_ms"]
+    t_total = output.stats["t_total_ms"]
+    result["speed_up"] = full.stats["t_total_ms"] / t_total if t_total > 0 else None
+    return result
+
+
+def _reference_stats(scene: Scene, pre: Precomputed, output: SimulationOutput,
+                     reference: str, progress: bool) -> dict:
+    """:func:`compare` for :func:`simulate` (whose ``compare`` argument hides the name)."""
+    return compare(scene, pre, output, reference=reference, progress=progress)
 
 
 def example_influence(scene: Scene, pre: Precomputed, output: SimulationOutput, *,
@@ -410,6 +527,8 @@ def _progress_bar(steps: int, label: str, enabled: bool):
     with tqdm(total=steps, desc=label, unit="step", file=sys.stderr,
               mininterval=PROGRESS_INTERVAL) as bar:
         def on_step(index: int, _time: float, _state) -> None:
-            bar.update(index + 1 - bar.n)
+            # index counts the steps from 0 (the initial state is no step): the bar
+            # ends at steps/steps
+            bar.update(min(index + 1, steps) - bar.n)
 
         yield on_step

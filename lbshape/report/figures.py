@@ -326,7 +326,8 @@ def _figure5_shapes(every, examples, example_labels, run_labels, bodies,
 def _twist_caption(pre, u: np.ndarray) -> str:
     """`twist X deg` of the bar's free end for bar-like objects, '' otherwise."""
     try:
-        return f"end twist {end_twist_degrees(pre.mesh.points, u):.0f} deg"
+        twist = end_twist_degrees(pre.mesh.points, u, end="free", fixed=pre.fixed_vertices)
+        return f"end twist {twist:.0f} deg"
     except LbshapeError:
         return ""
 

@@ -2,7 +2,8 @@
 
 The error of a run against ``full`` is :func:`lbshape.analysis.norms.trajectory_error`,
 ``max_t ‖u(t) − u_full(t)‖_M / max_t ‖u_full(t)‖_M`` with M the consistent elastic mass
-(kg), over the same sample times.
+(kg), over the same sample times, computed by :func:`lbshape.pipeline.simulate.run_error`
+(the one path ``lbshape simulate --compare full`` uses too).
 
 * :func:`bench_scene` — ``full``, ``euclidean`` and ``reduced`` runs of one scene in
   one process, repeated (interleaved, so that load from other processes spreads
@@ -32,15 +33,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from lbshape.analysis.free_body import KEYS as FREE_BODY_KEYS
-from lbshape.analysis.free_body import free_body_error
-from lbshape.analysis.norms import trajectory_error
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.paths import RESULTS_DIR
 from lbshape.pipeline.influence import has_example_force, is_free_body
 from lbshape.pipeline.meshes import build_mesh
 from lbshape.pipeline.precompute import precompute
-from lbshape.pipeline.simulate import METHODS, WARMUP_STEPS, example_influence, simulate
+from lbshape.pipeline.simulate import (
+    METHODS,
+    WARMUP_STEPS,
+    example_influence,
+    run_error,
+    simulate,
+)
 from lbshape.scene.variants import with_reduced, without_examples
 
 log = logging.getLogger(__name__)
@@ -358,8 +363,7 @@ def bench_scene(
     full = outputs.get("full")
     rows = tuple(
         _row(scene.name, outputs[method], timings[method], examples,
-             error=_error_vs_full(outputs[method], full, mass),
-             free_body=_free_body_vs_full(outputs[method], full, pre, mass))
+             *_vs_full(outputs[method], full, pre, mass))
         for method in methods
     )
     effects, references = _influence(scene, pre, outputs, steps=steps) if influence else ((), {})
@@ -447,7 +451,7 @@ def _setting(label: str, source: str, scene, pre, outputs: dict, timing: MethodT
     return SettingResult(
         label, source, m=int(stats["m"]), r=int(stats["r"]), s=int(stats["s"]),
         s_max=int(scene.reduced.s), forces=str(stats["forces"]), timing=timing,
-        error_vs_full=_error_vs_full(reduced, full, mass),
+        error_vs_full=_vs_full(reduced, full, pre, mass)[0],
         error_vs_full_no_examples=apart["error_no_examples"],
         examples=has_example_force(scene, pre),
         free_body=apart["free_body"], free_body_no_examples=apart["free_body_no_examples"],
@@ -482,10 +486,11 @@ def _errors_apart_from_examples(scene, pre, reduced, full, references: dict, key
                                     steps=steps)
     else:
         full_none, reduced_none = full, reduced
+    error_none, free_none = _vs_full(reduced_none, full_none, pre, mass)
     return {
-        "error_no_examples": _error_vs_full(reduced_none, full_none, mass),
-        "free_body": _free_body_vs_full(reduced, full, pre, mass),
-        "free_body_no_examples": _free_body_vs_full(reduced_none, full_none, pre, mass),
+        "error_no_examples": error_none,
+        "free_body": _vs_full(reduced, full, pre, mass)[1],
+        "free_body_no_examples": free_none,
     }
 
 
@@ -567,26 +572,19 @@ def _run_jobs(jobs: Sequence[tuple], *, steps: int, repeats: int, name: str
     return outputs, timings
 
 
-def _error_vs_full(output, full, mass) -> float | None:
-    """:func:`trajectory_error` of a run against ``full`` (None if either is missing or
-    stopped early)."""
-    if full is None or not (full.stats["stable"] and output.stats["stable"]):
-        return None
-    return trajectory_error(output.displacements, full.displacements, mass,
-                            times=output.times, times_full=full.times)
+def _vs_full(output, full, pre, mass) -> tuple[float | None, dict | None]:
+    """``(error_vs_full, free-body split)`` of a run against ``full``:
+    :func:`~lbshape.pipeline.simulate.run_error` (the one computation ``simulate --compare
+    full`` uses); the error None if either run is missing or stopped early, the split
+    (:data:`~lbshape.analysis.free_body.KEYS`) None also for a fixed object."""
+    errors = run_error(output, full, pre, mass)
+    if errors is None:
+        return None, None
+    free = {key: errors[key] for key in FREE_BODY_KEYS} if is_free_body(pre) else None
+    return errors["error_vs_full"], free
 
 
-def _free_body_vs_full(output, full, pre, mass) -> dict | None:
-    """A free body's :func:`~lbshape.analysis.free_body.free_body_error` stats of a run
-    against ``full`` (None for a fixed object, or if either run is missing or stopped)."""
-    if not is_free_body(pre) or full is None or not (full.stats["stable"]
-                                                     and output.stats["stable"]):
-        return None
-    return free_body_error(output.displacements, full.displacements, pre.mesh.points,
-                           mass).stats()
-
-
-def _row(scene: str, output, timing: MethodTiming, examples: int, *,
+def _row(scene: str, output, timing: MethodTiming, examples: int,
          error: float | None, free_body: dict | None = None) -> dict:
     """The row of one method: the contract keys :data:`ROW_KEYS` (sizes, median times,
     error) and then :data:`ROW_EXTRA_KEYS` (a free body's split error, else None)."""

@@ -135,10 +135,12 @@ def simulation_figures(out: Path) -> dict:
                              times=runs["reduced"].times, times_full=runs["full"].times)
     influence = compare_runs(pre, runs["reduced"], runs["reduced_no_examples"], mass)
     influence_full = compare_runs(pre, runs["full"], runs["full_no_examples"], mass)
-    twist = {name: end_twist_degrees(pre.mesh.points, run.displacements[-1])
+    twist = {name: end_twist_degrees(pre.mesh.points, run.displacements[-1], end="free",
+                                     fixed=pre.fixed_vertices)
              for name, run in runs.items()}
     rest = pre.mesh.points
-    example_twist = [end_twist_degrees(rest, pre.examples.rest_points(k) - rest)
+    example_twist = [end_twist_degrees(rest, pre.examples.rest_points(k) - rest, end="free",
+                                       fixed=pre.fixed_vertices)
                      for k in range(len(pre.shape.example_names))]
 
     compared = [("no examples (reduced)", runs["reduced_no_examples"]),

@@ -230,7 +230,8 @@ def figure3(same_topology, other_topology, path: str | Path, *,
         outputs.append(output)
         log.info("figure 3: %s done", label)
     finals = [output.displacements[-1] for output in outputs]
-    twists = [end_twist_degrees(a.points, u) for u in finals]
+    twists = [end_twist_degrees(a.points, u, end="free", fixed=pre_same.fixed_vertices)
+              for u in finals]
     for (label, *_), output, twist in zip(runs, outputs, twists, strict=True):
         labels.append(f"{label}\nt={output.times[-1]:.2f} s, end twist {twist:.0f} deg")
     mass = mass_matrix(a, pre_same.material.density)

@@ -22,9 +22,9 @@ from lbshape.pipeline.simulate import simulate
 from lbshape.scene.variants import with_reduced
 from lbshape.studies.bench import (
     _check_steps_repeats,
-    _error_vs_full,
     _errors_apart_from_examples,
     _run_interleaved,
+    _vs_full,
 )
 
 log = logging.getLogger(__name__)
@@ -176,7 +176,7 @@ def _sweep_point(scene, m: int, r: int, s: int, choice: str, references: dict,
     outputs, (timing,) = _run_interleaved(variant, pre, ("reduced",), steps=steps,
                                           repeats=repeats)
     mass = mass_matrix(pre.mesh, pre.material.density)
-    error = _error_vs_full(outputs["reduced"], references[m], mass)
+    error = _vs_full(outputs["reduced"], references[m], pre, mass)[0]
     free = {}
     if is_free_body(pre):
         free = _errors_apart_from_examples(variant, pre, outputs["reduced"], references[m],

@@ -293,3 +293,19 @@ def test_bench_records_the_influence_of_reduced_and_full_in_table2(demo, tmp_pat
     assert "## Example influence" in md.read_text()
     assert (f"| demo | reduced | world | {effects['reduced']['example_influence']:.3f} |"
             in md.read_text())
+
+
+@pytest.mark.parametrize("clamped", ["max", "min"])
+def test_end_twist_measures_the_free_end(clamped):
+    """A bar clamped at z = max (the built-in bars) or z = min (a user's tube): the free
+    end turns by the angle, the clamped one not at all."""
+    from lbshape.analysis.twist import free_end
+
+    mesh = structured_box((0.2, 0.2, 1.0), (4, 4, 10))
+    z = mesh.points[:, 2]
+    fixed = np.flatnonzero(np.abs(z - (z.max() if clamped == "max" else z.min())) < 1e-9)
+    u = twist(mesh.points, angle=0.7, axis="z", anchor=clamped) - mesh.points
+    assert free_end(mesh.points, fixed) == ("min" if clamped == "max" else "max")
+    np.testing.assert_allclose(end_twist_degrees(mesh.points, u, end="free", fixed=fixed),
+                               np.degrees(0.7), rtol=1e-9)
+    np.testing.assert_allclose(end_twist_degrees(mesh.points, u, end=clamped), 0.0, atol=1e-9)

@@ -121,6 +121,37 @@ def test_report_never_runs_a_precompute_or_a_simulation():
     assert not wrong, f"report runs work instead of drawing runs it is given: {wrong}"
 
 
+#: what the command line imports of lbshape: the public API (:mod:`lbshape.api`, or its
+#: names from :mod:`lbshape`), the experiment drivers, the interactive code, files and
+#: errors, and its own modules — never the pipeline's or the numerics' internals
+CLI_IMPORTS = ("lbshape.api", "lbshape.studies", "lbshape.interactive", "lbshape.io",
+               "lbshape.errors", "lbshape.cli")
+
+
+def _api_names() -> set[str]:
+    tree = MODULES["lbshape.api"]
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", "") == "__all__":
+            return {elt.value for elt in node.value.elts}
+    return set()
+
+
+def test_cli_imports_lbshape_only_through_the_api():
+    allowed = CLI_IMPORTS + tuple(f"lbshape.{name}" for name in _api_names())
+    wrong = []
+    for name, tree in MODULES.items():
+        if name.split(".")[1:2] != ["cli"]:
+            continue
+        for node in ast.walk(tree):
+            for target in _imported(node):
+                if target.split(".")[0] != "lbshape" or target == "lbshape":
+                    continue
+                if not any(target == a or target.startswith(a + ".") for a in allowed):
+                    wrong.append(f"{name}:{node.lineno} -> {target}")
+    assert not wrong, ("the command line reaches past the API: "
+                       f"{sorted(set(wrong))}")
+
+
 def test_the_module_import_graph_has_no_cycle():
     graph = {name: _edges(name) for name in MODULES}
     state: dict[str, int] = {}

@@ -414,3 +414,51 @@ def test_precompute_prints_the_inverted_tetrahedra_warning_on_its_own_line(tmp_p
     expected = f"re-oriented {count} inverted tetrahedra"
     assert any(p.startswith("WARNING: ") and p.endswith(expected) for p in pieces), err
     assert not any(expected in p and not p.startswith("WARNING: ") for p in pieces), err
+
+
+def test_a_fresh_precompute_prints_no_compiler_build_log(tmp_path):
+    """The form compiler's C build (``running build_ext``, gcc command lines) stays out of
+    the progress bars: a precompute with empty precompute and form caches."""
+    import os
+    import subprocess
+
+    bar = structured_box((0.2, 0.2, 1.0), (1, 1, 3))
+    meshio.write(tmp_path / "bar.vtu", meshio.Mesh(bar.points, [("tetra", bar.tets)]))
+    _write(tmp_path, "tiny.toml", '''
+        [object]
+        mesh = "bar.vtu"
+        [reduced]
+        m = 4
+        r = 6
+        s = 10
+        [fixed]
+        region = "z < 1e-6"
+        ''')
+    env = {**os.environ, "PYTHONPATH": str(REPOSITORY), "OMP_NUM_THREADS": "1",
+           "LBSHAPE_CACHE": str(tmp_path / "cache"),
+           "XDG_CACHE_HOME": str(tmp_path / "xdg")}  # DOLFINx's JIT cache: ~/.cache/fenics
+    done = subprocess.run([sys.executable, "-m", "lbshape.cli", "precompute",
+                           str(tmp_path / "tiny.toml")], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=1200)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert any((tmp_path / "xdg" / "fenics").rglob("*.c")), "no form was compiled"
+    assert "build_ext" not in done.stderr and "gcc" not in done.stderr, done.stderr[-2000:]
+
+
+def test_render_follows_the_output_folder_rule_of_simulate(tmp_path, capsys):
+    """A folder holding other files is refused before any work; one holding only an
+    earlier render's files is replaced as a whole."""
+    foreign = tmp_path / "notes"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    assert main(["render", "demo", "--steps", "3", "--out", str(foreign)]) == 2
+    assert "holds other files (notes.txt)" in capsys.readouterr().err
+    assert sorted(p.name for p in foreign.iterdir()) == ["notes.txt"]
+    earlier = tmp_path / "figs"
+    earlier.mkdir()
+    (earlier / "stale_render.png").write_bytes(b"old")
+    assert main(["render", "demo", "--steps", "3", "--out", str(earlier)]) == 0
+    out = capsys.readouterr().out
+    assert not (earlier / "stale_render.png").exists()
+    assert (earlier / "simulation.png").exists() and str(earlier / "simulation.png") in out
+    assert ".tmp" not in out
