@@ -1,0 +1,100 @@
+"""The error estimate of a reduced run (:mod:`lbshape.analysis.error_estimate`) wired to a
+scene and its precompute: the full-space force, mass and rest stiffness of the object,
+its loads, and one sparse Cholesky factor of the effective stiffness at the frame spacing
+(:func:`lbshape.fem.cholesky.serial_cholesky`). Runs after the run on its saved frames.
+
+Free bodies: the estimate does not model the rigid motion nor impacts; a free body
+reports ``None`` with the reason (the time of its first contact with a plane when it
+touches one).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from lbshape.analysis.error_estimate import (
+    ErrorEstimate,
+    FrameForces,
+    ResidualErrorEstimator,
+    unavailable,
+)
+from lbshape.dynamics.record import RunRecord
+from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
+from lbshape.errors import LbshapeError
+from lbshape.fem.cholesky import serial_cholesky
+from lbshape.pipeline.precomputed import Precomputed
+from lbshape.pipeline.responses import mesh_load_patterns
+from lbshape.scene.schema import Scene
+
+#: the stats keys the estimate fills
+STATS_KEYS = ("error_estimate", "error_estimate_message", "error_estimate_ms")
+
+
+def estimator(scene: Scene, pre: Precomputed) -> ResidualErrorEstimator:
+    """The :class:`~lbshape.analysis.error_estimate.ResidualErrorEstimator` of a fixed
+    object's scene (n-sized set-up: the full-space force operators, M and K₀)."""
+    mesh = pre.mesh
+    mass = mass_matrix(mesh, pre.material.density)
+    stiffness = FullSpaceElasticity(mesh, pre.material).tangent(np.zeros(3 * mesh.n_vertices))
+    fixed = np.asarray(pre.fixed_vertices, dtype=np.int64)
+    fixed_dofs = (3 * fixed[:, None] + np.arange(3)).ravel()
+    free = np.setdiff1d(np.arange(3 * mesh.n_vertices), fixed_dofs)
+    loads = [(load.pattern, load.profile) for load in mesh_load_patterns(scene, mesh, mass)]
+    return ResidualErrorEstimator(
+        FrameForces(mesh.points, mesh.tets, pre.material), pre.U, mass, stiffness, free,
+        alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads)
+
+
+def estimate_error(scene: Scene, pre: Precomputed, record: RunRecord,
+                   frames: np.ndarray | None = None) -> ErrorEstimate:
+    """The error estimate of a reduced run's record (its saved frames), or ``None`` with a
+    reason: a run that stopped, a free body (``frames``: its (f, n, 3) world displacements,
+    to find its first contact). ``seconds``: the whole estimate, set-up and factor
+    included."""
+    started = time.perf_counter()
+    if not record.stable:
+        return unavailable("the run stopped: " + record.message)
+    if scene.is_free:
+        return unavailable(free_body_reason(scene, pre, record, frames))
+    est = estimator(scene, pre)
+    times = np.asarray(record.times, dtype=float)
+    if len(times) < 2:
+        return ErrorEstimate(0.0, "", np.zeros(len(times)),
+                             time.perf_counter() - started)
+    spacing = float(times[1] - times[0])
+    try:
+        with serial_cholesky(est.effective_matrix(spacing),
+                             what="the effective stiffness of the error estimate") as solve:
+            result = est.estimate(times, record.states, solve)
+    except LbshapeError as exc:
+        return unavailable(f"the estimate failed: {exc}")
+    return ErrorEstimate(result.value, result.message, result.norms,
+                         time.perf_counter() - started)
+
+
+def free_body_reason(scene: Scene, pre: Precomputed, record: RunRecord,
+                     frames: np.ndarray | None) -> str:
+    """Why a free body has no estimate: its first contact, or its rigid motion."""
+    if scene.planes and frames is not None and len(frames):
+        points = pre.mesh.points[None] + np.asarray(frames)  # (f, n, 3) world
+        for plane in scene.planes:
+            normal = np.asarray(plane.normal, dtype=float)
+            normal = normal / np.linalg.norm(normal)
+            gaps = ((points - np.asarray(plane.point, dtype=float)) @ normal).min(axis=1)
+            touching = np.flatnonzero(gaps <= 0.0)
+            if touching.size:
+                t = float(record.times[touching[0]])
+                return (f"free body: not trusted after its first contact with a plane "
+                        f"(t = {t:.3f} s); impacts and the rigid motion are outside the "
+                        f"estimate's model")
+    return ("free body: the estimate covers fixed objects only (the rigid motion is outside "
+            "its model)")
+
+
+def stats(estimate: ErrorEstimate) -> dict:
+    """The ``stats.json`` keys of an estimate (:data:`STATS_KEYS`)."""
+    return {"error_estimate": estimate.value,
+            "error_estimate_message": estimate.message,
+            "error_estimate_ms": 1e3 * estimate.seconds}
