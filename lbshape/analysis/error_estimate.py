@@ -47,7 +47,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from lbshape.elastic.element_kernels import ElementKernel
-from lbshape.elastic.jit_densities import density_parameters, stress
+from lbshape.elastic.jit_densities import density_parameters, stress, stress_and_tangent
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
 
@@ -109,6 +109,14 @@ class FrameForces:
             (values * np.repeat(kernel.volumes, 36), (cols, rows)), shape=(n3, 9 * e))
         self._jit = density_parameters(material)
         self._e = e
+
+    def rest_stiffness(self) -> sp.csr_matrix:
+        """(3n, 3n) the elastic tangent at rest K₀ in N/m: ``Bᵀ V (C ⊗ I) B``, C the
+        material's (9, 9) stress derivative at rest (one material for every element)."""
+        P9, C = np.empty((9, 1)), np.empty((1, 9, 9))
+        stress_and_tangent(self._jit[0], self._jit[1], np.zeros((9, 1)), P9, C)
+        blocks = sp.kron(sp.csr_matrix(C[0]), sp.identity(self._e, format="csr"), format="csr")
+        return (self._BtV @ blocks @ self._B).tocsr()
 
     def __call__(self, u: np.ndarray) -> np.ndarray:
         """(3n, f) forces in N of the displacements u (3n, f) in m (node-major)."""

@@ -21,7 +21,7 @@ from lbshape.analysis.error_estimate import (
     unavailable,
 )
 from lbshape.dynamics.record import RunRecord
-from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.fem.cholesky import serial_cholesky
 from lbshape.pipeline.precomputed import Precomputed
@@ -37,13 +37,13 @@ def estimator(scene: Scene, pre: Precomputed) -> ResidualErrorEstimator:
     object's scene (n-sized set-up: the full-space force operators, M and K₀)."""
     mesh = pre.mesh
     mass = mass_matrix(mesh, pre.material.density)
-    stiffness = FullSpaceElasticity(mesh, pre.material).tangent(np.zeros(3 * mesh.n_vertices))
+    forces = FrameForces(mesh.points, mesh.tets, pre.material)
     fixed = np.asarray(pre.fixed_vertices, dtype=np.int64)
     fixed_dofs = (3 * fixed[:, None] + np.arange(3)).ravel()
     free = np.setdiff1d(np.arange(3 * mesh.n_vertices), fixed_dofs)
     loads = [(load.pattern, load.profile) for load in mesh_load_patterns(scene, mesh, mass)]
     return ResidualErrorEstimator(
-        FrameForces(mesh.points, mesh.tets, pre.material), pre.U, mass, stiffness, free,
+        forces, pre.U, mass, forces.rest_stiffness(), free,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads)
 
 
@@ -93,8 +93,19 @@ def free_body_reason(scene: Scene, pre: Precomputed, record: RunRecord,
             "its model)")
 
 
+def estimate_stats(scene: Scene, pre: Precomputed, method: str, record: RunRecord,
+                   frames: np.ndarray) -> dict:
+    """The ``stats.json`` keys (:data:`STATS_KEYS`) of a run of ``method``: the estimate of a
+    reduced or euclidean run (:func:`estimate_error`); ``None`` for the full reference."""
+    if method == "full":
+        return stats(unavailable("the full-space reference: no reduction error to estimate"))
+    return stats(estimate_error(scene, pre, record, frames))
+
+
 def stats(estimate: ErrorEstimate) -> dict:
-    """The ``stats.json`` keys of an estimate (:data:`STATS_KEYS`)."""
+    """The ``stats.json`` keys of an estimate (:data:`STATS_KEYS`): the estimated relative
+    trajectory error (a fraction, or None), why it is None ('' otherwise) and its wall time
+    in ms."""
     return {"error_estimate": estimate.value,
             "error_estimate_message": estimate.message,
             "error_estimate_ms": 1e3 * estimate.seconds}

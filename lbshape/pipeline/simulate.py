@@ -60,6 +60,7 @@ from lbshape.io.atomic import (
     write_npz_atomic,
 )
 from lbshape.io.trajectory import TrajectoryWriter
+from lbshape.pipeline.estimate import estimate_stats
 from lbshape.pipeline.influence import Influence, compare_runs, has_example_force
 from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.responses import mesh_load_patterns
@@ -329,6 +330,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "t_interp_ms": t_interp, "t_total_ms": t_total,
         "stable": bool(record.stable), "max_displacement": max_disp, "phase_ms": phase_ms,
         "forces": "full" if method == "full" else pre.elastic.force_model,
+        **estimate_stats(scene, pre, method, record, frames),
     }
     totals = record.t_total_ms[WARMUP_STEPS:] if record.steps > WARMUP_STEPS else record.t_total_ms
     output = SimulationOutput(stats, record.times, frames, record.message, phase_ms=phase_ms,
