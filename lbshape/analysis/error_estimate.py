@@ -53,6 +53,8 @@ from lbshape.errors import LbshapeError
 
 #: relative spread of the frame spacing accepted as uniform
 SPACING_RTOL = 1e-6
+#: most frame intervals the estimate integrates over (the saved frames thinned to this)
+MAX_FRAMES = 50
 
 
 @dataclass(frozen=True)
@@ -177,17 +179,16 @@ class ResidualErrorEstimator:
 
     def estimate(self, times: np.ndarray, Q: np.ndarray,
                  solve: Callable[[np.ndarray], np.ndarray]) -> ErrorEstimate:
-        """The estimate over uniformly spaced frames.
+        """The estimate over uniformly spaced frames (:func:`select_frames`).
 
         Args:
-            times: (f,) frame times in s, uniformly spaced (frames after the last uniform
-                one are dropped).
+            times: (f,) frame times in s, uniformly spaced.
             Q: (f, r) reduced coordinates at the frames.
-            solve: ``solve(rhs (nf, 1)) -> (nf, 1)`` with the factor of
+            solve: ``solve(rhs (nf,)) -> (nf,)`` with the factor of
                 :meth:`effective_matrix` at the frame spacing.
         """
         started = time.perf_counter()
-        times, Q = _uniform_frames(np.asarray(times, dtype=float), np.asarray(Q, dtype=float))
+        times, Q = np.asarray(times, dtype=float), np.asarray(Q, dtype=float)
         size = float(np.sqrt(np.max(np.einsum("ft,tf->f", Q @ self._Uf.T,
                                               self.M @ (self._Uf @ Q.T)))))
         if len(times) < 2 or not size > 0:
@@ -203,27 +204,45 @@ def newmark_error_norms(R: np.ndarray, M, K, alpha: float, beta: float, spacing:
                         solve: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
     """(f,) ‖e_k‖_M of ``M ë + (α M + β K) ė + K e = ρ(t)`` from ``e = ė = ë = 0`` at the first
     frame, ρ's frame values the columns of R (nf, f), average-acceleration Newmark at Δ =
-    ``spacing`` (``solve``: the inverse of ``(1 + 2β/Δ) K + (4/Δ² + 2α/Δ) M``)."""
-    h = spacing
-    e, v, a = (np.zeros(R.shape[0]) for _ in range(3))
-    norms = np.zeros(R.shape[1])
-    for k in range(1, R.shape[1]):
-        carry = 4.0 / h**2 * e + 4.0 / h * v + a
-        rate = 2.0 / h * e + v
-        rhs = R[:, k] + M @ (carry + alpha * rate) + beta * (K @ rate)
-        e1 = np.asarray(solve(rhs[:, None])).ravel()
+    ``spacing`` (``solve``: x (nf,) of rhs (nf,) with the inverse of
+    ``(1 + 2β/Δ) K + (4/Δ² + 2α/Δ) M``).
+
+    One sparse product and one solve per frame: the history enters the right-hand side
+    through ``[A_e A_v M] [e; v; a]``, ``A_e = (4/Δ² + 2α/Δ) M + (2β/Δ) K``,
+    ``A_v = (4/Δ + α) M + β K``.
+    """
+    h, nf, frames = spacing, R.shape[0], R.shape[1]
+    M, K = sp.csr_matrix(M), sp.csr_matrix(K)
+    history = sp.hstack([(4.0 / h**2 + 2.0 * alpha / h) * M + (2.0 * beta / h) * K,
+                         (4.0 / h + alpha) * M + beta * K, M], format="csr")
+    state = np.zeros(3 * nf)  # [e; v; a]
+    e, v, a = state[:nf], state[nf:2 * nf], state[2 * nf:]
+    E = np.zeros((nf, frames))
+    for k in range(1, frames):
+        e1 = solve(R[:, k] + history @ state)
         a1 = 4.0 / h**2 * (e1 - e) - 4.0 / h * v - a
-        v = v + 0.5 * h * (a + a1)
-        a, e = a1, e1
-        norms[k] = math.sqrt(max(float(e @ (M @ e)), 0.0))
-    return norms
+        v += 0.5 * h * (a + a1)
+        a[:] = a1
+        e[:] = e1
+        E[:, k] = e1
+    return np.sqrt(np.maximum(np.einsum("if,if->f", E, np.asarray(M @ E)), 0.0))
 
 
-def _uniform_frames(times: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The leading frames at a uniform spacing (a last, shorter interval is dropped)."""
-    if len(times) < 3:
-        return times, Q
-    gaps = np.diff(times)
-    uniform = np.abs(gaps - gaps[0]) <= SPACING_RTOL * gaps[0]
-    count = len(times) if uniform.all() else int(np.argmin(uniform)) + 1
-    return times[:count], Q[:count]
+def select_frames(times: np.ndarray, Q: np.ndarray, max_frames: int = MAX_FRAMES
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The frames the estimate uses: the leading uniformly spaced ones (a last, shorter
+    interval is dropped), thinned to every k-th so that at most ``max_frames`` + 1 remain.
+
+    Args:
+        times: (f,) frame times in s.
+        Q: (f, r) reduced coordinates.
+        max_frames: most intervals kept.
+    """
+    times, Q = np.asarray(times, dtype=float), np.asarray(Q, dtype=float)
+    if len(times) >= 3:
+        gaps = np.diff(times)
+        uniform = np.abs(gaps - gaps[0]) <= SPACING_RTOL * gaps[0]
+        count = len(times) if uniform.all() else int(np.argmin(uniform)) + 1
+        times, Q = times[:count], Q[:count]
+    every = max(1, math.ceil((len(times) - 1) / max(1, int(max_frames))))
+    return times[::every], Q[::every]

@@ -15,9 +15,11 @@ import time
 import numpy as np
 
 from lbshape.analysis.error_estimate import (
+    MAX_FRAMES,
     ErrorEstimate,
     FrameForces,
     ResidualErrorEstimator,
+    select_frames,
     unavailable,
 )
 from lbshape.dynamics.record import RunRecord
@@ -48,26 +50,28 @@ def estimator(scene: Scene, pre: Precomputed) -> ResidualErrorEstimator:
 
 
 def estimate_error(scene: Scene, pre: Precomputed, record: RunRecord,
-                   frames: np.ndarray | None = None) -> ErrorEstimate:
+                   frames: np.ndarray | None = None, *, max_frames: int = MAX_FRAMES
+                   ) -> ErrorEstimate:
     """The error estimate of a reduced run's record (its saved frames), or ``None`` with a
     reason: a run that stopped, a free body (``frames``: its (f, n, 3) world displacements,
-    to find its first contact). ``seconds``: the whole estimate, set-up and factor
-    included."""
+    to find its first contact). ``max_frames``: the most frame intervals integrated over
+    (:func:`~lbshape.analysis.error_estimate.select_frames`). ``seconds``: the whole
+    estimate, set-up and factor included."""
     started = time.perf_counter()
     if not record.stable:
         return unavailable("the run stopped: " + record.message)
     if scene.is_free:
         return unavailable(free_body_reason(scene, pre, record, frames))
-    est = estimator(scene, pre)
-    times = np.asarray(record.times, dtype=float)
+    times, Q = select_frames(record.times, record.states, max_frames)
     if len(times) < 2:
         return ErrorEstimate(0.0, "", np.zeros(len(times)),
                              time.perf_counter() - started)
+    est = estimator(scene, pre)
     spacing = float(times[1] - times[0])
     try:
         with serial_cholesky(est.effective_matrix(spacing),
                              what="the effective stiffness of the error estimate") as solve:
-            result = est.estimate(times, record.states, solve)
+            result = est.estimate(times, Q, solve)
     except LbshapeError as exc:
         return unavailable(f"the estimate failed: {exc}")
     return ErrorEstimate(result.value, result.message, result.norms,
