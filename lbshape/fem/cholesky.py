@@ -100,8 +100,9 @@ class CholeskySolver:
 def serial_cholesky(A, *, prefix: str = "", what: str = "the matrix"):
     """``with serial_cholesky(A) as solve:`` one Cholesky factorisation (CHOLMOD) of a
     serial symmetric positive definite scipy matrix A (n, n); ``solve(rhs)`` gives X
-    (n, c) with ``A X = rhs`` for rhs (n, c), or x (n,) for a vector rhs (n,), as often as
-    needed; everything is destroyed on leaving the block.
+    (n, c) with ``A X = rhs`` for rhs (n, c), as often as needed (``solve.vector(b)``: x (n,)
+    for one rhs (n,), with less overhead per call); everything is destroyed on leaving the
+    block.
 
     Raises:
         SolverError: A is singular or not positive definite.
@@ -118,11 +119,9 @@ def serial_cholesky(A, *, prefix: str = "", what: str = "the matrix"):
         solver = CholeskySolver(matrix, prefix=prefix, what=what)
 
         def solve(rhs):
-            rhs = np.asarray(rhs, dtype=float)
-            if rhs.ndim == 1:
-                return solver.solve_vector(rhs)
-            return solver.solve(rhs.reshape(A.shape[0], -1))
+            return solver.solve(np.asarray(rhs, dtype=float).reshape(A.shape[0], -1))
 
+        solve.vector = solver.solve_vector
         yield solve
     finally:
         if solver is not None:

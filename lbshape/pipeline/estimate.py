@@ -71,7 +71,7 @@ def estimate_error(scene: Scene, pre: Precomputed, record: RunRecord,
     try:
         with serial_cholesky(est.effective_matrix(spacing),
                              what="the effective stiffness of the error estimate") as solve:
-            result = est.estimate(times, Q, solve)
+            result = est.estimate(times, Q, solve.vector)
     except LbshapeError as exc:
         return unavailable(f"the estimate failed: {exc}")
     return ErrorEstimate(result.value, result.message, result.norms,
