@@ -185,7 +185,8 @@ def write(rows: list[dict], args, argv, started: str) -> tuple[Path, Path]:
             f"{share} | {row['run_with_outputs_ms']:.0f} | {share_out} |")
     notes = sorted({f"{row['scene']}: {row['message']}" for row in rows if row["message"]})
     if notes:
-        lines += ["", "Reasons given instead of a number:", ""]
+        lines += ["", "Messages (`error_estimate_message`): the reason given instead of a "
+                  "number, or the caveat given with it:", ""]
         lines += [f"- {note}" for note in notes]
     md_path = args.out_dir / "error_estimate.md"
     md_path.write_text("\n".join(lines) + "\n")
