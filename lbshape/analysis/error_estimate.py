@@ -46,7 +46,6 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from lbshape.elastic.element_kernels import ElementKernel
 from lbshape.elastic.jit_densities import density_parameters, stress, stress_and_tangent
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
@@ -95,20 +94,22 @@ class FrameForces:
     """
 
     def __init__(self, points: np.ndarray, tets: np.ndarray, material: Material):
-        kernel = ElementKernel(points, tets, material)
-        e, n3 = kernel.n_elements, 3 * len(points)
-        G = kernel.gradients  # (e, 4, 3) 1/m
-        # row (3 i + j) * e + elem (component-major H9), column 3 v_a + i, value ∂_j N_a
-        comp_i, comp_j, node = np.meshgrid(np.arange(3), np.arange(3), np.arange(4),
-                                           indexing="ij")
-        comp_i, comp_j, node = comp_i.ravel(), comp_j.ravel(), node.ravel()  # (36,)
-        elems = np.arange(e)
-        rows = ((3 * comp_i + comp_j)[None, :] * e + elems[:, None]).ravel()
-        cols = (3 * np.asarray(tets)[:, node] + comp_i[None, :]).ravel()
-        values = G[:, node, comp_j].ravel()
-        self._B = sp.csr_matrix((values, (rows, cols)), shape=(9 * e, n3))
-        self._BtV = sp.csr_matrix(
-            (values * np.repeat(kernel.volumes, 36), (cols, rows)), shape=(n3, 9 * e))
+        points, tets = np.asarray(points, dtype=float), np.asarray(tets, dtype=np.int64)
+        e, n3 = tets.shape[0], 3 * len(points)
+        G, volumes = shape_gradients(points, tets)  # (e, 4, 3) 1/m, (e,) m³
+        # B (9e, 3n): row (3 i + j) e + elem (component-major H9) holds ∂_j N_a at column
+        # 3 v_a + i for the element's four vertices a, built in CSR order directly
+        data = np.empty((3, 3, e, 4))
+        columns = np.empty((3, 3, e, 4), dtype=np.int64)
+        for i in range(3):
+            for j in range(3):
+                data[i, j] = G[:, :, j]
+                columns[i, j] = 3 * tets + i
+        pointers = np.arange(0, 36 * e + 1, 4, dtype=np.int64)
+        self._B = sp.csr_matrix((data.ravel(), columns.ravel(), pointers), shape=(9 * e, n3))
+        weighted = data * volumes[None, None, :, None]
+        self._BtV = sp.csr_matrix((weighted.ravel(), columns.ravel(), pointers),
+                                  shape=(9 * e, n3)).T.tocsr()
         self._jit = density_parameters(material)
         self._e = e
 
@@ -129,6 +130,18 @@ class FrameForces:
         P9 = np.empty_like(H9)
         stress(self._jit[0], self._jit[1], H9, P9)
         return np.asarray(self._BtV @ P9.reshape(9 * self._e, frames))
+
+
+def shape_gradients(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(e, 4, 3) gradients ∂_j N_a of the linear shape functions in 1/m and (e,) element
+    volumes in m³ (as :class:`~lbshape.elastic.element_kernels.ElementKernel`'s)."""
+    X = points[tets]
+    Dm = (X[:, 1:] - X[:, :1]).transpose(0, 2, 1)
+    Dm_inv = np.linalg.inv(Dm)
+    G = np.empty((tets.shape[0], 4, 3))
+    G[:, 1:] = Dm_inv
+    G[:, 0] = -Dm_inv.sum(axis=1)
+    return G, np.abs(np.linalg.det(Dm)) / 6.0
 
 
 class ResidualErrorEstimator:
@@ -207,23 +220,19 @@ def newmark_error_norms(R: np.ndarray, M, K, alpha: float, beta: float, spacing:
     ``spacing`` (``solve``: x (nf,) of rhs (nf,) with the inverse of
     ``(1 + 2β/Δ) K + (4/Δ² + 2α/Δ) M``).
 
-    One sparse product and one solve per frame: the history enters the right-hand side
-    through ``[A_e A_v M] [e; v; a]``, ``A_e = (4/Δ² + 2α/Δ) M + (2β/Δ) K``,
-    ``A_v = (4/Δ + α) M + β K``.
+    Two sparse products and one solve per frame: the history enters the right-hand side as
+    ``M ((4/Δ² + 2α/Δ) e + (4/Δ + α) v + a) + β K (2 e/Δ + v)``.
     """
     h, nf, frames = spacing, R.shape[0], R.shape[1]
     M, K = sp.csr_matrix(M), sp.csr_matrix(K)
-    history = sp.hstack([(4.0 / h**2 + 2.0 * alpha / h) * M + (2.0 * beta / h) * K,
-                         (4.0 / h + alpha) * M + beta * K, M], format="csr")
-    state = np.zeros(3 * nf)  # [e; v; a]
-    e, v, a = state[:nf], state[nf:2 * nf], state[2 * nf:]
+    c_e, c_v = 4.0 / h**2 + 2.0 * alpha / h, 4.0 / h + alpha
+    e, v, a = np.zeros(nf), np.zeros(nf), np.zeros(nf)
     E = np.zeros((nf, frames))
     for k in range(1, frames):
-        e1 = solve(R[:, k] + history @ state)
+        e1 = solve(R[:, k] + M @ (c_e * e + c_v * v + a) + K @ (2.0 * beta / h * e + beta * v))
         a1 = 4.0 / h**2 * (e1 - e) - 4.0 / h * v - a
         v += 0.5 * h * (a + a1)
-        a[:] = a1
-        e[:] = e1
+        a, e = a1, e1
         E[:, k] = e1
     return np.sqrt(np.maximum(np.einsum("if,if->f", E, np.asarray(M @ E)), 0.0))
 
