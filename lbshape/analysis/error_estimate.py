@@ -20,9 +20,18 @@ The error ``e = u_full − u_r`` obeys ``M ë + D ė + f_int(u_r + e) − f_int(
 linearisation at rest, ``M ë + D ė + K₀ e = ρ(t)``, is integrated from ``e = 0`` over the saved
 frames with the average-acceleration Newmark scheme at the frame spacing Δ, one solve per
 frame with one factor of the effective stiffness ``(1 + 2β/Δ) K₀ + (4/Δ² + 2α/Δ) M``. The
-estimate is ``max_t ‖e(t)‖_M / max_t ‖u_r(t)‖_M`` (the reduced run's own size in the
-denominator, the reference being unknown). No calibration factor is applied (the
-constant is 1: see ``results/error_estimate.md`` for the measured ratios).
+estimate is :data:`CALIBRATION` ``× max_t ‖e(t)‖_M / max_t ‖u_r(t)‖_M`` (the reduced run's
+own size in the denominator, the reference being unknown).
+
+**Calibration.** The raw ratio is biased low: the residual leaves out the example targets'
+part outside the basis (for local examples also their spring) and the error equation is
+linearised at rest. Measured against the full reference on every fixed built-in scene,
+with and without examples, at 1 ms and 60 Hz steps (``results/error_estimate.md``), the raw
+estimate / error ratios lay in [0.39, 1.10] where the error is above 1 % (0.39: teddy-local
+with its local examples; 0.48: the cross without examples), median about 0.9. The factor
+1.5 puts the log-centre of that range (≈ 0.66) at 1, leaving the measured ratios in
+[0.58, 1.65], inside the factor-2 band with some margin on both sides. It was fitted on the
+same runs it is validated on (there is no held-out set of references).
 
 Everything here is n-sized but runs on the saved frames only, after the run: the
 real-time step is untouched. The full-space elastic force at all frames is one sparse
@@ -50,6 +59,8 @@ from lbshape.elastic.jit_densities import density_parameters, stress, stress_and
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
 
+#: the estimate's calibration factor on the raw ratio (module docstring, "Calibration")
+CALIBRATION = 1.5
 #: relative spread of the frame spacing accepted as uniform
 SPACING_RTOL = 1e-6
 #: most frame intervals the estimate integrates over (the saved frames thinned to this)
@@ -61,8 +72,8 @@ class ErrorEstimate:
     """An estimate of a run's relative trajectory error.
 
     Attributes:
-        value: the estimated ``max_t ‖u − u_full‖_M / max_t ‖u_full‖_M`` (a fraction), or
-            ``None`` where it cannot be trusted.
+        value: the estimated ``max_t ‖u − u_full‖_M / max_t ‖u_full‖_M`` (a fraction,
+            :data:`CALIBRATION` × the raw ratio), or ``None`` where it cannot be trusted.
         message: why ``value`` is ``None`` ('' otherwise).
         norms: (f,) estimated error M-norms ‖e(t)‖_M per frame used (m·kg^½; empty when
             ``value`` is ``None``).
@@ -209,7 +220,7 @@ class ResidualErrorEstimator:
         spacing = float(times[1] - times[0])
         R = self.residuals(times, Q)
         norms = newmark_error_norms(R, self.M, self.K, self.alpha, self.beta, spacing, solve)
-        return ErrorEstimate(float(norms.max()) / size, "", norms,
+        return ErrorEstimate(CALIBRATION * float(norms.max()) / size, "", norms,
                              time.perf_counter() - started)
 
 

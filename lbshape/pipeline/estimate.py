@@ -82,7 +82,7 @@ def estimate_error(scene: Scene, pre: Precomputed, record: RunRecord,
 #: the caveat that comes with the estimate of a run with local examples
 LOCAL_EXAMPLES_CAVEAT = (
     "caveat: local examples' spring and pull outside the basis are not in the residual; "
-    "the estimate may be low (0.4x the measured error on teddy-local, 0.75x on cross)")
+    "the estimate may be low (0.6x the measured error on teddy-local with its examples)")
 
 
 def _local_examples_act(scene: Scene, pre: Precomputed) -> bool:
