@@ -142,3 +142,12 @@ def test_outputs_doc_documents_the_estimate_keys():
     text = (ROOT / "docs" / "outputs.md").read_text()
     for key in STATS_KEYS:
         assert re.search(rf"\| `{key}` \|", text), key
+
+
+def test_cubature_forces_report_none_with_the_reason():
+    scene = SimpleNamespace(is_free=False, planes=(), name="cubature")
+    pre = SimpleNamespace(elastic=SimpleNamespace(force_model="cubature"))
+    record = RunRecord(np.array([0.0, 0.1]), np.zeros((2, 2)), np.zeros(1), np.zeros(1),
+                       np.zeros(1))
+    result = estimate_error(scene, pre, record)
+    assert result.value is None and result.message.startswith("cubature forces")
