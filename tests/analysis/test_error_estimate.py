@@ -151,3 +151,11 @@ def test_cubature_forces_report_none_with_the_reason():
                        np.zeros(1))
     result = estimate_error(scene, pre, record)
     assert result.value is None and result.message.startswith("cubature forces")
+
+
+def test_summary_line_words_for_the_estimate():
+    from lbshape.cli.simulate import estimate_phrase
+
+    assert estimate_phrase({"error_estimate": 0.0123}) == "error estimate 1.23%"
+    assert estimate_phrase({"error_estimate": None, "error_estimate_message": "free body"}) \
+        == "no error estimate (free body)"
