@@ -70,7 +70,8 @@ def run(args) -> int:
         s = result.stats
         print(f"simulate {s['scene']} [{s['method']}]: {s['steps']} steps of {s['dt']} s, "
               f"t_interp {s['t_interp_ms']:.3f} ms, t_total {s['t_total_ms']:.3f} ms per step, "
-              f"max displacement {s['max_displacement']:.4g} m -> "
+              f"max displacement {s['max_displacement']:.4g} m, "
+              f"{estimate_phrase(s)} -> "
               f"{out / FAILED_MARKER if result.message else out}")
         if "example_influence" in s:
             final, peak = (("undefined" if s[k] is None else f"{s[k]:.3f}")
@@ -108,3 +109,11 @@ def compare_line(stats: dict) -> str:
 
 def _percent(value) -> str:
     return "undefined" if value is None else f"{value:.2%}"
+
+
+def estimate_phrase(stats: dict) -> str:
+    """The summary's words on the error estimate: ``error estimate 1.23%`` or why none."""
+    value = stats.get("error_estimate")
+    if value is not None:
+        return f"error estimate {100 * value:.2f}%"
+    return f"no error estimate ({stats.get('error_estimate_message') or 'not computed'})"

@@ -61,6 +61,7 @@ from lbshape.io.atomic import (
     write_npz_atomic,
 )
 from lbshape.io.trajectory import TrajectoryWriter
+from lbshape.pipeline.estimate import estimate_stats
 from lbshape.pipeline.influence import (
     Influence,
     compare_runs,
@@ -357,6 +358,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "forces": "full" if method == "full" else pre.elastic.force_model,
         "timed_steps": int(record.steps - warmup),
         **_force_stats(pre, method),
+        **estimate_stats(scene, pre, method, record, frames),
     }
     totals = record.t_total_ms[warmup:]
     output = SimulationOutput(stats, record.times, frames, record.message, phase_ms=phase_ms,

@@ -58,3 +58,15 @@ def test_cholesky_solve_refuses_a_singular_matrix():
 
 def test_no_right_hand_sides():
     assert cholesky_solve(spd_matrix(20), np.zeros((20, 0))).shape == (20, 0)
+
+
+def test_serial_cholesky_vector_solves_match_the_block_solve():
+    from lbshape.fem.cholesky import serial_cholesky
+
+    A = spd_matrix(120, seed=2)
+    B = np.random.default_rng(3).standard_normal((120, 3))
+    with serial_cholesky(A) as solve:
+        block = solve(B)
+        vectors = np.column_stack([solve.vector(B[:, k]) for k in range(3)])
+    assert np.allclose(vectors, block, rtol=1e-12, atol=1e-14)
+    assert np.linalg.norm(A @ vectors - B) <= 1e-10 * np.linalg.norm(B)

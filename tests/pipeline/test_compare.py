@@ -73,14 +73,21 @@ def _m2(u, mass) -> float:
 
 
 def test_a_stopped_reference_leaves_the_result_intact(tmp_path, capsys, monkeypatch):
-    real = simulate_module.run_full_space
+    real = simulate_module.full_simulation
 
-    def stopped(scene, pre, **kwargs):
-        record = real(scene, pre, **{**kwargs, "steps": 3})
-        return dataclasses.replace(record, stable=False,
-                                   message="step 4: Newton did not converge")
+    def stopped(scene, pre):
+        engine = real(scene, pre)
+        run = engine.run
 
-    monkeypatch.setattr(simulate_module, "run_full_space", stopped)
+        def run_and_stop(steps, **kwargs):
+            record = run(3, **kwargs)
+            return dataclasses.replace(record, stable=False,
+                                       message="step 4: Newton did not converge")
+
+        engine.run = run_and_stop
+        return engine
+
+    monkeypatch.setattr(simulate_module, "full_simulation", stopped)
     out = tmp_path / "run"
     code, stdout, _ = _run(["simulate", "demo", "--steps", str(STEPS), "--out", str(out),
                             "--no-influence", "--compare", "full"], capsys)

@@ -195,13 +195,14 @@ def test_simulate_command_writes_contract_outputs(tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["simulate", "demo", "--steps", "20", "--out", str(out), "--json"]) == 0
     stats = json.loads(capsys.readouterr().out)
+    from lbshape.pipeline.estimate import STATS_KEYS as ESTIMATE_KEYS
     from lbshape.pipeline.influence import STATS_KEYS
 
-    # the demo has examples: the contract keys, then the example influence
+    # the demo has examples: the contract keys, the error estimate, then the example influence
     assert list(stats) == ["scene", "method", "n_vertices", "n_tets", "m", "r", "s", "dt",
                            "steps", "t_interp_ms", "t_total_ms", "stable", "max_displacement",
                            "phase_ms", "forces", "timed_steps", "force_model",
-                           "force_elements", *STATS_KEYS]
+                           "force_elements", *ESTIMATE_KEYS, *STATS_KEYS]
     assert stats["example_influence"] > 0.0
     assert json.loads((out / "stats.json").read_text()) == stats
     assert (out / "trajectory.pvd").exists() and stats["steps"] == 20

@@ -1,0 +1,161 @@
+"""The reduced runs' error estimate (lbshape.analysis.error_estimate, lbshape.pipeline.estimate)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import scipy.linalg
+import scipy.sparse.linalg as spla
+
+from lbshape.analysis.error_estimate import (
+    FrameForces,
+    ResidualErrorEstimator,
+    select_frames,
+)
+from lbshape.analysis.norms import trajectory_error
+from lbshape.dynamics.contact import ContactPlane
+from lbshape.dynamics.record import RunRecord
+from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
+from lbshape.elastic.materials import Material
+from lbshape.geometry.primitives import structured_box
+from lbshape.pipeline.estimate import STATS_KEYS, estimate_error
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulate import simulate
+from lbshape.scene import load_scene
+from lbshape.scene.variants import with_step
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _tiny(material: Material):
+    mesh = structured_box(size=(0.3, 0.1, 0.1), divisions=(2, 1, 1))
+    fixed = np.flatnonzero(mesh.points[:, 0] < 1e-9)
+    fixed_dofs = (3 * fixed[:, None] + np.arange(3)).ravel()
+    free = np.setdiff1d(np.arange(3 * mesh.n_vertices), fixed_dofs)
+    return mesh, free
+
+
+def test_frame_forces_and_rest_stiffness_match_the_element_sum():
+    material = Material(model="stvk", young=1e5, poisson=0.3, density=1000.0)
+    mesh, _ = _tiny(material)
+    u = np.random.default_rng(0).normal(scale=1e-2, size=(3 * mesh.n_vertices, 2))
+    forces = FrameForces(mesh.points, mesh.tets, material)
+    exact = FullSpaceElasticity(mesh, material)
+    np.testing.assert_allclose(forces(u)[:, 1], exact.force(u[:, 1]), rtol=1e-12, atol=1e-12)
+    K0 = exact.tangent(np.zeros(3 * mesh.n_vertices)).toarray()
+    np.testing.assert_allclose(forces.rest_stiffness().toarray(), K0, rtol=1e-12,
+                               atol=1e-9 * np.abs(K0).max())
+
+
+def test_estimate_is_zero_when_the_basis_spans_the_free_space():
+    """r = 3n − fixed dofs: the full equations' residual outside the basis is round-off."""
+    material = Material(model="stvk", young=1e5, poisson=0.3, density=1000.0)
+    mesh, free = _tiny(material)
+    mass = mass_matrix(mesh, material.density)
+    forces = FrameForces(mesh.points, mesh.tets, material)
+    K0 = forces.rest_stiffness()
+    # a mass-orthonormal basis of every free dof: U_f = L⁻ᵀ with M_ff = L Lᵀ
+    L = np.linalg.cholesky(mass[free][:, free].toarray())
+    U = np.zeros((3 * mesh.n_vertices, free.size))
+    U[free] = scipy.linalg.solve_triangular(L, np.eye(free.size), lower=True).T
+    pattern = np.zeros(3 * mesh.n_vertices)
+    pattern[free[2::3]] = -1.0
+    est = ResidualErrorEstimator(forces, U, mass, K0, free, alpha=0.5, beta=0.01,
+                                 loads=[(pattern, lambda t: min(t / 0.1, 1.0))])
+    times = np.arange(21) * 0.01
+    Q = np.outer(np.sin(7.0 * times), np.random.default_rng(1).normal(scale=1e-2,
+                                                                       size=free.size))
+    lu = spla.splu(est.effective_matrix(0.01).tocsc())
+    result = est.estimate(times, Q, lu.solve)
+    assert result.value is not None and result.value < 1e-10, result.value
+    # with a truncated basis the same trajectory has an error to report
+    truncated = ResidualErrorEstimator(forces, U[:, :6], mass, K0, free, alpha=0.5,
+                                       beta=0.01, loads=[(pattern, lambda t: 1.0)])
+    assert truncated.estimate(times, Q[:, :6], lu.solve).value > 1e-3
+
+
+def test_select_frames_keeps_uniform_frames_and_thins_them():
+    times = np.array([0.0, 0.1, 0.2, 0.3, 0.35])
+    kept, Q = select_frames(times, np.arange(10.0).reshape(5, 2), max_frames=50)
+    np.testing.assert_allclose(kept, [0.0, 0.1, 0.2, 0.3])
+    assert Q.shape == (4, 2)
+    kept, _ = select_frames(np.arange(101) * 0.005, np.zeros((101, 1)), max_frames=50)
+    assert len(kept) == 51 and kept[1] == pytest.approx(0.01)
+
+
+def test_estimate_within_its_factor_of_the_full_reference_on_the_demo():
+    """The demo at 60 Hz steps with its examples: within a factor 2 of the measured error,
+    or within 1 percentage point where that error is below 1 %."""
+    scene = with_step(load_scene("demo"), 1.0 / 60.0, 0.3)
+    pre = precompute(scene)
+    reduced = simulate(scene, pre, method="reduced")
+    full = simulate(scene, pre, method="full")
+    error = trajectory_error(reduced.displacements, full.displacements,
+                             mass_matrix(pre.mesh, pre.material.density))
+    estimate = reduced.stats["error_estimate"]
+    assert estimate is not None and reduced.stats["error_estimate_message"] == ""
+    if error < 0.01:
+        assert abs(estimate - error) <= 0.01, (estimate, error)
+    else:
+        assert error / 2 <= estimate <= 2 * error, (estimate, error)
+    assert full.stats["error_estimate"] is None and full.stats["error_estimate_message"]
+
+
+def test_stats_keys_present_on_every_method_in_order():
+    scene = load_scene("demo")
+    pre = precompute(scene)
+    for method in ("reduced", "euclidean", "full"):
+        stats = simulate(scene, pre, method=method, steps=5).stats
+        keys = list(stats)
+        start = keys.index(STATS_KEYS[0])
+        assert keys[start:start + len(STATS_KEYS)] == list(STATS_KEYS), keys
+        assert (stats["error_estimate"] is None) == (method == "full"), stats
+        assert stats["error_estimate_ms"] >= 0.0
+
+
+def test_free_body_reports_none_with_the_time_of_its_first_contact():
+    points = np.array([[0.0, 0.0, 0.1], [0.1, 0.0, 0.1], [0.0, 0.1, 0.2]])
+    plane = ContactPlane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0), stiffness=1e5)
+    scene = SimpleNamespace(is_free=True, planes=(plane,), name="falling")
+    pre = SimpleNamespace(mesh=SimpleNamespace(points=points))
+    times = np.array([0.0, 0.1, 0.2, 0.3])
+    drop = np.array([0.0, -0.05, -0.12, -0.2])  # the lowest vertex crosses z = 0 at 0.2 s
+    frames = np.zeros((4, 3, 3))
+    frames[:, :, 2] = drop[:, None]
+    record = RunRecord(times, np.zeros((4, 2)), np.zeros(3), np.zeros(3), np.zeros(3))
+    result = estimate_error(scene, pre, record, frames)
+    assert result.value is None
+    assert "first contact" in result.message and "t = 0.200 s" in result.message
+    # no plane touched: still no number, with the reason
+    result = estimate_error(scene, pre, record, np.zeros((4, 3, 3)))
+    assert result.value is None and "free body" in result.message
+    stopped = RunRecord(times, np.zeros((4, 2)), np.zeros(3), np.zeros(3), np.zeros(3),
+                        stable=False, message="step 3 failed")
+    assert "stopped" in estimate_error(scene, pre, stopped, frames).message
+
+
+def test_outputs_doc_documents_the_estimate_keys():
+    text = (ROOT / "docs" / "outputs.md").read_text()
+    for key in STATS_KEYS:
+        assert re.search(rf"\| `{key}` \|", text), key
+
+
+def test_cubature_forces_report_none_with_the_reason():
+    scene = SimpleNamespace(is_free=False, planes=(), name="cubature")
+    pre = SimpleNamespace(elastic=SimpleNamespace(force_model="cubature"))
+    record = RunRecord(np.array([0.0, 0.1]), np.zeros((2, 2)), np.zeros(1), np.zeros(1),
+                       np.zeros(1))
+    result = estimate_error(scene, pre, record)
+    assert result.value is None and result.message.startswith("cubature forces")
+
+
+def test_summary_line_words_for_the_estimate():
+    from lbshape.cli.simulate import estimate_phrase
+
+    assert estimate_phrase({"error_estimate": 0.0123}) == "error estimate 1.23%"
+    assert estimate_phrase({"error_estimate": None, "error_estimate_message": "free body"}) \
+        == "no error estimate (free body)"
