@@ -400,7 +400,8 @@ def _gmsh_failure(source: str, exc) -> str:
 
 
 def posed_surface_pair(rest_path: str | Path, posed_path: str | Path, *,
-                       size: float | None = None) -> tuple[TetMesh, TetMesh] | None:
+                       size: float | None = None, scale: float = 1.0
+                       ) -> tuple[TetMesh, TetMesh] | None:
     """Tet meshes of a rest surface and its posed copy with one connectivity.
 
     A modelling tool that poses a surface keeps its triangles (and an STL file its
@@ -413,6 +414,7 @@ def posed_surface_pair(rest_path: str | Path, posed_path: str | Path, *,
     Args:
         rest_path, posed_path: surface files (:data:`SURFACE_FORMATS`).
         size: largest interior edge length h in metres, or None.
+        scale: metres per number of the two files (:func:`length_scale`).
 
     Returns:
         (rest, posed) with equal ``tets``, or None when the two surfaces do not have
@@ -425,6 +427,7 @@ def posed_surface_pair(rest_path: str | Path, posed_path: str | Path, *,
     posed_points, posed_tris = read_surface(posed_path)
     if rest_points.shape != posed_points.shape or not np.array_equal(rest_tris, posed_tris):
         return None
+    rest_points, posed_points = rest_points * scale, posed_points * scale
     check_surface(posed_points, posed_tris, source=str(posed_path))
     check_surface(rest_points, rest_tris, source=str(rest_path))
     merged, tris, original = merge_vertices(rest_points, rest_tris)
