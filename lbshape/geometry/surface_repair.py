@@ -117,29 +117,30 @@ def repair_surface(points: np.ndarray, triangles: np.ndarray, *, source: str = "
     tris, zero_area, duplicates = _drop_bad_triangles(points, tris)
     if tris.shape[0] == 0:
         raise LbshapeError(f"{source}: every triangle has zero area")
-    points, tris, flipped = _orient(points, tris)
-
-    holes_filled = added = 0
     loops = boundary_loops(tris)
-    if loops and fill_holes:
+    if loops and not fill_holes:
+        raise LbshapeError(f"{source}: surface is open: {_holes(loops)}; set fill_holes = "
+                           "true (scene) or --fill-holes (lbshape mesh) to close small ones")
+    points, tris, flipped = _orient(points, tris)
+    holes_filled = added = 0
+    if loops:
         holes_filled, before = len(loops), tris.shape[0]
         for _ in range(FILL_ROUNDS):  # a filled hole can leave a sliver loop behind
             points, tris = _fill_holes(points, tris)
-            points, tris, _ = merge_vertices(points, tris)  # MeshFix may return split copies
-            tris, _, _ = _drop_bad_triangles(points, tris)
-            tris = _drop_fins(tris)
+            tris = _drop_fins(_drop_bad_triangles(points, tris)[0])
+            loops = boundary_loops(tris)
+            if not loops:
+                break
+            # MeshFix splits vertices where sheets touch, which can leave a slit: merge
+            points, tris, _ = merge_vertices(points, tris)
+            tris = _drop_fins(_drop_bad_triangles(points, tris)[0])
             loops = boundary_loops(tris)
             if not loops:
                 break
         added = tris.shape[0] - before
-    if loops:
-        longest = max(len(loop) for loop in loops)
-        advice = ("fill_holes did not close them" if fill_holes else
-                  "set fill_holes = true (scene) or --fill-holes (lbshape mesh) to close "
-                  "small ones")
-        raise LbshapeError(
-            f"{source}: surface is open: {len(loops)} holes (boundary loops, "
-            f"{sum(len(loop) for loop in loops)} edges, the largest {longest}); {advice}")
+        if loops:
+            raise LbshapeError(f"{source}: surface is open: {_holes(loops)}; fill_holes did "
+                               "not close them")
 
     labels, volumes = pieces(points, tris)
     chosen = None
@@ -158,6 +159,11 @@ def repair_surface(points: np.ndarray, triangles: np.ndarray, *, source: str = "
     if report.summary():
         log.warning("repaired %s: %s", source, report.summary())
     return points, tris, report
+
+
+def _holes(loops: list[np.ndarray]) -> str:
+    return (f"{len(loops)} holes (boundary loops, {sum(len(loop) for loop in loops)} edges, "
+            f"the largest {max(len(loop) for loop in loops)})")
 
 
 def select_piece(volumes, piece: int | str | None, *, source: str, what: str) -> int:
