@@ -52,7 +52,9 @@ def scene_from_mesh(
     Args:
         mesh: the object: a :class:`~lbshape.geometry.mesh.TetMesh`, or ``(points, tets)``
             arrays, (n, 3) float in m and (t, 4) int; checked as a mesh file is
-            (:func:`~lbshape.geometry.mesh.check_mesh`).
+            (:func:`~lbshape.geometry.mesh.check_mesh`). There is no ``units``: the
+            arrays are already in metres (scale them before, e.g. ``points * 1e-3``
+            for millimetres; ``lbshape.read_mesh(path, units="mm")`` reads a file so).
         name: the scene's name (outputs, messages).
         description: free text.
         fixed: the fixed vertices: a region expression in x, y, z (m), e.g.
