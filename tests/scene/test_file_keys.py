@@ -155,7 +155,7 @@ def test_the_docs_millimetre_scene_is_valid():
     import tomllib
 
     text = (Path(__file__).resolve().parents[2] / "docs" / "scenes.md").read_text("utf-8")
-    block = text.split("# wedge.toml:", 1)[1].split("```", 1)[0]
+    block = text.split("# wedge.toml:", 1)[1].split("\n", 1)[1].split("```", 1)[0]
     scene = scene_from_dict(tomllib.loads(block), name="wedge-mm")
     assert scene.object.units == "mm" and scene.object.mesh_file == WEDGE
     assert scene.examples.poses[0].source.units == "mm"
