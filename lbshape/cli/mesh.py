@@ -29,7 +29,8 @@ def register(subparsers) -> None:
                         help="built-in shape name, gmsh script (.py) or mesh file")
     parser.add_argument("--size", type=float, default=None, metavar="H",
                         help="mesh size h in metres (default: the shape's default, the "
-                        "script's DEFAULT_SIZE; a surface is kept as given)")
+                        "script's DEFAULT_SIZE; a surface is kept as given; a CAD solid: 5%% of "
+                        "its diagonal)")
     parser.add_argument("--units", choices=tuple(LENGTH_UNITS), default="m",
                         help="unit of the file's numbers (default m; a STEP file converts "
                         "from its own); --size stays in metres")
