@@ -94,7 +94,8 @@ def read_cad_file(path: str | Path, *, size: float | None = None, units: str = "
                                "needs a closed volume")
         volumes = [gmsh.model.occ.getMass(3, tag) * factor ** 3 for tag in solids]
         if len(solids) > 1:
-            keep = solids[select_piece(volumes, piece, source=str(path), what="CAD file")]
+            keep = solids[select_piece(volumes, piece, source=str(path), what="CAD file",
+                                        kind="solids")]
             gmsh.model.occ.remove([(3, t) for t in solids if t != keep], recursive=True)
             gmsh.model.occ.synchronize()
             solids = [keep]

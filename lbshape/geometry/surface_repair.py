@@ -166,7 +166,8 @@ def _holes(loops: list[np.ndarray]) -> str:
             f"the largest {max(len(loop) for loop in loops)})")
 
 
-def select_piece(volumes, piece: int | str | None, *, source: str, what: str) -> int:
+def select_piece(volumes, piece: int | str | None, *, source: str, what: str,
+                 kind: str = "disconnected pieces") -> int:
     """The index of the piece to keep among ``volumes`` (m³), or a one-line error that
     lists them and names the ``piece`` key."""
     volumes = [float(v) for v in volumes]
@@ -176,7 +177,7 @@ def select_piece(volumes, piece: int | str | None, *, source: str, what: str) ->
     choose = (f"choose one with piece = k (0 to {len(volumes) - 1}; --piece k for lbshape "
               "mesh) or piece = \"largest\"")
     if piece is None:
-        raise LbshapeError(f"{source}: {what} has {len(volumes)} disconnected pieces "
+        raise LbshapeError(f"{source}: {what} has {len(volumes)} {kind} "
                            f"(volumes in m³: {listed}); {choose}")
     if isinstance(piece, bool) or not isinstance(piece, int) or not 0 <= piece < len(volumes):
         raise LbshapeError(f"{source}: piece = {piece!r} is not one of the {len(volumes)} "

@@ -187,7 +187,7 @@ def test_brep_in_millimetres_scales_volume_by_1e_minus_9():
 @needs_occt
 def test_brep_of_two_solids_lists_them():
     ball = OCCT / "occ" / "Ball.brep"
-    with pytest.raises(LbshapeError, match="2 disconnected pieces") as info:
+    with pytest.raises(LbshapeError, match="CAD file has 2 solids") as info:
         read_mesh_file(ball, size=2e-3, units="mm")
     assert "volumes in m³: 0: 4.71e-07, 1: 4.14e-06" in _one_line_error(info)
     mesh = read_mesh_file(ball, size=2e-3, units="mm", piece="largest")
