@@ -6,6 +6,11 @@ size h (m). A file without a solid (only faces, a shell, curves) is refused in o
 line: lbshape needs a closed volume, and a surface file (STL…) with ``fill_holes`` is
 the way for an open one.
 
+gmsh can crash (a segmentation fault) on some solids at some sizes: the OCC sample
+``MODERN_Table_1.brep`` does at h = 7.6 mm and meshes at 5 mm. The meshing therefore
+runs in a child process, so that a crash is a one-line error that suggests another
+size instead of ending the program.
+
 Units. A STEP file records its length unit: OpenCASCADE converts the numbers to the
 unit asked for, so a STEP file arrives in metres whatever ``units`` says. BREP and
 IGES files are read as their numbers are written (OpenCASCADE's unit conversion does
@@ -49,6 +54,27 @@ def is_cad_file(path: str | Path) -> bool:
 
 def read_cad_file(path: str | Path, *, size: float | None = None, units: str = "m",
                   scale: float | None = None, piece: int | str | None = None) -> TetMesh:
+    """Tetrahedralise the solid of a STEP, IGES or BREP file (in a child process:
+    module docstring); arguments and errors as :func:`mesh_cad_solid`, plus a crash of
+    gmsh reported as an :class:`LbshapeError`."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    context = multiprocessing.get_context("spawn")  # no fork of a threaded parent
+    with ProcessPoolExecutor(max_workers=1, mp_context=context) as pool:
+        future = pool.submit(mesh_cad_solid, str(path), size=size, units=units, scale=scale,
+                             piece=piece)
+        try:
+            return future.result()
+        except BrokenProcessPool:
+            at = "its default size" if size is None else f"h = {size:g} m"
+            raise LbshapeError(f"{path}: gmsh crashed while meshing the solid at {at}; "
+                               "try another size (e.g. 0.7x or 1.5x)") from None
+
+
+def mesh_cad_solid(path: str | Path, *, size: float | None = None, units: str = "m",
+                   scale: float | None = None, piece: int | str | None = None) -> TetMesh:
     """Tetrahedralise the solid of a STEP, IGES or BREP file.
 
     Args:

@@ -64,7 +64,6 @@ def test_ant_pieces_listed_with_volumes_then_chosen():
     largest = read_mesh_file(ant, piece="largest")
     assert largest.volume() == pytest.approx(volumes[0], rel=1e-9)
     assert largest.volume() == pytest.approx(165.59, rel=1e-4)
-    assert read_mesh_file(ant, piece=1).volume() == pytest.approx(151, rel=1e-2)
     with pytest.raises(LbshapeError, match="piece = 15 is not one of the 15 pieces"):
         read_mesh_file(ant, piece=15)
 
@@ -173,6 +172,7 @@ def test_step_converts_from_its_recorded_millimetres():
 
 
 @needs_occt
+@pytest.mark.slow
 def test_brep_in_millimetres_scales_volume_by_1e_minus_9():
     wedge = OCCT / "occ" / "wedge_ok.brep"
     mass = _gmsh_mass(wedge)
@@ -185,6 +185,7 @@ def test_brep_in_millimetres_scales_volume_by_1e_minus_9():
 
 
 @needs_occt
+@pytest.mark.slow
 def test_brep_of_two_solids_lists_them():
     ball = OCCT / "occ" / "Ball.brep"
     with pytest.raises(LbshapeError, match="CAD file has 2 solids") as info:
