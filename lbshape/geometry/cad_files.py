@@ -57,20 +57,49 @@ def read_cad_file(path: str | Path, *, size: float | None = None, units: str = "
     """Tetrahedralise the solid of a STEP, IGES or BREP file (in a child process:
     module docstring); arguments and errors as :func:`mesh_cad_solid`, plus a crash of
     gmsh reported as an :class:`LbshapeError`."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-    from concurrent.futures.process import BrokenProcessPool
+    import json
+    import subprocess
+    import tempfile
 
-    context = multiprocessing.get_context("spawn")  # no fork of a threaded parent
-    with ProcessPoolExecutor(max_workers=1, mp_context=context) as pool:
-        future = pool.submit(mesh_cad_solid, str(path), size=size, units=units, scale=scale,
-                             piece=piece)
-        try:
-            return future.result()
-        except BrokenProcessPool:
-            at = "its default size" if size is None else f"h = {size:g} m"
-            raise LbshapeError(f"{path}: gmsh crashed while meshing the solid at {at}; "
-                               "try another size (e.g. 0.7x or 1.5x)") from None
+    options = {"path": str(path), "size": size, "units": units, "scale": scale,
+               "piece": piece}
+    package_root = str(Path(__file__).resolve().parents[2])  # this lbshape, in the child
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [package_root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])}
+    with tempfile.TemporaryDirectory(prefix="lbshape-cad-") as folder:
+        out = Path(folder) / "mesh.npz"
+        done = subprocess.run(
+            [sys.executable, "-c", "from lbshape.geometry.cad_files import _child; _child()",
+             json.dumps(options), str(out)],
+            env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE, text=True)
+        if done.returncode == 0:
+            with np.load(out) as data:
+                return TetMesh(data["points"], data["tets"])
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    if done.returncode == _ERROR_EXIT and lines:
+        raise LbshapeError(lines[-1])
+    at = "its default size" if size is None else f"h = {size:g} m"
+    detail = lines[-1] if lines else f"exit status {done.returncode}"
+    raise LbshapeError(f"{path}: gmsh crashed while meshing the solid at {at} ({detail}); "
+                       "try another size (e.g. 0.7x or 1.5x)")
+
+
+#: exit status of the child process for an LbshapeError (its message on stderr)
+_ERROR_EXIT = 2
+
+
+def _child() -> None:
+    """Child process of :func:`read_cad_file`: argv = JSON options, output .npz path."""
+    import json
+
+    options = json.loads(sys.argv[1])
+    try:
+        mesh = mesh_cad_solid(options.pop("path"), **options)
+    except LbshapeError as exc:
+        print(str(exc), file=sys.stderr)
+        sys.exit(_ERROR_EXIT)
+    np.savez(sys.argv[2], points=mesh.points, tets=mesh.tets)
 
 
 def mesh_cad_solid(path: str | Path, *, size: float | None = None, units: str = "m",
