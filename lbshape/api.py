@@ -73,7 +73,8 @@ Building blocks the command line uses (meshes, modes, several scenes at once; in
 ``lbshape.api`` only):
 
 * :func:`mesh_source` — what a mesh argument names (a built-in shape in :data:`SHAPES`,
-  a gmsh script, a mesh file, a surface in :data:`SURFACE_FORMATS`); :func:`build_mesh`
+  a gmsh script, a mesh file, a surface in :data:`SURFACE_FORMATS`, a CAD solid in
+  :data:`CAD_FORMATS`, coordinates in one of :data:`LENGTH_UNITS`); :func:`build_mesh`
   makes its :class:`TetMesh`, :func:`write_mesh` writes it as ``.msh``;
   :func:`get_shape` a built-in shape's description (unknown names list the shapes).
 * :func:`linear_modes` — the lowest linear elastic vibration modes of a mesh for a
@@ -91,7 +92,7 @@ from lbshape.elastic.modes import linear_modes
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.fem.mpi import run_collectively
 from lbshape.geometry.mesh import TetMesh
-from lbshape.geometry.mesh_files import SURFACE_FORMATS
+from lbshape.geometry.mesh_files import CAD_FORMATS, LENGTH_UNITS, SURFACE_FORMATS
 from lbshape.geometry.mesh_files import read_mesh_file as read_mesh
 from lbshape.geometry.regions import region_vertices
 from lbshape.geometry.shapes import SHAPES, get_shape
@@ -113,6 +114,8 @@ from lbshape.scene import Scene, load_scene, mesh_source
 from lbshape.spectral.spectrum import lb_spectrum
 
 __all__ = [
+    "CAD_FORMATS",
+    "LENGTH_UNITS",
     "LbshapeError",
     "METHODS",
     "Material",

@@ -8,9 +8,15 @@ Three kinds of file, told apart by the extension:
   ``.mesh``, ``.xdmf``, ``.med``, ``.inp``, …) — their linear tetrahedra are kept,
   other cells (triangles, lines, vertices) ignored; a file without tetrahedra is an
   error (use a surface format for a surface);
+* CAD solids (:data:`~lbshape.geometry.cad_files.CAD_FORMATS`: ``.step``, ``.iges``,
+  ``.brep``) — read by gmsh's OpenCASCADE kernel and tetrahedralised at the size
+  (:func:`lbshape.geometry.cad_files.read_cad_file`);
 * closed triangle surfaces (:data:`SURFACE_FORMATS`: ``.stl``, ``.obj``, ``.ply``,
-  ``.off``) — read by meshio, checked here (:func:`check_surface`: closed, edge- and
-  vertex-manifold, one piece, no zero-area triangle) and tetrahedralised by gmsh
+  ``.off``) — read by meshio, repaired
+  (:func:`lbshape.geometry.surface_repair.repair_surface`: duplicate vertices,
+  zero-area and duplicate triangles, orientation; holes with ``fill_holes``; one of
+  several pieces with ``piece``), checked here (:func:`check_surface`: closed, edge-
+  and vertex-manifold, one piece, no zero-area triangle) and tetrahedralised by gmsh
   (:func:`tetrahedralise_surface`). With a target size h the surface is remeshed at
   h first (gmsh's classify/reparametrise route); without one the surface
   triangles are kept as the boundary and the interior grows from them. A
@@ -18,7 +24,8 @@ Three kinds of file, told apart by the extension:
   reported as such.
 
 Every result passes :func:`lbshape.geometry.mesh.check_mesh`. Coordinates are
-taken as metres; nothing is rescaled.
+the file's numbers times the ``units`` (:data:`LENGTH_UNITS`, metres by default) or
+``scale`` given; a STEP file converts from the unit it records.
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 
 from lbshape.errors import LbshapeError
+from lbshape.geometry.cad_files import CAD_FORMATS, LENGTH_UNITS, is_cad_file, read_cad_file
 from lbshape.geometry.mesh import (
     TetMesh,
     check_mesh,
@@ -42,12 +50,22 @@ from lbshape.geometry.mesh import (
     mesh_from_gmsh_model,
     write_gmsh_model,
 )
+from lbshape.geometry.surface_repair import (
+    DEGENERATE_AREA_RTOL,
+    merge_vertices,
+    repair_surface,
+)
 
 __all__ = [
+    "CAD_FORMATS",
+    "LENGTH_UNITS",
     "SURFACE_FORMATS",
     "VOLUME_FORMATS",
     "check_surface",
+    "is_cad_file",
     "is_surface_file",
+    "length_scale",
+    "takes_size",
     "posed_surface_pair",
     "read_mesh_file",
     "read_surface",
@@ -62,10 +80,6 @@ SURFACE_FORMATS: tuple[str, ...] = (".stl", ".obj", ".ply", ".off")
 #: tetrahedral volume meshes read with meshio (besides gmsh's own ``.msh``)
 VOLUME_FORMATS: tuple[str, ...] = (".vtu", ".vtk", ".mesh", ".meshb", ".xdmf", ".med",
                                    ".inp", ".ele", ".node", ".xml")
-#: coincident surface vertices are merged within this fraction of the bounding-box diagonal
-MERGE_RTOL = 1e-9
-#: a triangle is degenerate below this fraction of (bounding-box diagonal)^2
-DEGENERATE_AREA_RTOL = 1e-14
 #: gmsh's angle for splitting a remeshed surface into smooth patches (degrees)
 FEATURE_ANGLE_DEG = 40.0
 
@@ -75,40 +89,82 @@ def is_surface_file(path: str | Path) -> bool:
     return Path(path).suffix.lower() in SURFACE_FORMATS
 
 
+def takes_size(path: str | Path) -> bool:
+    """True for files meshed at a size: surfaces and CAD solids (not volume meshes)."""
+    return is_surface_file(path) or is_cad_file(path)
+
+
+def length_scale(units: str = "m", scale: float | None = None, *, source: str = "mesh") -> float:
+    """Metres per file number: ``scale`` if given, else the factor of ``units``.
+
+    Raises:
+        LbshapeError: an unknown unit (listing :data:`LENGTH_UNITS`) or a scale that
+            is not a finite positive number.
+    """
+    if scale is not None:
+        if isinstance(scale, bool) or not isinstance(scale, int | float) or not (
+                math.isfinite(scale) and scale > 0):
+            raise LbshapeError(f"{source}: scale must be a finite positive number, got "
+                               f"{scale!r}")
+        return float(scale)
+    if units not in LENGTH_UNITS:
+        raise LbshapeError(f"{source}: unknown units {units!r} (choose one of "
+                           f"{', '.join(LENGTH_UNITS)}, or give a numeric scale)")
+    return LENGTH_UNITS[units]
+
+
 def read_mesh_file(path: str | Path, *, size: float | None = None,
-                   require_connected: bool = True) -> TetMesh:
+                   require_connected: bool = True, units: str = "m",
+                   scale: float | None = None, piece: int | str | None = None,
+                   fill_holes: bool = False) -> TetMesh:
     """Load any supported mesh file as a checked tetrahedral mesh.
 
     Args:
-        path: a ``.msh``, a meshio volume file or a closed surface (module docstring).
-        size: target edge length h in metres for a surface (remeshed at h); must be
-            None for volume files, which are used as they are.
+        path: a ``.msh``, a meshio volume file, a CAD solid or a closed surface
+            (module docstring).
+        size: target edge length h in metres (after scaling) for a surface (remeshed
+            at h) or a CAD solid; must be None for volume files, which are used as
+            they are.
         require_connected: reject meshes made of several pieces.
+        units: the unit of the file's numbers (:data:`LENGTH_UNITS`; "m" default).
+        scale: metres per file number, instead of ``units``.
+        piece: surface or CAD file of several pieces: the one to keep (its index as
+            the error lists them, or ``"largest"``).
+        fill_holes: close the holes of an open surface file.
 
     Raises:
-        LbshapeError: missing file, unknown format, a size for a volume file, no
-            tetrahedra, a bad surface, or a mesh failing ``check_mesh``.
+        LbshapeError: missing file, unknown format or unit, a size for a volume file,
+            no tetrahedra, no solid, a bad surface, or a mesh failing ``check_mesh``.
     """
     path = Path(path)
     if not path.is_file():
         raise LbshapeError(f"mesh file not found: {path}")
     suffix = path.suffix.lower()
+    factor = length_scale(units, scale, source=str(path))
     if size is not None and not (math.isfinite(size) and size > 0):
         raise LbshapeError(f"{path}: mesh size must be a positive number of metres, got {size}")
+    if suffix in CAD_FORMATS:
+        return read_cad_file(path, size=size, units=units, scale=scale, piece=piece)
     if suffix in SURFACE_FORMATS:
         points, triangles = read_surface(path)
+        points, triangles, _ = repair_surface(points * factor, triangles, source=str(path),
+                                              piece=piece, fill_holes=fill_holes)
         return tetrahedralise_surface(points, triangles, size=size, source=str(path))
     if size is not None:
         raise LbshapeError(f"{path}: a mesh size applies to surface files "
-                           f"({', '.join(SURFACE_FORMATS)}), not to a volume mesh")
+                           f"({', '.join(SURFACE_FORMATS)}) and CAD files "
+                           f"({', '.join(CAD_FORMATS)}), not to a volume mesh")
     if suffix == ".msh":
-        return load_mesh(path, require_connected=require_connected)
-    if suffix in VOLUME_FORMATS:
-        return _read_volume(path, require_connected=require_connected)
-    raise LbshapeError(
-        f"{path}: unsupported mesh format '{path.suffix}' (volume: .msh, "
-        f"{', '.join(VOLUME_FORMATS)}; surface: {', '.join(SURFACE_FORMATS)})"
-    )
+        mesh = load_mesh(path, require_connected=require_connected)
+    elif suffix in VOLUME_FORMATS:
+        mesh = _read_volume(path, require_connected=require_connected)
+    else:
+        raise LbshapeError(
+            f"{path}: unsupported mesh format '{path.suffix}' (volume: .msh, "
+            f"{', '.join(VOLUME_FORMATS)}; surface: {', '.join(SURFACE_FORMATS)}; CAD: "
+            f"{', '.join(CAD_FORMATS)})"
+        )
+    return mesh if factor == 1.0 else mesh.with_points(mesh.points * factor)
 
 
 def _meshio_read(path: Path):
@@ -165,8 +221,9 @@ def check_surface(points: np.ndarray, triangles: np.ndarray, *,
                   source: str = "surface") -> tuple[np.ndarray, np.ndarray]:
     """Check that a triangle surface bounds one solid; return it cleaned.
 
-    Coincident vertices (within :data:`MERGE_RTOL` of the bounding-box diagonal)
-    are merged, as STL files repeat them per triangle; unused vertices dropped.
+    Coincident vertices (within :data:`lbshape.geometry.surface_repair.MERGE_RTOL` of
+    the bounding-box diagonal) are merged, as STL files repeat them per triangle;
+    unused vertices dropped.
 
     Args:
         points: (n, 3) vertex positions in metres.
@@ -267,20 +324,8 @@ def _check_vertex_fans(points: np.ndarray, tris: np.ndarray, edges: np.ndarray,
 
 
 def _merge_vertices(points: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    merged, tris, _ = _merge_map(points, tris)
+    merged, tris, _ = merge_vertices(points, tris)
     return merged, tris
-
-
-def _merge_map(points: np.ndarray, tris: np.ndarray):
-    """Merged points (n', 3), remapped triangles, and (n',) the input index of each."""
-    used = np.unique(tris)
-    diag = float(np.linalg.norm(np.ptp(points[used], axis=0)))
-    tol = MERGE_RTOL * max(diag, np.finfo(float).tiny)
-    keys = np.round(points[used] / tol).astype(np.int64)
-    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    index = np.full(points.shape[0], -1, dtype=np.int64)
-    index[used] = inverse.ravel()
-    return points[used[first]], index[tris], used[first]
 
 
 def _count_pieces(tris: np.ndarray, n: int) -> int:
@@ -355,7 +400,8 @@ def _gmsh_failure(source: str, exc) -> str:
 
 
 def posed_surface_pair(rest_path: str | Path, posed_path: str | Path, *,
-                       size: float | None = None) -> tuple[TetMesh, TetMesh] | None:
+                       size: float | None = None, scale: float = 1.0
+                       ) -> tuple[TetMesh, TetMesh] | None:
     """Tet meshes of a rest surface and its posed copy with one connectivity.
 
     A modelling tool that poses a surface keeps its triangles (and an STL file its
@@ -368,6 +414,7 @@ def posed_surface_pair(rest_path: str | Path, posed_path: str | Path, *,
     Args:
         rest_path, posed_path: surface files (:data:`SURFACE_FORMATS`).
         size: largest interior edge length h in metres, or None.
+        scale: metres per number of the two files (:func:`length_scale`).
 
     Returns:
         (rest, posed) with equal ``tets``, or None when the two surfaces do not have
@@ -380,9 +427,10 @@ def posed_surface_pair(rest_path: str | Path, posed_path: str | Path, *,
     posed_points, posed_tris = read_surface(posed_path)
     if rest_points.shape != posed_points.shape or not np.array_equal(rest_tris, posed_tris):
         return None
+    rest_points, posed_points = rest_points * scale, posed_points * scale
     check_surface(posed_points, posed_tris, source=str(posed_path))
     check_surface(rest_points, rest_tris, source=str(rest_path))
-    merged, tris, original = _merge_map(rest_points, rest_tris)
+    merged, tris, original = merge_vertices(rest_points, rest_tris)
     rest = tetrahedralise_surface(merged, tris, size=size, keep_surface=True,
                                   source=str(rest_path))
     distance, where = cKDTree(rest.points).query(merged)

@@ -20,6 +20,7 @@ from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.mesh_files import (
     is_surface_file,
+    length_scale,
     posed_surface_pair,
     read_mesh_file,
     write_msh,
@@ -40,7 +41,7 @@ def build_mesh(source: MeshSource) -> TetMesh:
         return build_shape(source.shape, size=source.size)
     if source.script is not None:
         return build_script(source.script, size=source.size)
-    return read_mesh_file(source.mesh_file, size=source.size)
+    return read_mesh_file(source.mesh_file, **source.read_options)
 
 
 def write_mesh(source: MeshSource, path: str | Path) -> TetMesh:
@@ -110,7 +111,9 @@ def posed_file_meshes(pose: ExamplePose, object_mesh: TetMesh) -> tuple[TetMesh,
     rest_file = pose.rest.mesh_file
     if (rest_file is not None and pose.source.mesh_file is not None
             and is_surface_file(pose.source.mesh_file) and is_surface_file(rest_file)):
-        pair = posed_surface_pair(rest_file, pose.source.mesh_file, size=pose.source.size)
+        scale = length_scale(pose.source.units, pose.source.scale, source=name)
+        pair = posed_surface_pair(rest_file, pose.source.mesh_file, size=pose.source.size,
+                                  scale=scale)
         if pair is None:
             raise LbshapeError(
                 f"posed example {name} and its rest {rest_file.name} have different "

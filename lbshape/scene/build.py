@@ -52,7 +52,9 @@ def scene_from_mesh(
     Args:
         mesh: the object: a :class:`~lbshape.geometry.mesh.TetMesh`, or ``(points, tets)``
             arrays, (n, 3) float in m and (t, 4) int; checked as a mesh file is
-            (:func:`~lbshape.geometry.mesh.check_mesh`).
+            (:func:`~lbshape.geometry.mesh.check_mesh`). There is no ``units``: the
+            arrays are already in metres (scale them before, e.g. ``points * 1e-3``
+            for millimetres; ``lbshape.read_mesh(path, units="mm")`` reads a file so).
         name: the scene's name (outputs, messages).
         description: free text.
         fixed: the fixed vertices: a region expression in x, y, z (m), e.g.
@@ -96,17 +98,23 @@ def scene_from_mesh(
     if fixed is not None:
         data["fixed"] = {"region": fixed} if isinstance(fixed, str) else _plain(fixed)
     if examples or example_stiffness is not None:
-        if isinstance(examples, Mapping | TetMesh | np.ndarray):
-            raise LbshapeError(f"{label}: 'examples' must be a list of example poses")
-        if example_stiffness is None:  # the keyword's name, not the file's key path
-            raise LbshapeError(f"{label}: examples need example_stiffness (k_ex in 1/s^2)")
-        data["examples"] = {"stiffness": _plain(example_stiffness),
-                            "pose": [_example(entry, obj, f"{label}: examples[{k}]")
-                                     for k, entry in enumerate(examples)]}
+        data["examples"] = _examples_table(examples, example_stiffness, obj, label)
     for key, value in (("loads", loads), ("planes", planes), ("regions", regions)):
         if value:
             data[key] = _plain(list(value))
     return scene_from_dict(data, name=name, label=label)
+
+
+def _examples_table(examples: Sequence[ExampleSpec], example_stiffness, obj: TetMesh,
+                    label: str) -> dict[str, Any]:
+    """The scene file's ``[examples]`` table of :func:`scene_from_mesh`'s keywords."""
+    if isinstance(examples, Mapping | TetMesh | np.ndarray):
+        raise LbshapeError(f"{label}: 'examples' must be a list of example poses")
+    if example_stiffness is None:  # the keyword's name, not the file's key path
+        raise LbshapeError(f"{label}: examples need example_stiffness (k_ex in 1/s^2)")
+    return {"stiffness": _plain(example_stiffness),
+            "pose": [_example(entry, obj, f"{label}: examples[{k}]")
+                     for k, entry in enumerate(examples)]}
 
 
 def as_tet_mesh(value: Any, *, what: str = "mesh") -> TetMesh:

@@ -35,7 +35,14 @@ from lbshape.elastic.materials import MODELS, Material
 from lbshape.elastic.polynomial_forces import FORCE_CHOICES, check_force_choice
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh, check_mesh
-from lbshape.geometry.mesh_files import SURFACE_FORMATS, is_surface_file
+from lbshape.geometry.mesh_files import (
+    CAD_FORMATS,
+    LENGTH_UNITS,
+    SURFACE_FORMATS,
+    is_cad_file,
+    is_surface_file,
+    takes_size,
+)
 from lbshape.geometry.poses import POSE_CHOICES, POSE_PARAMETERS, POSES
 from lbshape.geometry.regions import parse_region
 from lbshape.geometry.shapes import SHAPES, is_script_path
@@ -133,7 +140,8 @@ def scene_from_dict(
     if not scene_name.strip():
         raise ctx.error("'name' must be a non-empty string")
     description = top.string("description", "")
-    obj = _mesh_source(top.subtable("object", ("shape", "mesh", "size"), required=True), ctx)
+    obj = _mesh_source(top.subtable("object", ("shape", "mesh", "size") + _FILE_KEYS,
+                                    required=True), ctx)
     material = _material(top, ctx)
     damping = _damping(top)
     reduced = _reduced(top)
@@ -165,8 +173,10 @@ def scene_from_dict(
 # ------------------------------------------------------------------ tables
 _TOP_KEYS = ("name", "description", "object", "material", "damping", "reduced", "examples",
              "fixed", "loads", "planes", "regions", "simulation", "initial")
+#: how a mesh file is read (beside 'mesh'): its unit, and which piece / hole filling
+_FILE_KEYS = ("units", "scale", "piece", "fill_holes")
 _POSE_KEYS = ("shape", "mesh", "size", "pose", "parameters", "landmarks", "rest", "parts",
-              "hold")
+              "hold") + _FILE_KEYS
 _PART_KEYS = ("region", "group", "pose", "parameters")
 _LOAD_KEYS = ("type", "vector", "region", "group", "profile", "start", "duration")
 _PLANE_KEYS = ("point", "normal", "stiffness", "friction")
@@ -256,19 +266,30 @@ def _simulation(top: _Table) -> Simulation:
 
 
 def mesh_source(text: str | Path, *, size: float | None = None,
-                base_dir: str | Path | None = None) -> MeshSource:
+                base_dir: str | Path | None = None, units: str = "m",
+                piece: int | str | None = None, fill_holes: bool = False) -> MeshSource:
     """The :class:`MeshSource` a command-line argument names: a built-in shape name, a
     user's gmsh script (``.py``) or a mesh file (any format of
     :func:`lbshape.geometry.mesh_files.read_mesh_file`), paths relative to
     ``base_dir`` (default: the current folder). The one resolver of ``lbshape mesh``,
     ``eigen`` and ``modes``; build the mesh with
-    :func:`lbshape.pipeline.meshes.build_mesh`.
+    :func:`lbshape.pipeline.meshes.build_mesh`. ``units``, ``piece`` and
+    ``fill_holes`` are the scene keys of a mesh file (docs/scenes.md).
 
     Raises:
         LbshapeError: an unknown name (listing the shapes), a missing file or script,
-            or a size that is not a finite positive length.
+            a size that is not a finite positive length, an unknown unit, or a file
+            option for a shape or script.
     """
     text = str(text)
+    if units not in LENGTH_UNITS:
+        raise LbshapeError(f"{text}: unknown units {units!r} (choose one of "
+                           f"{', '.join(LENGTH_UNITS)})")
+    options = {"units": units, "piece": piece, "fill_holes": fill_holes}
+    if (text in SHAPES or is_script_path(Path(text))) and (
+            units != "m" or piece is not None or fill_holes):
+        raise LbshapeError(f"{text}: units, piece and fill holes apply to mesh files, not "
+                           "to a built-in shape or gmsh script (which work in metres)")
     if size is not None and not (isinstance(size, int | float) and not isinstance(size, bool)
                                  and math.isfinite(size) and size > 0):
         raise LbshapeError(f"{text}: size must be a finite positive length in metres, "
@@ -285,7 +306,7 @@ def mesh_source(text: str | Path, *, size: float | None = None,
     if Path(text).suffix or path.exists():
         if not path.is_file():
             raise LbshapeError(f"mesh file not found: {path}")
-        return MeshSource(mesh_file=path.resolve(), size=size)
+        return MeshSource(mesh_file=path.resolve(), size=size, **options)
     raise LbshapeError(f"unknown shape '{text}' and no such file; give a built-in shape "
                        f"({', '.join(SHAPES)}), a gmsh script (.py) or a mesh file")
 
@@ -297,8 +318,10 @@ def _mesh_source(t: _Table, ctx: _Context) -> MeshSource:
         if "size" in t.data:
             raise ctx.error(f"'{t.key('size')}' applies to built-in shapes and surface "
                             "files, not to a mesh in memory")
+        _no_file_keys(t, ctx, "a mesh in memory (its points are already in metres)")
         return _memory_source(t, "mesh", ctx)
     if "shape" in t.data:
+        _no_file_keys(t, ctx, "a built-in shape or gmsh script (which work in metres)")
         shape = t.string("shape")
         size = t.number("size", None, low=0.0, open_low=True, unit="m")
         if is_script_path(shape):
@@ -315,10 +338,43 @@ def _mesh_source(t: _Table, ctx: _Context) -> MeshSource:
                         f"'{t.key('shape')}'")
     path = _mesh_path(t, "mesh", ctx)
     size = t.number("size", None, low=0.0, open_low=True, unit="m")
-    if size is not None and not is_surface_file(path) and not _rest_is_surface(t, ctx):
+    if size is not None and not takes_size(path) and not _rest_is_surface(t, ctx):
         raise ctx.error(f"'{t.key('size')}' applies to built-in shapes and surface files "
-                        f"({', '.join(SURFACE_FORMATS)}), not to the volume mesh {path.name}")
-    return MeshSource(mesh_file=path, size=size if is_surface_file(path) else None)
+                        f"({', '.join(SURFACE_FORMATS)}) or CAD files "
+                        f"({', '.join(CAD_FORMATS)}), not to the volume mesh {path.name}")
+    return MeshSource(mesh_file=path, size=size if takes_size(path) else None,
+                      **_file_options(t, ctx, path))
+
+
+def _no_file_keys(t: _Table, ctx: _Context, what: str) -> None:
+    for key in _FILE_KEYS:
+        if key in t.data:
+            raise ctx.error(f"'{t.key(key)}' applies to mesh files ('mesh'), not to {what}")
+
+
+def _file_options(t: _Table, ctx: _Context, path: Path) -> dict:
+    """``units``/``scale``, ``piece`` and ``fill_holes`` of a mesh file, checked."""
+    if "units" in t.data and "scale" in t.data:
+        raise ctx.error(f"'{t.path}' takes 'units' or 'scale' (metres per file unit), "
+                        "not both")
+    units = t.choice("units", "m", tuple(LENGTH_UNITS))
+    scale = t.number("scale", None, low=0.0, open_low=True)
+    piece = t.data.get("piece")
+    if piece is not None:
+        if not (is_surface_file(path) or is_cad_file(path)):
+            raise ctx.error(f"'{t.key('piece')}' applies to surface and CAD files, not to "
+                            f"the volume mesh {path.name}")
+        if piece != "largest" and (isinstance(piece, bool) or not isinstance(piece, int)
+                                   or piece < 0):
+            raise ctx.error(f"'{t.key('piece')}' must be a piece number (>= 0) or "
+                            f"\"largest\", got {piece!r}")
+    fill_holes = t.data.get("fill_holes", False)
+    if not isinstance(fill_holes, bool):
+        raise ctx.error(f"'{t.key('fill_holes')}' must be true or false, got {fill_holes!r}")
+    if fill_holes and not is_surface_file(path):
+        raise ctx.error(f"'{t.key('fill_holes')}' applies to surface files "
+                        f"({', '.join(SURFACE_FORMATS)}), not to {path.name}")
+    return {"units": units, "scale": scale, "piece": piece, "fill_holes": fill_holes}
 
 
 def _mesh_path(t: _Table, key: str, ctx: _Context) -> Path:
@@ -360,8 +416,8 @@ def _example_pose(t: _Table, ctx: _Context) -> ExamplePose:
         rest = _memory_source(t, "rest", ctx)
     elif "rest" in t.data:
         path = _mesh_path(t, "rest", ctx)
-        size = t.number("size", None) if is_surface_file(path) else None
-        rest = MeshSource(mesh_file=path, size=size)
+        size = t.number("size", None) if takes_size(path) else None
+        rest = MeshSource(mesh_file=path, size=size, **_file_options(t, ctx, path))
     parts = tuple(_posed_part(p, ctx) for p in t.array_of_tables("parts", _PART_KEYS))
     if parts and pose is not None:
         raise ctx.error(f"'{t.path}' takes 'pose' (the whole example) or 'parts' "

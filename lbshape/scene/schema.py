@@ -167,6 +167,12 @@ class MeshSource:
             (:func:`lbshape.geometry.shapes.build_script`), or ``None``.
         mesh: a checked :class:`~lbshape.geometry.mesh.TetMesh` in memory, or ``None``;
             compared and keyed by :attr:`mesh_digest` (its arrays' SHA-256).
+        units: a mesh file's length unit ("m", "mm", "cm", "in"; a STEP file converts
+            from its own).
+        scale: metres per number of a mesh file, instead of ``units`` (or ``None``).
+        piece: which piece of a surface or CAD file of several to keep (index, or
+            "largest"), or ``None`` (one piece required).
+        fill_holes: close the holes of an open surface file.
     """
 
     shape: str | None = None
@@ -175,6 +181,10 @@ class MeshSource:
     script: Path | None = None
     mesh: TetMesh | None = field(default=None, compare=False, repr=False)
     mesh_digest: str | None = field(default=None, init=False)
+    units: str = "m"
+    scale: float | None = None
+    piece: int | str | None = None
+    fill_holes: bool = False
 
     def __post_init__(self) -> None:
         if self.mesh is not None:
@@ -208,7 +218,19 @@ class MeshSource:
         if not self.mesh_file.is_file():
             raise LbshapeError(f"mesh file not found: {self.mesh_file}")
         key = {"mesh_sha256": file_digest(self.mesh_file)}
-        return key if self.size is None else {**key, "size": self.size}
+        if self.size is not None:
+            key["size"] = self.size
+        for name, default in (("units", "m"), ("scale", None), ("piece", None),
+                              ("fill_holes", False)):
+            if getattr(self, name) != default:  # keys of existing caches stay as they were
+                key[name] = getattr(self, name)
+        return key
+
+    @property
+    def read_options(self) -> dict:
+        """Keyword arguments of :func:`lbshape.geometry.mesh_files.read_mesh_file`."""
+        return {"size": self.size, "units": self.units, "scale": self.scale,
+                "piece": self.piece, "fill_holes": self.fill_holes}
 
 
 def mesh_arrays_digest(mesh: TetMesh) -> str:

@@ -33,6 +33,7 @@ API_NAMES = sorted([
 #: scenes, a run's files), not re-exported by ``import lbshape``
 BUILDING_BLOCKS = sorted([
     "RUN_FILES", "WARMUP_STEPS", "write_outputs",
+    "CAD_FORMATS", "LENGTH_UNITS",
     "Material", "SHAPES", "SURFACE_FORMATS", "build_mesh", "expand_scenes", "get_shape",
     "linear_modes", "mesh_source", "region_vertices", "run_collectively", "run_jobs",
     "summary_table", "write_mesh",
