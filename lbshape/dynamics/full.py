@@ -70,11 +70,13 @@ part of the potential) and the pull ``k (x_target − X_i)`` among the external 
 that Newton's residual is measured against the pull, not against the vanishing difference
 of the drag and the elastic force at rest.
 
-**Failure.** A non-finite state, a Newton failure, an energy blow-up or a failed
-target solve raises a :class:`~lbshape.errors.SolverError` from
-:meth:`FullSpaceSimulator.step` naming the step and time;
-:meth:`FullSpaceSimulator.run` returns the record of what was computed with
-``stable=False`` and the message.
+**Failure** (:mod:`lbshape.dynamics.sanity`). A non-finite state, a Newton failure, an
+energy blow-up, a failed target solve or, for a material that forbids inversion, an
+inverted element (det F ≤ 0 on any element of the accepted state) raises a
+:class:`~lbshape.errors.SolverError` from :meth:`FullSpaceSimulator.step` naming the step
+and time; :meth:`FullSpaceSimulator.run` returns the record of what was computed with
+``stable=False`` and the message with its likely cause (a load far beyond what the object
+carries, or a step coarse against ``omega_max``). How far the object moves never stops it.
 """
 
 from __future__ import annotations
@@ -101,6 +103,14 @@ from lbshape.dynamics.integrators import make_stepper
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.dynamics.rigid_frame import best_rigid_frame
+from lbshape.dynamics.sanity import (
+    failure_advice,
+    forbids_inversion,
+    full_load_reach,
+    inverted_message,
+    step_warnings,
+    with_advice,
+)
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.modes import rigid_body_modes
@@ -141,12 +151,16 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             (default :data:`FULL_NEWTON`: rtol 1e-8, 20 iterations; with friction or a free
             body's fitted example pull at least :data:`FRICTION_NEWTON_ITERATIONS`).
         contact: penalty contact with planes, or ``None``.
+        omega_max: the highest vibration frequency (rad/s) of the object's modes the
+            reduced basis holds, for the coarse-step warning (:attr:`warnings`) and the
+            failure advice; or ``None``.
 
     Attributes:
         free_dofs: (nf,) node-major indices of the free dofs (x = u[free_dofs]).
         elastic: the :class:`~lbshape.elastic.element_kernels.FullSpaceElasticity` of the mesh.
         mass: (3n, 3n) consistent mass in kg (CSR).
         stepper: the :mod:`lbshape.dynamics.integrators` stepper on the free dofs.
+        warnings: one-line set-up warnings (a coarse step), logged once when built.
         weights: (k,) example weights of the last step (``None`` before / without).
         target_coefficients: (3m,) target LB coefficients c* of the last step.
 
@@ -173,8 +187,12 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         target_tolerance: float = 1e-6,
         newton: NewtonSettings = FULL_NEWTON,
         contact: FullSpaceContact | None = None,
+        omega_max: float | None = None,
     ):
         n = mesh.n_vertices
+        self.omega_max = omega_max
+        self._inversion = forbids_inversion(material.model)  # det F <= 0 stops the run
+        self.warnings = step_warnings(omega_max, float(dt), log)
         self.newton, self.dt = newton, float(dt)
         self.contact = contact
         self._drag: Drag | None = None
@@ -249,7 +267,29 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             line_search=friction or fitted_pull,
             low_rank_tangent=(self._tangent_correction
                               if fitted_pull or self._corotated_beta else None),
+            check_state=self._check_inversion if self._inversion else None,
         )
+
+    def _check_inversion(self, x: np.ndarray, index: int, t: float) -> None:
+        """Refuse a state x (free dofs) with an inverted element (det F ≤ 0)."""
+        u = self.full_displacement(x)[self.mesh.tets]
+        jacobians = self.elastic.kernel.jacobians(u)
+        worst = int(np.argmin(jacobians))
+        if not jacobians[worst] > 0.0:
+            raise SolverError(inverted_message(index, t, float(jacobians[worst]),
+                                               f"element {worst}"))
+
+    def _stop_message(self, error: Exception) -> str:
+        """``error`` with its likely cause (:func:`~lbshape.dynamics.sanity.failure_advice`;
+        the loads' linear static displacements need one sparse solve: only once stopped)."""
+        t = self.time + self.dt
+        reach = None
+        if len(self._load_profiles) and self.fixed_vertices.size:
+            K0 = self._restrict(self.elastic.tangent(np.zeros(3 * self.n_vertices)))
+            reach = full_load_reach(K0, self._load_patterns, self.free_dofs, self.mesh.points)
+        return with_advice(str(error), failure_advice(
+            reach=reach, scales=[profile(t) for profile in self._load_profiles],
+            omega_max=self.omega_max, dt=self.dt))
 
     # ----------------------------------------------------------------- set-up
     def _check_loads(self, loads: Sequence[TimedLoad]):
@@ -583,8 +623,9 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             try:
                 iterations = self.step()
             except SolverError as exc:
-                log.error("full-space simulation stopped: %s", exc)
-                return recorder.record(stable=False, message=str(exc),
+                message = self._stop_message(exc)
+                log.error("full-space simulation stopped: %s", message)
+                return recorder.record(stable=False, message=message,
                                        max_displacement=max_disp)
             u = self.full_displacement()
             max_disp = max(max_disp, _max_norm(u))
