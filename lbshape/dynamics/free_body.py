@@ -43,10 +43,9 @@ contact's part of the step lives.
 
 Without loads and contact p and L are conserved to round-off (they change only by
 impulses) and R stays on SO(3) (Cayley map). Failures — Newton, a non-finite state,
-an energy blow-up (total energy above :data:`~lbshape.dynamics.sanity.ENERGY_FACTOR` × the
-initial energy plus the absolute work of loads and contact), an inverted cubature element
-of a material that forbids inversion, a rotation step too large for the spin, or a vertex
-pushed through a plane by more than the body's radius — raise
+energy above :data:`~lbshape.dynamics.sanity.ENERGY_FACTOR` × the initial energy plus the
+work of loads and contact, an inverted cubature element (Neo-Hookean), a rotation step too
+large for the spin, a vertex pushed through a plane by more than the body's radius — raise
 :class:`~lbshape.errors.SolverError` naming the step; :meth:`FreeBodySimulation.run`
 turns it into ``stable = False`` with the message. The energy monitor tracks the
 elastic energy by the trapezoidal work of the elastic force, ``E(q₁) ≈ E(q₀) +
@@ -117,11 +116,7 @@ from lbshape.dynamics.free_body_kernels import (
     trial,
 )
 from lbshape.dynamics.free_body_loads import FreeLoad, LoadStack
-from lbshape.dynamics.free_body_record import (
-    FreeBodyRecord,
-    FreeBodyRecorder,
-    world_displacements,
-)
+from lbshape.dynamics.free_body_record import FreeBodyRecord, FreeBodyRecorder, world_displacements
 from lbshape.dynamics.integrators import Scheme, get_scheme
 from lbshape.dynamics.kernels import axpy, lu_solve, predict
 from lbshape.dynamics.kernels import norm as _norm
@@ -174,8 +169,9 @@ class FreeBodySimulation(FreeBodyContact):
             (optional).
         reuse_contact: reuse the previous step's last contact evaluation at the start
             of a step (same configuration; ``False`` evaluates it again, for checks).
-        omega_max: the basis's highest vibration frequency (rad/s) for the coarse-step
-            warning (:attr:`warnings`) and the failure advice, or ``None``.
+        omega_max, load_reach: the basis's highest vibration frequency (rad/s) and the
+            loads' reach for the coarse-step warning and the stop message, as
+            :class:`~lbshape.dynamics.reduced.ReducedSimulation`'s; or ``None``.
 
     Attributes:
         q, qd, qa: (r,) deformation, its rate and acceleration at :attr:`time`.
@@ -206,7 +202,7 @@ class FreeBodySimulation(FreeBodyContact):
         newton: NewtonSettings = REALTIME_NEWTON,
         rest_points: np.ndarray | None = None,
         reuse_contact: bool = True,
-        omega_max: float | None = None,
+        omega_max: float | None = None, load_reach=None,
         basis: np.ndarray | None = None,
     ):
         self.rest_points = None if rest_points is None else np.asarray(rest_points, dtype=float)
@@ -224,11 +220,9 @@ class FreeBodySimulation(FreeBodyContact):
         self.k_ex = float(k_ex) if self.driver is not None else 0.0
         self._in_place = self.driver is not None and hasattr(self.driver, "weights_into") \
             and hasattr(self.driver, "target_from_weights_into")
-        self.contact = contact
-        self.reuse_contact = bool(reuse_contact)
-        self.omega_max = omega_max
-        model = getattr(getattr(elastic, "material", None), "model", None)
-        self._inversion = sanity.forbids_inversion(model)  # det F <= 0 stops the run
+        self.contact, self.reuse_contact = contact, bool(reuse_contact)
+        self.omega_max, self.load_reach = omega_max, load_reach
+        self._inversion = sanity.checks_inversion(elastic)  # det F <= 0 stops the run
         self.warnings = sanity.step_warnings(omega_max, self.dt, log)
         self.newton = newton
         self.basis = None if basis is None else np.asarray(basis, dtype=float)
@@ -691,11 +685,9 @@ class FreeBodySimulation(FreeBodyContact):
             try:
                 iterations = self.step()
             except SolverError as exc:
-                message = sanity.reduced_stop_message(
-                    exc, self.elastic, patterns=[load.rest_pattern for load in self.loads],
-                    newtons=[load.newtons for load in self.loads], basis=self.basis,
-                    scales=[load.profile(self.time + self.dt) for load in self.loads],
-                    rest_points=self.rest_points, omega_max=self.omega_max, dt=self.dt)
+                scales = [load.profile(self.time + self.dt) for load in self.loads]
+                message = sanity.stop_message(exc, load_reach=self.load_reach, scales=scales,
+                                              omega_max=self.omega_max, dt=self.dt)
                 log.error("free-body simulation stopped: %s", message)
                 return recorder.record(stable=False, message=message)
             np.subtract(marks[1:], marks[:-1], out=phases[index])

@@ -24,7 +24,6 @@ class FreeLoad:
         Z0: (3, 3) ``Σ_i X̄_id f_ia`` (N·m), indices [d, a].
         Z1: (r, 3, 3) ``Σ_i U_idj f_ia``, indices [j, d, a].
         profile: time profile.
-        newtons: the sum of the nodal force magnitudes (N), for the failure advice.
     """
 
     force: np.ndarray
@@ -32,7 +31,6 @@ class FreeLoad:
     Z0: np.ndarray
     Z1: np.ndarray
     profile: TimeProfile
-    newtons: float = 0.0
 
     @classmethod
     def from_pattern(cls, pattern: np.ndarray, U: np.ndarray, body_points: np.ndarray,
@@ -44,13 +42,7 @@ class FreeLoad:
         loaded = np.flatnonzero(np.abs(f).sum(axis=1))
         f, Ur, X = f[loaded], Ur[loaded], body_points[loaded]
         return cls(f.sum(axis=0), np.einsum("ibj,ia->jba", Ur, f), X.T @ f,
-                   np.einsum("idj,ia->jda", Ur, f), profile,
-                   float(np.linalg.norm(f, axis=1).sum()))
-
-    @property
-    def rest_pattern(self) -> np.ndarray:
-        """(r,) the generalized force ``Uᵀ f`` at rest (R = I, q = 0)."""
-        return np.einsum("jaa->j", self.P)
+                   np.einsum("idj,ia->jda", Ur, f), profile)
 
     def evaluate(self, rotation: np.ndarray, q: np.ndarray, t: float):
         """``(force (3,) world, torque about c (3,) world, generalized (r,))`` at t."""

@@ -104,12 +104,10 @@ from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.dynamics.rigid_frame import best_rigid_frame
 from lbshape.dynamics.sanity import (
-    failure_advice,
     forbids_inversion,
-    full_load_reach,
     inverted_message,
     step_warnings,
-    with_advice,
+    stop_message,
 )
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
@@ -154,6 +152,8 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         omega_max: the highest vibration frequency (rad/s) of the object's modes the
             reduced basis holds, for the coarse-step warning (:attr:`warnings`) and the
             failure advice; or ``None``.
+        load_reach: ``() -> LoadReach | None`` for the failure advice (loads in order,
+            evaluated only once a run stopped), or ``None``.
 
     Attributes:
         free_dofs: (nf,) node-major indices of the free dofs (x = u[free_dofs]).
@@ -188,9 +188,10 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         newton: NewtonSettings = FULL_NEWTON,
         contact: FullSpaceContact | None = None,
         omega_max: float | None = None,
+        load_reach=None,
     ):
         n = mesh.n_vertices
-        self.omega_max = omega_max
+        self.omega_max, self.load_reach = omega_max, load_reach
         self._inversion = forbids_inversion(material.model)  # det F <= 0 stops the run
         self.warnings = step_warnings(omega_max, float(dt), log)
         self.newton, self.dt = newton, float(dt)
@@ -278,18 +279,6 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         if not jacobians[worst] > 0.0:
             raise SolverError(inverted_message(index, t, float(jacobians[worst]),
                                                f"element {worst}"))
-
-    def _stop_message(self, error: Exception) -> str:
-        """``error`` with its likely cause (:func:`~lbshape.dynamics.sanity.failure_advice`;
-        the loads' linear static displacements need one sparse solve: only once stopped)."""
-        t = self.time + self.dt
-        reach = None
-        if len(self._load_profiles) and self.fixed_vertices.size:
-            K0 = self._restrict(self.elastic.tangent(np.zeros(3 * self.n_vertices)))
-            reach = full_load_reach(K0, self._load_patterns, self.free_dofs, self.mesh.points)
-        return with_advice(str(error), failure_advice(
-            reach=reach, scales=[profile(t) for profile in self._load_profiles],
-            omega_max=self.omega_max, dt=self.dt))
 
     # ----------------------------------------------------------------- set-up
     def _check_loads(self, loads: Sequence[TimedLoad]):
@@ -623,7 +612,9 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             try:
                 iterations = self.step()
             except SolverError as exc:
-                message = self._stop_message(exc)
+                message = stop_message(
+                    exc, load_reach=self.load_reach, omega_max=self.omega_max, dt=self.dt,
+                    scales=[profile(self.time + self.dt) for profile in self._load_profiles])
                 log.error("full-space simulation stopped: %s", message)
                 return recorder.record(stable=False, message=message,
                                        max_displacement=max_disp)

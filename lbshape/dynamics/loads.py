@@ -60,14 +60,10 @@ class TimedLoad:
         pattern: (p,) generalized forces: nodal forces (3n,) in N, node-major, for the
             full-space engine; their projection ``Uᵀ f`` (r,) for the reduced engine.
         profile: its time profile.
-        newtons: the load at profile 1 as the sum of its nodal force magnitudes (N), for
-            the failure advice of an engine whose pattern is projected (reduced); ``None``:
-            unknown (the full engine measures its own patterns).
     """
 
     pattern: np.ndarray
     profile: TimeProfile
-    newtons: float | None = None
 
 
 def gravity_pattern(mass: sp.spmatrix, acceleration: np.ndarray) -> np.ndarray:

@@ -76,10 +76,10 @@ from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.dynamics.sanity import (
     ENERGY_FACTOR,
-    forbids_inversion,
+    checks_inversion,
     inverted_message,
-    reduced_stop_message,
     step_warnings,
+    stop_message,
 )
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
@@ -133,6 +133,9 @@ class ReducedSimulation:
             :data:`~lbshape.dynamics.sanity.ENERGY_FACTOR`); ``None`` disables it.
         omega_max: the highest vibration frequency the basis holds (rad/s; the largest
             linear mode's), for the coarse-step warning and the failure advice; or ``None``.
+        load_reach: ``() -> LoadReach | None``, the loads' linear static strains
+            (:class:`~lbshape.dynamics.sanity.LoadReach`, loads in order), evaluated only
+            once a run stopped, for the failure advice; or ``None``.
         basis: (3n, r) the basis U (m per unit of q), for :meth:`displacement` and
             :meth:`set_drag`; optional.
         rest_points: (n, 3) the rest positions X (m), for :meth:`set_drag`; optional.
@@ -167,6 +170,7 @@ class ReducedSimulation:
         newton: NewtonSettings = REALTIME_NEWTON,
         energy_factor: float | None = ENERGY_FACTOR,
         omega_max: float | None = None,
+        load_reach=None,
         basis: np.ndarray | None = None,
         rest_points: np.ndarray | None = None,
     ):
@@ -194,8 +198,8 @@ class ReducedSimulation:
         self._examples = (self.driver, self.k_ex)  # the configured example force
         self.energy_factor = energy_factor
         self.omega_max = None if omega_max is None else float(omega_max)
-        model = getattr(getattr(elastic, "material", None), "model", None)
-        self._inversion = forbids_inversion(model)  # det F <= 0 stops the run
+        self.load_reach = load_reach
+        self._inversion = checks_inversion(elastic)  # det F <= 0 stops the run
         self.warnings = step_warnings(self.omega_max, h, log)
         # [c_a/h², k_v/h, k_a, c_v/h, j_v, k_ex]: the scheme's step rates and the spring
         rates = scheme.step_rates(h)
@@ -569,11 +573,9 @@ class ReducedSimulation:
             try:
                 iterations = self.step()
             except SolverError as exc:
-                message = reduced_stop_message(
-                    exc, self.elastic, patterns=self._patterns,
-                    newtons=[load.newtons for load in self.loads], basis=self.basis,
-                    scales=[profile(self.time + self.dt) for profile in self._profiles],
-                    rest_points=self.rest_points, omega_max=self.omega_max, dt=self.dt)
+                message = stop_message(
+                    exc, load_reach=self.load_reach, omega_max=self.omega_max, dt=self.dt,
+                    scales=[profile(self.time + self.dt) for profile in self._profiles])
                 log.error("reduced simulation stopped: %s", message)
                 return recorder.record(stable=False, message=message)
             row = phases[index]

@@ -17,8 +17,8 @@ or thrown object moves by more than its own size):
   element; a reduced engine its cubature elements (s-sized, no n-sized work per step).
 
 When a run stops, :func:`failure_advice` names the likely cause: a load far beyond what
-the object carries (:class:`LoadReach`: the load at which the linear stiffness moves
-the object by its own size, a strain of order 1), or a step that is coarse against the
+the object carries (:class:`LoadReach`: the load at which the linear stiffness strains
+the object by 100 %), or a step that is coarse against the
 highest frequency the basis holds (:func:`coarse_step`); "lower dt" only in the latter
 case.
 """
@@ -30,8 +30,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 #: blow-up factor of the energy monitors: a state holding more than this many times the
 #: energy made available stops the run (see the module docstring)
@@ -42,16 +40,21 @@ INVERSION_FORBIDDEN: tuple[str, ...] = ("neohookean",)
 #: highest vibration mode the basis holds (Nyquist, ω dt = π); Newmark keeps such a mode
 #: bounded but lengthens its period by more than half (``ωΔt / (2 atan(ωΔt/2))`` = 1.57)
 COARSE_STEP = math.pi
-#: a load whose linear static displacement reaches this many times the object's size is
-#: far beyond what the object carries: at 1 (a strain of order 1, 100 %) the linear
-#: estimate is the object's capacity, and loads a buckled bar legitimately carries reach
-#: 1.4-2.4 of it (the slender bar of tests/dynamics/test_sanity.py folding at 300-800 N)
-LOAD_BEYOND = 3.0
+#: a load whose linear static strain (the largest element's) reaches this is far beyond
+#: what the object carries: 100 % strain, where linear elasticity has long stopped holding
+#: and a compressed element would have collapsed (J = 0)
+LOAD_BEYOND = 1.0
 
 
 def forbids_inversion(model: str | None) -> bool:
     """True for a material model whose elements cannot invert (:data:`INVERSION_FORBIDDEN`)."""
     return model in INVERSION_FORBIDDEN
+
+
+def checks_inversion(elastic) -> bool:
+    """True when the material of a reduced force model (its ``material``) forbids
+    inversion: the engine then checks det F of its cubature elements each step."""
+    return forbids_inversion(getattr(getattr(elastic, "material", None), "model", None))
 
 
 def inverted_message(index: int, t: float, jacobian: float, where: str) -> str:
@@ -79,42 +82,33 @@ class LoadReach:
 
     Attributes:
         newtons: (L,) each load at profile 1: the sum of its nodal force magnitudes (N).
-        reach: (L,) its linear static displacement at profile 1 (largest vertex
-            displacement ``K₀⁻¹ f``) over the object's size (bounding-box diagonal); 1
-            means the load moves the object by its own size, a strain of order 1.
+        strains: (L,) the largest element strain (Frobenius norm of the symmetric
+            displacement gradient) of its linear static displacement ``K₀⁻¹ f`` at
+            profile 1; 1 is a strain of 100 %.
     """
 
     newtons: tuple[float, ...]
-    reach: tuple[float, ...]
-
-    @classmethod
-    def from_static(cls, newtons: Sequence[float], displacements: Sequence[float],
-                    size: float) -> LoadReach:
-        """From each load's force (N) and largest linear static displacement (m), and the
-        object's size (m)."""
-        return cls(tuple(float(n) for n in newtons),
-                   tuple(float(d) / float(size) for d in displacements))
+    strains: tuple[float, ...]
 
     def beyond(self, scales: Sequence[float]) -> str | None:
         """The advice for loads at ``scales`` (each profile's value at the failing step)
         when one is far beyond what the object carries (:data:`LOAD_BEYOND`), else
         ``None``."""
-        worst, worst_ratio = None, 0.0
-        for index, (newtons, reach, scale) in enumerate(
-                zip(self.newtons, self.reach, scales, strict=True)):
-            ratio = abs(float(scale)) * reach
-            if newtons > 0 and reach > 0 and ratio > worst_ratio:
-                worst, worst_ratio = index, ratio
-        if worst is None or worst_ratio < LOAD_BEYOND:
+        worst, worst_strain = None, 0.0
+        for index, (newtons, strain, scale) in enumerate(
+                zip(self.newtons, self.strains, scales, strict=True)):
+            acting = abs(float(scale)) * strain
+            if newtons > 0 and strain > 0 and acting > worst_strain:
+                worst, worst_strain = index, acting
+        if worst is None or worst_strain < LOAD_BEYOND:
             return None
         acting = abs(float(scales[worst])) * self.newtons[worst]
-        capacity = self.newtons[worst] / self.reach[worst]
+        capacity = self.newtons[worst] / self.strains[worst]
         peak = "" if math.isclose(acting, self.newtons[worst], rel_tol=1e-3) else (
             f" at this step, of {self.newtons[worst]:.3g} N")
         return (f"the load ({acting:.3g} N{peak}) is far beyond what the object carries "
-                f"(~{capacity:.3g} N at 100 % strain: its linear stiffness would move it "
-                f"{worst_ratio:.3g} times its own size); lower the load or stiffen the "
-                "material")
+                f"(~{capacity:.3g} N at 100 % strain: its linear stiffness would strain it "
+                f"{100 * worst_strain:.3g} %); lower the load or stiffen the material")
 
 
 def failure_advice(*, reach: LoadReach | None, scales: Sequence[float],
@@ -136,33 +130,18 @@ def with_advice(message: str, advice: str) -> str:
     return f"{message}; likely cause: {advice}" if advice else message
 
 
-def object_size(points: np.ndarray) -> float:
-    """The bounding-box diagonal (m) of rest positions (n, 3)."""
-    points = np.asarray(points, dtype=float)
-    return float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+def stop_message(error: Exception, *, load_reach, scales: Sequence[float],
+                 omega_max: float | None, dt: float) -> str:
+    """An engine's stop message: ``error`` with its likely cause (:func:`failure_advice`).
 
-
-def total_force(pattern: np.ndarray) -> float:
-    """The sum of the nodal force magnitudes (N) of a pattern (3n,)."""
-    return float(np.linalg.norm(np.asarray(pattern, dtype=float).reshape(-1, 3), axis=1).sum())
-
-
-def reduced_load_reach(K0: np.ndarray, patterns: Sequence[np.ndarray],
-                       newtons: Sequence[float | None], basis: np.ndarray | None,
-                       rest_points: np.ndarray | None) -> LoadReach | None:
-    """The :class:`LoadReach` of reduced loads (patterns ``Uᵀ f`` (r,), each load's force in
-    N or None) under the reduced rest tangent K0 (r, r); None without the basis, the rest
-    points or the loads' forces (for failure messages: n-sized, never in a step)."""
-    if basis is None or rest_points is None or not patterns or any(n is None for n in newtons):
-        return None
-    try:
-        static = np.linalg.solve(np.asarray(K0, dtype=float),
-                                 np.array(patterns, dtype=float).T)  # (r, L)
-    except np.linalg.LinAlgError:
-        return None
-    moved = (np.asarray(basis) @ static).reshape(-1, 3, static.shape[1])
-    largest = np.linalg.norm(moved, axis=1).max(axis=0)
-    return LoadReach.from_static(newtons, largest, object_size(rest_points))
+    Args:
+        load_reach: ``() -> LoadReach | None`` (the engine's loads in order; evaluated
+            only here, once a run stopped: it may do n-sized work), or ``None``.
+        scales: each load's profile value at the failing step.
+    """
+    reach = load_reach() if load_reach is not None else None
+    return with_advice(str(error), failure_advice(reach=reach, scales=scales,
+                                                  omega_max=omega_max, dt=dt))
 
 
 def step_warnings(omega_max: float | None, dt: float, logger) -> tuple[str, ...]:
@@ -175,33 +154,15 @@ def step_warnings(omega_max: float | None, dt: float, logger) -> tuple[str, ...]
     return warnings
 
 
-def reduced_stop_message(error: Exception, elastic, *, patterns: Sequence[np.ndarray],
-                         newtons: Sequence[float | None], scales: Sequence[float],
-                         basis: np.ndarray | None, rest_points: np.ndarray | None,
-                         omega_max: float | None, dt: float) -> str:
-    """A reduced engine's stop message: ``error`` with the likely cause
-    (:func:`failure_advice`; the loads' reach under the rest tangent of ``elastic``, whose
-    ``force_and_tangent`` gives it; n-sized, only once a run stopped)."""
-    reach = None
-    if len(patterns):
-        _, K0 = elastic.force_and_tangent(np.zeros(np.shape(patterns[0])[0]))
-        reach = reduced_load_reach(K0, patterns, newtons, basis, rest_points)
-    return with_advice(str(error), failure_advice(reach=reach, scales=scales,
-                                                  omega_max=omega_max, dt=dt))
+def total_force(pattern: np.ndarray) -> float:
+    """The sum of the nodal force magnitudes (N) of a pattern (3n,)."""
+    return float(np.linalg.norm(np.asarray(pattern, dtype=float).reshape(-1, 3), axis=1).sum())
 
 
-def full_load_reach(K0: sp.spmatrix, patterns: np.ndarray, free_dofs: np.ndarray,
-                    points: np.ndarray) -> LoadReach | None:
-    """The :class:`LoadReach` of full-space loads (patterns (L, nf) in N on the free dofs
-    ``free_dofs`` of the points (n, 3)) under the rest tangent K0 (nf, nf) restricted to
-    them; None when K0 is singular (one sparse solve: only once a run stopped)."""
-    patterns = np.atleast_2d(np.asarray(patterns, dtype=float))
-    try:
-        static = spla.splu(sp.csc_matrix(K0)).solve(np.ascontiguousarray(patterns.T))
-    except RuntimeError:
-        return None
-    moved = np.zeros((3 * len(points), patterns.shape[0]))
-    moved[free_dofs] = static.reshape(len(free_dofs), -1)
-    largest = np.linalg.norm(moved.reshape(len(points), 3, -1), axis=1).max(axis=0)
-    return LoadReach.from_static([total_force(p) for p in patterns], largest,
-                                 object_size(points))
+def largest_strain(kernel, displacements: np.ndarray) -> float:
+    """The largest element strain ``‖sym(F − I)‖_F`` of element displacements (e, 4, 3)
+    (m) under an :class:`~lbshape.elastic.element_kernels.ElementKernel`."""
+    H = kernel.deformation_gradient(displacements)
+    H.reshape(-1, 9)[:, ::4] -= 1.0
+    strain = 0.5 * (H + H.transpose(0, 2, 1))
+    return float(np.sqrt((strain**2).sum(axis=(1, 2))).max())
