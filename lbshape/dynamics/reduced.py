@@ -196,11 +196,7 @@ class ReducedSimulation:
         self.basis = None if basis is None else np.asarray(basis, dtype=float)
         self.rest_points = None if rest_points is None else np.asarray(rest_points, dtype=float)
         self._examples = (self.driver, self.k_ex)  # the configured example force
-        self.energy_factor = energy_factor
-        self.omega_max = None if omega_max is None else float(omega_max)
-        self.load_reach = load_reach
-        self._inversion = checks_inversion(elastic)  # det F <= 0 stops the run
-        self.warnings = step_warnings(self.omega_max, h, log)
+        self._setup_checks(energy_factor, omega_max, load_reach)
         # [c_a/h², k_v/h, k_a, c_v/h, j_v, k_ex]: the scheme's step rates and the spring
         rates = scheme.step_rates(h)
         self._coefficients = np.array([*rates, self.k_ex])
@@ -219,8 +215,7 @@ class ReducedSimulation:
         self._f, self._K = np.zeros(r), np.zeros((r, r))
         self._R, self._J = np.zeros(r), np.zeros((r, r))
         self._norms = np.zeros(4)
-        self.time = 0.0
-        self.steps_taken = 0
+        self.time, self.steps_taken = 0.0, 0
         self.phase_seconds = np.zeros((0, len(PHASES)))
         self._clock = time.perf_counter
         self._marks = np.zeros(len(PHASES) + 1)
@@ -228,19 +223,24 @@ class ReducedSimulation:
         self._external_into(0.0, self._fext)
         self.a[:] = self._fext
         self._fext_old[:] = self._fext
-        self._work = 0.0
-        self._initial_energy = 0.0
-        #: elastic (+ contact, drag) potential at x, tracked by the trapezoidal work of
-        #: its force and made exact whenever the energy monitor computes it
-        self._held_energy = 0.0
+        self._work, self._initial_energy = 0.0, 0.0
         self._f_norm = 0.0
         self.last_residual = 0.0
         # force and tangent at the start of the step (the linearisation of the first update)
         self._f_start, self._K_start = np.zeros(r), np.zeros((r, r))
         self._force_and_tangent(self.x)
         self._f_start[:], self._K_start[:] = self._f, self._K
-        self._held_energy = self._potential(self.x)  # contact at rest (the spring: 0 at x = 0)
+        self._held_energy = self._potential(self.x)  # tracked by _finish's energy monitor
         self._initial = self.state
+
+    def _setup_checks(self, energy_factor: float | None, omega_max: float | None,
+                      load_reach) -> None:
+        """The divergence checks and the warnings (see the constructor's arguments)."""
+        self.energy_factor = energy_factor
+        self.omega_max = None if omega_max is None else float(omega_max)
+        self.load_reach = load_reach
+        self._inversion = checks_inversion(self.elastic)  # det F <= 0 stops the run
+        self.warnings = step_warnings(self.omega_max, self.dt, log)
 
     @property
     def driver(self):
@@ -518,9 +518,10 @@ class ReducedSimulation:
             if not jacobian > 0.0:
                 raise SolverError(inverted_message(index, t1, jacobian, "a cubature element"))
         work = self._work + abs(0.5 * _dot_sum(self._fext_old, self._fext, self._dx))
-        # the potential of the forces in f (elastic, contact, drag) by the trapezoidal work
-        # of f: f(x₀) is in _f and f(x₁) in _f_start after a converged step; the fixed
-        # updates (studies) never evaluate f(x₁): their potential is computed exactly
+        # _held_energy: the potential of the forces in f (elastic, contact, drag; not the
+        # example spring), tracked by the trapezoidal work of f and made exact whenever the
+        # monitor computes it: f(x₀) is in _f and f(x₁) in _f_start after a converged step;
+        # the fixed updates (studies) never evaluate f(x₁): their potential is exact
         exact = self.newton_iterations is not None
         held = self._held_energy + 0.5 * _dot_sum(self._f, self._f_start, self._dx)
         if exact:

@@ -112,11 +112,10 @@ class ReducedForceModel:
         s, r = elements.size, U.shape[1]
         element_tets = tets[elements]
         self.kernel = ElementKernel(points, element_tets, material)
-        self.material = material
+        self.material = material  # its model decides whether the engines check inversion
         self.elements = elements.astype(np.int64)
         self.weights = weights.copy()
-        self.n_coordinates = r
-        self.n_elements = s
+        self.n_coordinates, self.n_elements = r, s
         dofs = (3 * element_tets[:, :, None].astype(np.int64) + np.arange(3)).reshape(s, 12)
         self.element_basis = np.ascontiguousarray(U[dofs])  # (s, 12, r)
         self._density = density_model(material)
@@ -132,8 +131,6 @@ class ReducedForceModel:
         )  # (r, 9s)
         self._wv = wv
         self._jit = density_parameters(material)
-        self._h_check = np.empty(9 * s)  # H of min_jacobian_into (no allocation per call)
-        self._h_check_view = self._h_check.reshape(9, s)
         self.has_tangent = bool(tangent)
         if not tangent:
             return
@@ -213,6 +210,9 @@ class ReducedForceModel:
 
     def min_jacobian_into(self, q: np.ndarray) -> float:
         """:meth:`min_jacobian` for the run-time step: no allocation, no checks (s-sized)."""
+        if not hasattr(self, "_h_check"):  # H (9s,) and its (9, s) view, made once
+            self._h_check = np.empty(9 * self.n_elements)
+            self._h_check_view = self._h_check.reshape(9, self.n_elements)
         np.dot(self._bu_k, q, out=self._h_check)
         return float(min_jacobian_of_gradients(self._h_check_view))
 
