@@ -200,7 +200,8 @@ def test_simulate_command_writes_contract_outputs(tmp_path, capsys):
     # the demo has examples: the contract keys, then the example influence
     assert list(stats) == ["scene", "method", "n_vertices", "n_tets", "m", "r", "s", "dt",
                            "steps", "t_interp_ms", "t_total_ms", "stable", "max_displacement",
-                           "phase_ms", "forces", *STATS_KEYS]
+                           "phase_ms", "forces", "warnings", *STATS_KEYS]
+    assert stats["warnings"] == []
     assert stats["example_influence"] > 0.0
     assert json.loads((out / "stats.json").read_text()) == stats
     assert (out / "trajectory.pvd").exists() and stats["steps"] == 20
