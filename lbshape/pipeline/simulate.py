@@ -47,7 +47,6 @@ from lbshape.dynamics.full import (
 from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord
 from lbshape.dynamics.reduced import PHASES, REALTIME_NEWTON, ReducedSimulation
-from lbshape.dynamics.sanity import coarse_step
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.polynomial_forces import PolynomialForceModel
 from lbshape.elastic.reduced_forces import ReducedForceModel
@@ -60,7 +59,7 @@ from lbshape.io.atomic import (
     write_npz_atomic,
 )
 from lbshape.io.trajectory import TrajectoryWriter
-from lbshape.pipeline.diagnosis import load_reach
+from lbshape.pipeline.diagnosis import basis_omega_max, load_reach, run_warnings
 from lbshape.pipeline.influence import STATS_KEYS, Influence, compare_runs, has_example_force
 from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.responses import mesh_load_patterns
@@ -179,13 +178,6 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
         newton=newton, omega_max=basis_omega_max(pre), load_reach=load_reach(scene, pre),
         basis=pre.U, rest_points=pre.mesh.points,
     )
-
-
-def basis_omega_max(pre: Precomputed) -> float | None:
-    """The highest vibration frequency the basis holds (rad/s): its largest linear mode's
-    (the coarse-step warning and the failure advice, :mod:`lbshape.dynamics.sanity`)."""
-    omega2 = np.asarray(pre.elastic.omega2, dtype=float)
-    return float(math.sqrt(omega2.max())) if omega2.size and omega2.max() > 0 else None
 
 
 def reduced_force_model(pre: Precomputed, *, exact_forces: bool = False):
@@ -332,7 +324,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "t_interp_ms": t_interp, "t_total_ms": t_total,
         "stable": bool(record.stable), "max_displacement": max_disp, "phase_ms": phase_ms,
         "forces": "full" if method == "full" else pre.elastic.force_model,
-        "warnings": [w for w in (coarse_step(basis_omega_max(pre), scene.simulation.dt),) if w],
+        "warnings": run_warnings(scene, pre),
     }
     totals = record.t_total_ms[WARMUP_STEPS:] if record.steps > WARMUP_STEPS else record.t_total_ms
     output = SimulationOutput(stats, record.times, frames, record.message, phase_ms=phase_ms,

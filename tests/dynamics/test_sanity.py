@@ -145,6 +145,11 @@ def test_energy_beyond_the_work_done_stops_the_run():
     record = reduced_simulation(scene, pre, newton_iterations=1).run(30)
     assert not record.stable
     _one_line_at_step(record.message, rf"energy blew up at step \d+ .* {ENERGY_FACTOR:g} x budget")
+    # StVK may invert: a load far beyond the bar's capacity runs, with a warning
+    crushed = simulate(bar_scene(1e6, model="stvk", steps=3), pre, method="reduced")
+    assert crushed.stats["stable"]
+    assert [w for w in crushed.stats["warnings"] if w.startswith(
+        "at its peak the load (1e+06 N) is far beyond what the object carries (~")]
 
 
 def test_an_inverted_neo_hookean_element_stops_naming_the_step_and_the_load(bar):

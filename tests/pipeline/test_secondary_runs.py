@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import textwrap
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -22,7 +23,7 @@ from lbshape.pipeline.influence import STATS_KEYS
 from lbshape.pipeline.precompute import precompute
 from lbshape.scene import load_scene
 from lbshape.scene.variants import without_examples
-from lbshape.studies import bench
+from lbshape.studies import bench, tables
 
 BAR = """
 [object]
@@ -106,6 +107,9 @@ def test_a_stopped_influence_run_leaves_the_result_and_the_reason(tmp_path, monk
     (method, row), = effects
     assert method == "reduced" and all(row[key] is None for key in STATS_KEYS)
     assert row["influence_message"] == "the reduced run without examples stopped: at step 7"
+    table = tables._influence_rows(SimpleNamespace(scene="held", influence=effects))
+    assert table == ["| held | reduced | unavailable: the reduced run without examples stopped: "
+                     "at step 7 | — | — | — | — | — |"]
 
 
 def _failing_influence(*args, **kwargs):
