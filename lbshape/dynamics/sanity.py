@@ -25,6 +25,7 @@ case.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -139,7 +140,12 @@ def stop_message(error: Exception, *, load_reach, scales: Sequence[float],
             only here, once a run stopped: it may do n-sized work), or ``None``.
         scales: each load's profile value at the failing step.
     """
-    reach = load_reach() if load_reach is not None else None
+    reach = None
+    if load_reach is not None:
+        try:
+            reach = load_reach()
+        except Exception as exc:  # the advice never hides the failure it explains
+            logging.getLogger(__name__).debug("no load advice: %s", exc)
     return with_advice(str(error), failure_advice(reach=reach, scales=scales,
                                                   omega_max=omega_max, dt=dt))
 

@@ -312,8 +312,9 @@ def test_scene_adapter_reports_a_divergence_as_unstable_with_the_partial_run(bar
         damping=SimpleNamespace(alpha=0.0, beta=0.0),
     )
     pre = SimpleNamespace(mesh=mesh, material=mat, fixed_vertices=bar.fixed, has_examples=True,
-                          eigenvalues=bar.lam, eigenvectors=bar.phi,
-                          example_coefficients=c1[None])
+                          shape=SimpleNamespace(eigenvalues=bar.lam, eigenvectors=bar.phi),
+                          examples=SimpleNamespace(example_coefficients=c1[None]),
+                          elastic=SimpleNamespace(omega2=np.zeros(0)))
     record = run_full_space(scene, pre, steps=6, stride=2)
     times, frames, stable, message = (record.times, record.displacements(), record.stable,
                                       record.message)
