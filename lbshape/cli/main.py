@@ -2,8 +2,11 @@
 
 Each sub-command lives in :mod:`lbshape.cli` as a module with
 ``register(subparsers)`` (adds its parser and sets ``func``). Errors from bad input
-are :class:`~lbshape.errors.LbshapeError`: printed as one ``error: …`` line with a
-non-zero exit code, never a traceback.
+are :class:`~lbshape.errors.LbshapeError`: printed as one ``error: …`` line, never a
+traceback. Exit codes, for every command: 0 done, 2 bad input
+(:class:`~lbshape.errors.LbshapeError`), 3 a solver failure
+(:class:`~lbshape.errors.SolverError`, or a numerical failure below lbshape's checks,
+:data:`NUMERICAL_FAILURES`), 130 interrupted.
 """
 
 from __future__ import annotations
@@ -13,8 +16,15 @@ import importlib
 import logging
 import sys
 
-from lbshape.errors import LbshapeError
+import numpy as np
+from scipy.sparse.linalg import ArpackNoConvergence
 
+from lbshape.errors import LbshapeError, SolverError
+
+#: numerical failures that escape lbshape's own checks: a solver failure (exit 3, as
+#: :class:`~lbshape.errors.SolverError`), never a traceback
+NUMERICAL_FAILURES = (np.linalg.LinAlgError, FloatingPointError, OverflowError,
+                      ArpackNoConvergence)
 #: sub-command modules, in the order ``lbshape --help`` lists them
 COMMANDS = ("mesh", "eigen", "modes", "precompute", "simulate", "render", "live", "bench",
             "tune", "demo")
@@ -90,6 +100,10 @@ def main(argv: list[str] | None = None) -> int:
     except LbshapeError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except NUMERICAL_FAILURES as exc:  # a solve that failed below lbshape's own checks
+        print(f"error: solver failed: {type(exc).__name__}: "
+              f"{' '.join(str(exc).split())}", file=sys.stderr)
+        return SolverError.exit_code
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130

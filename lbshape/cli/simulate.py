@@ -73,7 +73,10 @@ def run(args) -> int:
               f"max displacement {s['max_displacement']:.4g} m, "
               f"{estimate_phrase(s)} -> "
               f"{out / FAILED_MARKER if result.message else out}")
-        if "example_influence" in s:
+        if s.get("influence_message"):
+            print(f"simulate {s['scene']}: example influence unavailable: "
+                  f"{s['influence_message']}")
+        elif "example_influence" in s:
             final, peak = (("undefined" if s[k] is None else f"{s[k]:.3f}")
                            for k in ("example_influence", "example_influence_max"))
             print(f"simulate {s['scene']}: example influence {final} (ratio of the maxima "

@@ -41,9 +41,9 @@ contact's part of the step lives.
 
 Without loads and contact p and L are conserved to round-off (they change only by
 impulses) and R stays on SO(3) (Cayley map). Failures — Newton, a non-finite state,
-an energy blow-up (total energy above 10³ × the initial energy plus the absolute
-work of loads and contact), a rotation step too large for the spin, or a vertex
-pushed through a plane by more than the body's radius — raise
+energy above :data:`~lbshape.dynamics.sanity.ENERGY_FACTOR` × the initial energy plus the
+work of loads and contact, an inverted cubature element (Neo-Hookean), a rotation step too
+large for the spin, a vertex pushed through a plane by more than the body's radius — raise
 :class:`~lbshape.errors.SolverError` naming the step; :meth:`FreeBodySimulation.run`
 turns it into ``stable = False`` with the message. The energy monitor tracks the
 elastic energy by the trapezoidal work of the elastic force, ``E(q₁) ≈ E(q₀) +
@@ -83,6 +83,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from lbshape.dynamics import sanity
 from lbshape.dynamics.contact import PlaneContact
 from lbshape.dynamics.drag import DragSpring, explicit_stiffness_limit
 from lbshape.dynamics.engine import (
@@ -113,11 +114,7 @@ from lbshape.dynamics.free_body_kernels import (
     trial,
 )
 from lbshape.dynamics.free_body_loads import FreeLoad, LoadStack
-from lbshape.dynamics.free_body_record import (
-    FreeBodyRecord,
-    FreeBodyRecorder,
-    world_displacements,
-)
+from lbshape.dynamics.free_body_record import FreeBodyRecord, FreeBodyRecorder, world_displacements
 from lbshape.dynamics.integrators import Scheme, get_scheme
 from lbshape.dynamics.kernels import axpy, lu_solve, predict
 from lbshape.dynamics.kernels import norm as _norm
@@ -125,16 +122,13 @@ from lbshape.dynamics.loads import TimeProfile
 from lbshape.dynamics.reduced import PHASES as FIXED_PHASES
 from lbshape.dynamics.reduced import REALTIME_NEWTON
 from lbshape.dynamics.rigid_frame import RigidState, rotation_error
-from lbshape.dynamics.sanity import DeformationBound
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
 
 log = logging.getLogger(__name__)
 
-#: energy blow-up factor of the divergence monitor
-ENERGY_FACTOR = 1e3
 #: the monitor computes the exact elastic energy from this fraction of the limit on
-EXACT_ENERGY_FRACTION = 0.1
+EXACT_ENERGY_FRACTION = 0.5
 #: 64 ε: the round-off level of the residual, relative to its terms
 _EPS64 = 64 * np.finfo(float).eps
 #: the parts of a free-body step timed in :attr:`FreeBodySimulation.phase_seconds`: the
@@ -170,8 +164,9 @@ class FreeBodySimulation(FreeBodyContact):
             (optional).
         reuse_contact: reuse the previous step's last contact evaluation at the start
             of a step (same configuration; ``False`` evaluates it again, for checks).
-        deformation_bound: the object's :class:`~lbshape.dynamics.sanity.DeformationBound`
-            on the body-frame deformation q (a state beyond it stops the run), or ``None``.
+        omega_max, load_reach: the basis's highest vibration frequency (rad/s) and the
+            loads' reach for the coarse-step warning and the stop message, as
+            :class:`~lbshape.dynamics.reduced.ReducedSimulation`'s; or ``None``.
 
     Attributes:
         q, qd, qa: (r,) deformation, its rate and acceleration at :attr:`time`.
@@ -204,7 +199,7 @@ class FreeBodySimulation(FreeBodyContact):
         newton: NewtonSettings = REALTIME_NEWTON,
         rest_points: np.ndarray | None = None,
         reuse_contact: bool = True,
-        deformation_bound: DeformationBound | None = None,
+        omega_max: float | None = None, load_reach=None,
         basis: np.ndarray | None = None,
     ):
         self.rest_points = None if rest_points is None else np.asarray(rest_points, dtype=float)
@@ -222,9 +217,10 @@ class FreeBodySimulation(FreeBodyContact):
         self.k_ex = float(k_ex) if self.driver is not None else 0.0
         self._in_place = self.driver is not None and hasattr(self.driver, "weights_into") \
             and hasattr(self.driver, "target_from_weights_into")
-        self.contact = contact
-        self.reuse_contact = bool(reuse_contact)
-        self.deformation_bound = deformation_bound
+        self.contact, self.reuse_contact = contact, bool(reuse_contact)
+        self.omega_max, self.load_reach = omega_max, load_reach
+        self._inversion = sanity.checks_inversion(elastic)  # det F <= 0 stops the run
+        self.warnings = sanity.step_warnings(omega_max, self.dt, log)
         self.newton = newton
         self.basis = None if basis is None else np.asarray(basis, dtype=float)
         self._examples = (self.driver, self.k_ex)  # the configured example force
@@ -613,8 +609,7 @@ class FreeBodySimulation(FreeBodyContact):
         return iterations
 
     def _commit(self, index: int, t1: float) -> None:
-        """Check the new state (finite, deformation bound, energy monitor) and make it the
-        current one."""
+        """Check the new state (finite, energy monitor, inversion) and make it current."""
         contact = self.contact
         contact_energy = float(contact.scalars[0]) if contact is not None else 0.0
         finite = commit_energy(self.r, self.k_ex, contact_energy, self._frame_arrays.data,
@@ -625,16 +620,16 @@ class FreeBodySimulation(FreeBodyContact):
         budget = abs(self.energy0) + work
         if not finite:
             raise SolverError(f"non-finite state at step {index} (t = {t1:.6g} s)")
-        if self.deformation_bound is not None:
-            self.deformation_bound.check(self._next.q, index, t1)
+        if self._inversion and not (jacobian := self.elastic.min_jacobian_into(self._next.q)) > 0:
+            raise SolverError(sanity.inverted_message(index, t1, jacobian, "a cubature element"))
         elastic = max(self._elastic_energy + energies[2], 0.0)
         energy = energies[0] + elastic
-        limit = ENERGY_FACTOR * budget
+        limit = sanity.ENERGY_FACTOR * budget
         if not math.isfinite(energy) or (budget > 0 and energy > EXACT_ENERGY_FRACTION * limit):
             elastic = float(self.elastic.energy(self._next.q))
             energy = energies[0] + elastic
             if not math.isfinite(energy) or (budget > 0 and energy > limit):
-                raise SolverError(f"energy blew up ({energy:.3e} J > {ENERGY_FACTOR:g} x "
+                raise SolverError(f"energy blew up ({energy:.3e} J > {sanity.ENERGY_FACTOR:g} x "
                                   f"budget {budget:.3e} J) at step {index} (t = {t1:.6g} s)")
         self._elastic_energy = elastic
         self.work = work
@@ -690,8 +685,11 @@ class FreeBodySimulation(FreeBodyContact):
             try:
                 iterations = self.step()
             except SolverError as exc:
-                log.error("free-body simulation stopped: %s", exc)
-                return recorder.record(stable=False, message=str(exc))
+                scales = [load.profile(self.time + self.dt) for load in self.loads]
+                message = sanity.stop_message(exc, load_reach=self.load_reach, scales=scales,
+                                              omega_max=self.omega_max, dt=self.dt)
+                log.error("free-body simulation stopped: %s", message)
+                return recorder.record(stable=False, message=message)
             np.subtract(marks[1:], marks[:-1], out=phases[index])
             self.phase_seconds = phases[:index + 1]
             recorder.step(iterations, marks[2] - marks[0], marks[-1] - marks[0], self._depth)

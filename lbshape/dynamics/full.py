@@ -70,11 +70,13 @@ part of the potential) and the pull ``k (x_target − X_i)`` among the external 
 that Newton's residual is measured against the pull, not against the vanishing difference
 of the drag and the elastic force at rest.
 
-**Failure.** A non-finite state, a Newton failure, an energy blow-up or a failed
-target solve raises a :class:`~lbshape.errors.SolverError` from
-:meth:`FullSpaceSimulator.step` naming the step and time;
-:meth:`FullSpaceSimulator.run` returns the record of what was computed with
-``stable=False`` and the message.
+**Failure** (:mod:`lbshape.dynamics.sanity`). A non-finite state, a Newton failure, an
+energy blow-up, a failed target solve or, for a material that forbids inversion, an
+inverted element (det F ≤ 0 on any element of the accepted state) raises a
+:class:`~lbshape.errors.SolverError` from :meth:`FullSpaceSimulator.step` naming the step
+and time; :meth:`FullSpaceSimulator.run` returns the record of what was computed with
+``stable=False`` and the message with its likely cause (a load far beyond what the object
+carries, or a step coarse against ``omega_max``). How far the object moves never stops it.
 """
 
 from __future__ import annotations
@@ -103,6 +105,12 @@ from lbshape.dynamics.linear_solvers import LINEAR_SOLVERS, make_linear_solver
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.dynamics.rigid_frame import best_rigid_frame
+from lbshape.dynamics.sanity import (
+    forbids_inversion,
+    inverted_message,
+    step_warnings,
+    stop_message,
+)
 from lbshape.elastic.assembly import CompiledElasticity
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
@@ -151,12 +159,18 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             block evaluation of the example target; ``"lu-each-iteration"``: the former
             path (numpy assembly, a SuperLU factorisation per Newton iteration), for
             comparison runs. Same answers to round-off and the Newton tolerance.
+        omega_max: the highest vibration frequency (rad/s) of the object's modes the
+            reduced basis holds, for the coarse-step warning (:attr:`warnings`) and the
+            failure advice; or ``None``.
+        load_reach: ``() -> LoadReach | None`` for the failure advice (loads in order,
+            evaluated only once a run stopped), or ``None``.
 
     Attributes:
         free_dofs: (nf,) node-major indices of the free dofs (x = u[free_dofs]).
         elastic: the :class:`~lbshape.elastic.element_kernels.FullSpaceElasticity` of the mesh.
         mass: (3n, 3n) consistent mass in kg (CSR).
         stepper: the :mod:`lbshape.dynamics.integrators` stepper on the free dofs.
+        warnings: one-line set-up warnings (a coarse step), logged once when built.
         weights: (k,) example weights of the last step (``None`` before / without).
         target_coefficients: (3m,) target LB coefficients c* of the last step.
 
@@ -187,6 +201,8 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         newton: NewtonSettings = FULL_NEWTON,
         contact: FullSpaceContact | None = None,
         linear_solver: str = "reuse",
+        omega_max: float | None = None,
+        load_reach=None,
     ):
         if linear_solver not in LINEAR_SOLVERS:
             raise LbshapeError(f"linear_solver must be one of {LINEAR_SOLVERS}, "
@@ -194,6 +210,9 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         self._fast = linear_solver == "reuse"
         self._linear_solver = linear_solver
         n = mesh.n_vertices
+        self.omega_max, self.load_reach = omega_max, load_reach
+        self._inversion = forbids_inversion(material.model)  # det F <= 0 stops the run
+        self.warnings = step_warnings(omega_max, float(dt), log)
         self.newton, self.dt = newton, float(dt)
         self.contact = contact
         self._drag: Drag | None = None
@@ -273,7 +292,17 @@ class FullSpaceSimulator(FullSpaceExampleForce):
                               if fitted_pull or self._corotated_beta else None),
             linear_solver=(make_linear_solver(self._linear_solver, symmetric=not friction)
                            if self._fast else None),
+            check_state=self._check_inversion if self._inversion else None,
         )
+
+    def _check_inversion(self, x: np.ndarray, index: int, t: float) -> None:
+        """Refuse a state x (free dofs) with an inverted element (det F ≤ 0)."""
+        u = self.full_displacement(x)[self.mesh.tets]
+        jacobians = self.elastic.kernel.jacobians(u)
+        worst = int(np.argmin(jacobians))
+        if not jacobians[worst] > 0.0:
+            raise SolverError(inverted_message(index, t, float(jacobians[worst]),
+                                               f"element {worst}"))
 
     # ----------------------------------------------------------------- set-up
     def _check_loads(self, loads: Sequence[TimedLoad]):
@@ -635,8 +664,11 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             try:
                 iterations = self.step()
             except SolverError as exc:
-                log.error("full-space simulation stopped: %s", exc)
-                return recorder.record(stable=False, message=str(exc),
+                message = stop_message(
+                    exc, load_reach=self.load_reach, omega_max=self.omega_max, dt=self.dt,
+                    scales=[profile(self.time + self.dt) for profile in self._load_profiles])
+                log.error("full-space simulation stopped: %s", message)
+                return recorder.record(stable=False, message=message,
                                        max_displacement=max_disp)
             u = self.full_displacement()
             max_disp = max(max_disp, _max_norm(u))

@@ -57,7 +57,9 @@ state). A conservative or dissipative system stays below ``budget`` (Newmark
 conserves the energy of linear systems exactly); a non-conservative force that feeds
 energy in (example forces chasing a moving target, follower forces, fictitious
 forces) eventually exceeds it. With a zero budget (starting at rest and unloaded) the
-monitor is inactive; pass ``energy_budget`` to arm it.
+monitor is inactive; pass ``energy_budget`` to arm it. ``check_state`` lets the caller
+refuse a converged state that is wrong for another reason (an inverted element of a
+material that forbids inversion) before it is accepted.
 """
 
 from __future__ import annotations
@@ -73,6 +75,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from lbshape.dynamics.kernels import norm as _norm
+from lbshape.dynamics.sanity import ENERGY_FACTOR
 from lbshape.errors import LbshapeError, SolverError
 
 log = logging.getLogger(__name__)
@@ -186,7 +189,8 @@ class ImplicitStepper:
         rtol: relative Newton tolerance on ‖R‖.
         atol: absolute Newton tolerance on ‖R‖ (force units).
         max_iterations: Newton iterations per step before giving up.
-        energy_factor: blow-up factor of the energy monitor; ``None`` disables it.
+        energy_factor: blow-up factor of the energy monitor (default
+            :data:`~lbshape.dynamics.sanity.ENERGY_FACTOR`); ``None`` disables it.
         energy_budget: absolute energy (J) always considered acceptable.
         symmetric: the Newton matrix is symmetric (dense solves use ``LDLᵀ``);
             set ``False`` for non-symmetric tangents (follower forces).
@@ -199,6 +203,8 @@ class ImplicitStepper:
             example pull, whose rigid directions carry no stiffness, or its stiffness
             damping of the deformation only), solved by the Woodbury identity with J's
             factorisation.
+        check_state: ``(x₁, step index, t₁) -> None``, called with each converged state
+            before it is accepted; raises :class:`~lbshape.errors.SolverError` to refuse it.
     """
 
     #: the scheme's coefficients (one of :data:`SCHEMES`)
@@ -221,12 +227,13 @@ class ImplicitStepper:
         rtol: float = 1e-8,
         atol: float = 0.0,
         max_iterations: int = 20,
-        energy_factor: float | None = 1e3,
+        energy_factor: float | None = ENERGY_FACTOR,
         energy_budget: float = 0.0,
         symmetric: bool = True,
         line_search: bool = False,
         low_rank_tangent: Callable[[], tuple[np.ndarray, np.ndarray] | None] | None = None,
         linear_solver: Callable | None = None,
+        check_state: Callable[[np.ndarray, int, float], None] | None = None,
     ):
         self._sparse = sp.issparse(mass)
         self.mass = _square_matrix(mass, "mass")
@@ -245,6 +252,7 @@ class ImplicitStepper:
         self.line_search = bool(line_search)
         self._low_rank_tangent = low_rank_tangent
         self._linear_solver = linear_solver if self._sparse else None
+        self.check_state = check_state
 
         self._x = self._vector(x0, "x0")
         self._v = self._vector(v0, "v0")
@@ -386,6 +394,8 @@ class ImplicitStepper:
         energy = self.total_energy(x1, v1)
         work = self._work + abs(0.5 * float((self._fext + fext) @ dx))
         self._check_energy(energy, work, index, t1)
+        if self.check_state is not None:
+            self.check_state(x1, index, t1)
         self._x, self._v, self._a, self._f, self._fext = x1, v1, a1, f, fext
         self._t, self._steps, self._work = t1, index, work
         self._energy = energy

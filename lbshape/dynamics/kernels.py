@@ -185,3 +185,37 @@ def check_size(data, used):
     """Raise ``ValueError`` unless the views cut from ``data`` cover it exactly."""
     if used != data.shape[0]:
         raise ValueError("a structure's views do not cover its buffer")
+
+
+@njit
+def quadratic_form(S, q):
+    """qᵀ S q."""
+    total = 0.0
+    for i in range(q.shape[0]):
+        row = 0.0
+        for j in range(q.shape[0]):
+            row += S[i, j] * q[j]
+        total += q[i] * row
+    return total
+
+
+@njit
+def all_finite(x, v, a):
+    """Whether every entry of the three (r,) arrays is finite."""
+    for i in range(x.shape[0]):
+        if not (np.isfinite(x[i]) and np.isfinite(v[i]) and np.isfinite(a[i])):
+            return False
+    return True
+
+
+def dot_sum(a: np.ndarray, b: np.ndarray | None, c: np.ndarray) -> float:
+    """(a + b) · c (b may be None)."""
+    return float(_dot_sum_kernel(a, a if b is None else b, c, b is not None))
+
+
+@njit
+def _dot_sum_kernel(a, b, c, both):
+    total = 0.0
+    for i in range(c.shape[0]):
+        total += (a[i] + b[i] if both else a[i]) * c[i]
+    return total

@@ -33,13 +33,17 @@ the next step (updates per step and the error at 1 ms and at 20–60 Hz:
 unchecked (only for studies of that choice). Each step's wall time is split into
 :data:`PHASES` (:attr:`ReducedSimulation.phase_seconds`).
 
-**Divergence.** A non-finite state, a Newton matrix that is not positive definite and
-cannot be solved, a Newton that does not reach ``rtol`` in ``max_iterations``, a state
-beyond the object's :class:`~lbshape.dynamics.sanity.DeformationBound` (RMS displacement
-larger than its size), or a kinetic plus
-elastic energy above ``energy_factor`` times the energy made available (initial energy
-plus the accumulated work of the loads and the example pull) raise
-:class:`~lbshape.errors.SolverError`; the state stays at the last good step.
+**Divergence** (:mod:`lbshape.dynamics.sanity`). A non-finite load, residual or state, a
+Newton matrix that is not positive definite and cannot be solved, a Newton that does not
+reach ``rtol`` in ``max_iterations``, a kinetic plus elastic energy above ``energy_factor``
+times the energy made available (initial energy plus the accumulated work of the loads,
+the example pull and a drag), or, for a material that forbids inversion, an inverted
+cubature element (det F ≤ 0, checked on the s cubature elements) raise
+:class:`~lbshape.errors.SolverError` naming the step; the state stays at the last good
+step. How large the state is never stops a run (a buckled bar folds beyond its size).
+:meth:`ReducedSimulation.run` adds the likely cause to the message
+(:func:`~lbshape.dynamics.sanity.failure_advice`: a load far beyond what the object
+carries, or a step coarse against ``omega_max``).
 """
 
 from __future__ import annotations
@@ -66,11 +70,25 @@ from lbshape.dynamics.engine import (
     snapshot,
 )
 from lbshape.dynamics.integrators import get_scheme
-from lbshape.dynamics.kernels import axpy, cholesky_in_place, cholesky_solve_in_place, predict
+from lbshape.dynamics.kernels import (
+    all_finite,
+    axpy,
+    cholesky_in_place,
+    cholesky_solve_in_place,
+    dot_sum,
+    predict,
+    quadratic_form,
+)
 from lbshape.dynamics.kernels import norm as _norm
 from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord, RunRecorder
-from lbshape.dynamics.sanity import DeformationBound
+from lbshape.dynamics.sanity import (
+    ENERGY_FACTOR,
+    checks_inversion,
+    inverted_message,
+    step_warnings,
+    stop_message,
+)
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
 
@@ -84,6 +102,9 @@ _ORIGIN, _IDENTITY3 = np.zeros(3), np.eye(3)
 REALTIME_RTOL = 1e-5
 #: the real-time Newton settings of the reduced engines
 REALTIME_NEWTON = NewtonSettings(REALTIME_RTOL, 20)
+#: the energy monitor computes the exact potential from this fraction of its limit on
+#: (below it the potential tracked by the work of the elastic force decides)
+EXACT_ENERGY_FRACTION = 0.5
 #: the parts of a step timed in :attr:`ReducedSimulation.phase_seconds`
 PHASES: tuple[str, ...] = ("weights", "target", "example_force", "internal_force_tangent",
                            "solve", "overhead")
@@ -116,9 +137,13 @@ class ReducedSimulation:
         newton: the :class:`~lbshape.dynamics.engine.NewtonSettings` (default
             :data:`REALTIME_NEWTON`: :data:`REALTIME_RTOL`, 20 updates before the step
             fails, ``None`` mode).
-        energy_factor: blow-up factor of the energy monitor; ``None`` disables it.
-        deformation_bound: the object's :class:`~lbshape.dynamics.sanity.DeformationBound`
-            (a state beyond it stops the run), or ``None``.
+        energy_factor: blow-up factor of the energy monitor (default
+            :data:`~lbshape.dynamics.sanity.ENERGY_FACTOR`); ``None`` disables it.
+        omega_max: the highest vibration frequency the basis holds (rad/s; the largest
+            linear mode's), for the coarse-step warning and the failure advice; or ``None``.
+        load_reach: ``() -> LoadReach | None``, the loads' linear static strains
+            (:class:`~lbshape.dynamics.sanity.LoadReach`, loads in order), evaluated only
+            once a run stopped, for the failure advice; or ``None``.
         basis: (3n, r) the basis U (m per unit of q), for :meth:`displacement` and
             :meth:`set_drag`; optional.
         rest_points: (n, 3) the rest positions X (m), for :meth:`set_drag`; optional.
@@ -130,6 +155,8 @@ class ReducedSimulation:
             ``None``: its spring part is in the force and tangent, its pull in the loads.
         last_residual: relative Newton residual at the state the last step accepted
             (``None`` mode).
+        warnings: one-line warnings about the run's set-up (a coarse step,
+            :func:`~lbshape.dynamics.sanity.coarse_step`), logged once when it is built.
         phase_seconds: (steps, len(PHASES)) wall time of each part of each step of the
             last :meth:`run` (s).
     """
@@ -152,8 +179,9 @@ class ReducedSimulation:
         contact: PlaneContact | None = None,
         newton_iterations: int | None = None,
         newton: NewtonSettings = REALTIME_NEWTON,
-        energy_factor: float | None = 1e3,
-        deformation_bound: DeformationBound | None = None,
+        energy_factor: float | None = ENERGY_FACTOR,
+        omega_max: float | None = None,
+        load_reach=None,
         basis: np.ndarray | None = None,
         rest_points: np.ndarray | None = None,
     ):
@@ -179,8 +207,7 @@ class ReducedSimulation:
         self.basis = None if basis is None else np.asarray(basis, dtype=float)
         self.rest_points = None if rest_points is None else np.asarray(rest_points, dtype=float)
         self._examples = (self.driver, self.k_ex)  # the configured example force
-        self.energy_factor = energy_factor
-        self.deformation_bound = deformation_bound
+        self._setup_checks(energy_factor, omega_max, load_reach)
         # [c_a/h², k_v/h, k_a, c_v/h, j_v, k_ex]: the scheme's step rates and the spring
         rates = scheme.step_rates(h)
         self._coefficients = np.array([*rates, self.k_ex])
@@ -199,8 +226,7 @@ class ReducedSimulation:
         self._f, self._K = np.zeros(r), np.zeros((r, r))
         self._R, self._J = np.zeros(r), np.zeros((r, r))
         self._norms = np.zeros(4)
-        self.time = 0.0
-        self.steps_taken = 0
+        self.time, self.steps_taken = 0.0, 0
         self.phase_seconds = np.zeros((0, len(PHASES)))
         self._clock = time.perf_counter
         self._marks = np.zeros(len(PHASES) + 1)
@@ -208,15 +234,24 @@ class ReducedSimulation:
         self._external_into(0.0, self._fext)
         self.a[:] = self._fext
         self._fext_old[:] = self._fext
-        self._work = 0.0
-        self._initial_energy = 0.0
+        self._work, self._initial_energy = 0.0, 0.0
         self._f_norm = 0.0
         self.last_residual = 0.0
         # force and tangent at the start of the step (the linearisation of the first update)
         self._f_start, self._K_start = np.zeros(r), np.zeros((r, r))
         self._force_and_tangent(self.x)
         self._f_start[:], self._K_start[:] = self._f, self._K
+        self._held_energy = self._potential(self.x)  # tracked by _finish's energy monitor
         self._initial = self.state
+
+    def _setup_checks(self, energy_factor: float | None, omega_max: float | None,
+                      load_reach) -> None:
+        """The divergence checks and the warnings (see the constructor's arguments)."""
+        self.energy_factor = energy_factor
+        self.omega_max = None if omega_max is None else float(omega_max)
+        self.load_reach = load_reach
+        self._inversion = checks_inversion(self.elastic)  # det F <= 0 stops the run
+        self.warnings = step_warnings(self.omega_max, self.dt, log)
 
     @property
     def driver(self):
@@ -271,6 +306,7 @@ class ReducedSimulation:
         update starts from them), after a change of the forces."""
         self._force_and_tangent(self.x)
         self._f_start[:], self._K_start[:] = self._f, self._K
+        self._held_energy = self._potential(self.x) - self._spring_energy(self.x)
 
     @property
     def stepper(self) -> ReducedSimulation:
@@ -296,7 +332,7 @@ class ReducedSimulation:
                 "fext_old": self._fext_old, "f_start": self._f_start,
                 "K_start": self._K_start}
 
-    _SCALARS = ("time", "steps_taken", "_work", "_initial_energy", "_f_norm",
+    _SCALARS = ("time", "steps_taken", "_work", "_initial_energy", "_held_energy", "_f_norm",
                 "last_residual")
 
     @property
@@ -349,6 +385,10 @@ class ReducedSimulation:
                 self._K += self.contact.stiffness_q
         if self.drag is not None:
             self.drag.spring_into(q, self._f, self._K)
+
+    def _spring_energy(self, q: np.ndarray) -> float:
+        """The example spring's potential ``½ k_ex qᵀ S q`` (J; r²-sized, no allocation)."""
+        return 0.5 * self.k_ex * float(quadratic_form(self._spring, q)) if self.k_ex else 0.0
 
     def _potential(self, q: np.ndarray) -> float:
         energy = float(self.elastic.energy(q))
@@ -428,7 +468,7 @@ class ReducedSimulation:
                 raise SolverError(
                     f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
                     f"residual {self.last_residual:.3e} after {updates} iterations "
-                    f"(rtol {self.newton.rtol:g}); the step dt = {self.dt:g} s may be too large")
+                    f"(rtol {self.newton.rtol:g})")
             self._update(index, t1)
             updates += 1
             solves += clock() - middle
@@ -488,20 +528,36 @@ class ReducedSimulation:
 
     def _finish(self, index: int, t1: float) -> None:
         """Checks, energy monitor and the swap to the new state (no allocation)."""
-        if not _all_finite(self._x1, self._v1, self._a1):
+        if not all_finite(self._x1, self._v1, self._a1):
             raise SolverError(f"non-finite state at step {index} (t = {t1:.6g} s)")
-        if self.deformation_bound is not None:
-            self.deformation_bound.check(self._x1, index, t1)
-        work = self._work + abs(0.5 * _dot_sum(self._fext_old, self._fext, self._dx))
+        if self._inversion:
+            jacobian = self.elastic.min_jacobian_into(self._x1)
+            if not jacobian > 0.0:
+                raise SolverError(inverted_message(index, t1, jacobian, "a cubature element"))
+        work = self._work + abs(0.5 * dot_sum(self._fext_old, self._fext, self._dx))
+        # _held_energy: the potential of the forces in f (elastic, contact, drag; not the
+        # example spring), tracked by the trapezoidal work of f and made exact whenever the
+        # monitor computes it: f(x₀) is in _f and f(x₁) in _f_start after a converged step;
+        # the fixed updates (studies) never evaluate f(x₁): their potential is exact
+        exact = self.newton_iterations is not None
+        held = self._held_energy + 0.5 * dot_sum(self._f, self._f_start, self._dx)
+        if exact:
+            held = self._potential(self._x1) - self._spring_energy(self._x1)
         if self.energy_factor is not None:
             budget = self._initial_energy + work
-            kinetic = 0.5 * _dot_sum(self._v1, None, self._v1)
-            if budget > 0 and kinetic > self.energy_factor * budget:
-                energy = kinetic + self._potential(self._x1)
-                if energy > self.energy_factor * budget:
+            kinetic = 0.5 * dot_sum(self._v1, None, self._v1)
+            energy = kinetic + held + self._spring_energy(self._x1)
+            limit = self.energy_factor * budget
+            if budget > 0 and not energy <= EXACT_ENERGY_FRACTION * limit:
+                if not exact:  # confirm with the exact potential (rare: allocates)
+                    held = self._potential(self._x1) - self._spring_energy(self._x1)
+                    energy = kinetic + held + self._spring_energy(self._x1)
+                if not energy <= limit:
                     raise SolverError(
                         f"energy blew up at step {index} (t = {t1:.6g} s): {energy:.3e} J "
-                        f"exceeds {self.energy_factor:g} x budget {budget:.3e} J")
+                        f"exceeds {self.energy_factor:g} x budget {budget:.3e} J (the "
+                        "initial energy and the work of the loads and the example pull)")
+        self._held_energy = held
         self.x, self._x1 = self._x1, self.x
         self.v, self._v1 = self._v1, self.v
         self.a, self._a1 = self._a1, self.a
@@ -535,8 +591,11 @@ class ReducedSimulation:
             try:
                 iterations = self.step()
             except SolverError as exc:
-                log.error("reduced simulation stopped: %s", exc)
-                return recorder.record(stable=False, message=str(exc))
+                message = stop_message(
+                    exc, load_reach=self.load_reach, omega_max=self.omega_max, dt=self.dt,
+                    scales=[profile(self.time + self.dt) for profile in self._profiles])
+                log.error("reduced simulation stopped: %s", message)
+                return recorder.record(stable=False, message=message)
             row = phases[index]
             row[:5] = np.diff(marks[:6])
             row[5] = (marks[6] - marks[0]) - row[:5].sum()
@@ -620,24 +679,3 @@ def _newton_update(base, K, S, c, R, J, dx):
     for i in range(n):
         dx[i] -= R[i]
     return True
-
-
-@njit
-def _all_finite(x, v, a):
-    for i in range(x.shape[0]):
-        if not (np.isfinite(x[i]) and np.isfinite(v[i]) and np.isfinite(a[i])):
-            return False
-    return True
-
-
-def _dot_sum(a: np.ndarray, b: np.ndarray | None, c: np.ndarray) -> float:
-    """(a + b) · c (b may be None)."""
-    return float(_dot_sum_kernel(a, a if b is None else b, c, b is not None))
-
-
-@njit
-def _dot_sum_kernel(a, b, c, both):
-    total = 0.0
-    for i in range(c.shape[0]):
-        total += (a[i] + b[i] if both else a[i]) * c[i]
-    return total

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from lbshape._jit import njit
 from lbshape.elastic.element_kernels import ElementKernel
 from lbshape.elastic.energy_densities import density_model
 from lbshape.elastic.jit_densities import density_parameters, stress, stress_and_tangent
@@ -111,10 +112,10 @@ class ReducedForceModel:
         s, r = elements.size, U.shape[1]
         element_tets = tets[elements]
         self.kernel = ElementKernel(points, element_tets, material)
+        self.material = material  # its model decides whether the engines check inversion
         self.elements = elements.astype(np.int64)
         self.weights = weights.copy()
-        self.n_coordinates = r
-        self.n_elements = s
+        self.n_coordinates, self.n_elements = r, s
         dofs = (3 * element_tets[:, :, None].astype(np.int64) + np.arange(3)).reshape(s, 12)
         self.element_basis = np.ascontiguousarray(U[dofs])  # (s, 12, r)
         self._density = density_model(material)
@@ -207,6 +208,14 @@ class ReducedForceModel:
         """The smallest det F over the cubature elements at q (r,); ≤ 0: inverted."""
         return self.kernel.min_jacobian(self.element_displacements(q))
 
+    def min_jacobian_into(self, q: np.ndarray) -> float:
+        """:meth:`min_jacobian` for the run-time step: no allocation, no checks (s-sized)."""
+        if not hasattr(self, "_h_check"):  # H (9s,) and its (9, s) view, made once
+            self._h_check = np.empty(9 * self.n_elements)
+            self._h_check_view = self._h_check.reshape(9, self.n_elements)
+        np.dot(self._bu_k, q, out=self._h_check)
+        return float(min_jacobian_of_gradients(self._h_check_view))
+
     # -- training support --------------------------------------------------------------
     def max_strain(self, Q: np.ndarray) -> np.ndarray:
         """Largest displacement-gradient norm ``max_e ‖F_e − I‖_F`` (P,) of poses Q (r, P).
@@ -289,3 +298,18 @@ def gradient_basis(gradients: np.ndarray, element_basis: np.ndarray) -> np.ndarr
     for a in range(4):
         BU += gradients[:, a, None, :, None] * rows[:, a, :, None, :]
     return BU.reshape(s, 9, r)
+
+
+@njit
+def min_jacobian_of_gradients(H):
+    """The smallest det(I + H_e) over the columns of H (9, s) (H_e row-major; no
+    allocation)."""
+    smallest = np.inf
+    for e in range(H.shape[1]):
+        a, b, c = 1.0 + H[0, e], H[1, e], H[2, e]
+        d, f, g = H[3, e], 1.0 + H[4, e], H[5, e]
+        h, i, k = H[6, e], H[7, e], 1.0 + H[8, e]
+        det = a * (f * k - g * i) - b * (d * k - g * h) + c * (d * i - f * h)
+        if det < smallest:
+            smallest = det
+    return smallest

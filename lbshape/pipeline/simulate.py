@@ -48,11 +48,10 @@ from lbshape.dynamics.full import (
 from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord
 from lbshape.dynamics.reduced import REALTIME_NEWTON, ReducedSimulation
-from lbshape.dynamics.sanity import DeformationBound
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.polynomial_forces import PolynomialForceModel
 from lbshape.elastic.reduced_forces import ReducedForceModel
-from lbshape.errors import LbshapeError
+from lbshape.errors import LbshapeError, SolverError
 from lbshape.io.atomic import (
     atomic_folder,
     check_replaceable,
@@ -61,8 +60,10 @@ from lbshape.io.atomic import (
     write_npz_atomic,
 )
 from lbshape.io.trajectory import TrajectoryWriter
+from lbshape.pipeline.diagnosis import basis_omega_max, load_reach, run_warnings
 from lbshape.pipeline.estimate import estimate_stats
 from lbshape.pipeline.influence import (
+    STATS_KEYS,
     Influence,
     compare_runs,
     has_example_force,
@@ -201,15 +202,9 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
         k_ex=k_ex, contact=_contact(scene, pre, None), newton_iterations=newton_iterations,
-        newton=newton, deformation_bound=deformation_bound(pre), basis=pre.U,
-        rest_points=pre.mesh.points,
+        newton=newton, omega_max=basis_omega_max(pre), load_reach=load_reach(scene, pre),
+        basis=pre.U, rest_points=pre.mesh.points,
     )
-
-
-def deformation_bound(pre: Precomputed) -> DeformationBound:
-    """The object's :class:`~lbshape.dynamics.sanity.DeformationBound` (its mass and size)."""
-    return DeformationBound.for_object(pre.mesh.points,
-                                       pre.material.density * pre.mesh.volume())
 
 
 def reduced_force_model(pre: Precomputed, *, exact_forces: bool = False):
@@ -262,8 +257,8 @@ def _free_body_simulation(scene: Scene, pre: Precomputed, elastic, driver, k_ex:
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
         k_ex=k_ex, contact=_contact(scene, pre, pre.frame.center),
         velocity=scene.initial.velocity, angular_velocity=scene.initial.angular_velocity,
-        rest_points=pre.mesh.points, deformation_bound=deformation_bound(pre), basis=pre.U,
-        newton=newton,
+        rest_points=pre.mesh.points, omega_max=basis_omega_max(pre), basis=pre.U,
+        newton=newton, load_reach=load_reach(scene, pre),
     )
 
 
@@ -293,7 +288,8 @@ def full_simulation(scene: Scene, pre: Precomputed) -> FullSpaceSimulator:
         pre.mesh, pre.material, dt=scene.simulation.dt, fixed_vertices=pre.fixed_vertices,
         integrator=scene.simulation.integrator, alpha=scene.damping.alpha,
         beta=scene.damping.beta, loads=loads, examples=examples, local_examples=local,
-        contact=contact, initial_velocity=velocity,
+        contact=contact, initial_velocity=velocity, omega_max=basis_omega_max(pre),
+        load_reach=load_reach(scene, pre),
     )
 
 
@@ -359,13 +355,14 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "timed_steps": int(record.steps - warmup),
         **_force_stats(pre, method),
         **estimate_stats(scene, pre, method, record, frames),
+        "warnings": run_warnings(scene, pre),
     }
     totals = record.t_total_ms[warmup:]
     output = SimulationOutput(stats, record.times, frames, record.message, phase_ms=phase_ms,
                               step_median_ms=float(np.median(totals)) if totals.size else None)
     if influence and record.stable and has_example_force(scene, pre):
-        stats.update(example_influence(scene, pre, output, method=method, steps=steps,
-                                       progress=progress)[0].stats())
+        stats.update(influence_stats(scene, pre, output, method=method, steps=steps,
+                                     progress=progress))
     if compare is not None and record.stable:
         stats.update(_reference_stats(scene, pre, output, compare, progress))
     if out is not None:
@@ -458,6 +455,19 @@ def _reference_stats(scene: Scene, pre: Precomputed, output: SimulationOutput,
     return compare(scene, pre, output, reference=reference, progress=progress)
 
 
+def influence_stats(scene: Scene, pre: Precomputed, output: SimulationOutput, *, method: str,
+                    steps: int | None = None, progress: bool = False) -> dict:
+    """The example influence keys of a finished run (:func:`example_influence`); when the
+    run without examples cannot be compared (it stopped), every key is ``None`` and
+    ``influence_message`` gives the reason: a secondary run never fails the primary one."""
+    try:
+        return example_influence(scene, pre, output, method=method, steps=steps,
+                                 progress=progress)[0].stats()
+    except LbshapeError as exc:
+        log.warning("example influence of %s (%s) unavailable: %s", scene.name, method, exc)
+        return {**dict.fromkeys(STATS_KEYS), "influence_message": str(exc)}
+
+
 def example_influence(scene: Scene, pre: Precomputed, output: SimulationOutput, *,
                       method: str, steps: int | None = None, progress: bool = False
                       ) -> tuple[Influence, SimulationOutput]:
@@ -470,7 +480,8 @@ def example_influence(scene: Scene, pre: Precomputed, output: SimulationOutput, 
         ``(influence, the run without examples)``.
 
     Raises:
-        LbshapeError: no example force in the scene, or a run that stopped early.
+        LbshapeError: no example force in the scene.
+        SolverError: a run stopped early (the message names which).
     """
     if not has_example_force(scene, pre):
         raise LbshapeError(f"scene {scene.name} has no example force to measure")
@@ -478,8 +489,9 @@ def example_influence(scene: Scene, pre: Precomputed, output: SimulationOutput, 
                          progress=progress,
                          label=f"{scene.name} [{method}] without examples (influence)")
     if output.message or reference.message:
-        raise LbshapeError(f"example influence of {scene.name} ({method}): a run stopped: "
-                           f"{output.message or reference.message}")
+        which = "with" if output.message else "without"
+        raise SolverError(f"the {method} run {which} examples stopped: "
+                          f"{output.message or reference.message}")
     return compare_runs(pre, output, reference), reference
 
 

@@ -36,7 +36,7 @@ from lbshape.analysis.free_body import KEYS as FREE_BODY_KEYS
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.paths import RESULTS_DIR
-from lbshape.pipeline.influence import has_example_force, is_free_body
+from lbshape.pipeline.influence import STATS_KEYS, has_example_force, is_free_body
 from lbshape.pipeline.meshes import build_mesh
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import (
@@ -496,7 +496,9 @@ def _errors_apart_from_examples(scene, pre, reduced, full, references: dict, key
 
 def _influence(scene, pre, outputs: dict, *, steps: int
                ) -> tuple[tuple[tuple[str, dict], ...], dict]:
-    """Example influence of the finished ``reduced`` and ``full`` runs (stable ones only).
+    """Example influence of the finished ``reduced`` and ``full`` runs (stable ones only);
+    one whose run without examples stopped has every key ``None`` and the reason in
+    ``influence_message``.
 
     Returns:
         ``((method, stats) pairs, {method: its run without examples})``.
@@ -511,8 +513,10 @@ def _influence(scene, pre, outputs: dict, *, steps: int
         try:
             effect, reference = example_influence(scene, pre, output, method=method,
                                                   steps=steps)
-        except LbshapeError as exc:
-            log.error("bench %s: no example influence for %s: %s", scene.name, method, exc)
+        except LbshapeError as exc:  # unavailable, with the reason; the run itself stays
+            log.warning("bench %s: no example influence for %s: %s", scene.name, method, exc)
+            effects.append((method, {**dict.fromkeys(STATS_KEYS),
+                                     "influence_message": str(exc)}))
             continue
         effects.append((method, effect.stats()))
         references[method] = reference

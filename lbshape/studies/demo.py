@@ -35,7 +35,7 @@ from pathlib import Path
 from lbshape.analysis.norms import trajectory_error
 from lbshape.analysis.twist import end_twist_degrees
 from lbshape.elastic.element_kernels import mass_matrix
-from lbshape.errors import LbshapeError
+from lbshape.errors import LbshapeError, SolverError
 from lbshape.geometry.shapes import build_shape
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import output_root
@@ -129,7 +129,7 @@ def simulation_figures(out: Path) -> dict:
     simulation_seconds = time.perf_counter() - started
     failed = {name: run.message for name, run in runs.items() if run.message}
     if failed:
-        raise LbshapeError(f"demo runs stopped: {failed}")
+        raise SolverError(f"demo runs stopped: {failed}")
     mass = mass_matrix(pre.mesh, scene.material.density)
     error = trajectory_error(runs["reduced"].displacements, runs["full"].displacements, mass,
                              times=runs["reduced"].times, times_full=runs["full"].times)

@@ -36,7 +36,7 @@ from lbshape.analysis.influence import visible_change
 from lbshape.analysis.norms import m_norms
 from lbshape.analysis.twist import end_twist_degrees
 from lbshape.elastic.element_kernels import mass_matrix
-from lbshape.errors import LbshapeError
+from lbshape.errors import LbshapeError, SolverError
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import output_root
 from lbshape.pipeline.influence import closest_example, compare_runs, has_example_force
@@ -226,7 +226,7 @@ def figure3(same_topology, other_topology, path: str | Path, *,
     for label, scene, pre, method in runs:
         output = simulate(scene, pre, method=method, steps=steps)
         if output.message:
-            raise LbshapeError(f"Figure 3 run '{label}' stopped: {output.message}")
+            raise SolverError(f"Figure 3 run '{label}' stopped: {output.message}")
         outputs.append(output)
         log.info("figure 3: %s done", label)
     finals = [output.displacements[-1] for output in outputs]
@@ -424,7 +424,7 @@ def figure6(global_scene, local_scene, path: str | Path, *, steps: int | None = 
     for name, (scene, pre) in runs.items():
         output = simulate(scene, pre, method="reduced", steps=steps)
         if output.message:
-            raise LbshapeError(f"Figure 6 run '{name}' stopped: {output.message}")
+            raise SolverError(f"Figure 6 run '{name}' stopped: {output.message}")
         finals[name] = np.asarray(output.displacements[-1])
         time = float(output.times[-1])
     rest = pre_global.mesh.points

@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lbshape.errors import LbshapeError
+from lbshape.errors import LbshapeError, SolverError
 from lbshape.io.atomic import write_text_atomic
 from lbshape.io.machine import load_text, machine_description, machine_text
 from lbshape.pipeline.precompute import precompute, stage_names
@@ -190,7 +190,7 @@ def _timed_run(scene, pre, steps: int) -> tuple[float, float]:
     """(t_interp, t_total) in ms: means after the warm-up of one reduced run."""
     record = reduced_simulation(scene, pre).run(steps, stride=steps)
     if not record.stable:
-        raise LbshapeError(f"the reduced run of {scene.name} stopped: {record.message}")
+        raise SolverError(f"the reduced run of {scene.name} stopped: {record.message}")
     return record.mean_ms(warmup=WARMUP_STEPS)
 
 

@@ -177,8 +177,11 @@ def _targets(result: SceneBenchmark) -> list[str]:
 
 
 def _influence_rows(result: SceneBenchmark) -> list[str]:
-    """The example influence of each method with its eq. 5 residuals."""
+    """The example influence of each method with its eq. 5 residuals (or why it is
+    unavailable)."""
     return [
+        f"| {result.scene} | {method} | unavailable: {stats['influence_message']} "
+        "| — | — | — | — | — |" if stats.get("influence_message") else
         f"| {result.scene} | {method} | {stats['influence_frame']} "
         f"| {_fmt(stats['example_influence'])} "
         f"| {_fmt(stats['example_influence_max'])} | {_fmt(stats['example_influence_world'])} "

@@ -59,7 +59,7 @@ from lbshape.elastic.polynomial_forces import (
     check_force_choice,
     polynomial_build_flops,
 )
-from lbshape.errors import LbshapeError
+from lbshape.errors import LbshapeError, SolverError
 from lbshape.io.atomic import write_text_atomic
 from lbshape.io.machine import load_text, machine_description, machine_text
 from lbshape.io.paths import output_root
@@ -381,7 +381,7 @@ def tune_scene(scene, *, error: float, budget_ms: float = DEFAULT_BUDGET_MS,
                           max_r=free_dofs if base.fixed_vertices.size else free_dofs - 6)
     reference = simulate(scene, base, method="full", steps=steps)
     if reference.message:
-        raise LbshapeError(f"the full reference run of {scene.name} stopped: "
+        raise SolverError(f"the full reference run of {scene.name} stopped: "
                            f"{reference.message}")
     mass = mass_matrix(base.mesh, base.material.density)
 

@@ -313,7 +313,8 @@ def test_scene_adapter_reports_a_divergence_as_unstable_with_the_partial_run(bar
     )
     pre = SimpleNamespace(mesh=mesh, material=mat, fixed_vertices=bar.fixed, has_examples=True,
                           shape=SimpleNamespace(eigenvalues=bar.lam, eigenvectors=bar.phi),
-                          examples=SimpleNamespace(example_coefficients=c1[None]))
+                          examples=SimpleNamespace(example_coefficients=c1[None]),
+                          elastic=SimpleNamespace(omega2=np.zeros(0)))
     record = run_full_space(scene, pre, steps=6, stride=2)
     times, frames, stable, message = (record.times, record.displacements(), record.stable,
                                       record.message)

@@ -202,7 +202,8 @@ def test_simulate_command_writes_contract_outputs(tmp_path, capsys):
     assert list(stats) == ["scene", "method", "n_vertices", "n_tets", "m", "r", "s", "dt",
                            "steps", "t_interp_ms", "t_total_ms", "stable", "max_displacement",
                            "phase_ms", "forces", "timed_steps", "force_model",
-                           "force_elements", *ESTIMATE_KEYS, *STATS_KEYS]
+                           "force_elements", *ESTIMATE_KEYS, "warnings", *STATS_KEYS]
+    assert stats["warnings"] == []
     assert stats["example_influence"] > 0.0
     assert json.loads((out / "stats.json").read_text()) == stats
     assert (out / "trajectory.pvd").exists() and stats["steps"] == 20
