@@ -21,7 +21,7 @@ in one process, interleaved (the order alternates between repeats). Written (ato
   with contact planes, up to its first contact (the first state of the former run with a
   surface vertex behind a plane);
 * factorisations and GMRES iterations of the fast path; the command, commit, date,
-  machine and threads (:func:`lbshape.report.machine.machine_description`);
+  machine and threads (:func:`lbshape.io.machine.machine_description`);
 * the levers side by side on the scene's Newton matrix at rest (:func:`levers`):
   assembly numpy / compiled, SuperLU (two orderings) / CHOLMOD (with ordering, numeric
   only) factorisations and solves, one example-energy evaluation general / block.
@@ -51,7 +51,7 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
-from lbshape.report.machine import machine_description, threads_text
+from lbshape.io.machine import machine_description, threads_text
 
 import lbshape.pipeline.simulate as simulate_module
 from lbshape.dynamics.full import FullSpaceDiverged, FullSpaceSimulator
