@@ -19,6 +19,7 @@ from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_shapes import energy_elements, example_rest_shapes
 from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
 from lbshape.shapespace.projections import block_basis
+from lbshape.shapespace.reused_hessian import ReusedHessianTargetSolver
 
 
 @dataclass(frozen=True)
@@ -97,7 +98,9 @@ class FullSpaceExampleForce:
         models = [EuclideanExampleEnergy(x, self.mesh.tets[kept], self.material, L,
                                          compiled=self._fast)
                   for x in rests]
-        self._target_solver = TargetSolver(models, flat, tolerance=tolerance)
+        # the fast path: modified Newton, the Hessians reused across iterations and steps
+        solver = ReusedHessianTargetSolver if self._fast else TargetSolver
+        self._target_solver = solver(models, flat, tolerance=tolerance)
         self._kM_ff = self._k_ex * self._mass_ff
 
     def _example_energy(self, x: np.ndarray) -> float:
