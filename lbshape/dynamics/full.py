@@ -24,7 +24,8 @@ the step (explicit in the target, implicit in u — as the reduced method does):
    (:func:`lbshape.shapespace.example_shapes.energy_elements`, as in every route;
    :class:`~lbshape.shapespace.euclidean_energy.EuclideanExampleEnergy`),
    ``L = Φ ⊗ I₃`` (3n, 3m), solved by :class:`~lbshape.shapespace.interpolation.TargetSolver`
-   (warm-started from the previous step);
+   (warm-started from the previous step; the fast path: the modified Newton of
+   :class:`~lbshape.shapespace.reused_hessian.ReusedHessianTargetSolver`, same target);
 4. target displacement ``u* = L c*`` and force ``f_ex = k_ex M (u* − u)``, k_ex in
    1/s². In a mass-orthonormal reduced basis U (``Uᵀ M U = I``) this projects to
    the reduced method's ``k_ex (q* − q)`` with ``q* = Uᵀ M L c*``.

@@ -10,7 +10,6 @@ import scipy.linalg
 import scipy.sparse as sp
 
 from lbshape.dynamics.rigid_frame import best_rigid_frame
-from lbshape.elastic.modes import rigid_body_modes
 
 
 class FullSpaceDamping:
@@ -41,8 +40,7 @@ class FullSpaceDamping:
             rate: ∂v₁/∂x of the scheme in 1/s.
         """
         n = self.n_vertices
-        rigid = rigid_body_modes(self.mesh.points + x.reshape(n, 3), self._mass_ff)
-        mass_rigid = np.asarray(self._mass_ff @ rigid)
+        rigid, mass_rigid = _rigid_modes(self.mesh.points + x.reshape(n, 3), self._mass_ff)
         damped_rigid = np.asarray(damping @ rigid)
         core = np.block([[rigid.T @ damped_rigid, -np.eye(6)], [-np.eye(6), np.zeros((6, 6))]])
         self._damping_rigid = (np.hstack([mass_rigid, damped_rigid]), rate * core)
@@ -93,3 +91,21 @@ class FullSpaceDamping:
         Q = sp.kron(sp.identity(n, format="csr"), sp.csr_matrix(R), format="csr")
         self._damping_now = (Q @ self._damping_rest @ Q.T).tocsr()
 
+
+
+def _rigid_modes(points: np.ndarray, mass: sp.spmatrix) -> tuple[np.ndarray, np.ndarray]:
+    """``(Ψ, M Ψ)``: :func:`~lbshape.elastic.modes.rigid_body_modes` of ``points`` and its
+    product with the mass, from one sparse product (``M Ψ = (M F) L⁻ᵀ`` with the fields F
+    and the Cholesky factor L of their Gram matrix)."""
+    n = points.shape[0]
+    r = points - points.mean(axis=0)
+    fields = np.zeros((n, 3, 6))
+    fields[:, [0, 1, 2], [0, 1, 2]] = 1.0
+    fields[:, 1, 3], fields[:, 2, 3] = -r[:, 2], r[:, 1]  # e_c × r
+    fields[:, 0, 4], fields[:, 2, 4] = r[:, 2], -r[:, 0]
+    fields[:, 0, 5], fields[:, 1, 5] = -r[:, 1], r[:, 0]
+    F = fields.reshape(3 * n, 6)
+    MF = np.asarray(mass @ F)
+    gram = F.T @ MF
+    lower = np.linalg.cholesky(0.5 * (gram + gram.T))
+    return np.linalg.solve(lower, F.T).T, np.linalg.solve(lower, MF.T).T

@@ -248,8 +248,17 @@ class ReusedFactorSolver:
             self._stale = True
         return delta
 
-    def _turn(self, size: int) -> np.ndarray | None:
-        return _turn_of(self.frame, self._factor_frame, size)
+    def _in_frame(self, precondition, size: int):
+        """The preconditioner turned into the current frame, ``Q P⁻¹ Qᵀ`` (see
+        :attr:`frame`), or ``precondition`` itself when there is no turn."""
+        turn = _turn_of(self.frame, self._factor_frame, size)
+        if turn is None:
+            return precondition
+
+        def turned(v):
+            return (precondition((v.reshape(-1, 3) @ turn).ravel()).reshape(-1, 3)
+                    @ turn.T).ravel()
+        return turned
 
     def _gmres(self, J, R, correction):
         """Right-preconditioned GMRES from ``δ₀ = P⁻¹ R``; ``(δ, iterations, converged)``
@@ -277,14 +286,7 @@ class ReusedFactorSolver:
 
             def operator(v):
                 return J @ v
-        turn = self._turn(R.size)
-        if turn is not None:  # the factor taken in another frame: Q P⁻¹ Qᵀ
-            unturned = precondition
-
-            def precondition(v):
-                return (unturned((v.reshape(-1, 3) @ turn).ravel()).reshape(-1, 3)
-                        @ turn.T).ravel()
-
+        precondition = self._in_frame(precondition, R.size)
         norm_r = math.sqrt(float(R @ R))
         x = precondition(R)
         self.inner_iterations += 1

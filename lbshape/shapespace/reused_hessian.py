@@ -7,10 +7,7 @@ pass: the Hessian is an ``m × 3s × 6m`` product over the elements). Each model
 ``H_k`` is kept from its last full evaluation; the step is ``−(Σ_k w_k H_k)⁻¹ ∇F(z)``
 with the current weights and the current gradient, with the same backtracking line
 search. The Hessians are evaluated again at the current point when a step needed a line
-search, shrank by less than :data:`REFRESH_RATIO` against the previous one, or when the
-gradient passes the observed rate ρ still needs (``log(stop/step) / log ρ``) would cost
-more than a full pass and :data:`NEWTON_AFTER_REFRESH` gradient passes (the costs of
-both kinds of pass are measured as the solver runs).
+search or shrank by less than :data:`REFRESH_RATIO` against the previous one.
 
 Converged to the same point: the iteration stops when the step falls below
 ``refinement × tolerance × max_k ‖z_k‖`` (``refinement`` = 1e-2 by default: a linearly
@@ -26,8 +23,6 @@ to slow the iteration down.
 
 from __future__ import annotations
 
-import math
-import time
 from collections.abc import Sequence
 
 import numpy as np
@@ -36,10 +31,9 @@ import scipy.linalg
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.interpolation import EnergyModel, TargetResult, TargetSolver
 
-#: refresh the Hessians at least when a step is more than this fraction of the previous one
+#: refresh the Hessians when a step is more than this fraction of the previous one (a
+#: deterministic rule: the run does not depend on the machine's timings)
 REFRESH_RATIO = 0.1
-#: Newton iterations expected after a refresh (the refresh rule's cost estimate)
-NEWTON_AFTER_REFRESH = 2
 
 
 class ReusedHessianTargetSolver(TargetSolver):
@@ -68,7 +62,6 @@ class ReusedHessianTargetSolver(TargetSolver):
         self._point: tuple[np.ndarray, dict[int, tuple[float, np.ndarray]]] | None = None
         self.full_passes = 0
         self.gradient_passes = 0
-        self._seconds = {"full": 0.0, "gradient": 0.0}  # wall time of each kind of pass
 
     def reset(self) -> None:
         super().reset()
@@ -87,16 +80,13 @@ class ReusedHessianTargetSolver(TargetSolver):
             if i in values and not (full and i not in self._hessians):
                 continue
             y = z - self.offsets[i]
-            started = time.perf_counter()
             if full or i not in self._hessians:
                 fk, gk, Hk = self.models[i].energy_force_and_tangent(y)
                 self._hessians[i] = Hk
                 self.full_passes += 1
-                self._seconds["full"] += time.perf_counter() - started
             else:
                 fk, gk = self.models[i].energy_and_force(y)
                 self.gradient_passes += 1
-                self._seconds["gradient"] += time.perf_counter() - started
             values[i] = (fk, gk)
         self._point = cached
         f = sum(w * values[i][0] for i, w in self._active(weights))
@@ -148,26 +138,12 @@ class ReusedHessianTargetSolver(TargetSolver):
             size = t * np.linalg.norm(step)
             if size <= fine:
                 break
-            if t < 1.0 or (previous is not None and self._slow(size / previous, fine / size)):
+            if t < 1.0 or (previous is not None and size > REFRESH_RATIO * previous):
                 f, g = self._refresh(z, weights)
                 factor = None
             previous = size
         self._last = z.copy()
         return TargetResult(z, passes, float(np.linalg.norm(g)), f, True)
-
-
-    def _slow(self, rate: float, reduction: float) -> bool:
-        """Refresh the Hessians: the iteration's rate is above :data:`REFRESH_RATIO`, or the
-        passes it still needs to shrink the step by ``reduction`` (< 1) cost more than a
-        refresh (by the measured mean costs of a full and a gradient pass)."""
-        if rate >= REFRESH_RATIO:
-            return True
-        if rate <= 0.0 or not self.gradient_passes or not self.full_passes:
-            return False
-        gradient = self._seconds["gradient"] / self.gradient_passes
-        full = self._seconds["full"] / self.full_passes
-        remaining = math.log(reduction) / math.log(rate)
-        return remaining * gradient > full + NEWTON_AFTER_REFRESH * gradient
 
 
 def _positive_factor(H: np.ndarray):

@@ -145,6 +145,30 @@ def test_reused_hessian_target_equals_the_newton_target(bar, model):
     assert reused.full_passes < reused.gradient_passes  # the Hessians were reused
 
 
+def test_reused_factor_follows_the_frame(bar):
+    """A factor of J₀ taken in frame R₀ preconditions the rotated ``Q J₀ Qᵀ`` (Q the turn
+    since then, per vertex) to round-off: one preconditioner application, no refactoring."""
+    compiled = CompiledElasticity(bar.mesh, material())
+    _, K = compiled.force_and_tangent(np.zeros(compiled.n_dofs))
+    J0 = sp.csr_matrix(K + 1e3 * mass_matrix(bar.mesh, 1000.0))
+    angle = 0.7
+    turn = np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0],
+                     [0.0, 0.0, 1.0]])
+    Q = sp.kron(sp.identity(bar.mesh.n_vertices), sp.csr_matrix(turn), format="csr")
+    J = sp.csr_matrix(Q @ J0 @ Q.T)
+    J.sort_indices()
+    zero = sp.csr_matrix(J.shape)
+    solver = ReusedFactorSolver()
+    solver.frame = np.eye(3)
+    R = np.random.default_rng(3).normal(size=J.shape[0])
+    solver(zero, J0, R)  # factorised in the frame I
+    solver.frame = turn
+    before = solver.inner_iterations
+    delta = solver(zero, J, R)
+    assert solver.factorisations == 1 and solver.inner_iterations - before == 1
+    assert np.linalg.norm(J @ delta - R) <= 1e-10 * np.linalg.norm(R)
+
+
 @pytest.mark.parametrize("symmetric", [True, False])
 def test_reused_factor_solver_solves_changing_systems(symmetric):
     """Newton-like sequences (J drifting, a low-rank part) solved to the linear tolerance
