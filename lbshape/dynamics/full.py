@@ -403,6 +403,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         for index, solver in enumerate(self._target_solvers()):
             if solver._last is not None:  # the target solver's warm start
                 arrays[f"warm{index}"] = solver._last
+            for key, value in getattr(solver, "kept_arrays", dict)().items():
+                arrays[f"warm{index}:{key}"] = value  # a modified Newton's Hessians
         scalars = {name: getattr(stepper, name) for name in self._STEPPER_SCALARS}
         return snapshot(self.time, arrays, scalars)
 
@@ -428,6 +430,10 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         for index, solver in enumerate(self._target_solvers()):
             warm = saved.get(f"warm{index}")
             solver._last = None if warm is None else warm.copy()
+            if hasattr(solver, "restore_kept"):
+                prefix = f"warm{index}:"
+                solver.restore_kept({k[len(prefix):]: v for k, v in saved.items()
+                                     if k.startswith(prefix)})
 
     # ---------------------------------------------------------------- forces
     def _force_and_tangent(self, x: np.ndarray):

@@ -79,6 +79,25 @@ class ReusedHessianTargetSolver(TargetSolver):
         super().reset()
         self._hessians, self._point = {}, None
 
+    def kept_arrays(self) -> dict[str, np.ndarray]:
+        """What the next solve starts from besides the warm start (the Hessians and the
+        values at the last point), as named arrays for an engine's snapshot."""
+        out = {f"hessian{i}": H for i, H in self._hessians.items()}
+        if self._point is not None:
+            out["point"] = self._point[0]
+            for i, (f, g) in self._point[1].items():
+                out[f"energy{i}"], out[f"gradient{i}"] = np.array(f), g
+        return out
+
+    def restore_kept(self, arrays: dict[str, np.ndarray]) -> None:
+        """Back to :meth:`kept_arrays` (copies), so that a restored run repeats bit for bit."""
+        self._hessians = {int(k[len("hessian"):]): np.array(v) for k, v in arrays.items()
+                          if k.startswith("hessian")}
+        point = arrays.get("point")
+        self._point = None if point is None else (np.array(point), {
+            int(k[len("energy"):]): (float(v), np.array(arrays["gradient" + k[len("energy"):]]))
+            for k, v in arrays.items() if k.startswith("energy")})
+
     def _active(self, weights: np.ndarray):
         return [(i, w) for i, w in enumerate(weights) if w > 0.0]
 
