@@ -21,7 +21,7 @@ in one process, interleaved (the order alternates between repeats). Written (ato
   with contact planes, up to its first contact (the first state of the former run with a
   surface vertex behind a plane);
 * factorisations and GMRES iterations of the fast path; the command, commit, date,
-  machine and threads (:func:`lbshape.report.machine.machine_description`);
+  machine and threads (:func:`lbshape.io.machine.machine_description`);
 * the levers side by side on the scene's Newton matrix at rest (:func:`levers`):
   assembly numpy / compiled, SuperLU (two orderings) / CHOLMOD (with ordering, numeric
   only) factorisations and solves, one example-energy evaluation general / block.
@@ -51,12 +51,12 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
-from lbshape.report.machine import machine_description, threads_text
 
 import lbshape.pipeline.simulate as simulate_module
-from lbshape.dynamics.full import FullSpaceDiverged, FullSpaceSimulator
+from lbshape.dynamics.full import FullSpaceSimulator
 from lbshape.dynamics.linear_solvers import factorise
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
+from lbshape.io.machine import machine_description, threads_text
 from lbshape.pipeline.precompute import precompute
 from lbshape.scene import load_scene, scene_from_dict
 
@@ -224,10 +224,7 @@ def floor_ms(sim: FullSpaceSimulator, path: str) -> tuple[float, float]:
 def run_path(scene, pre, path: str, steps: int) -> dict:
     """One run of ``steps`` steps on ``path``: timings, states, the floor."""
     sim = simulator(scene, pre, path)
-    try:
-        record = sim.run(steps)
-    except FullSpaceDiverged as exc:
-        record = exc.partial
+    record = sim.run(steps)  # a failed step ends the record (stable False)
     out = {
         "path": path,
         "stable": bool(record.stable),
@@ -305,10 +302,7 @@ def bench_scene(scene, steps: int, repeats: int) -> dict:
     pre = precompute(scene)
     lever_times = levers(scene, pre)
     for path in PATHS:  # warm-up: compiled kernels loaded (or compiled), caches filled
-        try:
-            simulator(scene, pre, path).run(2)
-        except FullSpaceDiverged:
-            pass
+        simulator(scene, pre, path).run(2)
     best: dict[str, dict] = {}
     runs: dict[str, dict] = {}
     for repeat in range(repeats):

@@ -24,7 +24,8 @@ the step (explicit in the target, implicit in u — as the reduced method does):
    (:func:`lbshape.shapespace.example_shapes.energy_elements`, as in every route;
    :class:`~lbshape.shapespace.euclidean_energy.EuclideanExampleEnergy`),
    ``L = Φ ⊗ I₃`` (3n, 3m), solved by :class:`~lbshape.shapespace.interpolation.TargetSolver`
-   (warm-started from the previous step);
+   (warm-started from the previous step; the fast path: the modified Newton of
+   :class:`~lbshape.shapespace.reused_hessian.ReusedHessianTargetSolver`, same target);
 4. target displacement ``u* = L c*`` and force ``f_ex = k_ex M (u* − u)``, k_ex in
    1/s². In a mass-orthonormal reduced basis U (``Uᵀ M U = I``) this projects to
    the reduced method's ``k_ex (q* − q)`` with ``q* = Uᵀ M L c*``.
@@ -86,7 +87,6 @@ import time
 from collections.abc import Sequence
 
 import numpy as np
-import scipy.linalg
 import scipy.sparse as sp
 
 from lbshape.dynamics.engine import (
@@ -99,12 +99,12 @@ from lbshape.dynamics.engine import (
 )
 from lbshape.dynamics.free_dofs import CsrRestriction, submatrix, vertex_indices
 from lbshape.dynamics.full_contact import FullSpaceContact
+from lbshape.dynamics.full_damping import FullSpaceDamping
 from lbshape.dynamics.full_examples import FullSpaceExampleForce, FullSpaceExamples
 from lbshape.dynamics.integrators import make_stepper
 from lbshape.dynamics.linear_solvers import LINEAR_SOLVERS, make_linear_solver
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.record import RunRecord, RunRecorder
-from lbshape.dynamics.rigid_frame import best_rigid_frame
 from lbshape.dynamics.sanity import (
     forbids_inversion,
     inverted_message,
@@ -114,7 +114,6 @@ from lbshape.dynamics.sanity import (
 from lbshape.elastic.assembly import CompiledElasticity
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
-from lbshape.elastic.modes import rigid_body_modes
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.shapespace.local_full_force import FullSpaceLocalForce
@@ -129,7 +128,7 @@ FRICTION_NEWTON_ITERATIONS = 60
 FULL_NEWTON = NewtonSettings(1e-8, 20)
 
 
-class FullSpaceSimulator(FullSpaceExampleForce):
+class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
     """Implicit full-space FEM dynamics with the full-space example force.
 
     Args:
@@ -441,6 +440,8 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         for index, solver in enumerate(self._target_solvers()):
             if solver._last is not None:  # the target solver's warm start
                 arrays[f"warm{index}"] = solver._last
+            for key, value in getattr(solver, "kept_arrays", dict)().items():
+                arrays[f"warm{index}:{key}"] = value  # a modified Newton's Hessians
         scalars = {name: getattr(stepper, name) for name in self._STEPPER_SCALARS}
         return snapshot(self.time, arrays, scalars)
 
@@ -466,6 +467,10 @@ class FullSpaceSimulator(FullSpaceExampleForce):
         for index, solver in enumerate(self._target_solvers()):
             warm = saved.get(f"warm{index}")
             solver._last = None if warm is None else warm.copy()
+            if hasattr(solver, "restore_kept"):
+                prefix = f"warm{index}:"
+                solver.restore_kept({k[len(prefix):]: v for k, v in saved.items()
+                                     if k.startswith(prefix)})
 
     # ---------------------------------------------------------------- forces
     def _force_and_tangent(self, x: np.ndarray):
@@ -510,54 +515,6 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             K = (K + self._drag_tangent).tocsr()
         return f, K
 
-    def _deformation_damping(self, x: np.ndarray, damping: sp.csr_matrix,
-                             velocity: np.ndarray, rate: float) -> np.ndarray:
-        """(3n,) N: a free body's stiffness damping of its deformation only,
-        ``Pᵀ D P v`` with ``P = I − Ψ Ψᵀ M`` and Ψ (3n, 6) the M-orthonormal rigid
-        motions of the current shape ``X + x``.
-
-        ``D = β Q K₀ Qᵀ`` alone does not vanish on a rigid rotation of a *deformed* body:
-        ``K₀ (ω × u_body) ≠ 0``, and on the S-bent bar of Figure 4 held by its example
-        pull that took 28 % of the angular momentum in 0.26 s of free flight. P removes
-        the rigid velocity first and Pᵀ removes the net force and torque, so the damping
-        conserves both momenta, as the reduced method's body-frame ``β K q̇`` does.
-
-        Its tangent ``rate · Pᵀ D P`` (P held) is ``rate · D`` plus the rank-12 part
-        ``[a b] [[C, −I], [−I, 0]] [a b]ᵀ`` (a = MΨ, b = DΨ, C = Ψᵀ D Ψ), kept for
-        :meth:`_tangent_correction`: with ``rate · D`` alone Newton took 4.9 iterations per
-        step on a spinning bent bar, with it 3.0.
-
-        Args:
-            x: (3n,) the Newton iterate's displacement in m.
-            damping: (3n, 3n) D in N·s/m.
-            velocity: (3n,) the end-of-step velocity v₁(x) in m/s.
-            rate: ∂v₁/∂x of the scheme in 1/s.
-        """
-        n = self.n_vertices
-        rigid = rigid_body_modes(self.mesh.points + x.reshape(n, 3), self._mass_ff)
-        mass_rigid = np.asarray(self._mass_ff @ rigid)
-        damped_rigid = np.asarray(damping @ rigid)
-        core = np.block([[rigid.T @ damped_rigid, -np.eye(6)], [-np.eye(6), np.zeros((6, 6))]])
-        self._damping_rigid = (np.hstack([mass_rigid, damped_rigid]), rate * core)
-        force = damping @ (velocity - rigid @ (mass_rigid.T @ velocity))
-        return force - mass_rigid @ (rigid.T @ force)
-
-    def _tangent_correction(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(W, S)``: the low-rank part ``W S Wᵀ`` of the last tangent evaluation, the
-        fitted pull's ``−W_p W_pᵀ`` (:meth:`_free_gap`) and the deformation damping's
-        rigid part (:meth:`_deformation_damping`); None before the first."""
-        parts = []
-        pull = getattr(self, "_pull_rigid", None)
-        if pull is not None:
-            parts.append((pull, -np.eye(pull.shape[1])))
-        damping = getattr(self, "_damping_rigid", None)
-        if damping is not None:
-            parts.append(damping)
-        if not parts:
-            return None
-        return (np.hstack([W for W, _ in parts]),
-                scipy.linalg.block_diag(*[S for _, S in parts]))
-
     def _contact_velocity(self, x: np.ndarray) -> tuple[np.ndarray | None, float]:
         """The vertex velocities (3n,) m/s the contact's friction reads at the end-of-step
         position x (the scheme's ``v₁(x)``; the initial velocity while the stepper is set
@@ -572,30 +529,6 @@ class FullSpaceSimulator(FullSpaceExampleForce):
             return v, 0.0
         v[self.free_dofs], _ = stepper.kinematics(x - stepper.x)
         return v, stepper.scheme.cv / stepper.dt
-
-    def _corotate(self) -> None:
-        """Free body: rotate the stiffness damping ``β K₀`` into the current best rigid
-        frame, ``β Q K₀ Qᵀ`` with Q = diag(R, …, R), so that it does not damp rigid
-        rotation (the reduced method damps the body-frame deformation only)."""
-        n = self.n_vertices
-        if not hasattr(self, "_scalar_mass"):
-            self._init_rigid_fit()
-        rest = self.mesh.points
-        _, R, _ = best_rigid_frame(self._scalar_mass, rest, rest + self.stepper.x.reshape(n, 3))
-        self._damping_data = None  # β Q K₀ Qᵀ on the compiled pattern
-        if self._compiled is not None:
-            if getattr(self, "_damping_rest_data", None) is None:
-                self._damping_rest_data = self._compiled.pattern_values(self._damping_rest)
-            rotated = (None if self._damping_rest_data is None
-                       else self._compiled.rotated(self._damping_rest_data, R))
-            if rotated is not None:
-                c = self._compiled
-                self._damping_now = sp.csr_matrix((rotated, c.indices, c.indptr),
-                                                  shape=self._damping_rest.shape)
-                self._damping_data = self._corotated_beta * rotated
-                return
-        Q = sp.kron(sp.identity(n, format="csr"), sp.csr_matrix(R), format="csr")
-        self._damping_now = (Q @ self._damping_rest @ Q.T).tocsr()
 
     def _potential(self, x: np.ndarray) -> float:
         elastic = self.elastic if self._compiled is None else self._compiled

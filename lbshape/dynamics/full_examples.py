@@ -17,8 +17,9 @@ from lbshape.elastic.modes import rigid_body_modes
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
 from lbshape.shapespace.example_shapes import energy_elements, example_rest_shapes
-from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
+from lbshape.shapespace.interpolation import SimplexWeights, TargetSolver
 from lbshape.shapespace.projections import block_basis
+from lbshape.shapespace.reused_hessian import ReusedHessianTargetSolver
 
 
 @dataclass(frozen=True)
@@ -92,12 +93,15 @@ class FullSpaceExampleForce:
         self._mass_target = np.ascontiguousarray(ML[self.free_dofs])  # (nf, 3m): (M L)_free
         flat = coefficients.reshape(k, 3 * m)
         self._example_descriptors = flat * weights
+        self._simplex = SimplexWeights(self._example_descriptors)  # its supports, once
         rests = example_rest_shapes(self.mesh.points, phi, coefficients)
         kept = energy_elements(self.mesh.points, self.mesh.tets, rests)
         models = [EuclideanExampleEnergy(x, self.mesh.tets[kept], self.material, L,
                                          compiled=self._fast)
                   for x in rests]
-        self._target_solver = TargetSolver(models, flat, tolerance=tolerance)
+        # the fast path: modified Newton, the Hessians reused across iterations and steps
+        solver = ReusedHessianTargetSolver if self._fast else TargetSolver
+        self._target_solver = solver(models, flat, tolerance=tolerance)
         self._kM_ff = self._k_ex * self._mass_ff
 
     def _example_energy(self, x: np.ndarray) -> float:
@@ -133,20 +137,37 @@ class FullSpaceExampleForce:
         is ``k_ex M − W Wᵀ`` (no stiffness along rigid motions: the fit follows them)."""
         n = self.n_vertices
         positions = self.mesh.points + x.reshape(n, 3)
-        center, R, _ = best_rigid_frame(self._scalar_mass, self._target_body, positions)
+        center, R = self._target_fit(positions)
         placed = center + (self._target_body - self._target_center) @ R.T
         if tangent:
             arm = placed - center
-            psi = np.zeros((3 * n, 6))
-            for axis in range(3):
-                psi[axis::3, axis] = 1.0
-                turn = np.zeros(3)
-                turn[axis] = 1.0
-                psi[:, 3 + axis] = np.cross(turn, arm).ravel()
+            psi = np.zeros((n, 3, 6))
+            psi[:, [0, 1, 2], [0, 1, 2]] = 1.0
+            # e_c × arm
+            psi[:, 1, 3], psi[:, 2, 3] = -arm[:, 2], arm[:, 1]
+            psi[:, 0, 4], psi[:, 2, 4] = arm[:, 2], -arm[:, 0]
+            psi[:, 0, 5], psi[:, 1, 5] = -arm[:, 1], arm[:, 0]
+            psi = psi.reshape(3 * n, 6)
             mass_psi = np.asarray(self._spring_ff @ psi)
             lower = np.linalg.cholesky(psi.T @ mass_psi)
             self._pull_rigid = np.sqrt(self._k_ex) * np.linalg.solve(lower, mass_psi.T).T
         return (positions - placed).ravel()
+
+    def _target_fit(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(c, R) of :func:`~lbshape.dynamics.rigid_frame.best_rigid_frame` of the step's
+        target shape onto ``positions`` (n, 3), its parts that depend on the target kept."""
+        kept = getattr(self, "_fit_kept", None)
+        if kept is None or kept[0] is not self._target_body:
+            weights = np.asarray(self._scalar_mass.sum(axis=1)).ravel()
+            weights = weights / weights.sum()
+            Xbar = self._target_body - weights @ self._target_body
+            kept = (self._target_body, weights, np.asarray(self._scalar_mass @ Xbar))
+            self._fit_kept = kept
+        _, weights, mass_Xbar = kept
+        center = weights @ positions
+        left, _, right = np.linalg.svd((positions - center).T @ mass_Xbar)
+        R = left @ np.diag([1.0, 1.0, np.sign(np.linalg.det(left @ right))]) @ right
+        return center, R
 
     def _update_target(self) -> None:
         """Weights and target from the current state; sets the example force."""
@@ -163,7 +184,7 @@ class FullSpaceExampleForce:
             self._update_free_target(x)
             self.stepper.credit_work(self._example_energy(x) - before)
             return
-        weights = simplex_weights(self._example_descriptors, self._descriptor @ x)
+        weights = self._simplex(self._descriptor @ x)
         c_star = self._target_solver.solve(weights).z
         self.weights = weights
         self.target_coefficients = c_star
@@ -201,7 +222,7 @@ class FullSpaceExampleForce:
         rest = self.mesh.points
         x = rest + u.reshape(n, 3)
         _, _, body = best_rigid_frame(self._scalar_mass, rest, x)
-        weights = simplex_weights(self._example_descriptors, self._descriptor @ body.ravel())
+        weights = self._simplex(self._descriptor @ body.ravel())
         c_star = self._target_solver.solve(weights).z
         self.weights = weights
         self.target_coefficients = c_star

@@ -165,6 +165,11 @@ class ReusedFactorSolver:
             call factorises its J first.
 
     Attributes:
+        frame: (3, 3) the rotation of a free body's current rigid frame, or None (set by
+            the caller each step; the dofs are then whole vertices, node-major). A factor
+            of ``J₀`` taken in frame R₀ preconditions ``Q J₀ Qᵀ``, ``Q = diag(R R₀ᵀ, …)``:
+            the stiffness of a rotated body is the rotated stiffness, and the mass and the
+            co-rotated damping commute with Q, so the factor follows the body's rotation.
         factorisations: factorisations done so far.
         solves: systems solved.
         inner_iterations: GMRES iterations (preconditioner applications) so far.
@@ -181,6 +186,8 @@ class ReusedFactorSolver:
         self._pattern = None
         self._woodbury = None  # (W, S, J₀⁻¹W, (I + S Wᵀ J₀⁻¹ W)⁻¹ S) of the factor
         self._norm = 0.0  # ‖J‖∞ of the factorised matrix (the round-off level)
+        self.frame: np.ndarray | None = None
+        self._factor_frame: np.ndarray | None = None  # the frame the factor was taken in
         self.factorisations = 0
         self.solves = 0
         self.inner_iterations = 0
@@ -194,6 +201,7 @@ class ReusedFactorSolver:
         # preconditioner (GMRES solves J itself); LU of J where that fails
         matrix = J if self.symmetric else _symmetric_part(J)
         self._factor = factorise(matrix, symmetric=True, previous=self._factor)
+        self._factor_frame = None if self.frame is None else np.array(self.frame)
         self.factorisations += 1
         self._stale = False
         self._woodbury = None
@@ -231,6 +239,7 @@ class ReusedFactorSolver:
             # a Cholesky factor of an indefinite matrix (PETSc does not always report it)
             # or of a non-symmetric J's symmetric part: LU of J
             self._factor = SuperLUFactor(J)
+            self._factor_frame = None if self.frame is None else np.array(self.frame)
             self._woodbury = None
             self._norm = _inf_norm(J)
             self.factorisations += 1
@@ -238,6 +247,18 @@ class ReusedFactorSolver:
         if iterations > self.refactor_after:
             self._stale = True
         return delta
+
+    def _in_frame(self, precondition, size: int):
+        """The preconditioner turned into the current frame, ``Q P⁻¹ Qᵀ`` (see
+        :attr:`frame`), or ``precondition`` itself when there is no turn."""
+        turn = _turn_of(self.frame, self._factor_frame, size)
+        if turn is None:
+            return precondition
+
+        def turned(v):
+            return (precondition((v.reshape(-1, 3) @ turn).ravel()).reshape(-1, 3)
+                    @ turn.T).ravel()
+        return turned
 
     def _gmres(self, J, R, correction):
         """Right-preconditioned GMRES from ``δ₀ = P⁻¹ R``; ``(δ, iterations, converged)``
@@ -265,7 +286,7 @@ class ReusedFactorSolver:
 
             def operator(v):
                 return J @ v
-
+        precondition = self._in_frame(precondition, R.size)
         norm_r = math.sqrt(float(R @ R))
         x = precondition(R)
         self.inner_iterations += 1
@@ -316,6 +337,15 @@ class ReusedFactorSolver:
         r = R - operator(x)
         converged = math.sqrt(float(r @ r)) <= 10.0 * target
         return x, steps + 1, converged
+
+
+def _turn_of(frame, factor_frame, size: int) -> np.ndarray | None:
+    """``R R₀ᵀ`` from the current frame R and the factor's R₀ (None: no frames, not whole
+    vertices, or no rotation)."""
+    if frame is None or factor_frame is None or size % 3:
+        return None
+    turn = np.asarray(frame) @ np.asarray(factor_frame).T
+    return None if np.array_equal(turn, np.eye(3)) else turn
 
 
 def _inf_norm(J: sp.spmatrix) -> float:

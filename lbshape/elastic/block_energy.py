@@ -129,6 +129,20 @@ class BlockBasisEnergy:
         self._last = (y.copy(), energy, g.copy(), K.copy())
         return energy, g, K
 
+    def energy_and_force(self, y: np.ndarray) -> tuple[float, np.ndarray]:
+        """(E J, ∇E (3m,)) at y (3m,): one pass without the stress derivative (a modified
+        Newton's iterate, :class:`~lbshape.shapespace.reused_hessian.ReusedHessianTargetSolver`)."""
+        y = np.asarray(y, dtype=np.float64)
+        if y.shape != (self.n_coordinates,):
+            raise LbshapeError(f"coordinates must have shape ({self.n_coordinates},), "
+                               f"got {y.shape}")
+        last = self._last
+        if last is not None and np.array_equal(last[0], y):
+            return last[1], last[2].copy()
+        energy = _fused_gradient(self._code, self._parameters, self._gphi, self._volumes,
+                                 np.ascontiguousarray(y.reshape(self.m, 3)), self._pv)
+        return energy, (self._x.T @ self._pv).reshape(-1)
+
 
 @njit
 def _fused(code, parameters, gphi, volumes, Y, pv, z):
@@ -175,6 +189,41 @@ def _fused(code, parameters, gphi, volumes, Y, pv, z):
                     for l in range(m):
                         zr[l] = a0 * g0[l] + a1 * g1[l] + a2 * g2[l]
                     p += 1
+    return energy
+
+
+@njit
+def _fused_gradient(code, parameters, gphi, volumes, Y, pv):
+    """:func:`_fused` without the stress derivative: the energy (J) and ``pv``."""
+    s, _, m = gphi.shape
+    H9 = np.empty((9, 1))
+    P9 = np.empty((9, 1))
+    unused = np.empty((1, 9, 9))
+    work = np.empty((6, 3, 3))
+    YT = np.ascontiguousarray(Y.T)  # (3, m)
+    energy = 0.0
+    for e in range(s):
+        g0 = gphi[e, 0]
+        g1 = gphi[e, 1]
+        g2 = gphi[e, 2]
+        for c in range(3):
+            yc = YT[c]
+            h0 = 0.0
+            h1 = 0.0
+            h2 = 0.0
+            for k in range(m):
+                h0 += yc[k] * g0[k]
+                h1 += yc[k] * g1[k]
+                h2 += yc[k] * g2[k]
+            H9[3 * c, 0] = h0
+            H9[3 * c + 1, 0] = h1
+            H9[3 * c + 2, 0] = h2
+        _element(code, parameters, H9, P9, unused, 0, work, False)
+        V = volumes[e]
+        energy += V * _energy(code, parameters, H9)
+        for j in range(3):
+            for c in range(3):
+                pv[3 * e + j, c] = V * P9[3 * c + j, 0]
     return energy
 
 

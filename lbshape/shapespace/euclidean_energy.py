@@ -98,6 +98,13 @@ class EuclideanExampleEnergy:
             return self._block.energy_force_and_tangent(y)
         return (self.model.energy(y), *self.model.force_and_tangent(y))
 
+    def energy_and_force(self, y: np.ndarray) -> tuple[float, np.ndarray]:
+        """``(E(y), g)`` in one pass, without the Hessian (the compiled block evaluation when
+        the basis is an LB block basis)."""
+        if self._block is not None:
+            return self._block.energy_and_force(y)
+        return self.model.energy(y), self.model.force(y)
+
     def min_jacobian(self, y: np.ndarray) -> float:
         """The smallest det F over all elements at y (p,); ≤ 0 means inverted."""
         return self.model.min_jacobian(y)

@@ -28,6 +28,8 @@ from lbshape.elastic.materials import MODELS, Material
 from lbshape.errors import LbshapeError
 from lbshape.geometry.primitives import structured_box
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
+from lbshape.shapespace.interpolation import TargetSolver
+from lbshape.shapespace.reused_hessian import ReusedHessianTargetSolver
 from lbshape.spectral.spectrum import lb_spectrum
 
 M_LB = 4
@@ -118,6 +120,53 @@ def test_block_energy_equals_the_general_example_energy(bar, model):
     assert np.abs(H1 - H0).max() <= 1e-13 * np.abs(H0).max()
     again = block.energy_force_and_tangent(y)  # the kept evaluation
     assert again[0] == e1 and np.array_equal(again[1], g1) and np.array_equal(again[2], H1)
+    e2, g2 = block.energy_and_force(y + 1e-12)  # the pass without the Hessian
+    e3, g3, _ = general.energy_force_and_tangent(y + 1e-12)
+    assert abs(e2 - e3) <= 1e-13 * e3 and np.abs(g2 - g3).max() <= 1e-13 * np.abs(g3).max()
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_reused_hessian_target_equals_the_newton_target(bar, model):
+    """The modified Newton target (Hessians reused, gradient passes) along a drifting
+    sequence of weights: the full Newton method's targets, to far below its tolerance."""
+    mesh, phi = bar.mesh, bar.phi
+    c = np.stack([coefficients(phi, np.arange(1.0, 3 * M_LB + 1), 0.03),
+                  coefficients(phi, np.arange(3 * M_LB, 0.0, -1.0), 0.02)]).reshape(2, -1)
+    L = np.kron(phi, np.eye(3))
+    rests = [mesh.points + (L @ ck).reshape(-1, 3) for ck in c]
+    models = [EuclideanExampleEnergy(x, mesh.tets, material(model), L) for x in rests]
+    newton = TargetSolver(models, c, tolerance=1e-6)
+    reused = ReusedHessianTargetSolver(models, c, tolerance=1e-6)
+    scale = np.linalg.norm(c, axis=1).max()
+    for a in np.linspace(0.0, 1.0, 12) ** 2:
+        weights = np.array([1.0 - a, a])
+        expected, got = newton.solve(weights), reused.solve(weights)
+        assert np.linalg.norm(got.z - expected.z) <= 1e-8 * scale
+    assert reused.full_passes < reused.gradient_passes  # the Hessians were reused
+
+
+def test_reused_factor_follows_the_frame(bar):
+    """A factor of J₀ taken in frame R₀ preconditions the rotated ``Q J₀ Qᵀ`` (Q the turn
+    since then, per vertex) to round-off: one preconditioner application, no refactoring."""
+    compiled = CompiledElasticity(bar.mesh, material())
+    _, K = compiled.force_and_tangent(np.zeros(compiled.n_dofs))
+    J0 = sp.csr_matrix(K + 1e3 * mass_matrix(bar.mesh, 1000.0))
+    angle = 0.7
+    turn = np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0],
+                     [0.0, 0.0, 1.0]])
+    Q = sp.kron(sp.identity(bar.mesh.n_vertices), sp.csr_matrix(turn), format="csr")
+    J = sp.csr_matrix(Q @ J0 @ Q.T)
+    J.sort_indices()
+    zero = sp.csr_matrix(J.shape)
+    solver = ReusedFactorSolver()
+    solver.frame = np.eye(3)
+    R = np.random.default_rng(3).normal(size=J.shape[0])
+    solver(zero, J0, R)  # factorised in the frame I
+    solver.frame = turn
+    before = solver.inner_iterations
+    delta = solver(zero, J, R)
+    assert solver.factorisations == 1 and solver.inner_iterations - before == 1
+    assert np.linalg.norm(J @ delta - R) <= 1e-10 * np.linalg.norm(R)
 
 
 @pytest.mark.parametrize("symmetric", [True, False])

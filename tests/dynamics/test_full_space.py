@@ -211,7 +211,8 @@ def test_zero_example_stiffness_builds_and_calls_no_example_machinery(bar, monke
     def forbidden(*args, **kwargs):
         raise AssertionError("example machinery used with k_ex = 0")
 
-    for name in ("simplex_weights", "EuclideanExampleEnergy", "TargetSolver"):
+    for name in ("SimplexWeights", "EuclideanExampleEnergy", "TargetSolver",
+                 "ReusedHessianTargetSolver"):
         monkeypatch.setattr(full_examples, name, forbidden)
     c1 = example_coefficients(bar.phi, np.ones(3 * M_LB), 0.01)
     examples = FullSpaceExamples(bar.lam, bar.phi, c1[None], 0.0)
