@@ -133,7 +133,7 @@ from lbshape.pipeline.stages import Ranks, StageRecorder
 from lbshape.scene.schema import ExamplePose, Scene
 from lbshape.shapespace.alignment import BasisAlignment
 from lbshape.shapespace.auto_stiffness import AutoStiffness, auto_example_stiffness
-from lbshape.shapespace.basis_choice import METHODS
+from lbshape.shapespace.basis_choice import METHODS, warn_doubtful_transfer
 from lbshape.shapespace.clamped_basis import clamped_eigenvectors
 from lbshape.shapespace.example_shapes import (
     clamp_is_safe,
@@ -553,7 +553,9 @@ def _embed_examples(scene: Scene, mesh: TetMesh, spectrum: LBSpectrum) -> Embedd
             raise LbshapeError(f"{label}: {exc}") from None
         coefficients.append(embedded.coefficients[0])
         alignments.append(embedded.alignment)
-        log.info("%s: alignment residual %.3g", label, embedded.alignment.residual)
+        log.info("%s: alignment residual %.3g, transfer difference %.3g", label,
+                 embedded.alignment.residual, embedded.transfer_differences[0])
+        warn_doubtful_transfer(label, embedded)
     return EmbeddedExamples(coefficients, alignments)
 
 

@@ -53,6 +53,7 @@ from lbshape.fem.cholesky import serial_cholesky
 from lbshape.geometry.mesh import TetMesh
 from lbshape.pipeline.meshes import selected_vertices
 from lbshape.scene.schema import Scene
+from lbshape.shapespace.auto_stiffness import AUTO_RULE
 from lbshape.shapespace.local_regions import rigid_fields
 from lbshape.shapespace.local_space import RegionSpace
 from lbshape.shapespace.projections import block_basis
@@ -235,7 +236,8 @@ def response_key(scene: Scene) -> dict:
         loads.append({"type": load.type, "group": load.selection.group if load.selection
                       else None, "region": load.selection.region if load.selection else None,
                       "vector": np.asarray(load.vector, dtype=float).round(12).tolist()})
-    k_ex = (scene.examples.stiffness if scene.examples is not None and scene.examples.auto
-            else example_response_stiffness(scene))  # "auto": a function of the rest
+    k_ex = example_response_stiffness(scene)
+    if scene.examples is not None and scene.examples.auto:  # a function of the rest
+        k_ex = {"auto": list(AUTO_RULE)}
     return {"loads": loads, "example_response_stiffness": k_ex,
             "free": scene.is_free}

@@ -53,11 +53,9 @@ from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 
-__all__ = ["AUTO", "LOAD_FACTOR", "SHAPE_FACTOR", "TARGET_SHARE", "AutoStiffness",
-           "auto_example_stiffness"]
+__all__ = ["AUTO_RULE", "LOAD_FACTOR", "SHAPE_FACTOR", "TARGET_SHARE", "AutoStiffness",
+           "auto_example_stiffness", "example_field_stiffness"]
 
-#: the value of ``[examples] stiffness`` (and ``example_stiffness=``) that asks for this rule
-AUTO = "auto"
 #: the share a* of the way from rest to an example that k_ex reaches against the
 #: example's own linear stiffness (no loads); SHAPE_FACTOR = a* / (1 − a*)
 TARGET_SHARE = 2.0 / 3.0
@@ -69,6 +67,9 @@ LOAD_FACTOR = 2.0
 #: an example whose ω² is below this share of E / (ρ D²) (D the bounding-box diagonal)
 #: has no strain energy: the rest shape or a rigid motion of it
 RIGID_TOLERANCE = 1e-9
+#: what the rule's result depends on besides the scene (part of the precompute's cache
+#: key: a new constant recomputes the precomputes of "auto" scenes)
+AUTO_RULE = ("energy-rayleigh-1", SHAPE_FACTOR, LOAD_FACTOR)
 
 
 @dataclass(frozen=True)
