@@ -92,9 +92,9 @@ TIE = 0.01
 #: the intrinsic map is offered this many times m example eigenpairs
 INTRINSIC_MODES = 5
 #: largest accepted transfer difference of an example's displacement (module docstring)
-MAX_TRANSFER_DIFFERENCE = 0.5
+MAX_TRANSFER_DIFFERENCE = 0.4
 #: above this transfer difference the precompute warns that the transfer is doubtful
-WARN_TRANSFER_DIFFERENCE = 0.3
+WARN_TRANSFER_DIFFERENCE = 0.25
 
 
 def warn_doubtful_transfer(label: str, embedded) -> None:
