@@ -175,6 +175,11 @@ def example_coefficients_via_posed_basis(
     return posed - rest
 
 
+#: a pose whose largest displacement is below this share of the example's bounding-box
+#: diagonal is at rest (its transfer difference is 0: round-off has no shape)
+AT_REST = 1e-9
+
+
 @dataclass(frozen=True)
 class EmbeddedExample:
     """An example brought into the object's shape space.
@@ -270,8 +275,12 @@ def embed_example(
         for p in posed
     ]).reshape(len(poses), m, 3)
     reference = reference_transfer(object_mesh, frame, object_spectrum.eigenvectors, rest)
-    differences = np.array([transfer_difference(reference, spectrum.mass, c, p - aligned.points)
-                            for c, p in zip(coefficients, posed, strict=True)])
+    # a pose at rest to round-off has no shape to compare (0)
+    still = AT_REST * float(np.linalg.norm(np.ptp(aligned.points, axis=0)))
+    differences = np.array([
+        transfer_difference(reference, spectrum.mass, c, p - aligned.points)
+        if np.abs(p - aligned.points).max() > still else 0.0
+        for c, p in zip(coefficients, posed, strict=True)])
     if differences.size and differences.max() > max_transfer_difference:
         worst = int(np.argmax(differences))
         pose = f" (pose {worst})" if len(poses) > 1 else ""
