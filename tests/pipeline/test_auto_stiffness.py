@@ -131,3 +131,18 @@ def test_cli_prints_the_auto_value_and_what_the_examples_did(tmp_path, capsys):
     assert "visible change " in text and "closest: example 0" in text
     stats = json.loads((out / "stats.json").read_text())
     assert stats["example_stiffness"] > 0 and stats["closest_example"] == 0
+
+
+@pytest.mark.slow
+def test_the_benchmark_script_writes_its_table(tmp_path, load_script):
+    bench = load_script("bench_auto_stiffness")
+    written = bench.main(["--out-dir", str(tmp_path), "--scenes", "clip",
+                          "--max-time", "0.1"])
+    assert sorted(p.name for p in written) == ["auto_stiffness.json", "auto_stiffness.md"]
+    payload = json.loads((tmp_path / "auto_stiffness.json").read_text())
+    assert payload["command"].startswith("python scripts/bench_auto_stiffness.py")
+    assert payload["commit"] and payload["machine"]["threads"]
+    [row] = payload["rows"]
+    assert row["scene"] == "clip" and row["steps"] == 50 and row["k_ex_auto"] > 0
+    assert row["error_vs_full"] is not None and row["stable"]
+    assert "| clip | 50 × 0.002 s |" in (tmp_path / "auto_stiffness.md").read_text()
