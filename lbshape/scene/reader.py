@@ -213,15 +213,13 @@ def _reduced(top: _Table) -> Reduced:
 def _examples(top: _Table, ctx: _Context) -> Examples | None:
     if "examples" not in top.data:
         return None
-    from lbshape.scene.schema import AUTO_STIFFNESS  # (kept beside its one use)
-
     ex = top.subtable("examples", ("stiffness", "pose"))
-    value = ex.data.get("stiffness", AUTO_STIFFNESS)  # no number: set by the precompute
+    value = ex.data.get("stiffness", Examples.AUTO)  # no number: set by the precompute
     if isinstance(value, str):
-        if value != AUTO_STIFFNESS:
+        if value != Examples.AUTO:
             raise ctx.error(f"'{ex.key('stiffness')}' must be a number >= 0 (1/s^2) or "
-                            f"\"{AUTO_STIFFNESS}\", got {value!r}")
-        stiffness = AUTO_STIFFNESS
+                            f"\"{Examples.AUTO}\", got {value!r}")
+        stiffness = Examples.AUTO
     else:
         stiffness = ex.number("stiffness", low=0.0, unit="1/s^2")
     poses = tuple(_example_pose(t, ctx)

@@ -355,6 +355,9 @@ class Examples:
     stiffness: float | str
     poses: tuple[ExamplePose, ...]
 
+    #: the ``stiffness`` that lets the precompute set k_ex (:data:`AUTO_STIFFNESS`)
+    AUTO: ClassVar[str] = "auto"
+
     @property
     def auto(self) -> bool:
         """k_ex is set by the precompute (``stiffness = "auto"``)."""
@@ -367,7 +370,7 @@ class Examples:
 
 
 #: ``[examples] stiffness = "auto"`` (the default of scenes that give no number)
-AUTO_STIFFNESS = "auto"
+AUTO_STIFFNESS = Examples.AUTO
 
 
 @dataclass(frozen=True)
