@@ -82,7 +82,7 @@ def test_a_coarse_surface_only_bend_near_the_residual_limit_is_warned(bar, caplo
     assert 0.4 < found.alignment.residual < 0.5
     d = found.transfer_differences[0]
     assert WARN_TRANSFER_DIFFERENCE < d < MAX_TRANSFER_DIFFERENCE
-    with caplog.at_level(logging.WARNING):
+    with caplog.at_level(logging.WARNING, logger="lbshape"):
         warn_doubtful_transfer("example 0 (bend.stl)", found)
     [record] = [r for r in caplog.records if "transfer difference" in r.getMessage()]
     assert record.getMessage().startswith("example 0 (bend.stl): its displacement reached "
@@ -132,7 +132,7 @@ def test_the_built_in_examples_pass(name, caplog):
     from lbshape.pipeline.precompute import precompute
     from lbshape.scene import load_scene
 
-    with caplog.at_level(logging.INFO):
+    with caplog.at_level(logging.INFO, logger="lbshape"):
         precompute(load_scene(name), force=True, save=False)
     found = [r.getMessage() for r in caplog.records if "transfer difference" in r.getMessage()]
     assert found and not [r for r in caplog.records if r.levelno >= logging.WARNING
