@@ -131,6 +131,11 @@ def test_cli_prints_the_auto_value_and_what_the_examples_did(tmp_path, capsys):
     assert "visible change " in text and "closest: example 0" in text
     stats = json.loads((out / "stats.json").read_text())
     assert stats["example_stiffness"] > 0 and stats["closest_example"] == 0
+    assert main(["precompute", str(tmp_path / "clip.toml")]) == 0  # cached: the same value
+    shown = [line.strip() for line in capsys.readouterr().out.splitlines()
+             if "example stiffness auto" in line]
+    assert shown == [f"example stiffness auto: k_ex = {stats['example_stiffness']:.4g} 1/s² "
+                     + shown[0].split(" 1/s² ", 1)[1]]
 
 
 @pytest.mark.slow
