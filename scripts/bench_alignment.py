@@ -39,16 +39,17 @@ from pathlib import Path
 
 import numpy as np
 
+from lbshape.analysis.twist import end_twist_degrees
 from lbshape.errors import LbshapeError
 from lbshape.geometry.poses import apply_pose
 from lbshape.geometry.primitives import ball, box, cylinder, structured_box
 from lbshape.geometry.shapes import build_shape
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
-from lbshape.pipeline.influence import end_twist_degrees, without_examples
+from lbshape.io.machine import machine_description, machine_text
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
-from lbshape.report.machine import machine_description, machine_text
 from lbshape.scene import load_scene
+from lbshape.scene.variants import without_examples
 from lbshape.shapespace.basis_choice import candidate_alignments, choose_alignment, transfer_error
 from lbshape.shapespace.frames import MAX_RELATIVE_RMS, align_to_object, body_frame
 from lbshape.shapespace.functional_map import normalised_coordinates

@@ -45,7 +45,7 @@ from lbshape.elastic.polynomial_forces import PolynomialForceModel
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.geometry.mesh import TetMesh
 from lbshape.io.atomic import write_bytes_atomic
-from lbshape.report.machine import load_text, machine_description, machine_text
+from lbshape.io.machine import load_text, machine_description, machine_text
 from lbshape.report.plots import pyplot, save_figure
 
 log = logging.getLogger(__name__)

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from lbshape.io.atomic import write_bytes_atomic
-from lbshape.report.machine import load_average, machine_text
+from lbshape.io.machine import load_average, machine_text
 from lbshape.report.plots import pyplot, save_figure
 
 log = logging.getLogger("bench_eigen")

@@ -17,7 +17,7 @@ from lbshape.elastic.element_kernels import ElementKernel
 from lbshape.elastic.materials import MODELS, Material
 from lbshape.geometry.primitives import structured_box
 from lbshape.io.atomic import write_json_atomic
-from lbshape.report.machine import machine_description
+from lbshape.io.machine import machine_description
 
 DEFAULT_OUT = Path(__file__).resolve().parents[1] / "results" / "bench_element_kernels.json"
 

@@ -4,9 +4,9 @@ Usage: ``.venv/bin/python scripts/bench_free_body.py [SCENE ...] [--steps N] [--
 [--out-dir results]`` (default scenes: car, bar-s-cuboid, bar-s-cylinder, the paper's
 free bodies, at their own m, r, s).
 
-Per scene (:func:`lbshape.report.bench.bench_scene`): ``full`` and ``reduced`` once for the
+Per scene (:func:`lbshape.studies.bench.bench_scene`): ``full`` and ``reduced`` once for the
 error vs ``full`` (both deterministic), then ``reduced`` alone ``--repeats`` times for the
-times; writes, atomically (:func:`lbshape.report.realtime.write_free_body_step`), the
+times; writes, atomically (:func:`lbshape.studies.realtime.write_free_body_step`), the
 reduced step's median wall time per step, its parts and the error. Single-threaded.
 """
 
@@ -24,9 +24,9 @@ import logging
 from pathlib import Path
 
 from lbshape.pipeline.precompute import precompute
-from lbshape.report.bench import DEFAULT_OUT, bench_scene
-from lbshape.report.realtime import write_free_body_step
 from lbshape.scene import load_scene
+from lbshape.studies.bench import DEFAULT_OUT, bench_scene
+from lbshape.studies.realtime import write_free_body_step
 
 log = logging.getLogger(__name__)
 

@@ -54,10 +54,10 @@ import numpy as np
 
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_text_atomic
+from lbshape.io.machine import machine_description
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.routes import BOUNDARIES, ROUTES, target_solver
-from lbshape.report.machine import machine_description
 from lbshape.report.plots import pyplot, save_figure
 from lbshape.scene import Scene, load_scene
 from lbshape.shapespace.example_driver import ExampleDriver

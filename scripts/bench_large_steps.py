@@ -2,7 +2,7 @@
 
 Usage: ``.venv/bin/python scripts/bench_large_steps.py [--out-dir results]``.
 
-Runs :func:`lbshape.report.large_steps.large_step_study` on the demo, the paper's bar
+Runs :func:`lbshape.studies.large_steps.large_step_study` on the demo, the paper's bar
 scenes (bar-cuboid, bar-cylinder, and the free bar-s-cuboid of Figure 4) and a user's own
 mesh (the ``l-beam`` shape read from a ``.msh`` file) at 1000, 60, 50 and 20 Hz, and
 writes ``large_steps.md``, ``large_steps.json`` and ``large_steps.png`` atomically.
@@ -17,29 +17,40 @@ if __name__ == "__main__":  # single-threaded BLAS for the timings, set before n
         os.environ.setdefault(_var, "1")
 
 import argparse
+import importlib.util
 import logging
 import sys
 import tempfile
 from pathlib import Path
 
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
+from lbshape.io.machine import machine_description
 from lbshape.pipeline.precompute import precompute
-from lbshape.report.bench import DEFAULT_OUT
-from lbshape.report.large_steps import (
+from lbshape.scene import load_scene
+from lbshape.studies.bench import DEFAULT_OUT
+from lbshape.studies.large_steps import (
     large_step_study,
     large_steps_markdown,
     large_steps_payload,
     large_steps_plot,
-    user_mesh_scene,
 )
-from lbshape.report.machine import machine_description
-from lbshape.scene import load_scene
 
 log = logging.getLogger(__name__)
+#: the tests' helpers, where the user's own mesh scene is defined
+CONFTEST = Path(__file__).resolve().parents[1] / "tests" / "conftest.py"
 
 #: scene → simulated time (s), the same at every step rate
 DURATIONS = {"demo": 0.3, "bar-cuboid": 0.4, "bar-cylinder": 0.4, "bar-s-cuboid": 1.0,
              "l-beam": 0.4}
+
+
+def user_mesh_scene(folder: Path):
+    """The tests' user-mesh scene (``tests/conftest.py``: the ``l-beam`` shape written to
+    ``folder/l-beam.msh`` and a scene that reads it)."""
+    spec = importlib.util.spec_from_file_location("lbshape_tests_conftest", CONFTEST)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.user_mesh_scene(folder)
 
 
 def main(argv: list[str] | None = None) -> list[Path]:

@@ -3,9 +3,9 @@ of a drag on the teddy's left leg; writes ``live.md``, ``live.json`` and ``live/
 
 Usage: ``.venv/bin/python scripts/bench_live.py [--seconds S] [--out-dir results]``.
 
-Each scene runs in the live window (:func:`lbshape.report.live.run_live`) for S seconds of
+Each scene runs in the live window (:func:`lbshape.live.window.run_live`) for S seconds of
 wall time, paced to the clock, on the display set in ``DISPLAY`` or else a virtual X
-server started for the run (:func:`lbshape.report.live.virtual_display`; OpenGL is then
+server started for the run (:func:`lbshape.live.display.virtual_display`; OpenGL is then
 Mesa's software renderer). ``teddy-global`` (the paper's Figure 6 object) is dragged by
 its left leg's foot during the timed run (grab, two moves, release); ``demo`` and ``car``
 (a free body thrown over a floor into a wall, the planes drawn) run untouched. A second,
@@ -28,11 +28,13 @@ from pathlib import Path
 import numpy as np
 
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
+from lbshape.io.machine import load_text, machine_description, machine_text
 from lbshape.io.paths import REPOSITORY, RESULTS_DIR
-from lbshape.pipeline.live import LiveSession
+from lbshape.live.display import virtual_display
+from lbshape.live.events import LiveEvent
+from lbshape.live.session import LiveSession
+from lbshape.live.window import run_live
 from lbshape.pipeline.precompute import precompute
-from lbshape.report.live import LiveEvent, run_live, virtual_display
-from lbshape.report.machine import load_text, machine_description, machine_text
 from lbshape.scene import load_scene
 
 #: the scenes timed; the first is dragged

@@ -6,7 +6,7 @@ Usage: ``.venv/bin/python scripts/bench_local_interpolation.py [SCENE] [--label 
 Measures, in one process and one thread:
 
 * ``full``, ``euclidean`` and ``reduced`` side by side
-  (:func:`lbshape.report.bench.bench_scene`, the measurement of ``lbshape bench``):
+  (:func:`lbshape.studies.bench.bench_scene`, the measurement of ``lbshape bench``):
   per-step t_interp and t_total (medians over repeats, warm-up excluded), the
   interpolation speed-up euclidean / reduced and each method's error vs ``full``;
 * the reduced method's **target error on every call** of a run: for each step's
@@ -37,13 +37,13 @@ from pathlib import Path
 import numpy as np
 
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
+from lbshape.io.machine import load_text, machine_description, machine_text
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import WARMUP_STEPS, reduced_simulation
-from lbshape.report.bench import DEFAULT_OUT, bench_scene
-from lbshape.report.machine import load_text, machine_description, machine_text
 from lbshape.scene import load_scene
 from lbshape.shapespace.interpolation import TargetSolver
 from lbshape.shapespace.local_driver import region_energy_models
+from lbshape.studies.bench import DEFAULT_OUT, bench_scene
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +61,7 @@ _INTRO = (
     "Written by `scripts/bench_local_interpolation.py` (one row per stored measurement, "
     "e.g. the code before and after a change). Per-step times in ms are medians over "
     "repeats of the per-step means after the warm-up steps, `full`, `euclidean` and "
-    "`reduced` interleaved in one process (`lbshape.report.bench.bench_scene`, as "
+    "`reduced` interleaved in one process (`lbshape.studies.bench.bench_scene`, as "
     "`lbshape bench`); error vs full `max_t ‖u(t) − u_full(t)‖_M / max_t ‖u_full(t)‖_M`. "
     "Target error: on every step of a reduced run, per region, the target the run used "
     "against the exact target (Newton to 1e-12 on the region's exact example energies) at "

@@ -51,7 +51,7 @@ def run(repeats: int = 1) -> list[dict]:
 
 def write(rows: list[dict]) -> None:
     from lbshape.io.atomic import write_text_atomic
-    from lbshape.report.machine import machine_text
+    from lbshape.io.machine import machine_text
 
     header = ["case", "n_vertices", "n_tets", "r", "s", "free", *STAGES, "total",
               "cubature_holdout"]

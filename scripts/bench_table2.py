@@ -4,7 +4,7 @@ Usage: ``.venv/bin/python scripts/bench_table2.py [SCENE ...] [--steps N] [--rep
 [--sweep-scene NAME] [--sweep-r 10,20,30] [--sweep-s 20,60,120] [--sweep-m 6,14]
 [--sweep-steps N] [--no-sweep] [--out-dir results]``.
 
-Writes (atomically, via :mod:`lbshape.report.tables`):
+Writes (atomically, via :mod:`lbshape.studies.tables`):
 
 * ``table2.md`` and ``table2.json``: ``full``, ``euclidean`` and ``reduced`` side by
   side on each scene (default: bar-cuboid, bar-cylinder) — per-step times (median
@@ -29,23 +29,23 @@ import logging
 from pathlib import Path
 
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
+from lbshape.io.machine import machine_description
 from lbshape.pipeline.precompute import precompute
-from lbshape.report.bench import (
+from lbshape.scene import load_scene
+from lbshape.studies.bench import (
     DEFAULT_OUT,
     DEFAULT_SCENES,
     bench_scene,
     paper_setting,
-    speed_error_sweep,
 )
-from lbshape.report.machine import machine_description
-from lbshape.report.realtime import (
+from lbshape.studies.realtime import (
     PAPER_TABLE2,
     newton_study,
     newton_study_markdown,
     newton_study_payload,
 )
-from lbshape.report.tables import write_sweep, write_table2
-from lbshape.scene import load_scene
+from lbshape.studies.sweep import speed_error_sweep
+from lbshape.studies.tables import write_sweep, write_table2
 
 log = logging.getLogger(__name__)
 

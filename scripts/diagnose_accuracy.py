@@ -34,20 +34,20 @@ import time
 
 import numpy as np
 
+from lbshape.analysis.norms import m_norms, trajectory_error
 from lbshape.dynamics.engine import NewtonSettings
 from lbshape.dynamics.rigid_frame import best_rigid_frame
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
 from lbshape.io.paths import RESULTS_DIR
-from lbshape.pipeline.influence import without_examples
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import (
     example_stiffness,
     reduced_simulation,
     run_full_space,
 )
-from lbshape.report.bench import m_norms, trajectory_error
 from lbshape.scene import load_scene
+from lbshape.scene.variants import without_examples
 from lbshape.shapespace.interpolation import resolve_route
 from lbshape.shapespace.local_driver import local_example_driver, local_route
 from lbshape.shapespace.local_full_force import FullSpaceLocalForce

@@ -5,16 +5,16 @@ Runs ``full``, ``euclidean`` and ``reduced`` side by side in one process per sce
 (default scenes: bar-cuboid, bar-cylinder; names, TOML paths or globs) and writes
 ``table2.md`` and ``table2.json``. The reduced method also runs at the paper's
 setting (its Table 2 m, r, s with cubature forces,
-:func:`lbshape.report.bench.paper_setting`) beside the scene as written, each with its
+:func:`lbshape.studies.bench.paper_setting`) beside the scene as written, each with its
 error with and without the examples; ``--no-paper-settings`` leaves that out. Several
 scenes run in ``-j`` worker processes and end with a summary table (on stderr with
 ``--json``); a failed scene is listed and does not stop the others (exit code non-zero
 at the end).
 With ``--sweep`` it sweeps r, s and m of the reduced method per scene instead
-(:mod:`lbshape.report.pareto`) and writes ``pareto.md``, ``pareto.json`` and
+(:mod:`lbshape.studies.pareto`) and writes ``pareto.md``, ``pareto.json`` and
 ``pareto.png``.
 With ``--scaling`` it measures the cost growth with mesh size instead
-(:mod:`lbshape.report.scaling`): one built-in scene (default bar-cylinder) at several
+(:mod:`lbshape.studies.scaling`): one built-in scene (default bar-cylinder) at several
 object sizes, each precomputed from scratch in a fresh process (``--ranks N``: under
 ``mpirun -n N``), then the reduced per-step time of all sizes interleaved; writes
 ``scaling.csv``, ``scaling.md`` and ``scaling.png``.
@@ -32,11 +32,11 @@ from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.batch import expand_scenes, run_jobs, summary_table
 from lbshape.pipeline.simulate import WARMUP_STEPS
-from lbshape.report import pareto, scaling
-from lbshape.report.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene, paper_setting
-from lbshape.report.realtime import PAPER_TABLE2
-from lbshape.report.tables import settings_payload, write_table2
 from lbshape.scene import load_scene
+from lbshape.studies import pareto, scaling
+from lbshape.studies.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene, paper_setting
+from lbshape.studies.realtime import PAPER_TABLE2
+from lbshape.studies.tables import settings_payload, write_table2
 
 
 def register(subparsers) -> None:
@@ -150,8 +150,8 @@ def run(args) -> int:
 
 def bench_one(name: str, *, steps: int | None, repeats: int, paper_settings: bool = True,
               progress: bool = False):
-    """:func:`~lbshape.report.bench.bench_scene` of one scene argument (a batch job), with
-    the settings comparison at :func:`~lbshape.report.bench.paper_setting` unless
+    """:func:`~lbshape.studies.bench.bench_scene` of one scene argument (a batch job), with
+    the settings comparison at :func:`~lbshape.studies.bench.paper_setting` unless
     ``paper_settings`` is False."""
     scene = load_scene(name)
     paper = paper_setting(scene, PAPER_TABLE2) if paper_settings else None

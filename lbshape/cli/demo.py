@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lbshape.report.demo import run_demo
+from lbshape.studies.demo import run_demo
 
 
 def register(subparsers) -> None:

@@ -2,7 +2,7 @@
 [--drag-stiffness K]``.
 
 An on-screen window stepping the scene's reduced simulation paced to the wall clock
-(:mod:`lbshape.report.live`): drag a vertex with the left mouse button, ``space`` pause,
+(:mod:`lbshape.live.window`): drag a vertex with the left mouse button, ``space`` pause,
 ``n`` one step, ``x`` examples on/off, ``z`` reset, ``q`` quit. The precompute comes from
 the shared cache (its progress is shown first when the scene is not cached).
 
@@ -22,9 +22,11 @@ from pathlib import Path
 from lbshape.cli._mpi import require_one_rank
 from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
-from lbshape.pipeline.live import LiveSession
+from lbshape.live.display import require_display
+from lbshape.live.events import read_events
+from lbshape.live.session import LiveSession
+from lbshape.live.window import run_live
 from lbshape.pipeline.precompute import precompute
-from lbshape.report.live import read_events, require_display, run_live
 from lbshape.scene import load_scene
 
 

@@ -13,8 +13,9 @@ from pathlib import Path
 
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.simulate import METHODS
-from lbshape.report.animation import simulation_movie
-from lbshape.report.figures import (
+from lbshape.scene import load_scene
+from lbshape.studies.animation import simulation_movie
+from lbshape.studies.figures import (
     FIGURE3_SCENES,
     FIGURE3_STEPS,
     FIGURE6_SCENES,
@@ -23,7 +24,6 @@ from lbshape.report.figures import (
     figure6,
     render_scene,
 )
-from lbshape.scene import load_scene
 
 
 def register(subparsers) -> None:

@@ -17,14 +17,14 @@ import math
 from pathlib import Path
 
 from lbshape.errors import LbshapeError
-from lbshape.report.tune import (
+from lbshape.scene import load_scene
+from lbshape.studies.tune import (
     DEFAULT_BUDGET_MS,
     default_out,
     tune_scene,
     verdict_line,
     write_tune,
 )
-from lbshape.scene import load_scene
 
 
 def _int_list(text: str) -> tuple[int, ...]:

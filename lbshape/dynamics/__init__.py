@@ -1,6 +1,8 @@
-"""Time stepping: implicit integrators, loads, the reduced and full-space engines, run records."""
+"""Time stepping: implicit integrators, loads, the reduced and full-space engines (one
+protocol: :mod:`lbshape.dynamics.engine`), run records."""
 
 __all__ = [
+    "engine",
     "full",
     "integrators",
     "loads",

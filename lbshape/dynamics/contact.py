@@ -47,10 +47,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
-from lbshape._jit import njit
+from lbshape._jit import njit, py_func
+from lbshape.dynamics.kernels import check_size, take
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import boundary_faces
 
@@ -147,28 +149,32 @@ class PlaneContact:
         #: vertex loops skipped by the bounding-sphere test / evaluated (counters)
         self.skipped = 0
         self.evaluated = 0
-        #: outputs of the last :meth:`evaluate_into` (see :class:`ContactResult`)
-        self.force, self.torque = np.zeros(3), np.zeros(3)
-        self.generalized = np.zeros(r)
-        self.stiffness_q, self.stiffness_rigid = np.zeros((r, r)), np.zeros((6, 6))
-        self.damping_rigid = np.zeros((6, 6))
+        #: the planes as the kernels read them, (P, 8): point, unit normal, k, μ
+        self._planes = np.ascontiguousarray(np.column_stack(
+            [self.points, self.normals, self.stiffness, self.friction]))
+        #: outputs of the last :meth:`evaluate_into` (see :class:`ContactResult`): views of
+        #: one buffer (:class:`ContactOutput`)
+        self._out = ContactOutput.allocate(r)
+        self.force, self.torque = self._out.force, self._out.torque
+        self.generalized = self._out.generalized
+        self.stiffness_q, self.stiffness_rigid = self._out.Kq, self._out.K6
+        self.damping_rigid = self._out.C6
         #: (6, r) the friction's coupling ``Σ Bᵀ C R U_i`` of the rigid velocity and q̇:
         #: minus the derivative of (force, torque) w.r.t. q̇
-        self.coupling = np.zeros((6, r))
+        self.coupling = self._out.X
         #: [energy (J), active vertices, largest penetration (m)] of the last evaluation
-        self.scalars = np.zeros(3)
+        self.scalars = self._out.scalars
         self._reach = np.zeros(len(planes), dtype=np.bool_)
-        self._work, self._small = np.zeros(r), np.zeros(12)
+        self._work = ContactWork.allocate(r)
         # the surface deformed in the body frame, y_i = X̄_i + U_i q (one BLAS product
         # per evaluation; the kernels' own loops over r were 6x slower on the car)
         self._basis_rows = self.basis.reshape(-1, r)
         self._deformed = np.zeros(self.body_points.shape)
         self._deformed_flat = self._deformed.reshape(-1)
-        # friction: the velocities of an evaluation without them (at rest), its work
+        # friction: the velocities of an evaluation without them (at rest), and the motion
+        # the friction kernel reads: [v (3), ω (3), rate, q̇ (r)]
         self._rest3, self._rest_q = np.zeros(3), np.zeros(r)
-        self._friction_work = np.zeros((8, r))
-        self._friction_small = np.zeros(24)
-        self._friction_q = np.zeros((r, r))
+        self._motion = np.zeros(7 + r)
 
     @classmethod
     def for_mesh(cls, planes: Sequence[ContactPlane], points: np.ndarray, tets: np.ndarray,
@@ -208,20 +214,15 @@ class PlaneContact:
             np.add(self._deformed, self.body_points, out=self._deformed)
         else:
             self.skipped += 1
-        active = _contact_kernel(center, rotation, q, self._deformed, self.basis,
-                                 self.points, self.normals, self.stiffness, self._reach,
-                                 rigid, self._work, self._small, self.force, self.torque,
-                                 self.generalized, self.stiffness_q, self.stiffness_rigid,
-                                 self.scalars)
+        active = _contact_kernel(center, rotation, self._deformed, self.basis, self._planes,
+                                 self._reach, rigid, self._work.data, self._out.data)
         if self.has_friction and active:
-            _friction_kernel(
-                center, rotation, q, self._rest3 if velocity is None else velocity,
-                self._rest3 if omega is None else omega, self._rest_q if qd is None else qd,
-                float(rate), self._deformed, self.basis, self.points, self.normals,
-                self.stiffness, self.friction, SLIP_SPEED, self._reach, rigid,
-                self._friction_work, self._friction_small, self._friction_q, self.force,
-                self.torque, self.generalized, self.stiffness_q, self.damping_rigid,
-                self.coupling)
+            _pack_motion(self._rest3 if velocity is None else velocity,
+                         self._rest3 if omega is None else omega,
+                         self._rest_q if qd is None else qd, float(rate), self._motion)
+            _friction_kernel(center, rotation, self._motion, self._deformed, self.basis,
+                             self._planes, SLIP_SPEED, self._reach, rigid, self._work.data,
+                             self._out.data)
         elif self.has_friction:
             self.damping_rigid[:] = 0.0
             self.coupling[:] = 0.0
@@ -303,11 +304,12 @@ def _body_arm(i, rotation, deformed, arm):
 
 
 @njit
-def _plane_gap(arm, center, points, normals, p):
-    """Signed distance (m) of the point ``center + arm`` from plane p (negative: inside)."""
+def _plane_gap(arm, center, planes, p):
+    """Signed distance (m) of the point ``center + arm`` from plane p (negative: inside);
+    ``planes`` (P, 8): point, unit normal, k, μ."""
     gap = 0.0
     for a in range(3):
-        gap += (arm[a] + (center[a] - points[p, a])) * normals[p, a]
+        gap += (arm[a] + (center[a] - planes[p, a])) * planes[p, 3 + a]
     return gap
 
 
@@ -325,9 +327,109 @@ def _reach_kernel(center, q, radius0, u_max, points, normals, reach):
     return anything
 
 
+class ContactOutput(NamedTuple):
+    """The outputs of an evaluation (:meth:`PlaneContact.evaluate_into`): views of the
+    buffer ``data`` (:func:`contact_output`), as :mod:`lbshape.dynamics.kernels` describes."""
+
+    #: the buffer every field below views
+    data: np.ndarray
+    #: (3,) total force (N, world)
+    force: np.ndarray
+    #: (3,) torque about the centre of mass (N·m, world)
+    torque: np.ndarray
+    #: (r,) generalized force on q
+    generalized: np.ndarray
+    #: (r, r) its stiffness (``−∂/∂q``)
+    Kq: np.ndarray
+    #: (6, 6) the stiffness of (force, torque) w.r.t. the rigid motion
+    K6: np.ndarray
+    #: (6, 6) the friction's rate matrix C₆
+    C6: np.ndarray
+    #: (6, r) the friction's coupling of the rigid velocity and q̇
+    X: np.ndarray
+    #: (3,) [energy (J), active vertices, largest penetration (m)]
+    scalars: np.ndarray
+
+    @staticmethod
+    def size(r: int) -> int:
+        """Floats in the buffer of a basis of r columns."""
+        return 3 + 3 + r + r * r + 36 + 36 + 6 * r + 3
+
+    @classmethod
+    def allocate(cls, r: int) -> ContactOutput:
+        """Zero arrays."""
+        return py_func(contact_output)(np.zeros(cls.size(r)), r)
+
+
+class ContactWork(NamedTuple):
+    """The kernels' work arrays: views of the buffer ``data`` (:func:`contact_work`)."""
+
+    #: the buffer every field below views
+    data: np.ndarray
+    #: (r,) ``g = U_iᵀ Rᵀ n``
+    g: np.ndarray
+    #: (12,) the normal pass's small work: J (6), arm (3), Rᵀ n (3)
+    small: np.ndarray
+    #: (8, r) the friction's G = R U_i (3 rows), C G (3), Gᵀ T, Gᵀ n
+    rows: np.ndarray
+    #: (24,) the friction's small work: -, arm, w, t (3 each), C (9), f (3)
+    friction_small: np.ndarray
+    #: (r, r) Σ Gᵀ C G (upper triangle)
+    Kf: np.ndarray
+
+    @staticmethod
+    def size(r: int) -> int:
+        """Floats in the buffer of a basis of r columns."""
+        return r + 12 + 8 * r + 24 + r * r
+
+    @classmethod
+    def allocate(cls, r: int) -> ContactWork:
+        """Zero arrays."""
+        return py_func(contact_work)(np.zeros(cls.size(r)), r)
+
+
 @njit
-def _contact_kernel(center, rotation, q, deformed, basis, points, normals, stiffness,
-                    reach, rigid, g, small, force, torque, generalized, Kq, K6, scalars):
+def contact_output(data, r):
+    """The :class:`ContactOutput` views of a buffer of :meth:`ContactOutput.size` floats."""
+    force, at = take(data, 0, 3)
+    torque, at = take(data, at, 3)
+    generalized, at = take(data, at, r)
+    Kq, at = take(data, at, r * r)
+    K6, at = take(data, at, 36)
+    C6, at = take(data, at, 36)
+    X, at = take(data, at, 6 * r)
+    scalars, at = take(data, at, 3)
+    check_size(data, at)
+    return ContactOutput(data, force, torque, generalized, Kq.reshape((r, r)),
+                         K6.reshape((6, 6)), C6.reshape((6, 6)), X.reshape((6, r)), scalars)
+
+
+@njit
+def contact_work(data, r):
+    """The :class:`ContactWork` views of a buffer of :meth:`ContactWork.size` floats."""
+    g, at = take(data, 0, r)
+    small, at = take(data, at, 12)
+    rows, at = take(data, at, 8 * r)
+    friction_small, at = take(data, at, 24)
+    Kf, at = take(data, at, r * r)
+    check_size(data, at)
+    return ContactWork(data, g, small, rows.reshape((8, r)), friction_small,
+                       Kf.reshape((r, r)))
+
+
+@njit
+def _pack_motion(velocity, omega, qd, rate, motion):
+    """``motion = [v (3), ω (3), rate, q̇ (r)]``: what the friction kernel reads."""
+    for a in range(3):
+        motion[a] = velocity[a]
+        motion[3 + a] = omega[a]
+    motion[6] = rate
+    for j in range(qd.shape[0]):
+        motion[7 + j] = qd[j]
+
+
+@njit
+def _contact_kernel(center, rotation, deformed, basis, planes, reach, rigid, work, out):
     """One pass over the surface vertices (see :meth:`PlaneContact.evaluate_into`).
 
     Vertex i: ``y = X̄_i + U_i q`` (body, the row i of ``deformed`` (s, 3)), arm ``R y``
@@ -335,9 +437,14 @@ def _contact_kernel(center, rotation, q, deformed, basis, points, normals, stiff
     ``(R y + c − p)·n``; a penetration d > 0 adds ``k d n`` to the force, ``k d (arm × n)``
     to the torque, ``k d g`` with ``g = U_iᵀ Rᵀ n`` to the generalized force, ``k g gᵀ`` to
     ``stiffness_q`` and ``k J Jᵀ`` (J = [n; arm × n]) to the 6 × 6 stiffness.
-    Returns the number of penetrations (vertex, plane). Work arrays: g (r,), small (12,).
+    ``planes`` (P, 8): point, unit normal, k, μ; ``work`` and ``out`` the buffers of
+    :class:`ContactWork` and :class:`ContactOutput`.
+    Returns the number of penetrations (vertex, plane).
     """
-    r = q.shape[0]
+    r = basis.shape[2]
+    views, result = contact_work(work, r), contact_output(out, r)
+    force, torque, generalized = result.force, result.torque, result.generalized
+    Kq, K6, scalars, g = result.Kq, result.K6, result.scalars, views.g
     force[:] = 0.0
     torque[:] = 0.0
     generalized[:] = 0.0
@@ -346,28 +453,27 @@ def _contact_kernel(center, rotation, q, deformed, basis, points, normals, stiff
     energy = 0.0
     depth = 0.0
     active = 0
-    J, arm, nb = small[0:6], small[6:9], small[9:12]
-    planes = points.shape[0]
+    J, arm, nb = views.small[0:6], views.small[6:9], views.small[9:12]
     if not reach.any():
         scalars[0] = scalars[1] = scalars[2] = 0.0
         return 0
     for i in range(deformed.shape[0]):
         _body_arm(i, rotation, deformed, arm)
-        for p in range(planes):
+        for p in range(planes.shape[0]):
             if not reach[p]:
                 continue
-            gap = _plane_gap(arm, center, points, normals, p)
+            gap = _plane_gap(arm, center, planes, p)
             if not gap < 0.0:
                 continue
             d = -gap
-            k = stiffness[p]
+            k = planes[p, 6]
             active += 1
             depth = max(depth, d)
             energy += 0.5 * k * d * d
             for a in range(3):
-                force[a] += k * d * normals[p, a]
-                nb[a] = (rotation[0, a] * normals[p, 0] + rotation[1, a] * normals[p, 1]
-                         + rotation[2, a] * normals[p, 2])  # Rᵀ n
+                force[a] += k * d * planes[p, 3 + a]
+                nb[a] = (rotation[0, a] * planes[p, 3] + rotation[1, a] * planes[p, 4]
+                         + rotation[2, a] * planes[p, 5])  # Rᵀ n
             for j in range(r):
                 g[j] = basis[i, 0, j] * nb[0] + basis[i, 1, j] * nb[1] + basis[i, 2, j] * nb[2]
                 generalized[j] += k * d * g[j]
@@ -376,7 +482,7 @@ def _contact_kernel(center, rotation, q, deformed, basis, points, normals, stiff
                 for k2 in range(j + 1):
                     Kq[j, k2] += kg * g[k2]
             if rigid:
-                n0, n1, n2 = normals[p, 0], normals[p, 1], normals[p, 2]
+                n0, n1, n2 = planes[p, 3], planes[p, 4], planes[p, 5]
                 J[0], J[1], J[2] = n0, n1, n2
                 J[3] = arm[1] * n2 - arm[2] * n1
                 J[4] = arm[2] * n0 - arm[0] * n2
@@ -399,34 +505,30 @@ def _contact_kernel(center, rotation, q, deformed, basis, points, normals, stiff
 
 
 @njit
-def _friction_kernel(center, rotation, q, velocity, omega, qd, rate, deformed, basis,
-                     points, normals, stiffness, friction, eps, reach, rigid, work, small, Kf,
-                     force, torque, generalized, Kq, C6, X):
+def _friction_kernel(center, rotation, motion, deformed, basis, planes, eps, reach, rigid,
+                     work, out):
     """The friction of the penetrating vertices (module docstring), added to ``force``,
-    ``torque``, ``generalized`` and ``Kq``; ``C6`` (6, 6) receives ``C₆``.
+    ``torque``, ``generalized`` and ``Kq`` of ``out``; its ``C6`` (6, 6) receives ``C₆``.
 
     Vertex i: ``y = X̄_i + U_i q`` (row i of ``deformed``), arm ``a = R y``, world velocity
-    ``w = v + ω × a + R U_i q̇``; per penetrating plane with μ > 0: ``t = (I − n nᵀ) w``,
-    ``s = √(|t|² + ε²)``, ``T = t/s``, ``f_t = −μ k d T``, ``C = μ k d (P − T Tᵀ)/s``.
-    Work arrays: work (8, r) (G = R U_i, C G, Gᵀ T, Gᵀ n), small (24,), Kf (r, r);
-    ``q`` only sizes them.
+    ``w = v + ω × a + R U_i q̇`` (``motion`` = [v, ω, rate, q̇], :func:`_pack_motion`); per
+    penetrating plane with μ > 0 :func:`_plane_friction`. ``work`` and ``out`` are the
+    buffers of :class:`ContactWork` and :class:`ContactOutput`.
     """
-    r = q.shape[0]
-    G, CG, GT, GN = work[0:3], work[3:6], work[6], work[7]
-    C6[:, :] = 0.0
-    X[:, :] = 0.0
-    Kf[:, :] = 0.0
-    arm, w, t = small[3:6], small[6:9], small[9:12]
-    C = small[12:21].reshape((3, 3))
-    f = small[21:24]
-    planes = points.shape[0]
+    r = basis.shape[2]
+    views, result = contact_work(work, r), contact_output(out, r)
+    result.C6[:, :] = 0.0
+    result.X[:, :] = 0.0
+    views.Kf[:, :] = 0.0
+    arm, w = views.friction_small[3:6], views.friction_small[6:9]
+    G = views.rows[0:3]
     for i in range(deformed.shape[0]):
         _body_arm(i, rotation, deformed, arm)
         touching = False
-        for p in range(planes):
-            if not reach[p] or friction[p] == 0.0:
+        for p in range(planes.shape[0]):
+            if not reach[p] or planes[p, 7] == 0.0:
                 continue
-            gap = _plane_gap(arm, center, points, normals, p)
+            gap = _plane_gap(arm, center, planes, p)
             if gap < 0.0:
                 touching = True
         if not touching:
@@ -435,73 +537,97 @@ def _friction_kernel(center, rotation, q, velocity, omega, qd, rate, deformed, b
             for j in range(r):
                 G[a, j] = (rotation[a, 0] * basis[i, 0, j] + rotation[a, 1] * basis[i, 1, j]
                            + rotation[a, 2] * basis[i, 2, j])
-        w[0] = velocity[0] + omega[1] * arm[2] - omega[2] * arm[1]
-        w[1] = velocity[1] + omega[2] * arm[0] - omega[0] * arm[2]
-        w[2] = velocity[2] + omega[0] * arm[1] - omega[1] * arm[0]
+        w[0] = motion[0] + motion[4] * arm[2] - motion[5] * arm[1]
+        w[1] = motion[1] + motion[5] * arm[0] - motion[3] * arm[2]
+        w[2] = motion[2] + motion[3] * arm[1] - motion[4] * arm[0]
         for a in range(3):
             value = 0.0
             for j in range(r):
-                value += G[a, j] * qd[j]
+                value += G[a, j] * motion[7 + j]
             w[a] += value
-        for p in range(planes):
-            if not reach[p] or friction[p] == 0.0:
+        for p in range(planes.shape[0]):
+            if not reach[p] or planes[p, 7] == 0.0:
                 continue
-            gap = _plane_gap(arm, center, points, normals, p)
+            gap = _plane_gap(arm, center, planes, p)
             if not gap < 0.0:
                 continue
-            d = -gap
-            n = normals[p]
-            wn = w[0] * n[0] + w[1] * n[1] + w[2] * n[2]
-            for a in range(3):
-                t[a] = w[a] - wn * n[a]
-            s = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + eps * eps)
-            mu_k = friction[p] * stiffness[p]
-            scale = mu_k * d / s
-            for a in range(3):
-                t[a] /= s  # T
-                f[a] = -scale * s * t[a]
-            for a in range(3):  # C = μ k d / s (P − T Tᵀ)
-                for b in range(3):
-                    C[a, b] = scale * ((1.0 if a == b else 0.0) - n[a] * n[b] - t[a] * t[b])
-            for a in range(3):
-                force[a] += f[a]
-            # deformation tangent: rate Gᵀ C G − μ k (Gᵀ T) gᵀ, g = Gᵀ n. C G (3, r),
-            # Gᵀ T and g once per vertex; Gᵀ C G (symmetric) summed in Kf's upper
-            # triangle, the rank-one part straight into Kq (rows innermost)
-            for j in range(r):
-                generalized[j] += G[0, j] * f[0] + G[1, j] * f[1] + G[2, j] * f[2]
-                CG[0, j] = C[0, 0] * G[0, j] + C[0, 1] * G[1, j] + C[0, 2] * G[2, j]
-                CG[1, j] = C[1, 0] * G[0, j] + C[1, 1] * G[1, j] + C[1, 2] * G[2, j]
-                CG[2, j] = C[2, 0] * G[0, j] + C[2, 1] * G[1, j] + C[2, 2] * G[2, j]
-                GT[j] = mu_k * (G[0, j] * t[0] + G[1, j] * t[1] + G[2, j] * t[2])
-                GN[j] = G[0, j] * n[0] + G[1, j] * n[1] + G[2, j] * n[2]
-            for j in range(r):
-                c0, c1, c2 = CG[0, j], CG[1, j], CG[2, j]
-                for k2 in range(j, r):
-                    Kf[j, k2] += G[0, k2] * c0 + G[1, k2] * c1 + G[2, k2] * c2
-            for k2 in range(r):
-                gt = GT[k2]
-                for j in range(r):
-                    Kq[k2, j] -= gt * GN[j]
-            if rigid:
-                torque[0] += arm[1] * f[2] - arm[2] * f[1]
-                torque[1] += arm[2] * f[0] - arm[0] * f[2]
-                torque[2] += arm[0] * f[1] - arm[1] * f[0]
-                _add_rigid_rate(C, arm, C6)
-                for j in range(r):  # X += Bᵀ C G: (C G; arm × C G) per column
-                    c0, c1, c2 = CG[0, j], CG[1, j], CG[2, j]
-                    X[0, j] += c0
-                    X[1, j] += c1
-                    X[2, j] += c2
-                    X[3, j] += arm[1] * c2 - arm[2] * c1
-                    X[4, j] += arm[2] * c0 - arm[0] * c2
-                    X[5, j] += arm[0] * c1 - arm[1] * c0
+            _plane_friction(planes, p, -gap, eps, rigid, views, result)
+    rate, Kq, Kf = motion[6], result.Kq, views.Kf
     for j in range(r):  # rate Σ Gᵀ C G from its upper triangle
         Kq[j, j] += rate * Kf[j, j]
         for k2 in range(j + 1, r):
             value = rate * Kf[j, k2]
             Kq[k2, j] += value
             Kq[j, k2] += value
+
+
+@njit
+def _plane_friction(planes, p, d, eps, rigid, views, result):
+    """The friction of one vertex penetrating plane p by d (m), its arm and velocity w and
+    its G = R U_i in ``views`` (:class:`ContactWork`): ``t = (I − n nᵀ) w``,
+    ``s = √(|t|² + ε²)``, ``T = t/s``, ``f_t = −μ k d T``, ``C = μ k d (P − T Tᵀ)/s``, added
+    to ``result`` (:class:`ContactOutput`)."""
+    r = views.g.shape[0]
+    G, CG, GT, GN = views.rows[0:3], views.rows[3:6], views.rows[6], views.rows[7]
+    small = views.friction_small
+    arm, w, t = small[3:6], small[6:9], small[9:12]
+    C = small[12:21].reshape((3, 3))
+    f = small[21:24]
+    force, torque, generalized, Kq = result.force, result.torque, result.generalized, result.Kq
+    Kf = views.Kf
+    n = planes[p, 3:6]
+    wn = w[0] * n[0] + w[1] * n[1] + w[2] * n[2]
+    for a in range(3):
+        t[a] = w[a] - wn * n[a]
+    s = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + eps * eps)
+    mu_k = planes[p, 7] * planes[p, 6]
+    scale = mu_k * d / s
+    for a in range(3):
+        t[a] /= s  # T
+        f[a] = -scale * s * t[a]
+    for a in range(3):  # C = μ k d / s (P − T Tᵀ)
+        for b in range(3):
+            C[a, b] = scale * ((1.0 if a == b else 0.0) - n[a] * n[b] - t[a] * t[b])
+    for a in range(3):
+        force[a] += f[a]
+    # deformation tangent: rate Gᵀ C G − μ k (Gᵀ T) gᵀ, g = Gᵀ n. C G (3, r),
+    # Gᵀ T and g once per vertex; Gᵀ C G (symmetric) summed in Kf's upper
+    # triangle, the rank-one part straight into Kq (rows innermost)
+    for j in range(r):
+        generalized[j] += G[0, j] * f[0] + G[1, j] * f[1] + G[2, j] * f[2]
+        CG[0, j] = C[0, 0] * G[0, j] + C[0, 1] * G[1, j] + C[0, 2] * G[2, j]
+        CG[1, j] = C[1, 0] * G[0, j] + C[1, 1] * G[1, j] + C[1, 2] * G[2, j]
+        CG[2, j] = C[2, 0] * G[0, j] + C[2, 1] * G[1, j] + C[2, 2] * G[2, j]
+        GT[j] = mu_k * (G[0, j] * t[0] + G[1, j] * t[1] + G[2, j] * t[2])
+        GN[j] = G[0, j] * n[0] + G[1, j] * n[1] + G[2, j] * n[2]
+    for j in range(r):
+        c0, c1, c2 = CG[0, j], CG[1, j], CG[2, j]
+        for k2 in range(j, r):
+            Kf[j, k2] += G[0, k2] * c0 + G[1, k2] * c1 + G[2, k2] * c2
+    for k2 in range(r):
+        gt = GT[k2]
+        for j in range(r):
+            Kq[k2, j] -= gt * GN[j]
+    if rigid:
+        _friction_rigid(arm, f, C, CG, torque, result.C6, result.X)
+
+
+@njit
+def _friction_rigid(arm, f, C, CG, torque, C6, X):
+    """A friction force f at the arm: its torque, its rate on the rigid motion C₆ and the
+    coupling X += Bᵀ C G: (C G; arm × C G) per column."""
+    torque[0] += arm[1] * f[2] - arm[2] * f[1]
+    torque[1] += arm[2] * f[0] - arm[0] * f[2]
+    torque[2] += arm[0] * f[1] - arm[1] * f[0]
+    _add_rigid_rate(C, arm, C6)
+    for j in range(CG.shape[1]):
+        c0, c1, c2 = CG[0, j], CG[1, j], CG[2, j]
+        X[0, j] += c0
+        X[1, j] += c1
+        X[2, j] += c2
+        X[3, j] += arm[1] * c2 - arm[2] * c1
+        X[4, j] += arm[2] * c0 - arm[0] * c2
+        X[5, j] += arm[0] * c1 - arm[1] * c0
 
 
 @njit

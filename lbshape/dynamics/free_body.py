@@ -38,19 +38,8 @@ reaches a plane):
    impact then depended on the step size (the car's rebound off the wall without
    examples: 3.12 m/s at 1 ms, 3.54 m/s at 0.25 ms; swept: 3.692 and 3.689 m/s).
 
-**Friction** (a plane's μ > 0, :mod:`lbshape.dynamics.contact`): the contact vertices'
-world velocities ``v + ω × R y_i + R U_i q̇`` give the regularised Coulomb force. In the
-kick it is part of the contact (force, torque) C₀, C₁ and made implicit by its rate
-matrix C₆ (``−∂(force, torque)/∂(v, ω)``): the matrix is ``M₆ + θ Δt C₆ + θ² Δt² K₆``,
-the sweep's right-hand side gains ``θ Δt C₆ (ν₁ − ν₀)`` (zero at the fixed point),
-C₆ at t₀ in the first pass. After a sweep the kick takes the effective rate
-``C₆ − rate X J⁻¹ Xᵀ`` (symmetric part; X the contact's ``coupling`` of ν and q̇, J the
-deformation's Newton matrix): the deformation answers a change of the rigid slip, so the
-friction depends less on ν than C₆ says (with C₆ alone the car's wall impact ran the 12
-sweeps, converging by ~0.8 per sweep; with it 4–5). In the deformation
-solve it is evaluated at the pose (c₁, R₁), the kicked rigid velocities and the trial
-q̇₁ (the scheme's kinematics of Δq), with its tangent (``∂q̇₁/∂q₁ = c_v/Δt``). With
-μ = 0 on every plane nothing of this runs and the step is the frictionless one.
+**Friction** (a plane's μ > 0): see :mod:`lbshape.dynamics.free_body_contact`, where the
+contact's part of the step lives.
 
 Without loads and contact p and L are conserved to round-off (they change only by
 impulses) and R stays on SO(3) (Cayley map). Failures — Newton, a non-finite state,
@@ -93,7 +82,6 @@ import logging
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -111,6 +99,7 @@ from lbshape.dynamics.engine import (
     snapshot,
 )
 from lbshape.dynamics.fictitious import FrameTensors
+from lbshape.dynamics.free_body_contact import FreeBodyContact
 from lbshape.dynamics.free_body_kernels import (
     KICK_ROTATION_FAILED,
     KICK_SINGULAR,
@@ -119,18 +108,22 @@ from lbshape.dynamics.free_body_kernels import (
     RigidKick,
     Scratch,
     commit_energy,
-    contact_theta_into,
     deformation_residual,
     end_rates_into,
-    loads_into,
     newton_base,
     rigid_update,
     trial,
 )
+from lbshape.dynamics.free_body_loads import FreeLoad, LoadStack
+from lbshape.dynamics.free_body_record import (
+    FreeBodyRecord,
+    FreeBodyRecorder,
+    world_displacements,
+)
 from lbshape.dynamics.integrators import Scheme, get_scheme
 from lbshape.dynamics.kernels import axpy, lu_solve, predict
+from lbshape.dynamics.kernels import norm as _norm
 from lbshape.dynamics.loads import TimeProfile
-from lbshape.dynamics.record import RunRecord
 from lbshape.dynamics.reduced import PHASES as FIXED_PHASES
 from lbshape.dynamics.reduced import REALTIME_NEWTON
 from lbshape.dynamics.rigid_frame import RigidState, rotation_error
@@ -140,15 +133,6 @@ from lbshape.shapespace.example_driver import ExampleDriver
 
 log = logging.getLogger(__name__)
 
-#: contact sweeps of a step stop when the end momenta move by less than this share of
-#: the momenta and the step's impulse. On the car (no examples, 800 steps) 1e-6, 1e-4 and
-#: 1e-3 give the same error against the full reference to 4 digits (14.55 %) at 1.07,
-#: 0.90 and 0.80 ms per step (with Newton to 1e-5; the wall impact's steps take most of
-#: it): 1e-4 keeps 10× margin over the smallest change that showed (rotation error
-#: 12.640° → 12.649° at 1e-3)
-SWEEP_RTOL = 1e-4
-#: at most this many contact sweeps per step (the last one is accepted)
-MAX_CONTACT_SWEEPS = 12
 #: energy blow-up factor of the divergence monitor
 ENERGY_FACTOR = 1e3
 #: the monitor computes the exact elastic energy from this fraction of the limit on
@@ -164,118 +148,7 @@ PHASES: tuple[str, ...] = ("weights", "target", "example_force", "rigid", "conta
 assert set(FIXED_PHASES) <= set(PHASES)
 
 
-@dataclass(frozen=True)
-class FreeLoad:
-    """A load on a free body, reduced to small tensors (forces f_i are world vectors).
-
-    Attributes:
-        force: (3,) total force Σ f_i (N).
-        P: (r, 3, 3) ``P[j, b, a] = Σ_i U_ibj f_ia``: ``Uᵀ Rᵀ f = Σ_ab R_ab P[:, b, a]``.
-        Z0: (3, 3) ``Σ_i X̄_id f_ia`` (N·m), indices [d, a].
-        Z1: (r, 3, 3) ``Σ_i U_idj f_ia``, indices [j, d, a].
-        profile: time profile.
-    """
-
-    force: np.ndarray
-    P: np.ndarray
-    Z0: np.ndarray
-    Z1: np.ndarray
-    profile: TimeProfile
-
-    @classmethod
-    def from_pattern(cls, pattern: np.ndarray, U: np.ndarray, body_points: np.ndarray,
-                     profile: TimeProfile) -> FreeLoad:
-        """Reduce a world nodal force pattern (3n,) N; ``body_points`` (n, 3) = X̄."""
-        f = np.asarray(pattern, dtype=float).reshape(-1, 3)
-        n, r = f.shape[0], U.shape[1]
-        Ur = np.asarray(U).reshape(n, 3, r)
-        loaded = np.flatnonzero(np.abs(f).sum(axis=1))
-        f, Ur, X = f[loaded], Ur[loaded], body_points[loaded]
-        return cls(f.sum(axis=0), np.einsum("ibj,ia->jba", Ur, f), X.T @ f,
-                   np.einsum("idj,ia->jda", Ur, f), profile)
-
-    def evaluate(self, rotation: np.ndarray, q: np.ndarray, t: float):
-        """``(force (3,) world, torque about c (3,) world, generalized (r,))`` at t."""
-        stack = LoadStack([self])
-        force, torque, generalized = np.zeros(3), np.zeros(3), np.zeros(self.P.shape[0])
-        stack.evaluate_into(np.asarray(rotation, dtype=float), np.asarray(q, dtype=float), t,
-                            force, torque, generalized)
-        return force, torque, generalized
-
-
-class LoadStack:
-    """Several :class:`FreeLoad` as stacked arrays for :func:`loads_into` (no allocation
-    per evaluation)."""
-
-    def __init__(self, loads: Sequence[FreeLoad], r: int | None = None):
-        loads = list(loads)
-        r = loads[0].P.shape[0] if loads else int(r or 0)
-        self.forces = np.array([load.force for load in loads], dtype=float).reshape(-1, 3)
-        self.P = np.array([load.P for load in loads], dtype=float).reshape(-1, r, 3, 3)
-        self.Z0 = np.array([load.Z0 for load in loads], dtype=float).reshape(-1, 3, 3)
-        self.Z1 = np.array([load.Z1 for load in loads], dtype=float).reshape(-1, r, 3, 3)
-        self.profiles = [load.profile for load in loads]
-        self.scales = np.zeros(len(loads))
-        self._work = np.zeros((2, 3, 3))
-
-    def evaluate_into(self, rotation: np.ndarray, q: np.ndarray, t: float, force: np.ndarray,
-                      torque: np.ndarray, generalized: np.ndarray) -> None:
-        """Total force (3,) and torque about c (3,) (world) and generalized force (r,) at t."""
-        for index, profile in enumerate(self.profiles):
-            self.scales[index] = profile(t)
-        loads_into(rotation, q, self.scales, self.forces, self.P, self.Z0, self.Z1, force,
-                   torque, generalized, self._work)
-
-
-@dataclass(frozen=True)
-class FreeBodyRecord(RunRecord):
-    """What a free-body run produced: the common record plus the rigid frame.
-
-    ``states`` are the body-frame reduced coordinates q; every sampled array below
-    is taken at ``times`` (f,), every per-step array has one entry per step (k,).
-    The split of each step's time into :data:`PHASES` is the simulation's
-    :attr:`FreeBodySimulation.phase_seconds`.
-
-    Attributes:
-        centers: (f, 3) centre of mass (m, world).
-        rotations: (f, 3, 3) body-to-world rotations.
-        momenta: (f, 3) linear momentum (kg·m/s, world).
-        angular_momenta: (f, 3) angular momentum about c (kg·m²/s, world).
-        energies: (f,) total energy (J) without the gravity potential.
-        contact_depth: (k,) largest penetration per step (m).
-        rest_points: (n, 3) rest positions X (m); ``body_points`` (n, 3) X̄ = X − X_cm.
-    """
-
-    centers: np.ndarray | None = None
-    rotations: np.ndarray | None = None
-    momenta: np.ndarray | None = None
-    angular_momenta: np.ndarray | None = None
-    energies: np.ndarray | None = None
-    contact_depth: np.ndarray | None = None
-    rest_points: np.ndarray | None = None
-    body_points: np.ndarray | None = None
-
-    def displacements(self, basis: np.ndarray | None = None) -> np.ndarray:
-        """(f, n, 3) world displacements ``x − X = c + R (X̄ + U q) − X`` (m); basis = U."""
-        return world_displacements(self.centers, self.rotations, self.states, basis,
-                                   self.rest_points, self.body_points)
-
-
-def world_displacements(centers: np.ndarray, rotations: np.ndarray, states: np.ndarray,
-                        basis: np.ndarray | None, rest_points: np.ndarray | None,
-                        body_points: np.ndarray | None) -> np.ndarray:
-    """(f, n, 3) world displacements ``x − X = c + R (X̄ + U q) − X`` (m) of a free body at
-    f instants: centres (f, 3) m, rotations (f, 3, 3), deformations q (f, r), the basis U
-    (3n, r), the rest points X (n, 3) m and the body points X̄ = X − X_cm (n, 3) m."""
-    if basis is None or rest_points is None:
-        raise LbshapeError("free-body displacements need the basis U and the rest points")
-    n = rest_points.shape[0]
-    local = body_points[None] + (states @ np.asarray(basis).T).reshape(-1, n, 3)
-    world = np.einsum("fij,fnj->fni", rotations, local) + centers[:, None, :]
-    return world - rest_points[None]
-
-
-class FreeBodySimulation:
+class FreeBodySimulation(FreeBodyContact):
     """Reduced free-body dynamics (see the module docstring).
 
     Args:
@@ -596,12 +469,6 @@ class FreeBodySimulation:
         if self.k_ex:
             axpy(self.k_ex, self.q_target, out)
 
-    def _contact_fresh(self) -> bool:
-        """The contact's arrays hold the evaluation at the current state (c, R, q)."""
-        contact = self.contact
-        return (self.reuse_contact and contact is not None
-                and contact.evaluated + contact.skipped == self._contact_calls)
-
     def _interpolate(self, marks: np.ndarray) -> None:
         """Step 1: the example weights and target ``q*`` from q (``marks[1]`` after the
         weights, ``marks[2]`` after the target)."""
@@ -616,29 +483,6 @@ class FreeBodySimulation:
         else:
             marks[1] = marks[0]
         marks[2] = clock()
-
-    def _start_of_step(self) -> tuple[bool, float]:
-        """The loads and the contact at t₀ into the kick's inputs; returns (the contact
-        acts, the seconds the contact took)."""
-        kick, state = self._kick_arrays, self._now
-        self._loads.evaluate_into(state.R, state.q, self.time, kick.force, kick.torque,
-                                  self._gen)
-        started = self._clock()
-        contact = self.contact
-        active = False
-        if contact is not None:
-            if not self._contact_fresh():
-                if contact.has_friction:  # the motion at t₀ (allocates; rare: not reused)
-                    self._velocity[:] = state.p / self.frame.mass
-                    self._omega[:] = state.R @ self.omega()
-                contact.evaluate_into(state.c, state.R, state.q, True, self._velocity,
-                                      self._omega, state.qd, self._cv_dt)
-            active = contact.scalars[1] > 0
-            kick.contact_force[:] = contact.force
-            kick.contact_torque[:] = contact.torque
-            kick.K6[:] = contact.stiffness_rigid
-            kick.C6[:] = contact.damping_rigid
-        return active, self._clock() - started
 
     def _evaluate(self, index: int, t1: float, times: np.ndarray) -> float:
         """Deformation force, tangent and residual at ``q₁ = q + Δq`` (the next state's q)
@@ -748,60 +592,6 @@ class FreeBodySimulation:
         times[4] += self._clock() - started - (times[0] + times[1] - before)
         return iteration
 
-    def _sweep_again(self, sweeps: int) -> bool:
-        """Whether the step needs another contact sweep: the contact acts at the end of the
-        step, its frequency is resolved (θ = ½), and the end momenta (p₁, L₁ / radius) moved
-        since the last sweep by more than :data:`SWEEP_RTOL` of the size of the momenta and
-        the step's impulse (Δp, ΔL / radius) together (stops after
-        :data:`MAX_CONTACT_SWEEPS`). Stores the contact and ν₁ the next sweep uses."""
-        contact, kick, end = self.contact, self._kick_arrays, self._next
-        if contact is None or contact.scalars[1] == 0 or kick.theta[0] != 0.5:
-            return False
-        momentum, radius = kick.momentum_end, contact.radius0
-        p1, L1, dp, dL = end.p, end.L, kick.dp, kick.dL
-        change = 0.0
-        size = 0.0
-        for a in range(3):
-            change += (p1[a] - momentum[a]) ** 2 + ((L1[a] / radius - momentum[3 + a]) ** 2)
-            size += (p1[a] ** 2 + (L1[a] / radius) ** 2 + dp[a] ** 2 + (dL[a] / radius) ** 2)
-            momentum[a], momentum[3 + a] = p1[a], L1[a] / radius
-        if sweeps > 1 and change <= (SWEEP_RTOL**2) * size:
-            return False
-        if sweeps >= MAX_CONTACT_SWEEPS:
-            return False
-        kick.contact_end[:3] = contact.force
-        kick.contact_end[3:] = contact.torque
-        if sweeps == 1 and not np.any(kick.K6):  # the contact began within the step
-            kick.K6[:] = contact.stiffness_rigid
-        if contact.has_friction:  # the friction's rate at the end of this sweep
-            self._effective_friction_rate(kick.C6)
-        omega_body, R1, nu1 = kick.omega1, end.R, kick.nu_end
-        for a in range(3):
-            nu1[a] = p1[a] / self.frame.mass
-            nu1[3 + a] = (R1[a, 0] * omega_body[0] + R1[a, 1] * omega_body[1]
-                          + R1[a, 2] * omega_body[2])
-        return True
-
-    def _effective_friction_rate(self, out: np.ndarray) -> None:
-        """The friction's rate matrix on the rigid velocity with the deformation's answer:
-        a change δν of (v, ω) changes the slip, the deformation solve answers with
-        ``δq̇ = −rate J⁻¹ Xᵀ δν`` (J its Newton matrix, X the contact's ``coupling``), so
-        the friction (force, torque) changes by ``−(C₆ − rate X J⁻¹ Xᵀ) δν``; its
-        symmetric part into ``out`` (6, 6). With C₆ alone the sweeps converged by ~0.8
-        per sweep on the car's wall impact (the deformation takes the slip)."""
-        contact, solve = self.contact, self._solve
-        X, Y = contact.coupling, self._coupling_work
-        for a in range(6):
-            if not lu_solve(solve.base, solve.K, X[a], solve.J, Y[a]):
-                out[:] = contact.damping_rigid
-                return
-        np.dot(X, Y.T, out=self._rate6)
-        rate = self._cv_dt
-        for a in range(6):
-            for b in range(6):
-                out[a, b] = contact.damping_rigid[a, b] - 0.5 * rate * (
-                    self._rate6[a, b] + self._rate6[b, a])
-
     def _sweeps(self, index: int, t1: float, active: bool, times: np.ndarray) -> int:
         """Steps 2–5: the rigid kick and the deformation solve, repeated while contact
         sweeps are needed; returns the Newton iterations of all sweeps."""
@@ -892,65 +682,19 @@ class FreeBodySimulation:
         called after each step (outside its timing) with (step index from 0, time in s,
         q (r,))."""
         steps, stride = check_run(steps, stride)
-        sampled = {key: [] for key in ("times", "states", "centers", "rotations", "momenta",
-                                       "angular_momenta", "energies")}
+        recorder = FreeBodyRecorder(self, steps, stride)
         phases = np.zeros((steps, len(PHASES)))
-        interp, total = np.zeros(steps), np.zeros(steps)
-        iterations, depth = np.zeros(steps, dtype=np.int64), np.zeros(steps)
         self.phase_seconds = phases[:0]
-
-        def sample() -> None:
-            state = self._now
-            for key, value in (("times", self.time), ("states", state.q), ("centers", state.c),
-                               ("rotations", state.R), ("momenta", state.p),
-                               ("angular_momenta", state.L), ("energies", self.energy())):
-                sampled[key].append(np.array(value, dtype=float))
-
-        sample()
-        stable, message, done = True, "", 0
         marks = self._marks
         for index in range(steps):
             try:
-                iterations[index] = self.step()
+                iterations = self.step()
             except SolverError as exc:
-                stable, message = False, str(exc)
                 log.error("free-body simulation stopped: %s", exc)
-                break
+                return recorder.record(stable=False, message=str(exc))
             np.subtract(marks[1:], marks[:-1], out=phases[index])
-            interp[index] = marks[2] - marks[0]
-            total[index] = marks[-1] - marks[0]
-            depth[index] = self._depth
-            done = index + 1
-            self.phase_seconds = phases[:done]
-            if done % stride == 0:
-                sample()
+            self.phase_seconds = phases[:index + 1]
+            recorder.step(iterations, marks[2] - marks[0], marks[-1] - marks[0], self._depth)
             if on_step is not None:
                 on_step(index, self.time, self.q)
-        arrays = {key: np.asarray(value) for key, value in sampled.items()}
-        return FreeBodyRecord(
-            times=arrays["times"], states=arrays["states"], t_interp_ms=1e3 * interp[:done],
-            t_total_ms=1e3 * total[:done], newton_iterations=iterations[:done],
-            stable=stable, message=message, centers=arrays["centers"],
-            rotations=arrays["rotations"], momenta=arrays["momenta"],
-            angular_momenta=arrays["angular_momenta"], energies=arrays["energies"],
-            contact_depth=depth[:done], rest_points=self.rest_points,
-            body_points=(None if self.rest_points is None
-                         else self.rest_points - self.frame.center),
-        )
-
-
-def contact_theta(mass6: np.ndarray, stiffness6: np.ndarray, dt: float) -> float:
-    """θ of the rigid contact kick: ½ (trapezoidal, conservative) while the stiffest
-    contact frequency is resolved (ω_c Δt ≤ ½), 1 (backward Euler, L-stable, damps the
-    unresolved contact oscillation) from ω_c Δt ≥ 3/2, linear in between.
-
-    ω_c² is the largest eigenvalue of ``K₆ v = ω² M₆ v`` (6 × 6, M₆ positive definite).
-    """
-    work = np.zeros((2, 6, 6))
-    return float(contact_theta_into(np.asarray(mass6, dtype=float),
-                                    np.asarray(stiffness6, dtype=float), float(dt), work[0],
-                                    work[1]))
-
-
-def _norm(vector: np.ndarray) -> float:
-    return math.sqrt(float(vector @ vector))
+        return recorder.record()

@@ -32,7 +32,7 @@ the step (explicit in the target, implicit in u — as the reduced method does):
 In the stepper the example force is split into a spring ``k_ex M_ff x`` (part of the
 position-dependent force, tangent ``k_ex M_ff``, potential ``½ k_ex xᵀ M_ff x``) and
 the pull ``k_ex (M u*)_free``, constant during the step, applied as an external load.
-**Local examples** (:class:`~lbshape.shapespace.local_examples.FullSpaceLocalForce`):
+**Local examples** (:class:`~lbshape.shapespace.local_full_force.FullSpaceLocalForce`):
 per region R the same steps on the region's own eigenfunctions and elements; the
 spring uses ``S = Σ_R M^(R)`` (mass of the covered elements) instead of M and the
 pull is ``k_ex Σ_R M^(R) E_R L_R c*_R``.
@@ -82,18 +82,11 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
-from lbshape.dynamics.contact import (
-    ContactPlane,
-    friction_force,
-    plane_frictions,
-    surface_vertices,
-)
 from lbshape.dynamics.engine import (
     Drag,
     EngineState,
@@ -102,20 +95,20 @@ from lbshape.dynamics.engine import (
     check_run,
     snapshot,
 )
+from lbshape.dynamics.full_contact import FullSpaceContact
+from lbshape.dynamics.full_examples import FullSpaceExampleForce, FullSpaceExamples
 from lbshape.dynamics.integrators import make_stepper
+from lbshape.dynamics.linear_solvers import LINEAR_SOLVERS, make_linear_solver
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.dynamics.rigid_frame import best_rigid_frame
+from lbshape.elastic.assembly import CompiledElasticity
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.modes import rigid_body_modes
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.geometry.mesh import TetMesh
-from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
-from lbshape.shapespace.example_shapes import energy_elements, example_rest_shapes
-from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
 from lbshape.shapespace.local_full_force import FullSpaceLocalForce
-from lbshape.shapespace.projections import block_basis
 
 log = logging.getLogger(__name__)
 
@@ -127,88 +120,7 @@ FRICTION_NEWTON_ITERATIONS = 60
 FULL_NEWTON = NewtonSettings(1e-8, 20)
 
 
-@dataclass(frozen=True)
-class FullSpaceExamples:
-    """The shape-space arrays of the full-space example force.
-
-    Attributes:
-        eigenvalues: (m,) the object's LB eigenvalues λ in 1/m², > 0.
-        eigenvectors: (n, m) the object's LB eigenvectors Φ (M₁-orthonormal).
-        coefficients: (k, m, 3) the examples' LB displacement coefficients c_k.
-        stiffness: k_ex in 1/s², ≥ 0 (0 disables the example force).
-    """
-
-    eigenvalues: np.ndarray
-    eigenvectors: np.ndarray
-    coefficients: np.ndarray
-    stiffness: float
-
-
-class FullSpaceContact:
-    """Penalty contact of the surface vertices with planes, on full displacements, with
-    the planes' regularised Coulomb friction (:mod:`lbshape.dynamics.contact`).
-
-    Args:
-        planes: the :class:`~lbshape.dynamics.contact.ContactPlane` list.
-        points: (n, 3) rest positions (m); ``tets`` (t, 4) give the surface.
-    """
-
-    def __init__(self, planes: Sequence[ContactPlane], points: np.ndarray, tets: np.ndarray):
-        self.vertices = surface_vertices(tets)
-        self.rest = np.asarray(points, dtype=float)[self.vertices]
-        self.n = points.shape[0]
-        self.planes = list(planes)
-        normals = np.array([p.normal for p in self.planes], dtype=float).reshape(-1, 3)
-        lengths = np.linalg.norm(normals, axis=1)
-        if np.any(lengths == 0):
-            raise LbshapeError("contact plane normals must be non-zero")
-        #: (P, 3) unit normals (as :class:`~lbshape.dynamics.contact.PlaneContact` uses)
-        self.normals = normals / lengths[:, None]
-        self.friction = plane_frictions(self.planes)
-        #: some plane has friction (the force then depends on the velocity)
-        self.has_friction = bool(np.any(self.friction > 0))
-
-    def evaluate(self, u: np.ndarray, v: np.ndarray | None = None, rate: float = 0.0):
-        """``(f (3n,) = +∂E/∂u − f_friction, K (3n, 3n) CSR or None, energy J)`` for
-        u (3n,) m and the vertex velocities v (3n,) m/s (zero when ``None``).
-
-        The friction force ``f_t`` (:func:`~lbshape.dynamics.contact.friction_force`)
-        enters ``f`` with the internal-force sign; its tangent per vertex is
-        ``rate C − μ k T nᵀ`` (``rate = ∂v/∂u`` of the step in 1/s, C the rate matrix,
-        T the slip direction): the consistent tangent, not symmetric.
-        """
-        x = self.rest + u.reshape(-1, 3)[self.vertices]
-        force = np.zeros((self.n, 3))
-        rows, cols, vals = [], [], []
-        energy = 0.0
-        for plane, n, mu in zip(self.planes, self.normals, self.friction, strict=True):
-            gap = (x - np.asarray(plane.point)) @ n
-            hit = np.flatnonzero(gap < 0.0)
-            if hit.size == 0:
-                continue
-            d = -gap[hit]
-            energy += 0.5 * plane.stiffness * float(d @ d)
-            np.add.at(force, self.vertices[hit], -plane.stiffness * d[:, None] * n[None, :])
-            blocks = np.broadcast_to(plane.stiffness * np.outer(n, n), (hit.size, 3, 3))
-            if mu > 0:
-                w = (np.zeros((hit.size, 3)) if v is None
-                     else v.reshape(-1, 3)[self.vertices[hit]])
-                friction, rates, direction = friction_force(w, n, plane.stiffness * d, mu)
-                np.add.at(force, self.vertices[hit], -friction)
-                blocks = (blocks + rate * rates
-                          - mu * plane.stiffness * direction[:, :, None] * n[None, None, :])
-            dofs = 3 * self.vertices[hit][:, None] + np.arange(3)[None, :]  # (h, 3)
-            rows.append(np.repeat(dofs, 3, axis=1).ravel())
-            cols.append(np.tile(dofs, (1, 3)).ravel())
-            vals.append(np.ascontiguousarray(blocks).ravel())
-        if not rows:
-            return force.ravel(), None, 0.0
-        K = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(3 * self.n, 3 * self.n))
-        return force.ravel(), K, energy
-
-
-class FullSpaceSimulator:
+class FullSpaceSimulator(FullSpaceExampleForce):
     """Implicit full-space FEM dynamics with the full-space example force.
 
     Args:
@@ -231,6 +143,13 @@ class FullSpaceSimulator:
             (default :data:`FULL_NEWTON`: rtol 1e-8, 20 iterations; with friction or a free
             body's fitted example pull at least :data:`FRICTION_NEWTON_ITERATIONS`).
         contact: penalty contact with planes, or ``None``.
+        linear_solver: ``"reuse"``: compiled assembly
+            (:class:`~lbshape.elastic.assembly.CompiledElasticity`), one sparse
+            factorisation reused across Newton iterations and steps
+            (:class:`~lbshape.dynamics.linear_solvers.ReusedFactorSolver`) and the compiled
+            block evaluation of the example target; ``"lu-each-iteration"``: the former
+            path (numpy assembly, a SuperLU factorisation per Newton iteration), for
+            comparison runs. Same answers to round-off and the Newton tolerance.
 
     Attributes:
         free_dofs: (nf,) node-major indices of the free dofs (x = u[free_dofs]).
@@ -263,7 +182,13 @@ class FullSpaceSimulator:
         target_tolerance: float = 1e-6,
         newton: NewtonSettings = FULL_NEWTON,
         contact: FullSpaceContact | None = None,
+        linear_solver: str = "reuse",
     ):
+        if linear_solver not in LINEAR_SOLVERS:
+            raise LbshapeError(f"linear_solver must be one of {LINEAR_SOLVERS}, "
+                               f"got {linear_solver!r}")
+        self._fast = linear_solver == "reuse"
+        self._linear_solver = linear_solver
         n = mesh.n_vertices
         self.newton, self.dt = newton, float(dt)
         self.contact = contact
@@ -281,6 +206,8 @@ class FullSpaceSimulator:
         self._free_mask = free_mask
 
         self.elastic = FullSpaceElasticity(mesh, material)
+        self._compiled = (CompiledElasticity(mesh, material, self.free_dofs) if self._fast
+                          else None)
         self.mass = mass_matrix(mesh, material.density)
         self._mass_ff = _submatrix(self.mass, self.free_dofs)
         K0 = self.elastic.tangent(np.zeros(3 * n))
@@ -313,12 +240,15 @@ class FullSpaceSimulator:
         self._corotated_beta = float(beta) if (free_body and beta > 0) else 0.0
         self._damping_rest = K0_ff if self._corotated_beta else None
         self._damping_now = K0_ff if self._corotated_beta else None
+        self._damping_data = None  # β Q K₀ Qᵀ on the compiled pattern (_corotate)
         if self._corotated_beta:
             beta = 0.0
         # a free body's global examples: the rigid-invariant fitted pull (_free_gap)
         fitted_pull = bool(self._k_ex and free_body and self._local is None)
         friction = self.contact is not None and self.contact.has_friction
         newton = self.newton
+        #: the stepper's least Newton iterations (a line search's steps may need more)
+        self._newton_floor = FRICTION_NEWTON_ITERATIONS if friction or fitted_pull else 0
         self.stepper = make_stepper(
             integrator,
             self._mass_ff,
@@ -333,11 +263,12 @@ class FullSpaceSimulator:
             potential=self._potential,
             rtol=newton.rtol,
             atol=self._free_pull_round_off() if fitted_pull else 0.0,
-            max_iterations=(max(newton.max_iterations, FRICTION_NEWTON_ITERATIONS)
-                            if friction or fitted_pull else newton.max_iterations),
+            max_iterations=max(newton.max_iterations, self._newton_floor),
             line_search=friction or fitted_pull,
             low_rank_tangent=(self._tangent_correction
                               if fitted_pull or self._corotated_beta else None),
+            linear_solver=(make_linear_solver(self._linear_solver, symmetric=not friction)
+                           if self._fast else None),
         )
 
     # ----------------------------------------------------------------- set-up
@@ -359,62 +290,6 @@ class FullSpaceSimulator:
         stacked = np.array(patterns) if patterns else np.zeros((0, self.free_dofs.size))
         return stacked, profiles
 
-    def _setup_examples(self, examples: FullSpaceExamples | None, *, tolerance: float) -> None:
-        self._k_ex = 0.0
-        self._spring_ff = self._mass_ff
-        self._b = np.zeros(self.free_dofs.size)
-        self.target_coefficients: np.ndarray | None = None
-        self.weights: np.ndarray | None = None
-        #: free body, global examples: the target shape Y (n, 3) of the step and its centre
-        self._target_body: np.ndarray | None = None
-        self._target_center: np.ndarray | None = None
-        if examples is None:
-            return
-        try:
-            k_ex = float(examples.stiffness)
-        except (TypeError, ValueError):
-            k_ex = float("nan")
-        if isinstance(examples.stiffness, bool) or not np.isfinite(k_ex) or k_ex < 0:
-            raise LbshapeError(
-                f"example stiffness k_ex must be a finite number >= 0 (1/s^2), "
-                f"got {examples.stiffness!r}"
-            )
-        lam = np.asarray(examples.eigenvalues, dtype=float)
-        phi = np.asarray(examples.eigenvectors, dtype=float)
-        coefficients = np.asarray(examples.coefficients, dtype=float)
-        n, m = self.n_vertices, lam.size
-        if lam.ndim != 1 or m == 0 or not np.isfinite(lam).all() or (lam <= 0).any():
-            raise LbshapeError("eigenvalues must be a non-empty (m,) array of finite values > 0")
-        if phi.shape != (n, m) or not np.isfinite(phi).all():
-            raise LbshapeError(f"eigenvectors must be a finite ({n}, {m}) array, got {phi.shape}")
-        if coefficients.ndim != 3 or coefficients.shape[1:] != (m, 3):
-            raise LbshapeError(
-                f"example coefficients must have shape (k, {m}, 3), got {coefficients.shape}"
-            )
-        if not np.isfinite(coefficients).all():
-            raise LbshapeError("example coefficients contain NaN or infinite values")
-        k = coefficients.shape[0]
-        if k_ex == 0.0 or k == 0:
-            return
-        self._k_ex = float(k_ex)
-        weights = np.repeat(lam, 3)
-        volume_mass = self.mass[0::3, 0::3] / self.material.density  # M₁ (n, n), m³
-        # descriptor of the free displacement x: d = D_f x, D = diag(λ ⊗ 1₃)(Φᵀ M₁ ⊗ I₃)
-        D = np.kron(lam[:, None] * np.asarray((volume_mass @ phi).T), np.eye(3))
-        self._descriptor = np.ascontiguousarray(D[:, self.free_dofs])  # (3m, nf)
-        L = block_basis(phi)  # (3n, 3m) node-major, column 3i + comp
-        self._lb_basis = L
-        ML = np.asarray(self.mass @ L)
-        self._mass_target = np.ascontiguousarray(ML[self.free_dofs])  # (nf, 3m): (M L)_free
-        flat = coefficients.reshape(k, 3 * m)
-        self._example_descriptors = flat * weights
-        rests = example_rest_shapes(self.mesh.points, phi, coefficients)
-        kept = energy_elements(self.mesh.points, self.mesh.tets, rests)
-        models = [EuclideanExampleEnergy(x, self.mesh.tets[kept], self.material, L)
-                  for x in rests]
-        self._target_solver = TargetSolver(models, flat, tolerance=tolerance)
-        self._kM_ff = self._k_ex * self._mass_ff
-
     def _initial(self, value: np.ndarray | None, name: str) -> np.ndarray | None:
         if value is None:
             return None
@@ -426,6 +301,21 @@ class FullSpaceSimulator:
         return u.reshape(-1)[self.free_dofs]
 
     # ---------------------------------------------------------------- state
+    @property
+    def newton(self) -> NewtonSettings:
+        """The step's Newton settings (assigning new ones changes the stepper's; with
+        friction or a free body's fitted pull at least :data:`FRICTION_NEWTON_ITERATIONS`
+        iterations)."""
+        return self._newton
+
+    @newton.setter
+    def newton(self, settings: NewtonSettings) -> None:
+        self._newton = settings
+        stepper = getattr(self, "stepper", None)
+        if stepper is not None:
+            stepper.rtol = settings.rtol
+            stepper.max_iterations = max(settings.max_iterations, self._newton_floor)
+
     @property
     def uses_examples(self) -> bool:
         """True when the example force is active (k_ex > 0 and at least one example)."""
@@ -542,22 +432,30 @@ class FullSpaceSimulator:
 
     # ---------------------------------------------------------------- forces
     def _force_and_tangent(self, x: np.ndarray):
-        f, K = self.elastic.force_and_tangent(self.full_displacement(x).reshape(-1))
-        f, K = f[self.free_dofs], self._restrict(K)
+        if self._compiled is not None:  # K on the compiled pattern; terms added in place
+            f, K = self._compiled.force_and_tangent(self.full_displacement(x).reshape(-1))
+            add = self._compiled.add_into
+        else:
+            f, K = self.elastic.force_and_tangent(self.full_displacement(x).reshape(-1))
+            f, K = f[self.free_dofs], self._restrict(K)
+
+            def add(K, matrix, constant=False):
+                return K + matrix
         if self.contact is not None:
             velocity, rate = self._contact_velocity(x)
             fc, Kc, _ = self.contact.evaluate(self.full_displacement(x).reshape(-1), velocity,
                                               rate)
             if Kc is not None:
                 f = f + fc[self.free_dofs]
-                K = (K + Kc[self.free_dofs][:, self.free_dofs]).tocsr()
+                K = add(K, Kc[self.free_dofs][:, self.free_dofs]).tocsr()
         if self._k_ex and self._target_body is not None:  # free body, global examples
             gap = self._free_gap(x, tangent=True)
             f = f + self._k_ex * (self._spring_ff @ gap)
-            K = K + self._kM_ff  # minus the rigid part W Wᵀ (_tangent_correction)
+            # minus the rigid part W Wᵀ (_tangent_correction)
+            K = add(K, self._kM_ff, constant=True)
         elif self._k_ex:
             f = f + self._k_ex * (self._spring_ff @ x)
-            K = K + self._kM_ff
+            K = add(K, self._kM_ff, constant=True)
         stepper = getattr(self, "stepper", None)  # None while the stepper is set up
         if self._corotated_beta and stepper is not None:
             # β Pᵀ R K₀ Rᵀ P v₁(x), v₁ the scheme's end-of-step velocity, linear in x
@@ -565,7 +463,10 @@ class FullSpaceSimulator:
             damping = self._corotated_beta * self._damping_now
             rate = stepper.scheme.cv / stepper.dt
             f = f + self._deformation_damping(x, damping, v1, rate)
-            K = (K + rate * damping).tocsr()  # + its rigid part (_tangent_correction)
+            if self._damping_data is not None and self._compiled.on_pattern(K):
+                K.data += rate * self._damping_data
+            else:
+                K = (K + rate * damping).tocsr()  # + its rigid part (_tangent_correction)
         if self._drag is not None:  # the spring k u_i on the vertex's free dofs, k I₃
             f = f.copy()
             f[self._drag_dofs] += self._drag.stiffness * x[self._drag_dofs]
@@ -644,11 +545,24 @@ class FullSpaceSimulator:
             self._init_rigid_fit()
         rest = self.mesh.points
         _, R, _ = best_rigid_frame(self._scalar_mass, rest, rest + self.stepper.x.reshape(n, 3))
+        self._damping_data = None  # β Q K₀ Qᵀ on the compiled pattern
+        if self._compiled is not None:
+            if getattr(self, "_damping_rest_data", None) is None:
+                self._damping_rest_data = self._compiled.pattern_values(self._damping_rest)
+            rotated = (None if self._damping_rest_data is None
+                       else self._compiled.rotated(self._damping_rest_data, R))
+            if rotated is not None:
+                c = self._compiled
+                self._damping_now = sp.csr_matrix((rotated, c.indices, c.indptr),
+                                                  shape=self._damping_rest.shape)
+                self._damping_data = self._corotated_beta * rotated
+                return
         Q = sp.kron(sp.identity(n, format="csr"), sp.csr_matrix(R), format="csr")
         self._damping_now = (Q @ self._damping_rest @ Q.T).tocsr()
 
     def _potential(self, x: np.ndarray) -> float:
-        energy = self.elastic.energy(self.full_displacement(x).reshape(-1))
+        elastic = self.elastic if self._compiled is None else self._compiled
+        energy = elastic.energy(self.full_displacement(x).reshape(-1))
         if self.contact is not None:
             energy += self.contact.evaluate(self.full_displacement(x).reshape(-1))[2]
         return energy + self._example_energy(x) + self._drag_energy(x)
@@ -660,54 +574,6 @@ class FullSpaceSimulator:
         u = x[self._drag_dofs]
         return 0.5 * self._drag.stiffness * float(u @ u)
 
-    def _example_energy(self, x: np.ndarray) -> float:
-        """The example spring's energy (J) at free-dof displacements x (its part of the
-        potential): ``½ k_ex ‖x − T(x)‖²_M`` towards a free body's placed target, else
-        ``½ k_ex xᵀ M x`` (the target's side is the external force ``b``)."""
-        if not self._k_ex:
-            return 0.0
-        if self._target_body is not None:
-            gap = self._free_gap(x)
-            return 0.5 * self._k_ex * float(gap @ (self._spring_ff @ gap))
-        return 0.5 * self._k_ex * float(x @ (self._spring_ff @ x))
-
-    def _free_pull_round_off(self) -> float:
-        """Round-off (N, 2-norm) of a free body's fitted example pull.
-
-        ``k_ex M (x − T(x))`` subtracts positions of size |X̄| (the body's radius), and the
-        fit's rotation is exact only to ε: the pull is known to ``k_ex ε |X̄| ‖M 1‖``, which
-        at a strong k_ex lies above ``rtol`` times a small step's residual scale (Newton
-        would iterate on noise)."""
-        points = self.mesh.points
-        radius = float(np.linalg.norm(points - points.mean(axis=0), axis=1).max())
-        row_sums = np.asarray(self._mass_ff.sum(axis=1)).ravel()
-        return 64.0 * np.finfo(float).eps * self._k_ex * radius * float(np.linalg.norm(row_sums))
-
-    def _free_gap(self, x: np.ndarray, *, tangent: bool = False) -> np.ndarray:
-        """(3n,) ``x_world − T(x)``: a free body's positions minus the target shape placed
-        by its mass-weighted best rigid fit onto them (see :meth:`_update_free_target`).
-
-        With ``tangent`` also the rigid part of the pull's tangent: with Ψ (3n, 6) the
-        rigid motions of the placed target (translations, rotations about its centre)
-        and G = Ψᵀ M Ψ = L Lᵀ, ``W = √k_ex M Ψ L⁻ᵀ`` (3n, 6), so that the pull's tangent
-        is ``k_ex M − W Wᵀ`` (no stiffness along rigid motions: the fit follows them)."""
-        n = self.n_vertices
-        positions = self.mesh.points + x.reshape(n, 3)
-        center, R, _ = best_rigid_frame(self._scalar_mass, self._target_body, positions)
-        placed = center + (self._target_body - self._target_center) @ R.T
-        if tangent:
-            arm = placed - center
-            psi = np.zeros((3 * n, 6))
-            for axis in range(3):
-                psi[axis::3, axis] = 1.0
-                turn = np.zeros(3)
-                turn[axis] = 1.0
-                psi[:, 3 + axis] = np.cross(turn, arm).ravel()
-            mass_psi = np.asarray(self._spring_ff @ psi)
-            lower = np.linalg.cholesky(psi.T @ mass_psi)
-            self._pull_rigid = np.sqrt(self._k_ex) * np.linalg.solve(lower, mass_psi.T).T
-        return (positions - placed).ravel()
-
     def _external(self, t: float) -> np.ndarray:
         """The loads at t, the example pull and a drag's pull (free dofs, N)."""
         scales = np.array([profile(t) for profile in self._load_profiles])
@@ -715,71 +581,6 @@ class FullSpaceSimulator:
         if self._drag is not None:
             load[self._drag_dofs] += self._drag_pull
         return load + self._b if self._k_ex else load
-
-    def _update_target(self) -> None:
-        """Weights and target from the current state; sets the example force."""
-        x = self.stepper.x
-        if self._local is not None:
-            pull = self._local.pull(self.full_displacement(x))
-            self.weights = np.concatenate(list(self._local.weights.values()))
-            self._b = self._k_ex * pull[self.free_dofs]
-            return
-        if self.fixed_vertices.size == 0:  # free body: interpolate in the co-moving frame
-            # the fitted pull is part of the potential: the energy the moved target puts
-            # in at the fixed state is work done on the body (the energy monitor's budget)
-            before = self._example_energy(x)
-            self._update_free_target(x)
-            self.stepper.credit_work(self._example_energy(x) - before)
-            return
-        weights = simplex_weights(self._example_descriptors, self._descriptor @ x)
-        c_star = self._target_solver.solve(weights).z
-        self.weights = weights
-        self.target_coefficients = c_star
-        self._b = self._k_ex * (self._mass_target @ c_star)
-
-    def _init_rigid_fit(self) -> None:
-        self._scalar_mass = sp.csr_matrix(self.mass[0::3, 0::3])
-        rigid = rigid_body_modes(self.mesh.points, self.mass)  # (3n, 6), M-orthonormal
-        self._rigid_modes = (rigid, np.asarray(self.mass @ rigid))
-
-    def _update_free_target(self, u: np.ndarray) -> None:
-        """Free body: the shape is compared in the best-fitting rigid frame, and the
-        example force acts on the deformation only.
-
-        With the scalar mass M₁, the centre of mass ``c = Σ M₁ x / m`` and the rotation
-        R of the polar decomposition of ``Σ M₁ (x − c) X̄ᵀ`` (mass-weighted Kabsch fit of
-        the rest shape X̄ = X − X_cm to x; then ``Σ M X̄ × u_b = 0``, the frame of the
-        reduced method's rigid-free basis), the body-frame displacement
-        ``u_b = Rᵀ (x − c) − X̄`` gives the weights and the target ``c*`` (held for the
-        step). The target shape ``Y = X̄ + Π L c*`` loses its rigid content (M-orthogonal
-        projection Π on the rest shape's rigid motions, as the projection on U does in
-        the reduced method). The example energy is rigid-invariant,
-        ``½ k_ex min_{c,R} ‖x − (c + R Y)‖²_M``: its force ``k_ex M (x − T(x))``, with
-        ``T(x) = c(x) + R(x) Y`` the target placed by its best rigid fit onto the
-        current positions (:meth:`_free_gap`, evaluated at every Newton iterate), has
-        no net force and no net torque — an internal force, as ``k_ex (q* − q)`` on the
-        rigid-free basis is in the reduced method. (A pull towards a frame fixed during
-        the step would hold the body's rigid motion with stiffness k_ex; at the car's
-        k_ex that changed its angular momentum in free flight.) The Newton tangent
-        keeps ``k_ex M``, exact but for the fit's motion, so Newton converges.
-        """
-        n = self.n_vertices
-        if not hasattr(self, "_scalar_mass"):
-            self._init_rigid_fit()
-        rest = self.mesh.points
-        x = rest + u.reshape(n, 3)
-        _, _, body = best_rigid_frame(self._scalar_mass, rest, x)
-        weights = simplex_weights(self._example_descriptors, self._descriptor @ body.ravel())
-        c_star = self._target_solver.solve(weights).z
-        self.weights = weights
-        self.target_coefficients = c_star
-        shape = self._lb_basis @ c_star
-        rigid, mass_rigid = self._rigid_modes
-        shape = shape - rigid @ (mass_rigid.T @ shape)  # no rigid content, as U in reduced
-        self._target_body = rest + shape.reshape(n, 3)
-        weights_m = np.asarray(self._scalar_mass.sum(axis=1)).ravel()
-        self._target_center = weights_m @ self._target_body / weights_m.sum()
-        self._b = np.zeros(self.free_dofs.size)
 
     # ------------------------------------------------------------------- step
     def step(self) -> int:
@@ -836,18 +637,6 @@ class FullSpaceSimulator:
             if on_step is not None:
                 on_step(index, self.time, u)
         return recorder.record(max_displacement=max_disp)
-
-    def _update_target_at_step(self) -> None:
-        """:meth:`_update_target`, its failure named by the step and time it was for."""
-        try:
-            self._update_target()
-        except SolverError as exc:
-            step = self.stepper.steps_taken + 1
-            raise SolverError(
-                f"target interpolation failed at step {step} "
-                f"(t = {self.time + self.stepper.dt:.6g} s): {exc}"
-            ) from None
-
 
 def rigid_velocity(mesh: TetMesh, density: float, velocity, angular_velocity) -> np.ndarray:
     """(n, 3) vertex velocities ``v + ω × (X − X_cm)`` (m/s) of a rigid motion (world)."""

@@ -72,6 +72,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from lbshape.dynamics.kernels import norm as _norm
 from lbshape.errors import LbshapeError, SolverError
 
 log = logging.getLogger(__name__)
@@ -225,6 +226,7 @@ class ImplicitStepper:
         symmetric: bool = True,
         line_search: bool = False,
         low_rank_tangent: Callable[[], tuple[np.ndarray, np.ndarray] | None] | None = None,
+        linear_solver: Callable | None = None,
     ):
         self._sparse = sp.issparse(mass)
         self.mass = _square_matrix(mass, "mass")
@@ -242,6 +244,7 @@ class ImplicitStepper:
         self._assume_a = "sym" if symmetric else "gen"
         self.line_search = bool(line_search)
         self._low_rank_tangent = low_rank_tangent
+        self._linear_solver = linear_solver if self._sparse else None
 
         self._x = self._vector(x0, "x0")
         self._v = self._vector(v0, "v0")
@@ -449,8 +452,18 @@ class ImplicitStepper:
         return f, K
 
     def _solve_newton(self, K: Matrix, R: np.ndarray, index: int, t: float) -> np.ndarray:
-        J = self._newton_base + K
         correction = self._low_rank_tangent() if self._low_rank_tangent is not None else None
+        if self._linear_solver is not None:
+            try:
+                delta = self._linear_solver(self._newton_base, K, R, correction)
+            except (sla.LinAlgError, np.linalg.LinAlgError, RuntimeError) as exc:
+                raise SolverError(
+                    f"singular Newton matrix at step {index} (t = {t:.6g} s): {exc}"
+                ) from None
+            if not np.isfinite(delta).all():
+                raise SolverError(f"non-finite Newton update at step {index} (t = {t:.6g} s)")
+            return delta
+        J = self._newton_base + K
         try:
             if self._sparse:
                 solve = spla.splu(sp.csc_matrix(J)).solve
@@ -578,11 +591,6 @@ def _square_matrix(matrix: Matrix, name: str) -> Matrix:
     if matrix.ndim != 2 or matrix.shape[0] != matrix.shape[1] or matrix.shape[0] == 0:
         raise LbshapeError(f"{name} must be a non-empty square matrix, got shape {matrix.shape}")
     return matrix.tocsr() if sp.issparse(matrix) else matrix
-
-
-def _norm(vector: np.ndarray) -> float:
-    """Euclidean norm of a 1-D array (cheaper than ``np.linalg.norm`` for small ones)."""
-    return math.sqrt(float(vector @ vector))
 
 
 def _inf_norm(matrix: Matrix) -> float:

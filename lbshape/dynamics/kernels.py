@@ -29,12 +29,19 @@ reliably (it can crash the interpreter); compiled code only passes the views on.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from lbshape._jit import njit
 
 __all__ = ["axpy", "check_size", "cholesky_in_place", "cholesky_solve_in_place", "lu_solve",
-           "max_symmetric_eigenvalue", "predict", "take"]
+           "max_symmetric_eigenvalue", "norm", "predict", "take"]
+
+
+def norm(vector: np.ndarray) -> float:
+    """Euclidean norm of a 1-D array (cheaper than ``np.linalg.norm`` for small ones)."""
+    return math.sqrt(float(vector @ vector))
 
 
 def axpy(scale: float, x: np.ndarray, out: np.ndarray) -> None:

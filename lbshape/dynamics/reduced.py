@@ -67,6 +67,7 @@ from lbshape.dynamics.engine import (
 )
 from lbshape.dynamics.integrators import get_scheme
 from lbshape.dynamics.kernels import axpy, cholesky_in_place, cholesky_solve_in_place, predict
+from lbshape.dynamics.kernels import norm as _norm
 from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.dynamics.sanity import DeformationBound
@@ -101,7 +102,7 @@ class ReducedSimulation:
         loads: reduced loads (patterns ``Uᵀ f`` (r,)).
         driver: the example driver, or ``None`` (no example machinery at all). A
             driver with a ``spring`` attribute (r, r) (local examples,
-            :class:`~lbshape.shapespace.local_examples.LocalExampleDriver`) uses it in
+            :class:`~lbshape.shapespace.local_driver.LocalExampleDriver`) uses it in
             place of the identity in the spring ``k_ex S q``. A driver without the
             in-place methods (``weights_into``, ``target_from_weights_into``) is called
             through ``target(q)``.
@@ -456,9 +457,9 @@ class ReducedSimulation:
     def _residual_into(self) -> None:
         """The step's residual at ``x + dx`` with the current force and tangent into
         ``_R`` and its norms into ``_norms`` (also sets ``_v1``, ``_a1``)."""
-        _residual(self._dx, self.x, self.v, self.a, self._x1, self._f, self._fext,
-                  self.damping, self._spring, self._coefficients, self._v1, self._a1,
-                  self._R, self._norms)
+        _end_rates(self._dx, self.v, self.a, self._coefficients, self._v1, self._a1)
+        _residual(self._x1, self._v1, self._a1, self._f, self._fext, self.damping,
+                  self._spring, self._coefficients, self._R, self._norms)
 
     def _update(self, index: int, t1: float) -> None:
         """One Newton update of ``dx`` from ``_R`` and the tangent ``_K``."""
@@ -561,15 +562,22 @@ def _kinematics(dx, x, v, a, c, x1, v1, a1):
 
 
 @njit
-def _residual(dx, x, v, a, x1, f, fext, D, S, c, v1, a1, R, norms):
-    """R = a₁ + D v₁ + f + k_ex S x₁ − f_ext (M = I, S the example spring) and its norms.
+def _end_rates(dx, v, a, c, v1, a1):
+    """The end-of-step a₁, v₁ of the increment Δx from the step rates ``c``
+    (as :func:`_kinematics`, without x₁)."""
+    for i in range(dx.shape[0]):
+        a1[i] = c[0] * dx[i] - c[1] * v[i] - c[2] * a[i]
+        v1[i] = c[3] * dx[i] - c[4] * v[i]
+
+
+@njit
+def _residual(x1, v1, a1, f, fext, D, S, c, R, norms):
+    """R = a₁ + D v₁ + f + k_ex S x₁ − f_ext (M = I, S the example spring) and its norms,
+    at the state x₁ with the end-of-step rates v₁, a₁ (:func:`_end_rates`).
 
     norms: [‖R‖, round-off level of R, ‖f_ext‖, ‖f‖].
     """
-    n = dx.shape[0]
-    for i in range(n):
-        a1[i] = c[0] * dx[i] - c[1] * v[i] - c[2] * a[i]
-        v1[i] = c[3] * dx[i] - c[4] * v[i]
+    n = x1.shape[0]
     r2 = noise = fe2 = f2 = 0.0
     for i in range(n):
         damping = 0.0
@@ -624,7 +632,3 @@ def _dot_sum_kernel(a, b, c, both):
     for i in range(c.shape[0]):
         total += (a[i] + b[i] if both else a[i]) * c[i]
     return total
-
-
-def _norm(vector: np.ndarray) -> float:
-    return float(np.sqrt(vector @ vector))

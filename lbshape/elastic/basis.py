@@ -44,7 +44,7 @@ only take a derivative's place and cost accuracy. The entering responses are kep
 exactly, after the linear modes (made M-orthogonal to them, then their own M-PCA),
 and the derivatives' PCA fills the remaining columns. What the threshold and the
 responses change on the demo bar and the teddy is measured in
-``docs/architecture.md`` ("Response vectors in the basis";
+``docs/decisions.md`` ("Response vectors in the basis";
 ``scripts/diagnose_accuracy.py``, ``results/accuracy_diagnosis.md``).
 
 After the PCA, U is re-orthonormalised once in the M inner product (the Gram route
@@ -86,7 +86,7 @@ RESPONSE_MIN_OUTSIDE = 0.05
 APPEND_RTOL = 1e-2
 #: a static equilibrium is appended when more than this share of it (M-norm) lies
 #: outside U: the cross's equilibria lie 1–5 % outside, and appending them halves its
-#: error against the full reference (``docs/architecture.md``, "Static equilibria")
+#: error against the full reference (``docs/decisions.md``, "Static equilibria")
 EQUILIBRIUM_MIN_OUTSIDE = 1e-3
 #: what :func:`append_directions` appends (each has its count ``n_<kind>``)
 APPENDED_KINDS = ("static_equilibria", "example_responses")

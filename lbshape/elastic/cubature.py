@@ -273,7 +273,7 @@ def train_example_cubatures(
         rng: generator of the perturbations and candidate batches.
         scales: (p,) per-coordinate perturbation scales (default all 1).
         perturbation: RMS perturbation size as a share of the separation (the default
-            and ``copies`` measured in docs/architecture.md, "Interpolation routes").
+            and ``copies`` measured in docs/decisions.md, "Interpolation routes").
         copies: perturbations per path pose.
         max_elements, tol, max_bytes, comm: as in :func:`train_cubature`.
         max_path: at most this many path targets are used, evenly spaced along the path

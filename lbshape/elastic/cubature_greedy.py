@@ -11,7 +11,7 @@ is optimal on its set, so the error never increases. Only when no candidate of a
 batch helps is a wider set scanned (in chunks): every element when at most
 :data:`FALLBACK_ELEMENTS` remain (every built-in scene but the 100k-vertex one),
 else that many drawn at random (a full scan of a large mesh costs tens of seconds,
-``docs/architecture.md``). The greedy steps are the
+``docs/decisions.md``). The greedy steps are the
 same on every rank (same seed, same draws); memory is O(P·r·(s + batch)) besides
 one chunk.
 """

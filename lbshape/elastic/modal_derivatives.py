@@ -19,7 +19,7 @@ serially, MUMPS over several ranks; options prefix ``md_``) serves every right-h
 It also solves the basis's **static responses** ``K x = f`` (keyword ``static_loads``,
 clamped bodies only; :mod:`lbshape.pipeline.responses`) in the same block solve: K at
 rest is the same for both material models, and a second factorisation of K would
-cost as much as this one (measured in ``docs/architecture.md``).
+cost as much as this one (measured in ``docs/decisions.md``).
 
 * **Clamped body:** the system is restricted to the free DOFs; Ψ is zero at the
   fixed vertices.

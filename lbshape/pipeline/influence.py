@@ -26,7 +26,7 @@ effect. With M the consistent elastic mass (kg) and
 change its shape, so there u is the **deformation** (``influence_frame: "body"``):
 the displacement left after the mass-weighted best rigid fit of the deformed
 positions onto the rest positions (Kabsch,
-:func:`lbshape.dynamics.rigid_frame.best_rigid_frame`), ``u_body = Rᵀ(x − c) − X̄``.
+:func:`lbshape.analysis.free_body.body_deformations`), ``u_body = Rᵀ(x − c) − X̄``.
 It needs nothing but positions, so it is the same measure for the reduced engine
 and the full-space reference, and a rigid motion of either run does not change it.
 The world-displacement figures are kept next to it (``example_influence_world``,
@@ -54,24 +54,24 @@ like the picture:
   the smallest ``‖d − e_k‖`` over the example descriptors e_k and ``‖d‖`` for rest
   (``example_distances`` lists them, relative to ``max_k ‖e_k‖``). With local
   examples, per region (``{region: …}``), on the region's descriptors
-  (:func:`lbshape.shapespace.local_examples.region_descriptor`), among the rest and
+  (:func:`lbshape.shapespace.local_space.region_descriptor`), among the rest and
   the region's own examples.
 
-The twist of a bar's end (:func:`end_twist_degrees`) is the number a reader of
-the paper's Figure 3 looks for; it is reported next to the influence by the
-pictures and the demo.
+The measures on arrays (mass norms, the influence ratios, visible change, nearest shape,
+the body-frame deformation) are :mod:`lbshape.analysis`; this module applies them to a
+scene's runs and precompute.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from lbshape.dynamics.rigid_frame import best_rigid_frame
+from lbshape.analysis.free_body import body_deformations
+from lbshape.analysis.influence import nearest_shape, trajectory_influence, visible_change
+from lbshape.analysis.norms import ROUNDOFF
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.precomputed import Precomputed
@@ -79,16 +79,12 @@ from lbshape.scene.schema import Scene
 from lbshape.shapespace.interpolation import simplex_weights
 from lbshape.shapespace.local_space import region_descriptor, region_example_distance
 
-#: M-norm differences below ROUNDOFF × sqrt(mass) × bounding-box diagonal count as none
-ROUNDOFF = 1e-12
 #: the stats keys this module adds to a run's ``stats.json``
 STATS_KEYS: tuple[str, ...] = (
     "example_influence", "example_influence_max", "example_residual", "example_residual_none",
     "influence_frame", "example_influence_world", "example_influence_world_max",
     "visible_change", "closest_example", "example_distances",
 )
-#: the label of the rest shape among the candidates of ``closest_example``
-REST = "rest"
 #: what ``example_influence`` measures: world displacement (fixed) or deformation (free)
 FRAMES: tuple[str, ...] = ("world", "body")
 
@@ -141,59 +137,6 @@ class Influence:
                         strict=True))
 
 
-def mass_norms(u: np.ndarray, mass) -> np.ndarray:
-    """(k,) ``sqrt(u(t)ᵀ M u(t))`` of displacements u (k, n, 3) or (k, 3n) (m), M (3n, 3n) kg."""
-    flat = np.asarray(u, dtype=float).reshape(len(u), -1)
-    if flat.shape[1] != mass.shape[0]:
-        raise LbshapeError(f"displacements have {flat.shape[1]} components per sample, the "
-                           f"mass matrix {mass.shape[0]} rows")
-    squares = np.einsum("ti,ti->t", flat, np.asarray((mass @ flat.T).T))
-    return np.sqrt(np.maximum(squares, 0.0))
-
-
-def _ratio(numerator: float, denominator: float, atol: float) -> float | None:
-    if numerator <= atol:
-        return 0.0
-    return numerator / denominator if denominator > atol else None
-
-
-def trajectory_influence(u_ex: np.ndarray, u_none: np.ndarray, mass, *, atol: float = 0.0
-                         ) -> tuple[float | None, float | None]:
-    """``(final, maximum)`` influence of two trajectories sampled at the same times.
-
-    Args:
-        u_ex: (k, n, 3) displacements with examples (m).
-        u_none: (k, n, 3) displacements without examples (m).
-        mass: (3n, 3n) consistent mass (kg).
-        atol: M-norms (m·kg^½) up to ``atol`` count as none: a difference that small
-            is influence 0, a reference that small (and a larger difference) None.
-    """
-    u_ex, u_none = np.asarray(u_ex, dtype=float), np.asarray(u_none, dtype=float)
-    if u_ex.shape != u_none.shape or u_ex.shape[0] == 0:
-        raise LbshapeError(f"trajectories must have the same non-empty shape, got {u_ex.shape} "
-                           f"and {u_none.shape}")
-    difference = mass_norms(u_ex - u_none, mass)
-    reference = mass_norms(u_none, mass)
-    return (_ratio(float(difference[-1]), float(reference[-1]), atol),
-            _ratio(float(difference.max()), float(reference.max()), atol))
-
-
-def body_deformations(scalar_mass, rest: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """(k, n, 3) deformations of displacements u (k, n, 3) (m): each sample's displacement
-    after its mass-weighted best rigid fit (``Rᵀ(X + u − c) − X̄``, body frame, m).
-
-    Args:
-        scalar_mass: (n, n) scalar mass M₁ (kg).
-        rest: (n, 3) rest positions X (m).
-        u: (k, n, 3) world displacements (m).
-    """
-    rest = np.asarray(rest, dtype=float)
-    u = np.asarray(u, dtype=float).reshape(len(u), -1, 3)
-    if u.shape[1:] != rest.shape:
-        raise LbshapeError(f"displacements of shape {u.shape[1:]} for {rest.shape} rest points")
-    return np.stack([best_rigid_frame(scalar_mass, rest, rest + sample)[2] for sample in u])
-
-
 def is_free_body(pre: Precomputed) -> bool:
     """True for a free body (it has a rigid frame): its influence is measured in the body frame."""
     return pre.frame is not None
@@ -223,46 +166,9 @@ def manifold_residual(pre: Precomputed, u: np.ndarray) -> float:
 def local_residual(pre: Precomputed, u: np.ndarray) -> float:
     """Local examples: the largest region's relative eq. 5 residual of u (n, 3), each on
     the region's own descriptors
-    (:func:`lbshape.shapespace.local_examples.region_example_distance`)."""
+    (:func:`lbshape.shapespace.local_space.region_example_distance`)."""
     return max(region_example_distance(pre.mesh, region, u, density=pre.material.density)[0]
                for region in pre.local.regions)
-
-
-def visible_change(points: np.ndarray, shape_ex: np.ndarray, shape_none: np.ndarray) -> float:
-    """Largest vertex distance between two shapes over the rest bounding-box diagonal.
-
-    Args:
-        points: (n, 3) rest positions X (m).
-        shape_ex, shape_none: (n, 3) displacements (m) of the same vertices (a free
-            body's deformations, :func:`body_deformations`).
-    """
-    points = np.asarray(points, dtype=float)
-    diagonal = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-    distance = np.linalg.norm(np.asarray(shape_ex) - np.asarray(shape_none), axis=1)
-    return float(distance.max()) / diagonal
-
-
-def nearest_shape(d: np.ndarray, examples: np.ndarray,
-                  labels: Sequence[int] | None = None) -> tuple[object, dict]:
-    """Which of the rest shape (descriptor 0) and the examples a descriptor is closest to.
-
-    Args:
-        d: (3m,) a shape's descriptor.
-        examples: (k, 3m) the example descriptors e_k.
-        labels: (k,) the examples' indices in the scene (default 0…k−1).
-
-    Returns:
-        ``(closest, distances)``: ``"rest"`` or the closest example's label, and
-        ``{"rest": ‖d‖/s, "<label>": ‖d − e_k‖/s}`` with s = ``max_k ‖e_k‖``.
-    """
-    examples = np.atleast_2d(np.asarray(examples, dtype=float))
-    labels = list(range(len(examples))) if labels is None else [int(k) for k in labels]
-    scale = float(np.linalg.norm(examples, axis=1).max()) or 1.0
-    distances = {REST: float(np.linalg.norm(d)) / scale}
-    for label, e in zip(labels, examples, strict=True):
-        distances[str(label)] = float(np.linalg.norm(d - e)) / scale
-    closest = min(distances, key=distances.get)
-    return (closest if closest == REST else int(closest)), distances
 
 
 def closest_example(pre: Precomputed, u: np.ndarray, example_descriptors=None
@@ -291,23 +197,6 @@ def has_example_force(scene: Scene, pre: Precomputed) -> bool:
     """True when the scene's examples act on its motion (examples and ``k_ex > 0``)."""
     active = pre.has_examples or pre.has_local_examples
     return bool(active and scene.examples is not None and scene.examples.acts)
-
-
-def without_examples(scene: Scene) -> Scene:
-    """The same scene with the example force switched off (``k_ex = 0``, same precompute)."""
-    if scene.examples is None:
-        return scene
-    return dataclasses.replace(scene, examples=dataclasses.replace(scene.examples, stiffness=0.0))
-
-
-def with_stiffness(scene: Scene, stiffness: float) -> Scene:
-    """The same scene with example stiffness ``k_ex`` = ``stiffness`` (1/s²)."""
-    if scene.examples is None:
-        raise LbshapeError(f"scene {scene.name} has no examples")
-    if not (math.isfinite(stiffness) and stiffness >= 0.0):
-        raise LbshapeError(f"example stiffness must be finite and >= 0, got {stiffness}")
-    return dataclasses.replace(scene, examples=dataclasses.replace(scene.examples,
-                                                                   stiffness=float(stiffness)))
 
 
 def compare_runs(pre: Precomputed, with_ex, without, mass=None) -> Influence:
@@ -349,33 +238,3 @@ def compare_runs(pre: Precomputed, with_ex, without, mass=None) -> Influence:
                      example_distances=distances)
 
 
-def end_twist_degrees(points: np.ndarray, u: np.ndarray, *, axis: int = 2,
-                      end: str = "min", tolerance: float = 1e-3) -> float:
-    """Mean rotation (degrees, right-handed about ``+axis``) of a bar's end section.
-
-    Args:
-        points: (n, 3) rest positions (m).
-        u: (n, 3) displacement (m).
-        axis: the bar's axis (0, 1, 2).
-        end: ``"min"`` or ``"max"``: which end section (vertices within
-            ``tolerance`` of the extreme axial coordinate).
-        tolerance: thickness of the end section (m).
-
-    Each vertex of the section beyond 30 % of its largest radius contributes the
-    angle between its arm from the section's centroid at rest and deformed.
-    """
-    points, u = np.asarray(points, dtype=float), np.asarray(u, dtype=float).reshape(-1, 3)
-    z = points[:, axis]
-    extreme = z.min() if end == "min" else z.max()
-    section = np.flatnonzero(np.abs(z - extreme) <= tolerance)
-    if section.size < 2:
-        raise LbshapeError("the bar's end section has fewer than two vertices")
-    i, j = (axis + 1) % 3, (axis + 2) % 3
-    rest = points[section] - points[section].mean(axis=0)
-    moved = points[section] + u[section]
-    moved = moved - moved.mean(axis=0)
-    a, b = rest[:, [i, j]], moved[:, [i, j]]
-    angles = np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], np.einsum("ij,ij->i", a, b))
-    radius = np.linalg.norm(a, axis=1)
-    keep = radius > 0.3 * radius.max()
-    return float(np.degrees(np.mean(angles[keep])))

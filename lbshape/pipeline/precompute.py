@@ -156,7 +156,7 @@ from lbshape.spectral.spectrum import LBSpectrum, lb_spectrum
 log = logging.getLogger(__name__)
 
 #: target routes in the LB basis faded to zero at the fixed vertices (when safe). Off: the
-#: full-space reference interpolates in the free basis (measured in docs/architecture.md,
+#: full-space reference interpolates in the free basis (measured in docs/decisions.md,
 #: "The clamped LB basis"); the clamped basis stays available to the routes and
 #: benchmarks (``boundary=``).
 CLAMPED_TARGETS = False

@@ -13,7 +13,7 @@ None: :class:`ElasticSpace` (every scene: U, ω², the reduced force model),
 and the examples' names), :class:`GlobalExamples` (global examples: coefficients, maps
 to reduced coordinates, target table, LB cubatures; also what the example stages hand
 to :func:`artifact`), the local-example shape space
-(:class:`~lbshape.shapespace.local_examples.LocalShapeSpace`), a free body's
+(:class:`~lbshape.shapespace.local_space.LocalShapeSpace`), a free body's
 :class:`~lbshape.dynamics.fictitious.FrameTensors`, and :class:`StageReport` (how the
 artifact was built). ``pre.U``, ``pre.r``, ``pre.has_examples`` and
 ``pre.has_local_examples`` are kept on the record itself.

@@ -75,7 +75,7 @@ log = logging.getLogger(__name__)
 BOUNDARIES = ("clamped", "free")
 #: Newton steps per call (per time step, warm-started) of the lb-table route's fallback
 #: when there is no table: the target follows the weights closely enough with one
-#: (measured in docs/architecture.md, "Interpolation routes")
+#: (measured in docs/decisions.md, "Interpolation routes")
 FALLBACK_ITERATIONS = 1
 
 
@@ -248,7 +248,7 @@ def _route_energies(pre: Precomputed, route: str, *, clamped: bool) -> _RouteEne
                               np.ones(kept.size), {})
     if route == "modal":
         inside = np.isin(pre.elastic.cubature_elements, kept)
-        if not inside.all():  # none on the built-in scenes (docs/architecture.md)
+        if not inside.all():  # none on the built-in scenes (docs/decisions.md)
             share = pre.elastic.cubature_weights[~inside].sum() / pre.elastic.cubature_weights.sum()
             log.warning("modal route: %d of %d cubature elements are squeezed by the "
                         "examples and left out (%.1f %% of the weight); the others keep "

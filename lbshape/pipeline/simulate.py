@@ -60,16 +60,12 @@ from lbshape.io.atomic import (
     write_npz_atomic,
 )
 from lbshape.io.trajectory import TrajectoryWriter
-from lbshape.pipeline.influence import (
-    Influence,
-    compare_runs,
-    has_example_force,
-    without_examples,
-)
+from lbshape.pipeline.influence import Influence, compare_runs, has_example_force
 from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.responses import mesh_load_patterns
 from lbshape.pipeline.routes import example_driver
 from lbshape.scene.schema import Scene
+from lbshape.scene.variants import without_examples
 from lbshape.shapespace.interpolation import BASELINE_ROUTE, resolve_route
 from lbshape.shapespace.local_driver import local_example_driver, local_route
 from lbshape.shapespace.local_full_force import FullSpaceLocalForce

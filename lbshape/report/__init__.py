@@ -1,14 +1,9 @@
-"""What a reader looks at: benchmarks, tables, figures, off-screen renders and the demo job."""
+"""What a reader looks at: off-screen renders, plots, movies and figure layouts of runs it is
+given (drawing only: nothing here precomputes or simulates)."""
 
 __all__ = [
-    "animation",
-    "bench",
-    "demo",
     "figures",
-    "machine",
     "movie",
-    "pareto",
     "plots",
     "render",
-    "tables",
 ]

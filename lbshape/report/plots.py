@@ -11,7 +11,6 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from lbshape.io.atomic import write_atomic
-from lbshape.report.bench import TARGET_ERROR, TARGET_T_TOTAL_MS, SweepPoint
 
 
 def pyplot():
@@ -32,25 +31,27 @@ def save_figure(fig, path: str | Path) -> Path:
         pyplot().close(fig)
 
 
-def _s_label(point: SweepPoint) -> str:
+def _s_label(point) -> str:
     """How a sweep point's force is labelled: ``s=…`` for the cubature, ``exact`` for the
     polynomial forces (every element, whatever s)."""
     return f"s={point.s}" if point.forces == "cubature" else "exact"
 
 
-def speed_error_plot(points: Sequence[SweepPoint], path: str | Path, *, scene: str, steps: int,
-                     dt: float) -> Path:
-    """Per-step time (ms) against trajectory error vs ``full`` (%), one line per r.
+def speed_error_plot(points: Sequence, path: str | Path, *, scene: str, steps: int,
+                     dt: float, target_error: float, target_ms: float) -> Path:
+    r"""Per-step time (ms) against trajectory error vs ``full`` (%), one line per r.
 
     Points at the sweep's first m are grouped by r (annotated with s; with the exact
     polynomial forces s changes nothing, so each r is one point marked "exact"); points
     at other m are shown apart. Failed runs (no error) are left out.
 
     Args:
-        points: the sweep, the scene's own m first (see
-            :func:`lbshape.report.bench.speed_error_sweep`).
+        points: the sweep's :class:`~lbshape.studies.sweep.SweepPoint`\ s, the scene's
+            own m first (see :func:`lbshape.studies.sweep.speed_error_sweep`).
         path: the PNG to write.
         scene, steps, dt: for the title (dt in s).
+        target_error, target_ms: the error (dimensionless) and per-step time (ms)
+            targets, drawn as lines.
     """
     plt = pyplot()
     base_m = points[0].m  # the grid lists the scene's m first
@@ -76,8 +77,9 @@ def speed_error_plot(points: Sequence[SweepPoint], path: str | Path, *, scene: s
         for p in m_points:
             ax.annotate(f"m={p.m}", (p.t_total_ms, 100 * p.error_vs_full), fontsize=7,
                         xytext=(3, -9), textcoords="offset points")
-    ax.axhline(100 * TARGET_ERROR, color="0.6", lw=0.8, ls=":", label="10% error")
-    ax.axvline(TARGET_T_TOTAL_MS, color="0.6", lw=0.8, ls="--", label="1 ms per step")
+    ax.axhline(100 * target_error, color="0.6", lw=0.8, ls=":",
+               label=f"{100 * target_error:g}% error")
+    ax.axvline(target_ms, color="0.6", lw=0.8, ls="--", label=f"{target_ms:g} ms per step")
     ax.set_xlabel("reduced method: time per step (ms, median)")
     ax.set_yscale("log")
     ax.set_ylabel("trajectory error vs full (%)")

@@ -1,4 +1,4 @@
-"""Off-screen pictures with pyvista (with :mod:`lbshape.report.live`, the on-screen window,
+"""Off-screen pictures with pyvista (with :mod:`lbshape.live.window`, the on-screen window,
 the only modules of lbshape that import it).
 
 All functions write a PNG atomically and return its path. Rendering is headless:
@@ -377,8 +377,6 @@ def animation_frames(
     Raises:
         LbshapeError: not one label and one (f, n, 3) array per panel.
     """
-    from tqdm import tqdm
-
     runs = [np.asarray(u, dtype=float) for u in displacements]
     k, count = len(runs), len(times)
     _check_panels(rest, runs, labels, count, notes)
@@ -400,26 +398,41 @@ def animation_frames(
     plotter.subplot(0, k - 1)
     plotter.add_text(f"colour: {scalar_name} {clim[0]:.3g} (dark) to {clim[1]:.3g} (yellow)",
                      position="lower_right", font_size=8)
-    out = np.empty((count, height, width, 3), dtype=np.uint8)
     try:
-        for frame in tqdm(range(count), desc="frames", disable=not progress, file=sys.stderr):
-            for panel, surface in enumerate(surfaces):
-                surface.points = rest.points[ids] + runs[panel][frame][ids]
-                surface.point_data[scalar_name] = norms[panel][frame][ids]
-                surface.Modified()
-                plotter.subplot(0, panel)
-                caption = labels[panel] if notes is None else \
-                    f"{labels[panel]}\n{notes[frame][panel]}"
-                plotter.add_text(caption, font_size=10, name="caption")
-            plotter.subplot(0, 0)
-            plotter.add_text(f"t = {times[frame]:.3f} s", position="lower_left", font_size=10,
-                             name="time")
-            with quiet_vtk():
-                plotter.render()
-                image = np.asarray(plotter.screenshot(return_img=True))[..., :3]
-            out[frame] = image[:height, :width]
+        return _record_frames(plotter, surfaces, rest.points[ids], [u[:, ids] for u in runs],
+                              [v[:, ids] for v in norms], labels, times, scalar_name=scalar_name,
+                              notes=notes, size=(height, width), progress=progress)
     finally:
         plotter.close()
+
+
+def _record_frames(plotter, surfaces, points: np.ndarray, runs: Sequence[np.ndarray],
+                   norms: Sequence[np.ndarray], labels: Sequence[str], times: np.ndarray, *,
+                   scalar_name: str, notes, size: tuple[int, int], progress: bool
+                   ) -> np.ndarray:
+    """Each frame of :func:`animation_frames`: the panels' surfaces (``points`` (p, 3) at
+    rest, ``runs`` (f, p, 3) and ``norms`` (f, p) per panel on the surface's points) moved,
+    captioned and rendered; (f, height, width, 3) uint8 RGB."""
+    from tqdm import tqdm
+
+    height, width = size
+    out = np.empty((len(times), height, width, 3), dtype=np.uint8)
+    for frame in tqdm(range(len(times)), desc="frames", disable=not progress, file=sys.stderr):
+        for panel, surface in enumerate(surfaces):
+            surface.points = points + runs[panel][frame]
+            surface.point_data[scalar_name] = norms[panel][frame]
+            surface.Modified()
+            plotter.subplot(0, panel)
+            caption = labels[panel] if notes is None else \
+                f"{labels[panel]}\n{notes[frame][panel]}"
+            plotter.add_text(caption, font_size=10, name="caption")
+        plotter.subplot(0, 0)
+        plotter.add_text(f"t = {times[frame]:.3f} s", position="lower_left", font_size=10,
+                         name="time")
+        with quiet_vtk():
+            plotter.render()
+            image = np.asarray(plotter.screenshot(return_img=True))[..., :3]
+        out[frame] = image[:height, :width]
     return out
 
 

@@ -1,5 +1,5 @@
-"""Scenes: the schema dataclasses (data only), the TOML reader, scenes built in code and the
-built-in scenes."""
+"""Scenes: the schema dataclasses (data only), the TOML reader, scenes built in code, the
+built-in scenes and variants of a scene (:mod:`lbshape.scene.variants`)."""
 
 from lbshape.scene.build import scene_from_mesh
 from lbshape.scene.reader import builtin_scene_names, load_scene, mesh_source, scene_from_dict

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from lbshape.elastic.block_energy import BlockBasisEnergy, block_basis_factor
 from lbshape.elastic.materials import Material
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError
@@ -41,6 +42,9 @@ class EuclideanExampleEnergy:
         material: the hyperelastic material.
         basis: (3n, p) node-major basis (rows ``3 j + c``) mapping coordinates y (p,)
             to displacements in metres.
+        compiled: evaluate an LB block basis ``Φ ⊗ I₃`` with the compiled
+            :class:`~lbshape.elastic.block_energy.BlockBasisEnergy` (same values to
+            round-off); ``False``: the general model always (comparison runs).
 
     Attributes:
         n_coordinates: p.
@@ -54,7 +58,8 @@ class EuclideanExampleEnergy:
     """
 
     def __init__(
-        self, rest_points: np.ndarray, tets: np.ndarray, material: Material, basis: np.ndarray
+        self, rest_points: np.ndarray, tets: np.ndarray, material: Material, basis: np.ndarray,
+        *, compiled: bool = True,
     ):
         tets = np.asarray(tets)
         if tets.ndim != 2 or tets.shape[1] != 4 or tets.shape[0] == 0:
@@ -65,9 +70,15 @@ class EuclideanExampleEnergy:
         )
         self.n_coordinates = self.model.n_coordinates
         self.n_elements = t
+        # an LB block basis Φ ⊗ I₃: the compiled block evaluation (same values to round-off)
+        phi = block_basis_factor(basis) if compiled else None
+        self._block = None if phi is None else BlockBasisEnergy(rest_points, tets, material,
+                                                                phi)
 
     def energy(self, y: np.ndarray) -> float:
         """Strain energy ``E(y)`` in J of the displacement ``basis @ y``, y (p,)."""
+        if self._block is not None:
+            return self._block.energy(y)
         return self.model.energy(y)
 
     def force(self, y: np.ndarray) -> np.ndarray:
@@ -76,7 +87,16 @@ class EuclideanExampleEnergy:
 
     def force_and_tangent(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(g (p,), H (p, p))`` with ``g = Bᵀ f(B y)``, ``H = Bᵀ K(B y) B`` (symmetric)."""
+        if self._block is not None:
+            return self._block.force_and_tangent(y)
         return self.model.force_and_tangent(y)
+
+    def energy_force_and_tangent(self, y: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        """``(E(y), g, H)`` in one pass (the compiled block evaluation when the basis is an
+        LB block basis, else :meth:`energy` and :meth:`force_and_tangent`)."""
+        if self._block is not None:
+            return self._block.energy_force_and_tangent(y)
+        return (self.model.energy(y), *self.model.force_and_tangent(y))
 
     def min_jacobian(self, y: np.ndarray) -> float:
         """The smallest det F over all elements at y (p,); ≤ 0 means inverted."""

@@ -11,7 +11,7 @@ less (the force of a uniaxial compression peaks at stretch 1/√3 and falls to z
 so where another example pulls such an element back towards its own volume the
 target energy has several minima and the exact target jumps between them as the
 weights move; the target table's check then refuses the table. Measured on the
-built-in bar's twist example at several mesh sizes in ``docs/architecture.md``
+built-in bar's twist example at several mesh sizes in ``docs/decisions.md``
 ("Example energy elements").
 
 **Rule** (:func:`energy_elements`): an element enters the example energies only if

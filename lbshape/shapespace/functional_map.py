@@ -20,7 +20,7 @@ Descriptor functions (``d`` columns on each shape, :func:`descriptor_functions`)
 * matched segments: tent functions of each ξₖ centred at :data:`SEGMENTS` points evenly
   spaced over ``[−SEGMENT_SPAN, SEGMENT_SPAN]`` (spacing = half-width). Without them the
   higher longitudinal modes of a long bar were left unresolved (see
-  ``docs/architecture.md``, Measured choices).
+  ``docs/decisions.md``).
 
 Every column is made M-mean free and scaled to unit M-norm on its own shape. Their LB
 coefficients are ``A = Φᵀ M D`` (object: m × d; example: m_ex × d, m_ex ≥ m).

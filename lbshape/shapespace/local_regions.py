@@ -24,7 +24,7 @@ make one) and its target is placed as the global path places the examples: one
 region covering the object with all the examples *is* the global path, with the
 default settings. Anchoring it on its fixed vertices would be another model (the
 target moved rigidly to fit the support), not the paper's §4 (numbers in
-``docs/architecture.md``).
+``docs/decisions.md``).
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ the whole-object basis has about two functions per arm and none that varies
 across an arm's section, so it cannot hold an arm's twist and smears a field that
 is zero outside the arm over its neighbours; the per-region basis spends all m
 functions on the region. That is the reason for the choice (numbers in
-``docs/architecture.md``). The space is built by
+``docs/decisions.md``). The space is built by
 :func:`lbshape.shapespace.local_build.build_local_space`.
 
 **Forces.** Region R pulls only its own elements: in full space

@@ -13,16 +13,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lbshape.elastic.element_kernels import mass_matrix
-from lbshape.errors import LbshapeError
-from lbshape.geometry.primitives import structured_box
-from lbshape.report.bench import trajectory_error
-from lbshape.report.free_body_error import (
+from lbshape.analysis.free_body import (
     KEYS,
     FreeBodyError,
     free_body_error,
     rotation_angle_deg,
 )
+from lbshape.analysis.norms import trajectory_error
+from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.errors import LbshapeError
+from lbshape.geometry.primitives import structured_box
 
 K = 7  # samples
 TIMES = np.linspace(0.0, 0.3, K)

@@ -7,6 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
+from lbshape.analysis.free_body import body_deformations
+from lbshape.analysis.influence import trajectory_influence
+from lbshape.analysis.twist import end_twist_degrees
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.reduced import ReducedSimulation
 from lbshape.dynamics.rigid_frame import cayley
@@ -17,18 +20,14 @@ from lbshape.geometry.primitives import structured_box
 from lbshape.pipeline.influence import (
     STATS_KEYS,
     Influence,
-    body_deformations,
     compare_runs,
     descriptor,
-    end_twist_degrees,
     manifold_residual,
-    trajectory_influence,
-    with_stiffness,
-    without_examples,
 )
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import example_influence, simulate
 from lbshape.scene import load_scene
+from lbshape.scene.variants import with_stiffness, without_examples
 
 
 @pytest.fixture(scope="module")
@@ -275,8 +274,8 @@ def test_end_twist_of_an_analytic_twist(angle):
 
 
 def test_bench_records_the_influence_of_reduced_and_full_in_table2(demo, tmp_path):
-    from lbshape.report.bench import bench_scene
-    from lbshape.report.tables import write_table2
+    from lbshape.studies.bench import bench_scene
+    from lbshape.studies.tables import write_table2
 
     scene, pre = demo
     result = bench_scene(scene, steps=40, repeats=1, methods=("full", "reduced"), pre=pre)

@@ -14,17 +14,12 @@ import meshio
 import numpy as np
 import pytest
 
+from lbshape.analysis.free_body import body_deformations
+from lbshape.analysis.influence import REST, nearest_shape, visible_change
 from lbshape.dynamics.rigid_frame import cayley
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.geometry.primitives import structured_box
-from lbshape.pipeline.influence import (
-    REST,
-    STATS_KEYS,
-    body_deformations,
-    closest_example,
-    nearest_shape,
-    visible_change,
-)
+from lbshape.pipeline.influence import STATS_KEYS, closest_example
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
 from lbshape.scene import load_scene

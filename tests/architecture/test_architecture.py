@@ -11,16 +11,29 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[2] / "lbshape"
 #: optional heavy packages that may only be imported inside functions
 HEAVY = ("dolfinx", "petsc4py", "slepc4py", "pyvista", "matplotlib", "gmsh")
-#: subpackage -> subpackages it must never import (the data path runs one way:
-#: numerics -> scene -> pipeline -> report -> cli)
+#: the layers from the top down (imports only point down):
+#: cli → studies → report → pipeline → scene → analysis → numerics; live (the interactive
+#: session and window) → report, pipeline; api → pipeline, scene, spectral, geometry;
+#: io is used by any layer
+NUMERICS = ("geometry", "fem", "spectral", "elastic", "shapespace", "dynamics")
+#: subpackage -> subpackages it must never import
 FORBIDDEN = {
-    **{low: ("scene", "pipeline", "report", "cli")
-       for low in ("geometry", "fem", "spectral", "elastic", "shapespace", "dynamics")},
-    "scene": ("pipeline", "report", "cli"),
-    "pipeline": ("report", "cli"),
-    "report": ("cli",),
+    **{low: ("analysis", "scene", "pipeline", "report", "studies", "live", "api", "cli")
+       for low in NUMERICS},
+    "analysis": ("scene", "pipeline", "report", "studies", "live", "api", "cli"),
+    "scene": ("pipeline", "report", "studies", "live", "api", "cli"),
+    "pipeline": ("report", "studies", "live", "api", "cli"),
+    "report": ("studies", "live", "api", "cli"),
+    "studies": ("live", "api", "cli"),
+    "live": ("studies", "api", "cli"),
+    "api": ("report", "studies", "live", "cli"),
 }
-
+#: what runs work (a precompute or a simulation): report draws runs it is given, so it
+#: imports none of these modules or names
+RUNNING_MODULES = ("lbshape.pipeline.precompute", "lbshape.pipeline.simulate",
+                   "lbshape.pipeline.batch", "lbshape.pipeline.stages")
+RUNNING_NAMES = ("precompute", "simulate", "example_influence", "reduced_simulation",
+                 "run_full_space", "simulation")
 
 def _modules() -> dict[str, ast.Module]:
     trees = {}
@@ -92,6 +105,20 @@ def test_no_arrow_back_up_the_layers(layer):
                 if parts[0] == "lbshape" and len(parts) > 1 and parts[1] in FORBIDDEN[layer]:
                     wrong.append(f"{name}:{node.lineno} -> {target}")
     assert not wrong, f"{layer} imports a layer above it: {sorted(set(wrong))}"
+
+
+def test_report_never_runs_a_precompute_or_a_simulation():
+    wrong = []
+    for name, tree in MODULES.items():
+        if name.split(".")[1:2] != ["report"]:
+            continue
+        for node in ast.walk(tree):
+            targets = _imported(node)
+            names = [alias.name for alias in getattr(node, "names", ())]
+            if any(t.startswith(RUNNING_MODULES) for t in targets) or any(
+                    n.split(".")[-1] in RUNNING_NAMES for n in names if targets):
+                wrong.append(f"{name}:{node.lineno} -> {', '.join(targets)}")
+    assert not wrong, f"report runs work instead of drawing runs it is given: {wrong}"
 
 
 def test_the_module_import_graph_has_no_cycle():

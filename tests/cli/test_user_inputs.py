@@ -279,7 +279,7 @@ def test_eigen_and_modes_bad_meshes_fail_in_one_line(cube_files, monkeypatch, ca
 
 # ---------------------------------------------------------- default output folders
 def test_default_outputs_outside_the_repository(tmp_path, monkeypatch):
-    from lbshape.report import demo, figures, tune
+    from lbshape.studies import demo, figures, tune
 
     monkeypatch.chdir(tmp_path)
     assert output_root() == tmp_path / USER_RESULTS

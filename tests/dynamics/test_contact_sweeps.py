@@ -17,10 +17,10 @@ import dataclasses
 import pytest
 from conftest import golden
 
-from lbshape.pipeline.influence import without_examples
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import reduced_simulation
 from lbshape.scene import load_scene
+from lbshape.scene.variants import without_examples
 
 DURATION = 0.4  # s: the car reaches the wall at ~0.14 s and leaves it by ~0.3 s
 

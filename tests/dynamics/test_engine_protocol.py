@@ -142,3 +142,23 @@ def test_drag_pulls_the_vertex_towards_the_target_and_lets_go(engine):
     sim.set_drag(None)
     sim.reset()
     _equal_records(sim.run(STEPS), free_run)
+
+
+def test_newton_settings_are_read_at_each_step(engine):
+    sim, _, _ = engine
+    sim.newton = NewtonSettings(1e-15, 1)  # one update cannot reach round-off
+    stopped = sim.run(STEPS)
+    assert not stopped.stable and "did not converge at step 1 " in stopped.message
+
+
+def test_settings_and_drag_are_checked():
+    with pytest.raises(LbshapeError):
+        NewtonSettings(0.0, 20)
+    with pytest.raises(LbshapeError):
+        NewtonSettings(1e-8, 0)
+    with pytest.raises(LbshapeError):
+        Drag(0, (0.0, 0.0, 0.0), 0.0)
+    with pytest.raises(LbshapeError):
+        Drag(-1, (0.0, 0.0, 0.0), 1.0)
+    drag = Drag(np.int64(3), [1, 2, 3], 5)
+    assert drag.vertex == 3 and drag.stiffness == 5.0 and drag.target.dtype == float

@@ -127,8 +127,8 @@ def test_example_responses_hold_a_free_body_s_pulled_shape(spinning):
     """A free body's basis ends with its example responses, without rigid part (the
     frame holds the rigid motion): the spinning bar's body-frame deformation follows the
     full reference (golden value: 14 % off; 22 % with the plain basis, r = 12)."""
+    from lbshape.analysis.free_body import free_body_error
     from lbshape.elastic.modes import rigid_body_modes
-    from lbshape.report.free_body_error import free_body_error
 
     pre, runs = spinning
     assert pre.r > SPINNING["reduced"]["r"]
@@ -241,9 +241,10 @@ def test_a_free_body_sweep_measures_it_as_table2_does():
     """``bench --sweep`` on a free body with examples: its point carries the error of the
     run without examples and the centre path / rotation / deformation split of both, each
     the same as measured from the runs directly."""
-    from lbshape.pipeline.influence import without_examples
-    from lbshape.report.bench import speed_error_sweep, trajectory_error
-    from lbshape.report.free_body_error import free_body_error
+    from lbshape.analysis.free_body import free_body_error
+    from lbshape.analysis.norms import trajectory_error
+    from lbshape.scene.variants import without_examples
+    from lbshape.studies.sweep import speed_error_sweep
 
     scene = scene_from_dict(SPINNING, name="spinning-bar")
     steps = 20

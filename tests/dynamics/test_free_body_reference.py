@@ -20,13 +20,8 @@ from test_free_body import Body, _gravity
 
 from lbshape.dynamics.contact import ContactPlane, PlaneContact
 from lbshape.dynamics.fictitious import LEVI_CIVITA
-from lbshape.dynamics.free_body import (
-    MAX_CONTACT_SWEEPS,
-    PHASES,
-    SWEEP_RTOL,
-    FreeLoad,
-    contact_theta,
-)
+from lbshape.dynamics.free_body import PHASES, FreeLoad
+from lbshape.dynamics.free_body_contact import MAX_CONTACT_SWEEPS, SWEEP_RTOL, contact_theta
 from lbshape.dynamics.kernels import lu_solve, max_symmetric_eigenvalue
 from lbshape.dynamics.loads import TimeProfile
 from lbshape.dynamics.reduced import REALTIME_RTOL

@@ -41,11 +41,11 @@ from lbshape.elastic.materials import Material
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.geometry.primitives import structured_box
-from lbshape.pipeline.influence import without_examples
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import reduced_simulation
 from lbshape.scene import load_scene
 from lbshape.scene.reader import scene_from_dict
+from lbshape.scene.variants import without_examples
 
 G = 9.81  # m/s²
 SIDE = 0.1  # m

@@ -14,7 +14,7 @@ import scipy.linalg as sla
 import scipy.sparse.linalg as spla
 from conftest import central_difference_errors, observed_rates, rel
 
-import lbshape.dynamics.full as full_space
+import lbshape.dynamics.full_examples as full_examples
 from lbshape.dynamics.engine import NewtonSettings
 from lbshape.dynamics.full import (
     FullSpaceExamples,
@@ -212,7 +212,7 @@ def test_zero_example_stiffness_builds_and_calls_no_example_machinery(bar, monke
         raise AssertionError("example machinery used with k_ex = 0")
 
     for name in ("simplex_weights", "EuclideanExampleEnergy", "TargetSolver"):
-        monkeypatch.setattr(full_space, name, forbidden)
+        monkeypatch.setattr(full_examples, name, forbidden)
     c1 = example_coefficients(bar.phi, np.ones(3 * M_LB), 0.01)
     examples = FullSpaceExamples(bar.lam, bar.phi, c1[None], 0.0)
     sim = FullSpaceSimulator(mesh, mat, dt=0.01, fixed_vertices=bar.fixed, loads=loads,
@@ -312,8 +312,8 @@ def test_scene_adapter_reports_a_divergence_as_unstable_with_the_partial_run(bar
         damping=SimpleNamespace(alpha=0.0, beta=0.0),
     )
     pre = SimpleNamespace(mesh=mesh, material=mat, fixed_vertices=bar.fixed, has_examples=True,
-                          eigenvalues=bar.lam, eigenvectors=bar.phi,
-                          example_coefficients=c1[None])
+                          shape=SimpleNamespace(eigenvalues=bar.lam, eigenvectors=bar.phi),
+                          examples=SimpleNamespace(example_coefficients=c1[None]))
     record = run_full_space(scene, pre, steps=6, stride=2)
     times, frames, stable, message = (record.times, record.displacements(), record.stable,
                                       record.message)

@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 from conftest import golden
 
+from lbshape.analysis.free_body import free_body_error
+from lbshape.analysis.norms import trajectory_error
 from lbshape.elastic.basis import append_directions, nonlinear_basis
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.elastic.modal_derivatives import modal_derivatives
 from lbshape.elastic.modes import linear_modes
 from lbshape.geometry.primitives import structured_box
-from lbshape.pipeline.influence import without_examples
 from lbshape.pipeline.precompute import (
     MAX_APPENDED_BASIS,
     MAX_APPENDED_FREE_BODY,
@@ -26,9 +27,8 @@ from lbshape.pipeline.precompute import (
 )
 from lbshape.pipeline.responses import example_response_stiffness, example_responses
 from lbshape.pipeline.simulate import reduced_simulation, run_full_space
-from lbshape.report.bench import trajectory_error
-from lbshape.report.free_body_error import free_body_error
 from lbshape.scene import load_scene
+from lbshape.scene.variants import without_examples
 
 MATERIAL = Material(young=2.0e5, poisson=0.3, density=1100.0)
 K_EX = 400.0  # 1/s², above the bar's lowest ω² (≈ 90)

@@ -20,10 +20,10 @@ from lbshape.elastic.modes import linear_modes
 from lbshape.elastic.static_equilibrium import static_equilibria
 from lbshape.errors import LbshapeError
 from lbshape.geometry.primitives import structured_box
-from lbshape.pipeline.influence import without_examples
 from lbshape.pipeline.precompute import MAX_APPENDED_BASIS, precompute, stage_names
 from lbshape.pipeline.responses import static_load
 from lbshape.scene import load_scene
+from lbshape.scene.variants import without_examples
 
 MATERIAL = Material(young=2.0e5, poisson=0.3, density=1100.0)
 

@@ -20,9 +20,11 @@ import pytest
 from conftest import golden
 
 from lbshape.errors import LbshapeError
-from lbshape.pipeline.live import LiveSession
+from lbshape.live.display import virtual_display
+from lbshape.live.events import LiveEvent, read_events
+from lbshape.live.session import LiveSession
+from lbshape.live.window import LiveWindow
 from lbshape.pipeline.precompute import precompute
-from lbshape.report.live import LiveEvent, LiveWindow, read_events, virtual_display
 from lbshape.scene import load_scene
 
 REPOSITORY = Path(__file__).resolve().parents[2]

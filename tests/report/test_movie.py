@@ -87,7 +87,7 @@ def test_mp4_frame_count_and_even_size(tmp_path):
 
 @pytest.mark.slow
 def test_render_movie_shows_reduced_and_full_from_the_written_trajectories(tmp_path):
-    from lbshape.report.animation import read_states
+    from lbshape.studies.animation import read_states
 
     out = tmp_path / "figures"
     assert main(["render", "demo", "--out", str(out), "--steps", "12", "--movie"]) == 0

@@ -36,7 +36,7 @@ def test_demo_entry_point_writes_pictures_and_summary(tmp_path, capsys):
     from PIL import Image
 
     from lbshape.cli import main
-    from lbshape.report.demo import SUMMARY_KEYS
+    from lbshape.studies.demo import SUMMARY_KEYS
 
     assert main(["demo", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
@@ -67,7 +67,7 @@ def test_demo_entry_point_writes_pictures_and_summary(tmp_path, capsys):
 
 
 def test_demo_headline_states_speed_error_and_influence():
-    from lbshape.report.demo import headline
+    from lbshape.studies.demo import headline
 
     summary = {
         "reduced": {"t_total_ms": 1.25}, "full": {"t_total_ms": 10.0}, "speedup_t_total": 8.0,

@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from lbshape.analysis.norms import trajectory_error
 from lbshape.dynamics.engine import NewtonSettings
 from lbshape.dynamics.free_body import PHASES as FREE_BODY_PHASES
 from lbshape.dynamics.reduced import PHASES as FIXED_PHASES
@@ -15,12 +16,11 @@ from lbshape.errors import LbshapeError
 from lbshape.geometry.primitives import structured_box
 from lbshape.pipeline.precompute import precompute, stage_names
 from lbshape.pipeline.simulate import METHODS, simulate
-from lbshape.report.bench import trajectory_error
-from lbshape.report.figures import figure5
-from lbshape.report.realtime import PAPER_TABLE2
 from lbshape.report.render import render_shape_grid
 from lbshape.scene import load_scene
 from lbshape.scene.reader import scene_from_dict
+from lbshape.studies.figures import figure5
+from lbshape.studies.realtime import PAPER_TABLE2
 
 FREE = {
     "name": "free-bar",
@@ -175,7 +175,7 @@ def test_real_time_tolerances_follow_the_converged_free_body(monkeypatch):
     """The car's wall impact (contact sweeps, friction) at the real-time Newton and sweep
     tolerances against both tightened by 4–5 orders: 1.4e-6 apart over 300 steps
     (measured; about half the Newton iterations)."""
-    import lbshape.dynamics.free_body as free_body
+    import lbshape.dynamics.free_body_contact as free_body
     from lbshape.pipeline.simulate import reduced_simulation
 
     scene = load_scene("car")
@@ -197,8 +197,8 @@ def test_frictionless_wall_impact_converges():
     barely deformed body's residual sat at round-off (4e-12) against a scale of 5e-10, and
     Newton stopped the run after 20 iterations until the contact's round-off joined the
     noise level for frictionless contact too."""
-    from lbshape.pipeline.influence import without_examples
     from lbshape.pipeline.simulate import reduced_simulation
+    from lbshape.scene.variants import without_examples
 
     car = without_examples(load_scene("car"))
     scene = dataclasses.replace(car, planes=tuple(

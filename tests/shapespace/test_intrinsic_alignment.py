@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from conftest import golden
 
+from lbshape.analysis.twist import end_twist_degrees
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.poses import apply_pose
 from lbshape.geometry.primitives import ball, box, cylinder, structured_box
 from lbshape.geometry.shapes import build_shape
-from lbshape.pipeline.influence import end_twist_degrees
 from lbshape.shapespace.alignment import align_bases
 from lbshape.shapespace.basis_choice import (
     INTRINSIC_MODES,

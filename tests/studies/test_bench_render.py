@@ -11,13 +11,14 @@ import numpy as np
 import pytest
 from conftest import golden
 
+from lbshape.analysis.norms import trajectory_error
 from lbshape.cli import main
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.pipeline.simulate import force_elements
-from lbshape.report.bench import ROW_EXTRA_KEYS, ROW_KEYS, trajectory_error
-from lbshape.report.realtime import NEWTON_VARIANTS
+from lbshape.studies.bench import ROW_EXTRA_KEYS, ROW_KEYS
+from lbshape.studies.realtime import NEWTON_VARIANTS
 
 STEPS = 15  # > the 10 warm-up steps
 
@@ -215,9 +216,9 @@ def test_render_command_writes_non_blank_pngs(tmp_path):
 
 
 def test_figure3_panels_for_a_same_and_other_topology_pair(tmp_path):
-    from lbshape.report.figures import figure3
     from lbshape.scene import load_scene
     from lbshape.scene.schema import MeshSource
+    from lbshape.studies.figures import figure3
 
     other = load_scene("demo")  # cylinder examples
     poses = tuple(dataclasses.replace(p, source=MeshSource(shape="demo-bar"))
@@ -243,8 +244,8 @@ def test_figure6_measures_local_against_global_examples_on_one_object(tmp_path):
     from lbshape.geometry.primitives import structured_box
     from lbshape.pipeline.precompute import precompute
     from lbshape.pipeline.simulate import simulate
-    from lbshape.report.figures import figure6
     from lbshape.scene.reader import scene_from_dict
+    from lbshape.studies.figures import figure6
 
     bar = structured_box((0.2, 0.2, 1.0), (2, 2, 8))
     meshio.write(tmp_path / "bar.vtu", meshio.Mesh(bar.points, [("tetra", bar.tets)]))

@@ -8,21 +8,16 @@ import math
 
 import numpy as np
 import pytest
-from conftest import golden
+from conftest import golden, user_mesh_scene
 
 from lbshape.dynamics.sanity import DeformationBound
 from lbshape.errors import LbshapeError, SolverError
+from lbshape.io.machine import machine_description
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import deformation_bound, reduced_simulation, run_full_space
-from lbshape.report.large_steps import (
-    LargeStepRow,
-    large_step_study,
-    large_steps_markdown,
-    user_mesh_scene,
-    with_step,
-)
-from lbshape.report.machine import machine_description
 from lbshape.scene import load_scene
+from lbshape.scene.variants import with_step
+from lbshape.studies.large_steps import LargeStepRow, large_step_study, large_steps_markdown
 
 #: the issue's target: final displacement within 20 % of the full method at the same dt.
 TARGET = golden("large_steps.final_difference").limit

@@ -7,9 +7,9 @@ import json
 
 import pytest
 
-from lbshape.report import pareto
-from lbshape.report.bench import SweepPoint
-from lbshape.report.machine import machine_description
+from lbshape.io.machine import machine_description
+from lbshape.studies import pareto
+from lbshape.studies.sweep import SweepPoint
 
 
 def _point(m, r, s, ms, error, forces="cubature"):
@@ -111,8 +111,8 @@ def test_sweep_forces_follow_the_material():
 
 @pytest.mark.slow
 def test_sweep_runs_the_polynomials_once_per_r_and_the_cubature_per_r_and_s():
-    from lbshape.report.bench import speed_error_sweep
     from lbshape.scene import load_scene
+    from lbshape.studies.sweep import speed_error_sweep
 
     scene = load_scene("demo")  # r = 20, s = 40
     points = speed_error_sweep(scene, r_values=(8,), s_values=(10, 20), steps=15, repeats=1,

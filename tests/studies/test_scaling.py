@@ -9,8 +9,8 @@ import pytest
 
 from lbshape.cli.main import main
 from lbshape.errors import LbshapeError
-from lbshape.report import scaling
 from lbshape.scene import load_scene
+from lbshape.studies import scaling
 
 
 def point(size, vertices, wall, peak, t_total, ranks=1):

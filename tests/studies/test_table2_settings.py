@@ -15,12 +15,15 @@ import json
 import numpy as np
 import pytest
 
+from lbshape.analysis.free_body import free_body_error
+from lbshape.analysis.norms import trajectory_error
 from lbshape.cli import main
 from lbshape.elastic.element_kernels import mass_matrix
-from lbshape.pipeline.influence import without_examples
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
-from lbshape.report.bench import (
+from lbshape.scene import load_scene
+from lbshape.scene.variants import without_examples
+from lbshape.studies.bench import (
     LBSHAPE_SOURCE,
     PAPER_SOURCE,
     ROW_EXTRA_KEYS,
@@ -29,12 +32,9 @@ from lbshape.report.bench import (
     PaperSetting,
     bench_scene,
     paper_setting,
-    trajectory_error,
 )
-from lbshape.report.free_body_error import free_body_error
-from lbshape.report.realtime import PAPER_TABLE2
-from lbshape.report.tables import table2_markdown, table2_payload
-from lbshape.scene import load_scene
+from lbshape.studies.realtime import PAPER_TABLE2
+from lbshape.studies.tables import table2_markdown, table2_payload
 
 STEPS = 15  # > the 10 warm-up steps
 MACHINE = {"cpu": "test cpu", "cores": 1, "python": "3", "numpy": "2", "threads": {},
@@ -51,7 +51,7 @@ def demo():
 def runs(monkeypatch):
     """The simulations a benchmark makes: ``(method, m, force model, examples act)`` each."""
     import lbshape.pipeline.simulate as simulate_module
-    import lbshape.report.bench as bench_module
+    import lbshape.studies.bench as bench_module
 
     original = simulate_module.simulate
     calls = []

@@ -28,8 +28,8 @@ def test_toml_writer_round_trips_scene_documents():
 
 # ------------------------------------------------------------- the grid (no runs)
 def test_polynomial_candidates_are_not_multiplied_by_s():
-    from lbshape.report.tune import candidate_grid
     from lbshape.scene import load_scene
+    from lbshape.studies.tune import candidate_grid
 
     scene = load_scene("demo")  # StVK, r = 20, s = 40
     grid = candidate_grid(scene, m_values=(6,), r_values=(8, 12), s_values=(10, 20, 40))
@@ -49,8 +49,8 @@ def test_polynomial_candidates_are_not_multiplied_by_s():
 
 
 def test_default_r_candidates_reach_above_the_scene_r_within_the_mesh():
-    from lbshape.report.tune import candidate_grid
     from lbshape.scene import load_scene
+    from lbshape.studies.tune import candidate_grid
 
     scene = load_scene("demo")  # r = 20
     rs = sorted({c.r for c in candidate_grid(scene, m_values=(6,), s_values=(10,))})
@@ -61,7 +61,7 @@ def test_default_r_candidates_reach_above_the_scene_r_within_the_mesh():
 
 
 def test_polynomial_candidates_clearly_over_the_budget_are_screened_out():
-    from lbshape.report.tune import Candidate, screen
+    from lbshape.studies.tune import Candidate, screen
 
     small, large = Candidate(10, 20, 40, "polynomial"), Candidate(10, 90, 40, "polynomial")
     assert screen(small, budget_ms=1.0, n_tets=1000) == ""
@@ -74,7 +74,7 @@ def test_polynomial_candidates_clearly_over_the_budget_are_screened_out():
 # ------------------------------------------------------ the selection (fake timings)
 def _fake(table):
     """A measurement from a table ``{candidate: (ms, error)}``, recording its calls."""
-    from lbshape.report.tune import Trial
+    from lbshape.studies.tune import Trial
 
     calls = []
 
@@ -88,13 +88,13 @@ def _fake(table):
 
 
 def _c(m, r, s, forces="cubature"):
-    from lbshape.report.tune import Candidate
+    from lbshape.studies.tune import Candidate
 
     return Candidate(m, r, s, forces)
 
 
 def test_winner_is_the_fastest_candidate_meeting_the_error_within_the_budget():
-    from lbshape.report.tune import search
+    from lbshape.studies.tune import search
 
     table = {
         _c(6, 8, 10): (0.05, 0.30),                  # fastest, too inaccurate
@@ -124,7 +124,7 @@ def test_winner_is_the_fastest_candidate_meeting_the_error_within_the_budget():
 
 
 def test_no_candidate_within_the_budget_is_said_plainly():
-    from lbshape.report.tune import TuneResult, search, tune_markdown, verdict_line
+    from lbshape.studies.tune import TuneResult, search, tune_markdown, verdict_line
 
     table = {_c(6, 8, 10): (0.5, 0.30), _c(6, 12, 10): (1.2, 0.04),
              _c(6, 12, 40, "polynomial"): (3.0, 0.01)}
@@ -144,12 +144,13 @@ def test_no_candidate_within_the_budget_is_said_plainly():
 # ------------------------------------------------------------------- real runs
 @pytest.mark.slow
 def test_tune_picks_the_cheapest_candidate_within_the_error():
+    from lbshape.analysis.norms import trajectory_error
     from lbshape.elastic.element_kernels import mass_matrix
     from lbshape.pipeline.precompute import precompute
     from lbshape.pipeline.simulate import simulate
-    from lbshape.report.bench import trajectory_error
-    from lbshape.report.tune import _variant, tune_scene
     from lbshape.scene import load_scene
+    from lbshape.scene.variants import with_reduced
+    from lbshape.studies.tune import tune_scene
 
     scene = load_scene("demo")
     result = tune_scene(scene, error=10.0, budget_ms=1e3, steps=STEPS, repeats=1, **GRID)
@@ -165,7 +166,7 @@ def test_tune_picks_the_cheapest_candidate_within_the_error():
     assert all(t.s == 187 for t in ran if t.forces == "polynomial")  # every element
     # the reported error is the trajectory error of independent runs (deterministic)
     best = result.best
-    variant = _variant(scene, *best.candidate)
+    variant = with_reduced(scene, *best.candidate)
     pre, base = precompute(variant), precompute(scene)
     assert pre.elastic.force_model == best.forces
     full = simulate(scene, base, method="full", steps=STEPS)
@@ -182,8 +183,8 @@ def test_tune_picks_the_cheapest_candidate_within_the_error():
 
 def test_tune_command_writes_a_loadable_scene_beside_its_table(tmp_path, capsys):
     from lbshape.pipeline.precompute_key import scene_cache_key
-    from lbshape.report.tune import _variant
     from lbshape.scene import load_scene
+    from lbshape.scene.variants import with_reduced
 
     code = main(["tune", "demo", "--error", "0.9", "--budget-ms", "1000", "--m", "6",
                  "--r", "8,12", "--s", "10,20", "--forces", "cubature",
@@ -201,7 +202,7 @@ def test_tune_command_writes_a_loadable_scene_beside_its_table(tmp_path, capsys)
     # everything but m, r, s, forces is the original scene: same cache entry as the variant
     original = load_scene("demo")
     assert tuned.name == original.name and tuned.loads == original.loads
-    assert scene_cache_key(tuned) == scene_cache_key(_variant(original, *chosen))
+    assert scene_cache_key(tuned) == scene_cache_key(with_reduced(original, *chosen))
 
 
 def test_tune_command_fails_in_one_line_when_nothing_meets_the_targets(tmp_path, capsys):

@@ -32,15 +32,16 @@ import logging
 import time
 from pathlib import Path
 
+from lbshape.analysis.norms import trajectory_error
+from lbshape.analysis.twist import end_twist_degrees
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.geometry.shapes import build_shape
 from lbshape.io.atomic import write_json_atomic
 from lbshape.io.paths import output_root
-from lbshape.pipeline.influence import compare_runs, end_twist_degrees, without_examples
+from lbshape.pipeline.influence import compare_runs
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
-from lbshape.report.bench import trajectory_error
 from lbshape.report.figures import (
     comparison_animation,
     comparison_figure,
@@ -49,6 +50,7 @@ from lbshape.report.figures import (
     simulation_figure,
 )
 from lbshape.scene import load_scene
+from lbshape.scene.variants import without_examples
 from lbshape.spectral.spectrum import lb_spectrum
 
 log = logging.getLogger(__name__)

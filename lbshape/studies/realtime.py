@@ -28,11 +28,13 @@ from pathlib import Path
 
 import numpy as np
 
+from lbshape.analysis.norms import trajectory_error
 from lbshape.dynamics.engine import NewtonSettings
 from lbshape.dynamics.free_body import PHASES as FREE_BODY_PHASES
 from lbshape.dynamics.reduced import PHASES, REALTIME_NEWTON, REALTIME_RTOL
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
+from lbshape.io.machine import load_text, machine_description, threads_text
 from lbshape.pipeline.simulate import (
     MAX_FRAMES,
     WARMUP_STEPS,
@@ -40,8 +42,7 @@ from lbshape.pipeline.simulate import (
     reduced_simulation,
     simulate,
 )
-from lbshape.report.bench import TARGET_T_TOTAL_MS, SceneBenchmark, trajectory_error
-from lbshape.report.machine import load_text, machine_description, threads_text
+from lbshape.studies.bench import TARGET_T_TOTAL_MS, SceneBenchmark
 
 #: the paper's Table 2 (Zhu et al. [2] and the paper's method), ms per step, by our scene
 #: names: (DOFs, tets, example vertices, m, r, s, [2] t_interp, [2] t_total, ours

@@ -2,7 +2,7 @@
 (``lbshape bench --sweep``).
 
 For each scene the reduced method is run over a grid of settings —
-:func:`lbshape.report.bench.speed_error_sweep` — and each configuration's median
+:func:`lbshape.studies.sweep.speed_error_sweep` — and each configuration's median
 per-step time is set against its trajectory error versus the ``full`` reference with
 the same m (``max_t ‖u − u_full‖_M / max_t ‖u_full‖_M``, examples active in both).
 
@@ -54,10 +54,11 @@ from lbshape.elastic.polynomial_forces import (
 )
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
+from lbshape.io.machine import load_text, machine_description, threads_text
 from lbshape.pipeline.meshes import build_mesh
-from lbshape.report.bench import DEFAULT_OUT, SweepPoint, speed_error_sweep
-from lbshape.report.machine import load_text, machine_description, threads_text
 from lbshape.report.plots import pyplot, save_figure
+from lbshape.studies.bench import DEFAULT_OUT
+from lbshape.studies.sweep import SweepPoint, speed_error_sweep
 
 log = logging.getLogger(__name__)
 
@@ -295,7 +296,7 @@ def pareto_markdown(sweeps: Sequence[ParetoSweep], machine: dict) -> str:
             "A free body (no m sweep) is measured as Table 2 measures it: also without its "
             "examples (`k_ex = 0` in both methods), and split into the centre-of-mass path, "
             "the rotation (degrees) and the body-frame deformation "
-            "(`lbshape.report.free_body_error`). Its target is each of the whole-field errors "
+            "(`lbshape.analysis.free_body`). Its target is each of the whole-field errors "
             "with and without examples, the centre path and the deformation of both runs "
             f"≤ {FREE_BODY_TARGET_ERROR:.0%} at ≤ {TARGET_MS:g} ms per step; the largest of "
             "them is its *worst judged error*, which its front, verdict and plot use (the "
@@ -321,35 +322,7 @@ def pareto_markdown(sweeps: Sequence[ParetoSweep], machine: dict) -> str:
         lines.append(f"| {sweep.scene} | {sweep.paper}, {sweep.forces or '—'} | {measured} "
                      f"| {verdict(sweep)} |")
     for sweep in sweeps:
-        lines += ["", f"## {sweep.scene}: {sweep.steps} steps of {sweep.dt:g} s, "
-                  f"{sweep.repeats} reduced runs per configuration", ""]
-        free_head = free_rule = ""
-        if sweep.free:
-            lines.append("Centre path / rotation / deformation: the free-body split of the "
-                         "run with examples, then of the run without them.")
-            lines.append("")
-            free_head = ("| error, no examples | centre path / rotation / deformation "
-                         "| same, no examples | worst judged ")
-            free_rule = "|---|---|---|---"
-        lines += ["| forces | m | r (asked) | s (asked) | t_total ms [min, max] | t_interp ms "
-                  f"| error vs full {free_head}| Pareto | meets target | scene's |",
-                  f"|---|---|---|---|---|---|---{free_rule}|---|---|---|"]
-        front = {id(p) for p in pareto_front(sweep.points)}
-        good = {id(p) for p in meeting(sweep.points, error=sweep.target_error)}
-        for p in sorted(sweep.points, key=lambda p: (p.forces, p.m, p.r, p.s_max)):
-            error = "failed" if p.error_vs_full is None else f"{p.error_vs_full:.2%}"
-            free = ""
-            if sweep.free:
-                worst = judged_error(p)
-                free = (f"| {_percent(p.error_no_examples)} | {_split(p.free_body)} "
-                        f"| {_split(p.free_body_no_examples)} "
-                        f"| {'—' if worst is None else f'{worst:.2%}'} ")
-            lines.append(
-                f"| {p.forces} | {p.m} | {p.r} ({p.asked_r}) | {_s_cell(p)} | {p.t_total_ms:.3f} "
-                f"[{p.t_total_min_ms:.3f}, {p.t_total_max_ms:.3f}] | {p.t_interp_ms:.3f} "
-                f"| {error} {free}| {'yes' if id(p) in front else ''} "
-                f"| {'yes' if id(p) in good else ''} "
-                f"| {'yes' if sweep.is_paper(p) else ''} |")
+        lines += _sweep_lines(sweep)
     lines += [
         "",
         "## Conditions",
@@ -360,6 +333,41 @@ def pareto_markdown(sweeps: Sequence[ParetoSweep], machine: dict) -> str:
         "shared the cores, so times are upper bounds of an unloaded run.",
     ]
     return "\n".join(lines) + "\n"
+
+
+def _sweep_lines(sweep: ParetoSweep) -> list[str]:
+    """The section of ``pareto.md`` of one scene's sweep: every configuration's row."""
+    lines = []
+    lines += ["", f"## {sweep.scene}: {sweep.steps} steps of {sweep.dt:g} s, "
+              f"{sweep.repeats} reduced runs per configuration", ""]
+    free_head = free_rule = ""
+    if sweep.free:
+        lines.append("Centre path / rotation / deformation: the free-body split of the "
+                     "run with examples, then of the run without them.")
+        lines.append("")
+        free_head = ("| error, no examples | centre path / rotation / deformation "
+                     "| same, no examples | worst judged ")
+        free_rule = "|---|---|---|---"
+    lines += ["| forces | m | r (asked) | s (asked) | t_total ms [min, max] | t_interp ms "
+              f"| error vs full {free_head}| Pareto | meets target | scene's |",
+              f"|---|---|---|---|---|---|---{free_rule}|---|---|---|"]
+    front = {id(p) for p in pareto_front(sweep.points)}
+    good = {id(p) for p in meeting(sweep.points, error=sweep.target_error)}
+    for p in sorted(sweep.points, key=lambda p: (p.forces, p.m, p.r, p.s_max)):
+        error = "failed" if p.error_vs_full is None else f"{p.error_vs_full:.2%}"
+        free = ""
+        if sweep.free:
+            worst = judged_error(p)
+            free = (f"| {_percent(p.error_no_examples)} | {_split(p.free_body)} "
+                    f"| {_split(p.free_body_no_examples)} "
+                    f"| {'—' if worst is None else f'{worst:.2%}'} ")
+        lines.append(
+            f"| {p.forces} | {p.m} | {p.r} ({p.asked_r}) | {_s_cell(p)} | {p.t_total_ms:.3f} "
+            f"[{p.t_total_min_ms:.3f}, {p.t_total_max_ms:.3f}] | {p.t_interp_ms:.3f} "
+            f"| {error} {free}| {'yes' if id(p) in front else ''} "
+            f"| {'yes' if id(p) in good else ''} "
+            f"| {'yes' if sweep.is_paper(p) else ''} |")
+    return lines
 
 
 def _percent(value: float | None) -> str:

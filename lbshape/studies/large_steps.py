@@ -21,17 +21,15 @@ from pathlib import Path
 
 import numpy as np
 
+from lbshape.analysis.norms import trajectory_error
 from lbshape.dynamics.reduced import REALTIME_RTOL
 from lbshape.elastic.element_kernels import mass_matrix
-from lbshape.geometry.mesh_files import write_msh
-from lbshape.geometry.shapes import build_shape
+from lbshape.io.machine import load_text, threads_text
 from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.simulate import WARMUP_STEPS, reduced_simulation, run_full_space
-from lbshape.report.bench import trajectory_error
-from lbshape.report.machine import load_text, threads_text
 from lbshape.report.plots import pyplot, save_figure
-from lbshape.scene.reader import scene_from_dict
 from lbshape.scene.schema import Scene
+from lbshape.scene.variants import with_step
 
 #: display rates of the study (Hz); 1000 Hz is the dt = 1 ms the scenes are tuned at
 FREQUENCIES_HZ: tuple[float, ...] = (1000.0, 60.0, 50.0, 20.0)
@@ -75,35 +73,6 @@ class LargeStepRow:
     unchecked_final: float | None
     unchecked_message: str
     full_message: str = ""  #: why the full run stopped ('' if it finished)
-
-
-def user_mesh_scene(folder: Path) -> Scene:
-    """A user's own mesh: the ``l-beam`` shape written to ``folder/l-beam.msh`` and a scene
-    that reads it — fixed at the end of its arm (x = 1 m), sagging under gravity and pulled
-    (k_ex = 2000 s⁻²) by a twisted and a bent copy of itself."""
-    write_msh(build_shape("l-beam"), Path(folder) / "l-beam.msh")
-    pose = {"mesh": "l-beam.msh"}
-    return scene_from_dict({
-        "object": {"mesh": "l-beam.msh"},
-        "material": {"model": "stvk", "young": 1e6, "poisson": 0.3, "density": 1000.0},
-        "damping": {"alpha": 0.5, "beta": 0.01},
-        "reduced": {"m": 8, "r": 20, "s": 40},
-        "examples": {"stiffness": 2000.0, "pose": [
-            {**pose, "pose": "twist", "parameters": {"angle": 0.8, "axis": "x",
-                                                      "anchor": "max"}},
-            {**pose, "pose": "arc", "parameters": {"angle": 0.5, "axis": "x",
-                                                    "anchor": "max", "direction": "z"}}]},
-        "fixed": {"region": "x > 0.999"},
-        "loads": [{"type": "gravity", "vector": [0.0, 0.0, -9.81]}],
-        "simulation": {"dt": 0.001, "steps": 400},
-    }, name="l-beam", base_dir=Path(folder))
-
-
-def with_step(scene: Scene, dt: float, duration: float) -> Scene:
-    """``scene`` stepped at ``dt`` (s) for ``duration`` (s), rounded to whole steps."""
-    steps = max(1, int(round(duration / dt)))
-    return dataclasses.replace(scene, simulation=dataclasses.replace(
-        scene.simulation, dt=float(dt), steps=steps))
 
 
 def _final_max(frames: np.ndarray) -> float:

@@ -1,5 +1,5 @@
 """An interactive run of a scene's reduced simulation (``lbshape live``), apart from its
-window (:mod:`lbshape.report.live` draws it).
+window (:mod:`lbshape.live.window` draws it).
 
 :class:`LiveSession` holds the engine of :func:`~lbshape.pipeline.simulate.reduced_simulation`
 (a fixed object's :class:`~lbshape.dynamics.reduced.ReducedSimulation` or a free body's

@@ -15,12 +15,12 @@ benchmark reports, from the same two trajectories sampled at the same times:
 
 The best rigid fit of each sample is the mass-weighted Kabsch fit of
 :func:`lbshape.dynamics.rigid_frame.best_rigid_frame`, the same one that
-:func:`lbshape.pipeline.influence.body_deformations` removes for the example
+:func:`body_deformations` removes for the example
 influence of a free body, so the deformation here is the one measured there. A
 rigid-motion difference of the two runs leaves ``body_deformation_error`` at 0.
 
 A ratio is 0 when its numerator is below round-off
-(:data:`lbshape.pipeline.influence.ROUNDOFF` of the object's size) and ``None`` when
+(:data:`lbshape.analysis.norms.ROUNDOFF` of the object's size) and ``None`` when
 only its denominator is (the reference never travels, or never deforms).
 """
 
@@ -31,9 +31,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lbshape.analysis.norms import ROUNDOFF, m_norms, ratio
 from lbshape.dynamics.rigid_frame import best_rigid_frame
 from lbshape.errors import LbshapeError
-from lbshape.pipeline.influence import ROUNDOFF, body_deformations, mass_norms
 
 #: the keys :meth:`FreeBodyError.stats` adds to a benchmark row
 KEYS: tuple[str, ...] = ("com_path_error", "rotation_error_deg", "body_deformation_error")
@@ -72,10 +72,21 @@ def rotation_angle_deg(R: np.ndarray) -> float:
     return math.degrees(math.atan2(float(np.linalg.norm(skew)), 0.5 * (np.trace(R) - 1.0)))
 
 
-def _ratio(numerator: float, denominator: float, atol: float) -> float | None:
-    if numerator <= atol:
-        return 0.0
-    return numerator / denominator if denominator > atol else None
+def body_deformations(scalar_mass, rest: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """(k, n, 3) deformations of displacements u (k, n, 3) (m): each sample's displacement
+    after its mass-weighted best rigid fit (``Rᵀ(X + u − c) − X̄``, body frame, m).
+
+    Args:
+        scalar_mass: (n, n) scalar mass M₁ (kg).
+        rest: (n, 3) rest positions X (m).
+        u: (k, n, 3) world displacements (m).
+    """
+    rest = np.asarray(rest, dtype=float)
+    u = np.asarray(u, dtype=float).reshape(len(u), -1, 3)
+    if u.shape[1:] != rest.shape:
+        raise LbshapeError(f"displacements of shape {u.shape[1:]} for {rest.shape} rest points")
+    return np.stack([best_rigid_frame(scalar_mass, rest, rest + sample)[2] for sample in u])
+
 
 
 def _frames(scalar_mass, rest: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -120,14 +131,14 @@ def free_body_error(u: np.ndarray, u_full: np.ndarray, rest: np.ndarray, mass
 
     centers, rotations = _frames(scalar_mass, rest, u)
     centers_full, rotations_full = _frames(scalar_mass, rest, u_full)
-    com_path = _ratio(float(np.linalg.norm(centers - centers_full, axis=1).max()),
-                      float(np.linalg.norm(centers_full - centers_full[0], axis=1).max()),
-                      atol_length)
+    com_path = ratio(float(np.linalg.norm(centers - centers_full, axis=1).max()),
+                     float(np.linalg.norm(centers_full - centers_full[0], axis=1).max()),
+                     atol_length)
     rotation = max(rotation_angle_deg(R @ R_full.T)
                    for R, R_full in zip(rotations, rotations_full, strict=True))
 
     d = body_deformations(scalar_mass, rest, u)
     d_full = body_deformations(scalar_mass, rest, u_full)
-    deformation = _ratio(float(mass_norms(d - d_full, mass).max()),
-                         float(mass_norms(d_full, mass).max()), atol_norm)
+    deformation = ratio(float(m_norms(d - d_full, mass).max()),
+                        float(m_norms(d_full, mass).max()), atol_norm)
     return FreeBodyError(com_path, float(rotation), deformation)

@@ -19,7 +19,9 @@ from pathlib import Path
 
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
-from lbshape.report.bench import (
+from lbshape.io.machine import load_text, machine_description, threads_text
+from lbshape.report.plots import speed_error_plot
+from lbshape.studies.bench import (
     DEFAULT_OUT,
     ROW_EXTRA_KEYS,
     SETTINGS_TARGET_ERROR,
@@ -28,11 +30,9 @@ from lbshape.report.bench import (
     TARGET_T_TOTAL_MS,
     SceneBenchmark,
     SettingResult,
-    SweepPoint,
 )
-from lbshape.report.machine import load_text, machine_description, threads_text
-from lbshape.report.plots import speed_error_plot
-from lbshape.report.realtime import breakdown_lines
+from lbshape.studies.realtime import breakdown_lines
+from lbshape.studies.sweep import SweepPoint
 
 _INTRO = (
     "Columns as in the paper's Table 2: DOFs (3 × vertices) and tetrahedra of the "
@@ -266,7 +266,7 @@ def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
 
     Args:
         results: one benchmark per scene.
-        machine: a :func:`~lbshape.report.machine.machine_description`.
+        machine: a :func:`~lbshape.io.machine.machine_description`.
     """
     lines = ["# Table 2: per-step cost and accuracy", "", _INTRO, "", _COLUMNS,
              "|---|" + "---|" * 15]
@@ -295,7 +295,7 @@ def table2_payload(results: Sequence[SceneBenchmark], machine: dict) -> dict:
     """The document of ``table2.json``: the contract rows plus spreads and conditions.
 
     ``paper_vs_lbshape``: per scene with the settings comparison, ``{"scene",
-    "settings": [paper, lbshape]}``, each :meth:`~lbshape.report.bench.SettingResult.payload`.
+    "settings": [paper, lbshape]}``, each :meth:`~lbshape.studies.bench.SettingResult.payload`.
     """
     return {
         "rows": [row for result in results for row in result.rows],
@@ -365,5 +365,6 @@ def write_sweep(points: Sequence[SweepPoint], out_dir: str | Path = DEFAULT_OUT,
                                  sweep_csv(points, scene=scene, steps=steps, repeats=repeats,
                                            dt=dt))
     png_path = speed_error_plot(points, out_dir / "speed_vs_error.png", scene=scene,
-                                steps=steps, dt=dt)
+                                steps=steps, dt=dt, target_error=TARGET_ERROR,
+                                target_ms=TARGET_T_TOTAL_MS)
     return csv_path, png_path

@@ -51,6 +51,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from lbshape.analysis.norms import trajectory_error
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.polynomial_forces import (
     FORCE_MODELS,
@@ -60,12 +61,12 @@ from lbshape.elastic.polynomial_forces import (
 )
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_text_atomic
+from lbshape.io.machine import load_text, machine_description, machine_text
 from lbshape.io.paths import output_root
 from lbshape.io.toml_writer import dumps
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import WARMUP_STEPS, force_elements, simulate
-from lbshape.report.bench import trajectory_error
-from lbshape.report.machine import load_text, machine_description, machine_text
+from lbshape.scene.variants import with_reduced
 
 log = logging.getLogger(__name__)
 
@@ -159,7 +160,7 @@ class TuneResult:
         full_t_total_ms: per-step time of the ``full`` reference (ms).
         trials: every candidate, in the order tried.
         best: the cheapest candidate meeting E within the budget, or None.
-        machine: the conditions of the timings (:func:`~lbshape.report.machine.machine_description`
+        machine: the conditions of the timings (:func:`~lbshape.io.machine.machine_description`
             at the end of the search).
         budget_ms: the per-step time budget (ms).
     """
@@ -265,15 +266,6 @@ def candidate_grid(scene, *, m_values: Sequence[int] | None = None,
                 else:
                     grid.update(Candidate(int(m), int(r), int(s), model) for s in s_values)
     return sorted(grid, key=lambda c: (estimate(c), c))
-
-
-def _variant(scene, m: int, r: int, s: int, forces: str | None = None):
-    """The scene with ``[reduced]`` m, r, s and (unless None) forces."""
-    red = scene.reduced
-    linear = red.linear_modes if red.linear_modes <= r else 0
-    return dataclasses.replace(scene, reduced=dataclasses.replace(
-        red, m=m, r=r, s=s, linear_modes=linear,
-        forces=red.forces if forces is None else forces))
 
 
 # ----------------------------------------------------------------------------- search
@@ -394,7 +386,7 @@ def tune_scene(scene, *, error: float, budget_ms: float = DEFAULT_BUDGET_MS,
     mass = mass_matrix(base.mesh, base.material.density)
 
     def measure(candidate: Candidate) -> Trial:
-        return _trial(_variant(scene, *candidate), reference, mass, steps=steps,
+        return _trial(with_reduced(scene, *candidate), reference, mass, steps=steps,
                       repeats=repeats)
 
     def skip(candidate: Candidate) -> str:

@@ -1,9 +1,9 @@
-"""The on-screen window of ``lbshape live``: a :class:`~lbshape.pipeline.live.LiveSession`
+"""The on-screen window of ``lbshape live``: a :class:`~lbshape.live.session.LiveSession`
 stepped to the wall clock and drawn with pyvista/VTK (imported inside functions).
 
 A repeating VTK timer calls :meth:`LiveWindow.frame`: it feeds the scripted events that
 are due, advances the session by the wall time since the last frame
-(:meth:`~lbshape.pipeline.live.LiveSession.advance`: whole steps of the scene's dt,
+(:meth:`~lbshape.live.session.LiveSession.advance`: whole steps of the scene's dt,
 capped), moves the drawn surface's points in place, updates the corner text (simulated
 time, mean step cost, frame rate) and renders. Contact planes are the off-screen
 pictures' rectangles (:func:`lbshape.report.render.plane_rectangles`), reaching far, drawn
@@ -13,7 +13,8 @@ Interaction (:data:`KEYS`): the left mouse button on the object picks the neares
 vertex of the picked cell and drags it (the cursor is mapped to the plane through the
 vertex facing the camera; a spring pulls the vertex there, drawn as a line); elsewhere
 the left button turns the camera as usual. Keys pause, step, switch the examples and
-reset. Scripted events (:func:`read_events`) go through the same methods.
+reset. Scripted events (:func:`lbshape.live.events.read_events`) go through the same
+methods.
 
 The window needs an X display: a desktop, or a virtual one (``xvfb-run -a lbshape live
 ...``); without ``DISPLAY`` :func:`run_live` refuses with one line. Off-screen batch
@@ -22,24 +23,18 @@ pictures stay in :mod:`lbshape.report.render`.
 
 from __future__ import annotations
 
-import contextlib
-import gc
-import json
 import math
 import os
-import shutil
-import subprocess
-import sys
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.io.atomic import write_atomic
-from lbshape.pipeline.live import LiveSession
+from lbshape.live.display import require_display
+from lbshape.live.events import LiveEvent
+from lbshape.live.session import LiveSession
 from lbshape.report.figures import view_vector_of
 from lbshape.report.render import (
     PLANE_COLOR,
@@ -54,9 +49,6 @@ from lbshape.report.render import (
 #: key → what it does (besides pyvista's and VTK's own: q quits, r frames the camera)
 KEYS = {"space": "pause / resume", "n": "one step (paused)", "x": "examples on / off",
         "z": "reset to rest"}
-#: scripted event types (:func:`read_events`)
-EVENT_TYPES = ("drag", "move", "release", "toggle-examples", "pause", "step", "reset",
-               "screenshot")
 #: the timer's period (ms): frames follow as fast as the rendering allows
 TIMER_MS = 5
 #: the window's size in pixels
@@ -75,145 +67,6 @@ STATS_KEYS = ("frames", "fps", "sim_time_s", "wall_time_s", "t_total_ms", "scene
               "n_vertices", "r", "threads", "window", "gl_renderer")
 
 
-@dataclass(frozen=True)
-class LiveEvent:
-    """A scripted user action at ``t`` seconds of wall time after the first frame.
-
-    Attributes:
-        t: when (s).
-        type: one of :data:`EVENT_TYPES`.
-        vertex: the vertex a ``drag`` grabs.
-        to: (3,) world point (m) a ``drag`` or ``move`` pulls towards.
-        file: the PNG a ``screenshot`` writes.
-        steps: how many steps a ``step`` takes (default 1).
-    """
-
-    t: float
-    type: str
-    vertex: int | None = None
-    to: tuple[float, float, float] | None = None
-    file: str | None = None
-    steps: int = 1
-
-
-def read_events(path: str | Path) -> list[LiveEvent]:
-    """Scripted events from a JSON file: a list of objects ``{"t": seconds, "type": ...}``
-    (``drag`` needs ``vertex`` and ``to`` [x, y, z]; ``move`` needs ``to``; ``screenshot``
-    needs ``file``, relative to the events file; ``step`` takes ``steps``, default 1),
-    sorted by time (events at the same time keep their order).
-
-    Raises:
-        LbshapeError: an unreadable file or a malformed event (one line).
-    """
-    path = Path(path)
-    try:
-        items = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise LbshapeError(f"cannot read events file {path}: {exc.strerror}") from None
-    except json.JSONDecodeError as exc:
-        raise LbshapeError(f"events file {path} is not JSON: {exc.msg} (line {exc.lineno})"
-                           ) from None
-    if not isinstance(items, list):
-        raise LbshapeError(f"events file {path} must hold a list of events")
-    return sorted((_event(item, index, path) for index, item in enumerate(items)),
-                  key=lambda event: event.t)
-
-
-def _event(item, index: int, path: Path) -> LiveEvent:
-    where = f"events file {path}, event {index}"
-    if not isinstance(item, dict):
-        raise LbshapeError(f"{where}: must be an object")
-    allowed = {"t", "type", "vertex", "to", "file", "steps"}
-    unknown = sorted(set(item) - allowed)
-    if unknown:
-        raise LbshapeError(f"{where}: unknown keys {unknown} (allowed: {sorted(allowed)})")
-    kind, t = item.get("type"), item.get("t")
-    if kind not in EVENT_TYPES:
-        raise LbshapeError(f"{where}: type must be one of {EVENT_TYPES}, got {kind!r}")
-    if isinstance(t, bool) or not isinstance(t, int | float) or not math.isfinite(t) or t < 0:
-        raise LbshapeError(f"{where}: t must be a number of seconds >= 0, got {t!r}")
-    vertex, to, file = item.get("vertex"), item.get("to"), item.get("file")
-    steps = item.get("steps", 1)
-    if kind == "step" and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
-        raise LbshapeError(f"{where}: steps must be an integer >= 1, got {steps!r}")
-    if kind == "drag" and (isinstance(vertex, bool) or not isinstance(vertex, int)):
-        raise LbshapeError(f"{where}: a drag needs an integer vertex, got {vertex!r}")
-    if kind in ("drag", "move"):
-        if not (isinstance(to, list) and len(to) == 3 and all(
-                isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-                for v in to)):
-            raise LbshapeError(f"{where}: a {kind} needs to = [x, y, z] in m, got {to!r}")
-        to = tuple(float(v) for v in to)
-    if kind == "screenshot":
-        if not isinstance(file, str) or not file:
-            raise LbshapeError(f"{where}: a screenshot needs a file name")
-        file = str(path.parent / file)
-    return LiveEvent(float(t), kind, vertex if kind == "drag" else None,
-                     to if kind in ("drag", "move") else None,
-                     file if kind == "screenshot" else None, steps if kind == "step" else 1)
-
-
-def display_available() -> bool:
-    """Whether an X display is set (``DISPLAY``); other platforms are assumed to have one."""
-    return not sys.platform.startswith("linux") or bool(os.environ.get("DISPLAY"))
-
-
-@contextlib.contextmanager
-def virtual_display(screen: str = "1280x1024x24") -> Iterator[str]:
-    """An X display for the block: ``$DISPLAY`` when set, else a virtual X server
-    (``Xvfb``, Debian ``xvfb``) started for the block on a free display number and
-    stopped after it (``DISPLAY`` restored). Yields the display's name.
-
-    Raises:
-        LbshapeError: no ``DISPLAY`` and no ``Xvfb``, or a server that did not start.
-    """
-    if display_available():
-        yield os.environ.get("DISPLAY", "")
-        return
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
-        raise LbshapeError("no DISPLAY and no Xvfb: install the Debian package xvfb "
-                           "(scripts/setup does)")
-    read, write = os.pipe()
-    server = subprocess.Popen([xvfb, "-displayfd", str(write), "-screen", "0", screen,
-                               "-nolisten", "tcp"], pass_fds=(write,),
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                              preexec_fn=_die_with_parent)
-    os.close(write)
-    with os.fdopen(read) as pipe:
-        number = pipe.readline().strip()
-    if not number:
-        server.kill()
-        server.wait()
-        raise LbshapeError("the virtual X server (Xvfb) did not start")
-    os.environ["DISPLAY"] = f":{number}"
-    try:
-        yield os.environ["DISPLAY"]
-    finally:
-        gc.collect()  # windows left unclosed let go of the server first
-        del os.environ["DISPLAY"]
-        server.terminate()
-        server.wait(timeout=10)
-
-
-def _die_with_parent() -> None:
-    """In the child before exec (Linux): SIGTERM when the parent dies, so a killed run
-    leaves no server behind."""
-    with contextlib.suppress(OSError, AttributeError):
-        import ctypes
-        import signal
-
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-
-
-def require_display() -> None:
-    """Raise a one-line :class:`~lbshape.errors.LbshapeError` without a display."""
-    if not display_available():
-        raise LbshapeError("lbshape live needs a display: DISPLAY is not set (on a headless "
-                           "machine run it under a virtual X server: xvfb-run -a lbshape live "
-                           "...)")
-
-
 def plane_grid(pv, corners: np.ndarray, spacing: float, *, most: int = 200):
     """A ``pyvista.PolyData`` of lines covering the rectangle ``corners`` (4, 3) (in order
     around it) about ``spacing`` m apart (at most ``most`` lines each way)."""
@@ -230,14 +83,14 @@ def plane_grid(pv, corners: np.ndarray, spacing: float, *, most: int = 200):
 
 
 class LiveWindow:
-    """The window of a :class:`~lbshape.pipeline.live.LiveSession` (see the module
+    """The window of a :class:`~lbshape.live.session.LiveSession` (see the module
     docstring). Make it, then :meth:`run`.
 
     Args:
         session: the session to step and draw.
         seconds: close after this much wall time (s); ``None``: when the user closes it.
         screenshot: a PNG of the last frame.
-        events: scripted events (:func:`read_events`).
+        events: scripted events (:func:`lbshape.live.events.read_events`).
         window_size: (width, height) in pixels.
     """
 

@@ -37,7 +37,6 @@ import subprocess
 import sys
 import tempfile
 import time
-import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,13 +45,12 @@ import numpy as np
 
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_text_atomic
-from lbshape.io.toml_writer import dumps
+from lbshape.io.machine import load_text, machine_description, machine_text
 from lbshape.pipeline.precompute import precompute, stage_names
 from lbshape.pipeline.simulate import WARMUP_STEPS, reduced_simulation
-from lbshape.report.machine import load_text, machine_description, machine_text
 from lbshape.report.plots import pyplot, save_figure
 from lbshape.scene import load_scene
-from lbshape.scene.reader import builtin_scene_names
+from lbshape.scene.variants import scaled_scene
 
 #: the scene whose object is refined
 DEFAULT_SCENE = "bar-cylinder"
@@ -124,31 +122,6 @@ class ScalingPoint:
         the largest per-stage sum over the ranks (at least the largest process's)."""
         return max([self.peak_mb, *self.stage_peak_mb.values()]) if self.ranks > 1 \
             else self.peak_mb
-
-
-def scaled_scene(base: str, size: float, folder: Path) -> Path:
-    """Write the scene ``base`` (a built-in name) with ``[object] size = size`` to
-    ``folder`` and return the TOML path (named ``<base>-h<size>``).
-
-    Every size keeps the cubature force model (``reduced.forces = "cubature"``): the
-    exact polynomial forces' build grows as t r⁴ and ``auto`` leaves them for large
-    meshes, so a study of cost against mesh size compares one force model at every size.
-    """
-    if base not in builtin_scene_names():
-        raise LbshapeError(f"--scaling needs a built-in scene, got {base!r}; valid names: "
-                           f"{', '.join(builtin_scene_names())}")
-    if not (isinstance(size, int | float) and 0 < size < np.inf):
-        raise LbshapeError(f"object sizes must be finite and > 0, got {size!r}")
-    path = Path(load_scene(base).source)
-    data = tomllib.loads(path.read_text(encoding="utf-8"))
-    if "shape" not in data.get("object", {}):
-        raise LbshapeError(f"scene {base!r}: its object is not a built-in shape with a size")
-    data["name"] = f"{base}-h{size:g}"
-    data["object"]["size"] = float(size)
-    data.setdefault("reduced", {})["forces"] = "cubature"
-    target = folder / f"{data['name']}.toml"
-    target.write_text(dumps(data), encoding="utf-8")
-    return target
 
 
 def precompute_subprocess(scene_path: Path, *, ranks: int = 1) -> tuple[float, float]:

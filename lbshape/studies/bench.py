@@ -1,7 +1,9 @@
-"""Speed against accuracy: measuring the methods side by side (the paper's Table 2) and sweeps.
+"""Speed against accuracy: measuring the methods side by side (the paper's Table 2).
 
-* :func:`trajectory_error` — ``max_t ‖u(t) − u_full(t)‖_M / max_t ‖u_full(t)‖_M``
-  with M the consistent elastic mass (kg), over the same sample times;
+The error of a run against ``full`` is :func:`lbshape.analysis.norms.trajectory_error`,
+``max_t ‖u(t) − u_full(t)‖_M / max_t ‖u_full(t)‖_M`` with M the consistent elastic mass
+(kg), over the same sample times.
+
 * :func:`bench_scene` — ``full``, ``euclidean`` and ``reduced`` runs of one scene in
   one process, repeated (interleaved, so that load from other processes spreads
   evenly over the methods); per-step times are the means after the simulation's
@@ -12,13 +14,12 @@
   scene as written, both timed in the same interleaved repeats, each with its error
   against ``full`` with and without the scene's examples (:class:`SettingResult`);
 * free bodies: beside the whole-field error, the centre-of-mass path, the rotation
-  and the body-frame deformation errors (:mod:`lbshape.report.free_body_error`);
-* :func:`speed_error_sweep` — the reduced method's per-step time against its error
-  versus ``full`` while r, s (and optionally m) vary.
+  and the body-frame deformation errors (:mod:`lbshape.analysis.free_body`);
+* the speed/error sweep over r, s (and m) is :mod:`lbshape.studies.sweep`.
 
-Timings are wall clock. The tables are written by :mod:`lbshape.report.tables`, the
+Timings are wall clock. The tables are written by :mod:`lbshape.studies.tables`, the
 plots drawn by :mod:`lbshape.report.plots`, the machine described by
-:mod:`lbshape.report.machine`.
+:mod:`lbshape.io.machine`.
 """
 
 from __future__ import annotations
@@ -30,16 +31,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lbshape.analysis.free_body import KEYS as FREE_BODY_KEYS
+from lbshape.analysis.free_body import free_body_error
+from lbshape.analysis.norms import trajectory_error
 from lbshape.elastic.element_kernels import mass_matrix
-from lbshape.elastic.polynomial_forces import check_force_choice
 from lbshape.errors import LbshapeError
 from lbshape.io.paths import RESULTS_DIR
-from lbshape.pipeline.influence import has_example_force, is_free_body, without_examples
+from lbshape.pipeline.influence import has_example_force, is_free_body
 from lbshape.pipeline.meshes import build_mesh
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import METHODS, WARMUP_STEPS, example_influence, simulate
-from lbshape.report.free_body_error import KEYS as FREE_BODY_KEYS
-from lbshape.report.free_body_error import free_body_error
+from lbshape.scene.variants import with_reduced, without_examples
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +52,7 @@ ROW_KEYS: tuple[str, ...] = (
 )
 #: the keys every row has after :data:`ROW_KEYS`: a free body's error split into its
 #: centre-of-mass path, rotation (degrees) and body-frame deformation
-#: (:mod:`lbshape.report.free_body_error`; None for a fixed object)
+#: (:mod:`lbshape.analysis.free_body`; None for a fixed object)
 ROW_EXTRA_KEYS: tuple[str, ...] = FREE_BODY_KEYS
 #: scenes benchmarked by default (the paper's first two Table 2 rows)
 DEFAULT_SCENES: tuple[str, ...] = ("bar-cuboid", "bar-cylinder")
@@ -71,76 +73,6 @@ LBSHAPE_SOURCE = "the scene as written"
 
 
 # ----------------------------------------------------------------------------- error
-def m_norms(u: np.ndarray, mass) -> np.ndarray:
-    """(k,) mass norms ``sqrt(u(t)ᵀ M u(t))`` of a trajectory.
-
-    Args:
-        u: (k, n, 3) or (k, 3n) displacements in m (node-major).
-        mass: (3n, 3n) symmetric positive definite mass in kg (sparse or dense).
-
-    Returns:
-        (k,) norms in m·kg^½.
-    """
-    u = np.asarray(u, dtype=float)
-    flat = u.reshape(u.shape[0], -1)
-    if flat.shape[1] != mass.shape[0]:
-        raise LbshapeError(
-            f"displacements have {flat.shape[1]} components per sample, the mass matrix "
-            f"has {mass.shape[0]} rows"
-        )
-    squares = np.einsum("ti,ti->t", flat, np.asarray((mass @ flat.T).T))
-    return np.sqrt(np.maximum(squares, 0.0))
-
-
-def trajectory_error(
-    u: np.ndarray,
-    u_full: np.ndarray,
-    mass,
-    *,
-    times: np.ndarray | None = None,
-    times_full: np.ndarray | None = None,
-) -> float:
-    """Relative trajectory error ``max_t ‖u(t) − u_full(t)‖_M / max_t ‖u_full(t)‖_M``.
-
-    Args:
-        u: (k, n, 3) or (k, 3n) displacements in m.
-        u_full: the reference, same shape and same sample times.
-        mass: (3n, 3n) consistent elastic mass in kg.
-        times: (k,) sample times of ``u`` in s (checked against ``times_full``).
-        times_full: (k,) sample times of ``u_full`` in s.
-
-    Returns:
-        The dimensionless error (0 for identical trajectories).
-
-    Raises:
-        LbshapeError: different shapes or sample times, or a reference that never
-            moves (the relative error is undefined).
-    """
-    u, u_full = np.asarray(u, dtype=float), np.asarray(u_full, dtype=float)
-    if u.shape != u_full.shape or u.ndim not in (2, 3) or u.shape[0] == 0:
-        raise LbshapeError(
-            f"trajectories must have the same non-empty (k, n, 3) or (k, 3n) shape, "
-            f"got {u.shape} and {u_full.shape}"
-        )
-    if (times is None) != (times_full is None):
-        raise LbshapeError("give the sample times of both trajectories or of neither")
-    if times is not None:
-        times, times_full = np.asarray(times, dtype=float), np.asarray(times_full, dtype=float)
-        if times.shape != (u.shape[0],) or times_full.shape != (u.shape[0],):
-            raise LbshapeError(
-                f"sample times must have shape ({u.shape[0]},), got {times.shape} and "
-                f"{times_full.shape}"
-            )
-        scale = max(float(np.max(np.abs(times_full))), 1.0)
-        worst = float(np.max(np.abs(times - times_full)))
-        if worst > 1e-9 * scale:
-            raise LbshapeError(
-                f"trajectories are sampled at different times (largest difference {worst:.3g} s)"
-            )
-    reference = float(m_norms(u_full, mass).max())
-    if not reference > 0.0:
-        raise LbshapeError("the reference trajectory never moves: relative error undefined")
-    return float(m_norms(u - u_full, mass).max()) / reference
 
 
 # ------------------------------------------------------------------------ benchmark
@@ -250,7 +182,7 @@ def paper_setting(scene, paper_table: Mapping[str, Sequence]) -> PaperSetting:
         scene: the :class:`~lbshape.scene.schema.Scene`.
         paper_table: the paper's Table 2 by scene name, each row's columns (DOFs, tets,
             example vertices, m, r, s, …)
-            (:data:`lbshape.report.realtime.PAPER_TABLE2`).
+            (:data:`lbshape.studies.realtime.PAPER_TABLE2`).
 
     Returns:
         The scene's row's (m, r, s), or for a scene without a row its own (m, r, s)
@@ -285,7 +217,7 @@ class SettingResult:
             without an example force the same runs as ``error_vs_full``.
         examples: whether the scene's examples act on it (False: the "without examples"
             error is the same run).
-        free_body: a free body's :meth:`~lbshape.report.free_body_error.FreeBodyError.stats`
+        free_body: a free body's :meth:`~lbshape.analysis.free_body.FreeBodyError.stats`
             against ``full`` with the examples (None for a fixed object or a stopped run).
         free_body_no_examples: the same without the examples.
     """
@@ -417,13 +349,8 @@ def bench_scene(
     variant = variant_pre = None
     failure = ""
     if paper is not None and not _runs_setting(scene, pre, paper):
-        variant = _variant(scene, m=paper.m, r=paper.r, s=paper.s, forces=paper.forces)
-        try:
-            variant_pre = precompute(variant, progress=progress)
-        except LbshapeError as exc:
-            failure = f"precompute at the paper's setting failed: {exc}"
-            log.error("bench %s: %s", scene.name, failure)
-        else:
+        variant, variant_pre, failure = _paper_variant(scene, paper, progress=progress)
+        if variant_pre is not None:
             jobs.append((_PAPER_JOB, variant, variant_pre, "reduced"))
     outputs, timings = _run_jobs(jobs, steps=steps, repeats=repeats, name=scene.name)
     mass = mass_matrix(pre.mesh, pre.material.density)
@@ -438,26 +365,50 @@ def bench_scene(
     effects, references = _influence(scene, pre, outputs, steps=steps) if influence else ((), {})
     settings = ()
     if paper is not None:
-        lbshape = _setting("lbshape", LBSHAPE_SOURCE, scene, pre, outputs, timings["reduced"],
-                           outputs["reduced"], full, references, steps=steps, mass=mass)
-        if variant_pre is not None:
-            full_paper = full if variant.reduced.m == scene.reduced.m else _full_reference(
-                variant, variant_pre, steps=steps)
-            paper_result = _setting("paper", paper.source, variant, variant_pre, outputs,
-                                    timings[_PAPER_JOB], outputs[_PAPER_JOB], full_paper,
-                                    references, steps=steps, mass=mass)
-        elif failure:
-            paper_result = SettingResult(
-                "paper", paper.source, paper.m, paper.r, paper.s, paper.s, paper.forces,
-                MethodTiming("reduced", (), (), False, failure), None, None,
-                lbshape.examples)
-        else:  # the scene as written runs the paper's setting: the same runs
-            paper_result = dataclasses.replace(
-                lbshape, label="paper", source=f"{paper.source} ({LBSHAPE_SOURCE})")
-        settings = (paper_result, lbshape)
+        settings = _settings(scene, pre, paper, outputs, timings, references, variant,
+                             variant_pre, failure, steps=steps, mass=mass)
     return SceneBenchmark(scene.name, float(scene.simulation.dt), steps, repeats, WARMUP_STEPS,
                           rows, tuple(timings[m] for m in methods), effects,
                           force_model=pre.elastic.force_model, settings=settings)
+
+
+def _paper_variant(scene, paper: PaperSetting, *, progress: bool):
+    """The scene at the paper's setting and its precompute (cached).
+
+    Returns:
+        ``(variant, its Precomputed or None, failure message ('' if it was built))``.
+    """
+    variant = with_reduced(scene, m=paper.m, r=paper.r, s=paper.s, forces=paper.forces)
+    try:
+        return variant, precompute(variant, progress=progress), ""
+    except LbshapeError as exc:
+        failure = f"precompute at the paper's setting failed: {exc}"
+        log.error("bench %s: %s", scene.name, failure)
+        return variant, None, failure
+
+
+def _settings(scene, pre, paper: PaperSetting, outputs: dict, timings: dict, references: dict,
+              variant, variant_pre, failure: str, *, steps: int, mass
+              ) -> tuple[SettingResult, SettingResult]:
+    """The settings comparison, ``(paper, lbshape)``, from a benchmark's finished runs."""
+    full = outputs.get("full")
+    lbshape = _setting("lbshape", LBSHAPE_SOURCE, scene, pre, outputs, timings["reduced"],
+                       outputs["reduced"], full, references, steps=steps, mass=mass)
+    if variant_pre is not None:
+        full_paper = full if variant.reduced.m == scene.reduced.m else _full_reference(
+            variant, variant_pre, steps=steps)
+        paper_result = _setting("paper", paper.source, variant, variant_pre, outputs,
+                                timings[_PAPER_JOB], outputs[_PAPER_JOB], full_paper,
+                                references, steps=steps, mass=mass)
+    elif failure:
+        paper_result = SettingResult(
+            "paper", paper.source, paper.m, paper.r, paper.s, paper.s, paper.forces,
+            MethodTiming("reduced", (), (), False, failure), None, None,
+            lbshape.examples)
+    else:  # the scene as written runs the paper's setting: the same runs
+        paper_result = dataclasses.replace(
+            lbshape, label="paper", source=f"{paper.source} ({LBSHAPE_SOURCE})")
+    return paper_result, lbshape
 
 
 #: the key of the paper's setting's reduced runs among a benchmark's interleaved jobs
@@ -626,7 +577,7 @@ def _error_vs_full(output, full, mass) -> float | None:
 
 
 def _free_body_vs_full(output, full, pre, mass) -> dict | None:
-    """A free body's :func:`~lbshape.report.free_body_error.free_body_error` stats of a run
+    """A free body's :func:`~lbshape.analysis.free_body.free_body_error` stats of a run
     against ``full`` (None for a fixed object, or if either run is missing or stopped)."""
     if not is_free_body(pre) or full is None or not (full.stats["stable"]
                                                      and output.stats["stable"]):
@@ -651,152 +602,4 @@ def _row(scene: str, output, timing: MethodTiming, examples: int, *,
         **(free_body or dict.fromkeys(ROW_EXTRA_KEYS)),
     }
 
-# ---------------------------------------------------------------------------- sweep
-@dataclass(frozen=True)
-class SweepPoint:
-    """One configuration of the speed-versus-error sweep (reduced method).
 
-    Attributes:
-        m, r: LB eigenfunctions and reduced coordinates.
-        s_max: cubature elements asked for; ``s``: selected (training may stop at
-            its tolerance first).
-        t_interp_ms, t_total_ms: per-step medians over repeats (ms).
-        t_total_min_ms, t_total_max_ms: range of the per-step total over repeats (ms).
-        error_vs_full: trajectory error against ``full`` with the same m (None if a
-            run failed).
-        cubature_holdout_error: relative reduced-force error on held-out poses.
-        forces: the reduced elastic force the runs used (``"polynomial"``: exact, every
-            element, so s only sizes the cubature trained beside it; ``"cubature"``).
-        r_asked: the r the configuration asked for (``[reduced] r``); the basis has
-            ``r`` columns, more where static responses were appended (None: r).
-        error_no_examples: a free body: the error of its run without examples
-            (``k_ex = 0`` in both methods; its only run when it has none); None for a
-            fixed object.
-        free_body, free_body_no_examples: a free body's
-            :meth:`~lbshape.report.free_body_error.FreeBodyError.stats` (centre path,
-            rotation in degrees, body-frame deformation) with and without its examples
-            (the same run twice for a free body without examples); None for a fixed object.
-    """
-
-    m: int
-    r: int
-    s_max: int
-    s: int
-    t_interp_ms: float
-    t_total_ms: float
-    t_total_min_ms: float
-    t_total_max_ms: float
-    error_vs_full: float | None
-    cubature_holdout_error: float | None
-    forces: str = "cubature"
-    r_asked: int | None = None
-    error_no_examples: float | None = None
-    free_body: dict | None = None
-    free_body_no_examples: dict | None = None
-
-    @property
-    def asked_r(self) -> int:
-        """The r the configuration asked for (:attr:`r_asked`, else :attr:`r`)."""
-        return self.r if self.r_asked is None else self.r_asked
-
-
-def _variant(scene, *, m: int, r: int, s: int, forces: str | None = None):
-    """The scene with ``[reduced]`` m, r, s (and ``forces`` unless None: the scene's)."""
-    red = scene.reduced
-    linear = red.linear_modes if red.linear_modes <= r else 0
-    return dataclasses.replace(
-        scene, reduced=dataclasses.replace(red, m=int(m), r=int(r), s=int(s),
-                                           linear_modes=linear,
-                                           forces=red.forces if forces is None else forces))
-
-
-def speed_error_sweep(
-    scene,
-    *,
-    r_values: Sequence[int] = (10, 20, 30),
-    s_values: Sequence[int] = (20, 60, 120),
-    m_values: Sequence[int] = (),
-    steps: int | None = None,
-    repeats: int = 3,
-    progress: bool = False,
-    forces: Sequence[str] = (),
-    polynomial_r_values: Sequence[int] = (),
-) -> tuple[SweepPoint, ...]:
-    """Per-step time and error of the reduced method while r, s (and m) vary.
-
-    The grid, at the scene's m: with ``forces`` empty (the default) every (r, s) of
-    ``r_values × s_values`` with the scene's force choice; with ``forces`` (reduced force
-    models, ``"polynomial"`` and/or ``"cubature"``) each model's own grid —
-    ``"cubature"``: every (r, s) of ``r_values × s_values``; ``"polynomial"``: every r of
-    ``polynomial_r_values`` (default ``r_values``) at the scene's s alone (s only sizes
-    the cubature trained beside the exact forces, so it is not swept). Plus
-    (m, scene r, scene s, scene force choice) for each other m of ``m_values``. Each
-    configuration is its own precompute (cached); the ``full`` reference is run once
-    per m. Each force value is checked against the material
-    (:func:`lbshape.elastic.polynomial_forces.check_force_choice`). A free body is
-    also measured as Table 2 measures it: its run without examples (one untimed
-    reduced run per configuration, one ``full`` reference per m) and the centre path,
-    rotation and body-frame deformation of both (:class:`SweepPoint`).
-
-    Args:
-        scene: the base scene.
-        r_values, s_values, m_values: the values swept.
-        steps: steps per run (default: the scene's), > the warm-up steps.
-        repeats: reduced runs per configuration.
-        progress: precompute progress bars on stderr.
-        forces: the force models swept (empty: the scene's choice alone).
-        polynomial_r_values: r values of the polynomial grid (empty: ``r_values``).
-    """
-    steps = scene.simulation.steps if steps is None else steps
-    _check_steps_repeats(steps, repeats)
-    steps, repeats = int(steps), int(repeats)
-    base = scene.reduced
-    for choice in forces:
-        check_force_choice(choice, scene.material.model)
-    if not forces:
-        grid = [(base.m, int(r), int(s), base.forces) for r in r_values for s in s_values]
-    else:
-        grid = []
-        for model in dict.fromkeys(forces):
-            if model == "polynomial":
-                grid += [(base.m, int(r), base.s, model)
-                         for r in (polynomial_r_values or r_values)]
-            else:
-                grid += [(base.m, int(r), int(s), model) for r in r_values for s in s_values]
-    grid += [(int(m), base.r, base.s, base.forces) for m in m_values if int(m) != base.m]
-    grid = list(dict.fromkeys(grid))
-    if not grid:
-        raise LbshapeError("the sweep is empty: give r and s values (or m values)")
-    for value in {v for point in grid for v in point[:3]}:
-        if value < 1:
-            raise LbshapeError(f"m, r and s must be >= 1, got {value}")
-    references: dict[int, object] = {}
-    references_none: dict[int, object] = {}  # free bodies: full without examples, per m
-    points = []
-    for m, r, s, choice in grid:
-        variant = _variant(scene, m=m, r=r, s=s, forces=choice)
-        pre = precompute(variant, progress=progress)
-        if m not in references:
-            references[m] = simulate(variant, pre, method="full", steps=steps)
-            if references[m].message:
-                log.error("sweep: full reference (m=%d) stopped: %s", m, references[m].message)
-        outputs, (timing,) = _run_interleaved(variant, pre, ("reduced",), steps=steps,
-                                              repeats=repeats)
-        mass = mass_matrix(pre.mesh, pre.material.density)
-        error = _error_vs_full(outputs["reduced"], references[m], mass)
-        free = {}
-        if is_free_body(pre):
-            free = _errors_apart_from_examples(variant, pre, outputs["reduced"],
-                                               references[m], references_none, m,
-                                               steps=steps, mass=mass)
-        holdout = pre.elastic.cubature_errors.get("holdout")
-        total = timing.summary("t_total_ms")
-        points.append(SweepPoint(
-            m=m, r=pre.r, s_max=s, s=int(pre.elastic.cubature_elements.size),
-            t_interp_ms=timing.summary("t_interp_ms")["median"], t_total_ms=total["median"],
-            t_total_min_ms=total["min"], t_total_max_ms=total["max"], error_vs_full=error,
-            cubature_holdout_error=None if holdout is None else float(holdout),
-            forces=pre.elastic.force_model, r_asked=r, **free,
-        ))
-        log.info("sweep %s: %s", scene.name, points[-1])
-    return tuple(points)

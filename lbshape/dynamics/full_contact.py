@@ -1,0 +1,82 @@
+"""Penalty contact of a full-space object's surface vertices with planes
+(:class:`FullSpaceContact`), with the planes' regularised Coulomb friction, as the
+full-space reference (:mod:`lbshape.dynamics.full`) evaluates it on full displacements."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from lbshape.dynamics.contact import (
+    ContactPlane,
+    friction_force,
+    plane_frictions,
+    surface_vertices,
+)
+from lbshape.errors import LbshapeError
+
+
+class FullSpaceContact:
+    """Penalty contact of the surface vertices with planes, on full displacements, with
+    the planes' regularised Coulomb friction (:mod:`lbshape.dynamics.contact`).
+
+    Args:
+        planes: the :class:`~lbshape.dynamics.contact.ContactPlane` list.
+        points: (n, 3) rest positions (m); ``tets`` (t, 4) give the surface.
+    """
+
+    def __init__(self, planes: Sequence[ContactPlane], points: np.ndarray, tets: np.ndarray):
+        self.vertices = surface_vertices(tets)
+        self.rest = np.asarray(points, dtype=float)[self.vertices]
+        self.n = points.shape[0]
+        self.planes = list(planes)
+        normals = np.array([p.normal for p in self.planes], dtype=float).reshape(-1, 3)
+        lengths = np.linalg.norm(normals, axis=1)
+        if np.any(lengths == 0):
+            raise LbshapeError("contact plane normals must be non-zero")
+        #: (P, 3) unit normals (as :class:`~lbshape.dynamics.contact.PlaneContact` uses)
+        self.normals = normals / lengths[:, None]
+        self.friction = plane_frictions(self.planes)
+        #: some plane has friction (the force then depends on the velocity)
+        self.has_friction = bool(np.any(self.friction > 0))
+
+    def evaluate(self, u: np.ndarray, v: np.ndarray | None = None, rate: float = 0.0):
+        """``(f (3n,) = +∂E/∂u − f_friction, K (3n, 3n) CSR or None, energy J)`` for
+        u (3n,) m and the vertex velocities v (3n,) m/s (zero when ``None``).
+
+        The friction force ``f_t`` (:func:`~lbshape.dynamics.contact.friction_force`)
+        enters ``f`` with the internal-force sign; its tangent per vertex is
+        ``rate C − μ k T nᵀ`` (``rate = ∂v/∂u`` of the step in 1/s, C the rate matrix,
+        T the slip direction): the consistent tangent, not symmetric.
+        """
+        x = self.rest + u.reshape(-1, 3)[self.vertices]
+        force = np.zeros((self.n, 3))
+        rows, cols, vals = [], [], []
+        energy = 0.0
+        for plane, n, mu in zip(self.planes, self.normals, self.friction, strict=True):
+            gap = (x - np.asarray(plane.point)) @ n
+            hit = np.flatnonzero(gap < 0.0)
+            if hit.size == 0:
+                continue
+            d = -gap[hit]
+            energy += 0.5 * plane.stiffness * float(d @ d)
+            np.add.at(force, self.vertices[hit], -plane.stiffness * d[:, None] * n[None, :])
+            blocks = np.broadcast_to(plane.stiffness * np.outer(n, n), (hit.size, 3, 3))
+            if mu > 0:
+                w = (np.zeros((hit.size, 3)) if v is None
+                     else v.reshape(-1, 3)[self.vertices[hit]])
+                friction, rates, direction = friction_force(w, n, plane.stiffness * d, mu)
+                np.add.at(force, self.vertices[hit], -friction)
+                blocks = (blocks + rate * rates
+                          - mu * plane.stiffness * direction[:, :, None] * n[None, None, :])
+            dofs = 3 * self.vertices[hit][:, None] + np.arange(3)[None, :]  # (h, 3)
+            rows.append(np.repeat(dofs, 3, axis=1).ravel())
+            cols.append(np.tile(dofs, (1, 3)).ravel())
+            vals.append(np.ascontiguousarray(blocks).ravel())
+        if not rows:
+            return force.ravel(), None, 0.0
+        K = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(3 * self.n, 3 * self.n))
+        return force.ravel(), K, energy

@@ -1,0 +1,260 @@
+"""Compiled full-space assembly of the elastic force and tangent on the free dofs.
+
+The same element quantities as :class:`~lbshape.elastic.element_kernels.FullSpaceElasticity`
+(``f_ai = V Σ_j P_ij ∂_j N_a``, ``K_(ai)(bk) = V Σ_jl ∂_j N_a A_ijkl ∂_l N_b``, with the
+stress P and its derivative A of :mod:`lbshape.elastic.jit_densities`), evaluated in one
+compiled loop over all elements and scattered straight into the CSR data array of the
+free-dof tangent through slots computed once (fixed dofs are skipped). A call allocates
+only its output vector and data array; the pattern arrays are shared (read-only).
+
+The sums run in element order like the numpy path's ``bincount``; the element matrices
+are grouped differently, so the two agree to round-off (a few ulps of the largest
+entry), not bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from lbshape._jit import njit
+from lbshape.elastic.block_energy import _energy
+from lbshape.elastic.element_kernels import ElementKernel
+from lbshape.elastic.jit_densities import _element, density_parameters
+from lbshape.elastic.materials import Material
+from lbshape.errors import LbshapeError
+from lbshape.geometry.mesh import TetMesh
+
+
+class CompiledElasticity:
+    """Elastic force and tangent of a whole mesh restricted to its free dofs, compiled.
+
+    Args:
+        mesh: the mesh; its points are the rest shape.
+        material: the hyperelastic material.
+        free_dofs: (nf,) sorted node-major indices of the free dofs (default: all 3n).
+
+    Attributes:
+        n_dofs: 3n.
+        free_dofs: (nf,) the free dofs.
+        indptr, indices: the CSR pattern (nf, nf) of the free-dof tangent (every
+            (row, col) pair two free dofs of one element share; sorted columns).
+    """
+
+    def __init__(self, mesh: TetMesh, material: Material,
+                 free_dofs: np.ndarray | None = None):
+        kernel = ElementKernel(mesh.points, mesh.tets, material)
+        n3 = 3 * mesh.n_vertices
+        self.n_dofs = n3
+        free = np.arange(n3) if free_dofs is None else np.asarray(free_dofs, dtype=np.int64)
+        if free.ndim != 1 or free.size == 0 or np.any(np.diff(free) <= 0) or free[0] < 0 \
+                or free[-1] >= n3:
+            raise LbshapeError("free dofs must be a non-empty increasing array in [0, 3n)")
+        self.free_dofs = free
+        local = np.full(n3, -1, dtype=np.int64)  # full dof -> free index (-1: fixed)
+        local[free] = np.arange(free.size)
+        tets = np.asarray(mesh.tets, dtype=np.int64)
+        dofs = local[(3 * tets[:, :, None] + np.arange(3)).reshape(-1, 12)]  # (e, 12)
+        rows = np.broadcast_to(dofs[:, :, None], (len(dofs), 12, 12)).reshape(-1)
+        cols = np.broadcast_to(dofs[:, None, :], (len(dofs), 12, 12)).reshape(-1)
+        kept = (rows >= 0) & (cols >= 0)
+        nf = free.size
+        keys = rows[kept] * nf + cols[kept]
+        unique, inverse = np.unique(keys, return_inverse=True)
+        slots = np.full(rows.size, -1, dtype=np.int64)
+        slots[kept] = inverse.ravel()
+        self._slots = slots.reshape(-1, 144)
+        self._nnz = unique.size
+        self.indices = (unique % nf).astype(np.int32)
+        counts = np.bincount(unique // nf, minlength=nf)
+        self.indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+        self._element_dofs = dofs
+        self._full_dofs = (3 * tets[:, :, None] + np.arange(3)).reshape(-1, 12)
+        self._gradients = np.ascontiguousarray(kernel.gradients)
+        self._volumes = np.ascontiguousarray(kernel.volumes)
+        self._code, self._parameters = density_parameters(material)
+        self._shape = (nf, nf)
+        rows_of = np.repeat(np.arange(nf, dtype=np.int64), counts)
+        self._keys = rows_of * nf + self.indices  # sorted: the pattern's (row, col) keys
+        self._constant: dict[int, tuple] = {}  # add_into's kept positions
+        # whole vertices free: rows 3I..3I+2 share their columns, in aligned triples
+        counts3 = counts.reshape(-1, 3) if nf % 3 == 0 else None
+        self._blocked = bool(
+            counts3 is not None and np.all(free.reshape(-1, 3) % 3 == np.arange(3))
+            and np.all(free.reshape(-1, 3)[:, 0] // 3 == free.reshape(-1, 3)[:, 2] // 3)
+            and np.all(counts3 == counts3[:, :1]) and np.all(counts3 % 3 == 0)
+            and np.all(self.indices.reshape(-1, 3) % 3 == np.arange(3)))
+
+    def pattern_data(self, matrix: sp.spmatrix) -> tuple[np.ndarray, np.ndarray] | None:
+        """(positions, values): ``matrix``'s (nf, nf) entries (duplicates summed) as distinct
+        positions in the tangent's CSR data array and their values; None when an entry
+        lies outside the pattern."""
+        coo = sp.coo_matrix(matrix)
+        coo.sum_duplicates()  # unique positions
+        nf = self._shape[0]
+        wanted = coo.row.astype(np.int64) * nf + coo.col
+        position = np.searchsorted(self._keys, wanted)
+        position[position >= self._keys.size] = 0
+        if coo.shape != self._shape or not np.array_equal(self._keys[position], wanted):
+            return None
+        return position, coo.data
+
+    def pattern_values(self, matrix: sp.spmatrix) -> np.ndarray | None:
+        """``matrix`` (nf, nf) as a data array on the tangent's pattern (zeros elsewhere;
+        duplicates summed), or None when it has an entry outside the pattern."""
+        found = self.pattern_data(matrix)
+        if found is None:
+            return None
+        data = np.zeros(self._nnz)
+        data[found[0]] = found[1]
+        return data
+
+    def rotated(self, data: np.ndarray, R: np.ndarray) -> np.ndarray | None:
+        """The data array of ``Q A Qᵀ``, ``Q = diag(R, …, R)``, for A given by its ``data``
+        on this pattern (each 3 × 3 vertex block ``R A_IJ Rᵀ``); None when the free dofs
+        do not form whole vertices (the pattern is then not made of 3 × 3 blocks)."""
+        if not self._blocked:
+            return None
+        out = np.empty_like(data)
+        _rotate_blocks(self.indptr, np.ascontiguousarray(data, dtype=np.float64),
+                       np.ascontiguousarray(R, dtype=np.float64), out)
+        return out
+
+    def on_pattern(self, K: sp.spmatrix) -> bool:
+        """K is a CSR matrix on this tangent's pattern."""
+        return (sp.isspmatrix_csr(K) and K.shape == self._shape
+                and K.indices.size == self.indices.size
+                and np.array_equal(K.indptr, self.indptr)
+                and np.array_equal(K.indices, self.indices))
+
+    def add_into(self, K: sp.csr_matrix, matrix: sp.spmatrix, *,
+                 constant: bool = False) -> sp.csr_matrix:
+        """``K + matrix``: in place on K's data when K is on this pattern and holds
+        ``matrix``'s entries, else a new sparse sum. ``constant``: ``matrix`` does not
+        change between calls (its positions are kept)."""
+        if self.on_pattern(K):
+            if constant:  # kept as a whole data array: one contiguous addition
+                kept = self._constant.get(id(matrix))
+                if kept is None or kept[0] is not matrix:
+                    kept = (matrix, self.pattern_values(matrix))
+                    self._constant[id(matrix)] = kept
+                if kept[1] is not None:
+                    K.data += kept[1]
+                    return K
+            else:
+                found = self.pattern_data(matrix)
+                if found is not None:
+                    K.data[found[0]] += found[1]
+                    return K
+        return (K + matrix).tocsr()
+
+    def energy(self, u: np.ndarray) -> float:
+        """Total strain energy (J) at the full node-major displacement u (3n,) m (every
+        element; the numpy densities' ``Ψ(I + H) − Ψ(I)``, compiled)."""
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        if u.shape != (self.n_dofs,):
+            raise LbshapeError(f"displacement must have shape ({self.n_dofs},), got {u.shape}")
+        return float(_energy_total(self._code, self._parameters, u, self._full_dofs,
+                                   self._gradients, self._volumes))
+
+    def force_and_tangent(self, u: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+        """(force (nf,) N, tangent (nf, nf) N/m CSR) on the free dofs at the full
+        node-major displacement u (3n,) m (``+∂E/∂u`` and its derivative)."""
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        if u.shape != (self.n_dofs,):
+            raise LbshapeError(f"displacement must have shape ({self.n_dofs},), got {u.shape}")
+        f = np.empty(self._shape[0])
+        data = np.empty(self._nnz)
+        _assemble(self._code, self._parameters, u, self._full_dofs, self._element_dofs,
+                  self._gradients, self._volumes, self._slots, f, data)
+        K = sp.csr_matrix((data, self.indices, self.indptr), shape=self._shape)
+        return f, K
+
+
+@njit
+def _energy_total(code, parameters, u, full_dofs, gradients, volumes):
+    H9 = np.empty((9, 1))
+    total = 0.0
+    for e in range(full_dofs.shape[0]):
+        G = gradients[e]
+        for i in range(3):
+            for j in range(3):
+                value = 0.0
+                for a in range(4):
+                    value += u[full_dofs[e, 3 * a + i]] * G[a, j]
+                H9[3 * i + j, 0] = value
+        total += volumes[e] * _energy(code, parameters, H9)
+    return total
+
+
+@njit
+def _rotate_blocks(indptr, data, R, out):
+    """out: each 3 × 3 block B of data (rows 3I..3I+2, aligned column triples) as R B Rᵀ."""
+    B = np.empty((3, 3))
+    C = np.empty((3, 3))
+    for vertex in range((indptr.size - 1) // 3):
+        start0 = indptr[3 * vertex]
+        count = indptr[3 * vertex + 1] - start0
+        for p in range(0, count, 3):
+            for a in range(3):
+                start = indptr[3 * vertex + a] + p
+                for b in range(3):
+                    B[a, b] = data[start + b]
+            for a in range(3):  # C = R B
+                for b in range(3):
+                    C[a, b] = R[a, 0] * B[0, b] + R[a, 1] * B[1, b] + R[a, 2] * B[2, b]
+            for a in range(3):  # out = C Rᵀ
+                start = indptr[3 * vertex + a] + p
+                for b in range(3):
+                    out[start + b] = C[a, 0] * R[b, 0] + C[a, 1] * R[b, 1] + C[a, 2] * R[b, 2]
+
+
+@njit
+def _assemble(code, parameters, u, full_dofs, element_dofs, gradients, volumes, slots,
+              f, data):
+    f[:] = 0.0
+    data[:] = 0.0
+    H9 = np.empty((9, 1))
+    P9 = np.empty((9, 1))
+    A = np.empty((1, 9, 9))
+    work = np.empty((6, 3, 3))
+    T = np.empty((9, 12))
+    for e in range(full_dofs.shape[0]):
+        G = gradients[e]
+        V = volumes[e]
+        for i in range(3):
+            for j in range(3):
+                value = 0.0
+                for a in range(4):
+                    value += u[full_dofs[e, 3 * a + i]] * G[a, j]
+                H9[3 * i + j, 0] = value
+        _element(code, parameters, H9, P9, A, 0, work, True)
+        # force f_ai = V Σ_j P_ij G_aj
+        for a in range(4):
+            for i in range(3):
+                row = element_dofs[e, 3 * a + i]
+                if row < 0:
+                    continue
+                value = 0.0
+                for j in range(3):
+                    value += P9[3 * i + j, 0] * G[a, j]
+                f[row] += V * value
+        # T[(ij), (bk)] = Σ_l A[ij, kl] G_bl; K[(ai), (bk)] = V Σ_j G_aj T[(ij), (bk)]
+        for ij in range(9):
+            for b in range(4):
+                for k in range(3):
+                    value = 0.0
+                    for l in range(3):
+                        value += A[0, ij, 3 * k + l] * G[b, l]
+                    T[ij, 3 * b + k] = value
+        for a in range(4):
+            for i in range(3):
+                r = 3 * a + i
+                for c in range(12):
+                    slot = slots[e, 12 * r + c]
+                    if slot < 0:
+                        continue
+                    value = 0.0
+                    for j in range(3):
+                        value += G[a, j] * T[3 * i + j, c]
+                    data[slot] += V * value

@@ -1,0 +1,213 @@
+"""Elastic energy over all elements in a block basis ``L = Φ ⊗ I₃``, compiled.
+
+The Euclidean example energy of the target search
+(:class:`~lbshape.shapespace.euclidean_energy.EuclideanExampleEnergy`) is
+``E(y) = Σ_e V_e Ψ(F_e(L y))`` with the LB block basis L (3n, 3m), ``y[3k + c]`` the
+coefficient of eigenvector k in component c. The block structure gives the element
+gradients in m columns instead of 3m: with ``(GΦ)_e[j, k] = Σ_a ∂_j N_a Φ[v_a, k]``
+(3, m),
+
+* ``H_e[c, j] = Σ_k y[3k + c] (GΦ)_e[j, k]`` (``H = F − I``),
+* ``g[3k + c] = Σ_e V_e Σ_j P_e[c, j] (GΦ)_e[j, k]``,
+* ``∇²E[3k + c, 3l + d] = Σ_e V_e Σ_{j,q} (GΦ)_e[j, k] A_e[3c + j, 3d + q] (GΦ)_e[q, l]``,
+
+the last one a single ``m × 3s × 6m`` matrix product (the six blocks c ≤ d; the others
+by symmetry), a third of the work of the general ``(3m) × 9s × (3m)`` product of
+:class:`~lbshape.elastic.reduced_forces.ReducedForceModel`. The stress and its
+derivative are the compiled ones (:mod:`lbshape.elastic.jit_densities`), the energy the
+numpy density's in :meth:`BlockBasisEnergy.energy`, compiled alongside in
+:meth:`BlockBasisEnergy.energy_force_and_tangent`. Same quantities as the general model
+to round-off. The last evaluation is kept: the target search of a time step starts where
+the previous one ended (other weights, the same coordinates), and gets it for free.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lbshape._jit import njit
+from lbshape.elastic.element_kernels import ElementKernel
+from lbshape.elastic.energy_densities import density_model
+from lbshape.elastic.jit_densities import _element, density_parameters
+from lbshape.elastic.materials import Material
+from lbshape.errors import LbshapeError
+
+#: the component pairs (c, d), c ≤ d, of the Hessian's computed blocks
+_PAIRS = np.array([(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)], dtype=np.int64)
+
+
+def block_basis_factor(basis: np.ndarray, atol: float = 0.0) -> np.ndarray | None:
+    """Φ (n, m) when ``basis`` (3n, 3m) is exactly ``Φ ⊗ I₃`` (node-major rows ``3j + c``,
+    columns ``3k + c``), else None."""
+    basis = np.asarray(basis)
+    if basis.ndim != 2 or basis.shape[0] % 3 or basis.shape[1] % 3:
+        return None
+    n, m = basis.shape[0] // 3, basis.shape[1] // 3
+    blocks = basis.reshape(n, 3, m, 3)
+    phi = blocks[:, 0, :, 0]
+    expected = phi[:, None, :, None] * np.eye(3)[None, :, None, :]
+    exact = np.array_equal(blocks, expected) if atol == 0.0 else bool(
+        np.abs(blocks - expected).max() <= atol)
+    if not exact:
+        return None
+    return np.ascontiguousarray(phi)
+
+
+class BlockBasisEnergy:
+    """Energy, gradient and Hessian of ``E(y) = Σ_e V_e Ψ(F_e(L y))``, ``L = Φ ⊗ I₃``.
+
+    Args:
+        rest_points: (n, 3) rest shape in metres.
+        tets: (t, 4) the elements summed over.
+        material: the hyperelastic material.
+        phi: (n, m) the block basis' factor Φ.
+    """
+
+    def __init__(self, rest_points: np.ndarray, tets: np.ndarray, material: Material,
+                 phi: np.ndarray):
+        phi = np.asarray(phi, dtype=np.float64)
+        tets = np.asarray(tets)
+        if phi.ndim != 2 or phi.shape[0] != np.shape(rest_points)[0]:
+            raise LbshapeError(f"Φ must have shape (n, m), got {phi.shape}")
+        kernel = ElementKernel(rest_points, tets, material)
+        s, m = kernel.n_elements, phi.shape[1]
+        # (GΦ)_e[j, k] = Σ_a G[e, a, j] Φ[v_a, k]
+        self._gphi = np.ascontiguousarray(np.einsum("eaj,eak->ejk", kernel.gradients,
+                                                    phi[tets]))
+        self._x = self._gphi.reshape(3 * s, m)
+        self._volumes = np.ascontiguousarray(kernel.volumes)
+        self._code, self._parameters = density_parameters(material)
+        self._density = density_model(material)
+        self.n_elements, self.m = s, m
+        self.n_coordinates = 3 * m
+        self._h = np.empty((9, s))
+        self._pv = np.empty((3 * s, 3))
+        self._last = None  # (y, E, g, H) of the last evaluation
+        self._z = np.empty((3 * s, 6 * m))
+
+    def _gradients(self, y: np.ndarray) -> np.ndarray:
+        y = np.asarray(y, dtype=np.float64)
+        if y.shape != (self.n_coordinates,):
+            raise LbshapeError(f"coordinates must have shape ({self.n_coordinates},), "
+                               f"got {y.shape}")
+        # H[(e, j), c] = Σ_k (GΦ)[(e, j), k] Y[k, c]
+        Hej = self._x @ y.reshape(self.m, 3)  # (3s, 3)
+        self._h[...] = Hej.reshape(self.n_elements, 3, 3).transpose(2, 1, 0).reshape(9, -1)
+        return self._h
+
+    def energy(self, y: np.ndarray) -> float:
+        """E(y) in J."""
+        H = self._gradients(y)
+        return float(self._volumes @ self._density.energy_t(H.reshape(3, 3, -1)))
+
+    def force_and_tangent(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(∇E (3m,), ∇²E (3m, 3m))."""
+        return self.energy_force_and_tangent(y)[1:]
+
+    def energy_force_and_tangent(self, y: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        """(E J, ∇E (3m,), ∇²E (3m, 3m) symmetric) at y (3m,), sharing the element work."""
+        y = np.asarray(y, dtype=np.float64)
+        if y.shape != (self.n_coordinates,):
+            raise LbshapeError(f"coordinates must have shape ({self.n_coordinates},), "
+                               f"got {y.shape}")
+        last = self._last
+        if last is not None and np.array_equal(last[0], y):
+            # the target search starts where the last one ended (other weights, same y)
+            return last[1], last[2].copy(), last[3].copy()
+        energy = _fused(self._code, self._parameters, self._gphi, self._volumes,
+                        np.ascontiguousarray(y.reshape(self.m, 3)), self._pv, self._z)
+        m = self.m
+        g = (self._x.T @ self._pv).reshape(-1)  # (m, 3) -> 3k + c
+        blocks = self._x.T @ self._z  # (m, 6m)
+        K = np.empty((m, 3, m, 3))
+        for p, (c, d) in enumerate(_PAIRS):
+            block = blocks[:, p * m:(p + 1) * m]
+            K[:, c, :, d] = block
+            if c != d:
+                K[:, d, :, c] = block.T
+        K = K.reshape(3 * m, 3 * m)
+        self._last = (y.copy(), energy, g.copy(), K.copy())
+        return energy, g, K
+
+
+@njit
+def _fused(code, parameters, gphi, volumes, Y, pv, z):
+    """One pass over the elements: returns the energy (J) and fills
+    ``pv[(e, j), c] = V P[c, j]`` and ``z[(e, j), p m + l] = V Σ_q A[3c + j, 3d + q] GΦ[q, l]``
+    (p the index of the pair c ≤ d)."""
+    s, _, m = gphi.shape
+    H9 = np.empty((9, 1))
+    P9 = np.empty((9, 1))
+    A = np.empty((1, 9, 9))
+    work = np.empty((6, 3, 3))
+    YT = np.ascontiguousarray(Y.T)  # (3, m)
+    energy = 0.0
+    for e in range(s):
+        V = volumes[e]
+        g0 = gphi[e, 0]
+        g1 = gphi[e, 1]
+        g2 = gphi[e, 2]
+        for c in range(3):
+            yc = YT[c]
+            h0 = 0.0
+            h1 = 0.0
+            h2 = 0.0
+            for k in range(m):
+                h0 += yc[k] * g0[k]
+                h1 += yc[k] * g1[k]
+                h2 += yc[k] * g2[k]
+            H9[3 * c, 0] = h0
+            H9[3 * c + 1, 0] = h1
+            H9[3 * c + 2, 0] = h2
+        _element(code, parameters, H9, P9, A, 0, work, True)
+        energy += V * _energy(code, parameters, H9)
+        for j in range(3):
+            row = 3 * e + j
+            for c in range(3):
+                pv[row, c] = V * P9[3 * c + j, 0]
+            p = 0
+            for c in range(3):
+                for d in range(c, 3):  # the order of _PAIRS
+                    a0 = V * A[0, 3 * c + j, 3 * d]
+                    a1 = V * A[0, 3 * c + j, 3 * d + 1]
+                    a2 = V * A[0, 3 * c + j, 3 * d + 2]
+                    zr = z[row, p * m:(p + 1) * m]
+                    for l in range(m):
+                        zr[l] = a0 * g0[l] + a1 * g1[l] + a2 * g2[l]
+                    p += 1
+    return energy
+
+
+@njit
+def _energy(code, parameters, H9):
+    """Ψ(I + H) − Ψ(I) (J/m³) of H9 (9, 1), in H like the numpy densities' ``energy_t``."""
+    if code == 0:  # StVK: μ E:E + λ/2 (tr E)², E = (H + Hᵀ + HᵀH)/2
+        mu, lam = parameters[0], parameters[1]
+        ee = 0.0
+        trace = 0.0
+        for i in range(3):
+            for j in range(3):
+                value = H9[3 * i + j, 0] + H9[3 * j + i, 0]
+                for k in range(3):
+                    value += H9[3 * k + i, 0] * H9[3 * k + j, 0]
+                value *= 0.5
+                ee += value * value
+                if i == j:
+                    trace += value
+        return mu * ee + 0.5 * lam * trace * trace
+    # stable Neo-Hookean: μ'/2 (δ − ln(1 + δ/4)) + λ'/2 (J − 1)(J − 1 + 2(1 − α)),
+    # δ = I_C − 3 = 2 tr H + H:H, J − 1 = tr H + I₂(H) + det H
+    mu, lam, alpha = parameters[0], parameters[1], parameters[2]
+    c00 = H9[4, 0] * H9[8, 0] - H9[5, 0] * H9[7, 0]
+    c01 = H9[5, 0] * H9[6, 0] - H9[3, 0] * H9[8, 0]
+    c02 = H9[3, 0] * H9[7, 0] - H9[4, 0] * H9[6, 0]
+    c11 = H9[8, 0] * H9[0, 0] - H9[6, 0] * H9[2, 0]
+    c22 = H9[0, 0] * H9[4, 0] - H9[1, 0] * H9[3, 0]
+    trace = H9[0, 0] + H9[4, 0] + H9[8, 0]
+    dj = trace + c00 + c11 + c22 + (H9[0, 0] * c00 + H9[1, 0] * c01 + H9[2, 0] * c02)
+    hh = 0.0
+    for i in range(9):
+        hh += H9[i, 0] * H9[i, 0]
+    delta = 2.0 * trace + hh
+    return 0.5 * mu * (delta - np.log1p(0.25 * delta)) + 0.5 * lam * dj * (
+        dj + 2.0 * (1.0 - alpha))

@@ -1,0 +1,85 @@
+"""Variants of a scene, each written once: the same scene with one setting changed.
+
+* :func:`without_examples` / :func:`with_stiffness` — the example force off (``k_ex = 0``)
+  or at another stiffness (same precompute);
+* :func:`with_reduced` — other ``[reduced]`` m, r, s (and force model);
+* :func:`with_step` — another time step over a given duration;
+* :func:`scaled_scene` — a built-in scene's TOML with another object size, written to a file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from lbshape.errors import LbshapeError
+from lbshape.io.toml_writer import dumps
+from lbshape.scene.reader import builtin_scene_names, load_scene
+from lbshape.scene.schema import Scene
+
+
+def without_examples(scene: Scene) -> Scene:
+    """The same scene with the example force switched off (``k_ex = 0``, same precompute)."""
+    if scene.examples is None:
+        return scene
+    return dataclasses.replace(scene, examples=dataclasses.replace(scene.examples, stiffness=0.0))
+
+
+def with_stiffness(scene: Scene, stiffness: float) -> Scene:
+    """The same scene with example stiffness ``k_ex`` = ``stiffness`` (1/s²)."""
+    if scene.examples is None:
+        raise LbshapeError(f"scene {scene.name} has no examples")
+    if not (math.isfinite(stiffness) and stiffness >= 0.0):
+        raise LbshapeError(f"example stiffness must be finite and >= 0, got {stiffness}")
+    return dataclasses.replace(scene, examples=dataclasses.replace(scene.examples,
+                                                                   stiffness=float(stiffness)))
+
+
+
+def with_reduced(scene: Scene, m: int, r: int, s: int, forces: str | None = None) -> Scene:
+    """The scene with ``[reduced]`` m, r, s (and ``forces`` unless None: the scene's); linear
+    modes beyond the new r are dropped."""
+    red = scene.reduced
+    linear = red.linear_modes if red.linear_modes <= r else 0
+    return dataclasses.replace(
+        scene, reduced=dataclasses.replace(red, m=int(m), r=int(r), s=int(s),
+                                           linear_modes=linear,
+                                           forces=red.forces if forces is None else forces))
+
+
+def with_step(scene: Scene, dt: float, duration: float) -> Scene:
+    """``scene`` stepped at ``dt`` (s) for ``duration`` (s), rounded to whole steps."""
+    steps = max(1, int(round(duration / dt)))
+    return dataclasses.replace(scene, simulation=dataclasses.replace(
+        scene.simulation, dt=float(dt), steps=steps))
+
+
+
+def scaled_scene(base: str, size: float, folder: Path) -> Path:
+    """Write the scene ``base`` (a built-in name) with ``[object] size = size`` to
+    ``folder`` and return the TOML path (named ``<base>-h<size>``).
+
+    Every size keeps the cubature force model (``reduced.forces = "cubature"``): the
+    exact polynomial forces' build grows as t r⁴ and ``auto`` leaves them for large
+    meshes, so a study of cost against mesh size compares one force model at every size.
+    """
+    if base not in builtin_scene_names():
+        raise LbshapeError(f"--scaling needs a built-in scene, got {base!r}; valid names: "
+                           f"{', '.join(builtin_scene_names())}")
+    if not (isinstance(size, int | float) and 0 < size < np.inf):
+        raise LbshapeError(f"object sizes must be finite and > 0, got {size!r}")
+    path = Path(load_scene(base).source)
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    if "shape" not in data.get("object", {}):
+        raise LbshapeError(f"scene {base!r}: its object is not a built-in shape with a size")
+    data["name"] = f"{base}-h{size:g}"
+    data["object"]["size"] = float(size)
+    data.setdefault("reduced", {})["forces"] = "cubature"
+    target = folder / f"{data['name']}.toml"
+    target.write_text(dumps(data), encoding="utf-8")
+    return target
+
