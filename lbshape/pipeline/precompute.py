@@ -101,6 +101,7 @@ from lbshape.errors import LbshapeError
 from lbshape.fem.mpi import compute_on_root
 from lbshape.geometry.mesh import TetMesh
 from lbshape.io.cache import artifact_lock, load_artifact, save_artifact
+from lbshape.pipeline.auto_stiffness import auto_stiffness_stage
 from lbshape.pipeline.meshes import (
     build_mesh,
     example_meshes,
@@ -132,7 +133,6 @@ from lbshape.pipeline.responses import (
 from lbshape.pipeline.stages import Ranks, StageRecorder
 from lbshape.scene.schema import ExamplePose, Scene
 from lbshape.shapespace.alignment import BasisAlignment
-from lbshape.shapespace.auto_stiffness import AutoStiffness, auto_example_stiffness
 from lbshape.shapespace.basis_choice import METHODS, warn_doubtful_transfer
 from lbshape.shapespace.clamped_basis import clamped_eigenvectors
 from lbshape.shapespace.example_shapes import (
@@ -267,8 +267,11 @@ def _compute(scene: Scene, stages: StageRecorder,
     basis = elastic.basis
     auto = None
     if "example-stiffness" in stages.names:
-        auto = ranks.on_root("example-stiffness", lambda: _auto_stiffness(
-            scene, mesh, elastic, shape, local))
+        auto = ranks.on_root("example-stiffness", lambda: auto_stiffness_stage(
+            scene, mesh, elastic.mass, elastic.basis.U, float(elastic.modes.omega2[0]),
+            eigenvectors=None if shape is None else shape.targets.eigenvectors,
+            coefficients=() if shape is None else shape.coefficients,
+            regions=() if local is None else local.space.regions))
         if ranks.root:
             log.info("%s", auto.summary())
     if "example-basis" in stages.names:
@@ -374,30 +377,6 @@ def _static_equilibria(scene: Scene, mesh: TetMesh, fixed: np.ndarray,
     return append_directions(elastic.basis, equilibria, elastic.mass,
                              elastic.modes.stiffness, kind="static_equilibria",
                              max_columns=room, min_outside=EQUILIBRIUM_MIN_OUTSIDE)
-
-
-def _auto_stiffness(scene: Scene, mesh: TetMesh, elastic: ElasticStages,
-                    shape: _GlobalShape | None, local: LocalExamples | None) -> AutoStiffness:
-    """The ``example-stiffness`` stage (``stiffness = "auto"``): k_ex from each example's
-    displacement on the object (global: ``Φ c_k``, a free body's without its rigid fit;
-    local: on its region's mesh) and the loads' generalized force ``‖Uᵀ f‖`` at full
-    strength (:func:`~lbshape.shapespace.auto_stiffness.auto_example_stiffness`)."""
-    if local is not None:
-        fields = [(region.submesh(mesh), region.displacement(c))
-                  for region in local.space.regions for c in region.example_coefficients]
-    else:
-        fields = [(mesh, shape.targets.eigenvectors @ np.asarray(c).reshape(-1, 3))
-                  for c in shape.coefficients]
-    load_force = 0.0
-    if scene.loads:
-        load = static_load(scene, mesh, elastic.mass)
-        load_force = float(np.linalg.norm(elastic.basis.U.T @ load))
-    try:
-        return auto_example_stiffness(fields, scene.material,
-                                      omega1_sq=float(elastic.modes.omega2[0]),
-                                      load_force=load_force)
-    except LbshapeError as exc:
-        raise LbshapeError(f"scene {scene.name}: {exc}") from None
 
 
 def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: ElasticStages,

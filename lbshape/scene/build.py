@@ -71,10 +71,8 @@ def scene_from_mesh(
               its ``mesh``/``rest`` may be meshes in memory;
             * a posed copy of the object: a ``TetMesh`` with the object's tetrahedra,
               ``(points, tets)``, or the posed points alone, (n, 3) m.
-        example_stiffness: k_ex in 1/s² (>= 0), or ``"auto"`` (the default): the
-            precompute sets it from the examples' own stiffness and the loads
-            (:mod:`lbshape.shapespace.auto_stiffness`; the value it chose is
-            ``Precomputed.auto_stiffness``).
+        example_stiffness: k_ex in 1/s² (>= 0), or ``"auto"`` (the default: set by the
+            precompute, :mod:`lbshape.shapespace.auto_stiffness`).
         loads: mappings as ``[[loads]]``, e.g. ``{"type": "gravity", "vector": [0, 0, -9.81]}``.
         planes: mappings as ``[[planes]]`` (contact planes).
         regions: mappings as ``[[regions]]`` (local examples).
@@ -100,10 +98,9 @@ def scene_from_mesh(
         data["fixed"] = {"region": fixed} if isinstance(fixed, str) else _plain(fixed)
     if isinstance(examples, Mapping | TetMesh | np.ndarray):
         raise LbshapeError(f"{label}: 'examples' must be a list of example poses")
-    if examples or (example_stiffness is not None and example_stiffness != "auto"):
+    if examples or example_stiffness != "auto":
         if example_stiffness is None:  # the keyword's name, not the file's key path
-            raise LbshapeError(f"{label}: example_stiffness must be a number >= 0 (k_ex in "
-                               "1/s^2) or \"auto\"")
+            raise LbshapeError(f"{label}: example_stiffness must be a number >= 0 or \"auto\"")
         data["examples"] = {"stiffness": _plain(example_stiffness),
                             "pose": [_example(entry, obj, f"{label}: examples[{k}]")
                                      for k, entry in enumerate(examples)]}

@@ -274,22 +274,38 @@ def embed_example(
                                           rest_points=aligned.points)
         for p in posed
     ]).reshape(len(poses), m, 3)
+    differences = _checked_transfer(object_mesh, object_spectrum, frame, rest, spectrum,
+                                    alignment, coefficients, posed, max_transfer_difference,
+                                    name)
+    return EmbeddedExample(aligned, alignment, coefficients, differences)
+
+
+def _checked_transfer(object_mesh: TetMesh, object_spectrum: LBSpectrum, frame: BodyFrame,
+                      rest: TetMesh, spectrum: LBSpectrum, alignment: BasisAlignment,
+                      coefficients: np.ndarray, posed: list[np.ndarray], limit: float,
+                      name: str | None) -> np.ndarray:
+    """Each pose's :func:`~lbshape.shapespace.basis_choice.transfer_difference` (p,), its
+    source (``posed`` − ``rest`` on the aligned example) against what reached the object
+    (``coefficients``); a pose at rest to round-off measures 0.
+
+    Raises:
+        LbshapeError: a difference above ``limit`` (one line naming the measure).
+    """
     reference = reference_transfer(object_mesh, frame, object_spectrum.eigenvectors, rest)
-    # a pose at rest to round-off has no shape to compare (0)
-    still = AT_REST * float(np.linalg.norm(np.ptp(aligned.points, axis=0)))
+    still = AT_REST * float(np.linalg.norm(np.ptp(rest.points, axis=0)))
     differences = np.array([
-        transfer_difference(reference, spectrum.mass, c, p - aligned.points)
-        if np.abs(p - aligned.points).max() > still else 0.0
+        transfer_difference(reference, spectrum.mass, c, p - rest.points)
+        if np.abs(p - rest.points).max() > still else 0.0
         for c, p in zip(coefficients, posed, strict=True)])
-    if differences.size and differences.max() > max_transfer_difference:
+    if differences.size and differences.max() > limit:
         worst = int(np.argmax(differences))
-        pose = f" (pose {worst})" if len(poses) > 1 else ""
+        pose = f" (pose {worst})" if len(posed) > 1 else ""
         message = (f"the displacement transferred by the {alignment.method} map does not "
                    f"resemble the example{pose}: transfer difference "
-                   f"{differences[worst]:.3f} (limit {max_transfer_difference:g}; alignment "
-                   f"residual {alignment.residual:.3f}); give a finer example or landmarks")
+                   f"{differences[worst]:.3f} (limit {limit:g}; alignment residual "
+                   f"{alignment.residual:.3f}); give a finer example or landmarks")
         raise LbshapeError(f"{name}: {message}" if name else message)
-    return EmbeddedExample(aligned, alignment, coefficients, differences)
+    return differences
 
 
 def offered_spectrum(example: TetMesh, m: int, *, cluster_rtol: float = 1e-3) -> LBSpectrum:
