@@ -48,7 +48,7 @@ except ImportError:  # pragma: no cover - the older layout
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the built-in fixed scenes of the target
-SCENES = ("bar-cuboid", "bar-cylinder", "cross", "teddy-global", "teddy-local", "demo")
+SCENES = ("demo", "bar-cuboid", "bar-cylinder", "teddy-global", "teddy-local", "cross")
 #: the user's clamped object without a load
 USER = "clip"
 #: the targets
@@ -176,7 +176,7 @@ def markdown(rows: list[dict], *, command: str, commit: str, date: str,
 def main(argv: list[str] | None = None) -> list[Path]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out-dir", type=Path, default=ROOT / "results")
-    parser.add_argument("--scenes", nargs="+", default=[*SCENES, USER])
+    parser.add_argument("--scenes", nargs="+", default=[USER, *SCENES])
     parser.add_argument("--max-time", type=float, default=0.5,
                         help="most simulated time per run (s)")
     parser.add_argument("--calibrate", type=float, nargs="+", default=None,
@@ -187,25 +187,26 @@ def main(argv: list[str] | None = None) -> list[Path]:
         for name in args.scenes:
             calibrate(name, args.calibrate, args.max_time)
         return []
-    rows = []
-    for name in args.scenes:
-        rows.append(measure(name, args.max_time))
-        print(f"{name}: {rows[-1]}", flush=True)
     command = ("python scripts/bench_auto_stiffness.py " + " ".join(
         sys.argv[1:] if argv is None else argv)).strip()
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
                             capture_output=True, text=True).stdout.strip() or "unknown"
-    date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    machine = machine_description()
-    payload = {"command": command, "commit": commit, "date": date, "machine": machine,
-               "targets": {"visible_change": VISIBLE, "error_vs_full": ERROR},
-               "rows": [{**row, "target_met": passes(row)} for row in rows]}
-    return [
-        write_text_atomic(args.out_dir / "auto_stiffness.md",
-                          markdown(rows, command=command, commit=commit, date=date,
-                                   machine=machine)),
-        write_json_atomic(args.out_dir / "auto_stiffness.json", payload),
-    ]
+    rows, written = [], []
+    for name in args.scenes:  # the files after each scene: a stopped run keeps its rows
+        rows.append(measure(name, args.max_time))
+        print(f"{name}: {rows[-1]}", flush=True)
+        date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+        machine = machine_description()
+        payload = {"command": command, "commit": commit, "date": date, "machine": machine,
+                   "targets": {"visible_change": VISIBLE, "error_vs_full": ERROR},
+                   "rows": [{**row, "target_met": passes(row)} for row in rows]}
+        written = [
+            write_text_atomic(args.out_dir / "auto_stiffness.md",
+                              markdown(rows, command=command, commit=commit, date=date,
+                                       machine=machine)),
+            write_json_atomic(args.out_dir / "auto_stiffness.json", payload),
+        ]
+    return written
 
 
 if __name__ == "__main__":
