@@ -118,7 +118,7 @@ def calibrate(name: str, factors: list[float], max_time: float) -> list[dict]:
     """The calibration of the rule's constant: reduced runs of the ``auto`` scene's
     precompute with k_ex = c · ω_e² (ω_e² of the example that sets auto's k_ex) for each
     factor c, each with its run without examples (visible change, closest example)."""
-    from lbshape.pipeline.influence import with_stiffness
+    from lbshape.scene.variants import with_stiffness
 
     scene = auto(user_scene() if name == USER else load_scene(name))
     steps = min(scene.simulation.steps, max(1, round(max_time / scene.simulation.dt)))
