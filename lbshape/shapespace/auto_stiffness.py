@@ -5,15 +5,18 @@ A scene's example force is ``k_ex (q* − q)`` in mass-normalised reduced coordi
 examples ask of the object, on arrays only (no scene, no precompute):
 
 **The examples' own stiffness.** Let e be an example's displacement field on the object
-(its LB coefficients reconstructed on the object's mesh, (3n,) m) and ``q_e = Uᵀ M e`` its
-projection on the basis U (the part of it the object can take). Its Rayleigh quotient
+(its LB coefficients reconstructed on the object's mesh, (3n,) m; a local example's on its
+region's mesh) and ``‖e‖_M = √(eᵀMe)`` its size in the mass M. The ω² of the example
+shape is the secant Rayleigh quotient of its elastic energy E (the StVK energy of the
+material's Lamé parameters: defined for any shape, zero for rotations, so a twist's
+rotation is not counted as strain as the linear ``eᵀKe`` would; for small e it is
+``eᵀKe / eᵀMe``):
 
-    ω_e² = q_eᵀ K_r q_e / q_eᵀ q_e,        K_r = Uᵀ K U,
+    ω_e² = 2 E(e) / ‖e‖_M²,
 
-is the ω² of the example shape: the elastic force per unit of mass-normalised
-displacement that holds the object in that shape. Linearise the elastic force about rest
-and look for the equilibrium along the example, ``q = a q_e``, with the target at the
-example (``q* = q_e``) and no loads:
+the elastic force per unit of mass-normalised displacement that holds the object in that
+shape. Along the example, ``u = a e``, with the target at the example and no loads, the
+example force ``k_ex (1 − a)`` balances the elastic ``a ω_e²`` (per unit of ‖e‖_M²):
 
     a ω_e² = k_ex (1 − a)     ⇒     a = k_ex / (k_ex + ω_e²).
 
@@ -24,18 +27,22 @@ to the example than to the rest shape (``closest_example``) when ``a > ½``, i.e
     k_ex ≥ SHAPE_FACTOR · ω_e²,        SHAPE_FACTOR = a* / (1 − a*).
 
 **The loads.** A load's generalized force ``g = Uᵀ f`` (f (3n,) N, the scene's loads at
-full strength) pushes the object along directions the example need not share. The pull
-towards an example at the rest shape is ``k_ex ‖q_e‖``; for the examples to be more than
-a small correction to what the loads do, it is at least LOAD_FACTOR times the loads' pull:
+full strength, U the basis, ``UᵀMU = I``) pushes the object along directions the example
+need not share. The pull towards an example at the rest shape is ``k_ex ‖e‖_M``; for the
+examples to be more than a small correction to what the loads do, it is at least
+LOAD_FACTOR times the loads' pull:
 
-    k_ex ≥ LOAD_FACTOR · ‖g‖ / ‖q_e‖.
+    k_ex ≥ LOAD_FACTOR · ‖g‖ / ‖e‖_M.
 
-**The rule.** ``k_ex = max over the examples e of max(SHAPE_FACTOR ω_e², LOAD_FACTOR
-‖g‖ / ‖q_e‖)``: every example can be reached by the share a* against its own stiffness,
-and the smallest example still pulls LOAD_FACTOR times the loads. Both terms are scale
-aware as they should be: scaling every example by s leaves ω_e² unchanged and divides
-the load term by s (a smaller example needs a stronger spring to stand out against the
-same loads); scaling the loads by s multiplies the load term by s. The constants were
+**The rule.** Each example needs ``k_e = max(SHAPE_FACTOR ω_e², LOAD_FACTOR ‖g‖ /
+‖e‖_M)``; ``k_ex = min over the examples of k_e``: the example that asks least is reached
+the share a* of the way against its own stiffness and pulls LOAD_FACTOR times the loads.
+(The largest k_e — every example reachable — was tried first: it reached every example,
+but an object's stiffest example, e.g. the cross's twisted arm, then set k_ex at 560 ω₁²,
+and the reduced local examples drifted 17–28 % from the full reference; a pull that strong
+is more than the reduced space holds.) Scaling the loads by s scales the load term by s; a
+smaller example needs a stronger pull to stand out against the same loads; ω_e² depends on
+the example's amplitude only through the energy's nonlinearity. The constants were
 calibrated once on the built-in fixed scenes and a clamped object without loads
 (``docs/decisions.md``, 2026-11-28), never per scene.
 """
@@ -59,17 +66,17 @@ __all__ = ["AUTO_RULE", "LOAD_FACTOR", "SHAPE_FACTOR", "TARGET_SHARE", "AutoStif
 #: the share a* of the way from rest to an example that k_ex reaches against the
 #: example's own linear stiffness (no loads); SHAPE_FACTOR = a* / (1 − a*)
 TARGET_SHARE = 2.0 / 3.0
-#: k_ex ≥ SHAPE_FACTOR · ω_e² for every example e
+#: an example e needs k_ex ≥ SHAPE_FACTOR · ω_e²
 SHAPE_FACTOR = TARGET_SHARE / (1.0 - TARGET_SHARE)
-#: the pull towards the smallest example at rest, k_ex ‖q_e‖, is at least LOAD_FACTOR
-#: times the loads' generalized force ‖Uᵀ f‖
+#: ... and a pull towards it at rest, k_ex ‖e‖_M, of at least LOAD_FACTOR times the
+#: loads' generalized force ‖Uᵀ f‖
 LOAD_FACTOR = 2.0
 #: an example whose ω² is below this share of E / (ρ D²) (D the bounding-box diagonal)
 #: has no strain energy: the rest shape or a rigid motion of it
 RIGID_TOLERANCE = 1e-9
 #: what the rule's result depends on besides the scene (part of the precompute's cache
 #: key: a new constant recomputes the precomputes of "auto" scenes)
-AUTO_RULE = ("energy-rayleigh-1", SHAPE_FACTOR, LOAD_FACTOR)
+AUTO_RULE = ("energy-rayleigh-min-2", SHAPE_FACTOR, LOAD_FACTOR)
 
 
 @dataclass(frozen=True)
@@ -80,7 +87,7 @@ class AutoStiffness:
         k_ex: the example stiffness, 1/s².
         omega1_sq: ω₁², the object's lowest non-rigid squared angular frequency, rad²/s².
         example_omega2: (k,) ω_e² of each example shape (its Rayleigh quotient), rad²/s².
-        example_norms: (k,) ‖q_e‖ of each example's projection, m·√kg.
+        example_norms: (k,) ‖e‖_M of each example's displacement, m·√kg.
         load_force: ‖Uᵀ f‖ of the loads at full strength, N/√kg (0 without loads).
         governing: ``"shape"`` (an example's own stiffness set k_ex) or ``"loads"``.
         example: the index of the example that set k_ex.
@@ -171,8 +178,8 @@ def auto_example_stiffness(examples: Sequence[tuple[TetMesh, np.ndarray]],
     omega2, norms = (np.array(v) for v in zip(*measures, strict=True))
     shape_terms = SHAPE_FACTOR * omega2
     load_terms = LOAD_FACTOR * float(load_force) / norms
-    terms = np.maximum(shape_terms, load_terms)
-    k = int(np.argmax(terms))
+    terms = np.maximum(shape_terms, load_terms)  # what each example needs
+    k = int(np.argmin(terms))  # the example that needs the least
     return AutoStiffness(
         k_ex=float(terms[k]), omega1_sq=float(omega1_sq),
         example_omega2=tuple(float(v) for v in omega2),
