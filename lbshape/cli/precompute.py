@@ -82,7 +82,9 @@ def precompute_record(pre) -> dict:
             "stage_seconds": dict(pre.stages.seconds),
             "stage_peak_mb": dict(pre.stages.peak_mb),
             "stage_ranks": dict(pre.stages.ranks),
-            "total_seconds": float(sum(pre.stages.seconds.values()))}
+            "total_seconds": float(sum(pre.stages.seconds.values())),
+            "example_stiffness": (None if pre.auto_stiffness is None
+                                  else pre.auto_stiffness.to_dict())}
 
 
 def run_one(name: str, *, force: bool = False, as_json: bool = False) -> int:
@@ -103,6 +105,8 @@ def run_one(name: str, *, force: bool = False, as_json: bool = False) -> int:
           f"held-out {errors.get('holdout', float('nan')):.3g}; reduced forces: "
           + ("exact polynomials (every element)" if pre.elastic.force_model == "polynomial"
              else "the cubature"))
+    if pre.auto_stiffness is not None:
+        print(f"  {pre.auto_stiffness.summary()}")
     if pre.has_examples:
         residuals = ", ".join(f"{r:.3f}" for r in pre.examples.alignment_residuals)
         methods = ", ".join(pre.examples.alignment_methods)

@@ -53,6 +53,16 @@ def register(subparsers) -> None:
     parser.set_defaults(func=run)
 
 
+def closest_text(closest) -> str:
+    """``closest_example`` as text: ``rest``, ``example 1``, or per region
+    ``left → example 1, right → rest``."""
+    def one(value) -> str:
+        return "rest" if value == "rest" else f"example {value}"
+    if isinstance(closest, dict):
+        return ", ".join(f"{region} → {one(value)}" for region, value in closest.items())
+    return one(closest)
+
+
 def run(args) -> int:
     require_one_rank("simulate")
     if args.steps is not None and args.steps < 1:
@@ -61,6 +71,8 @@ def run(args) -> int:
     out = args.out or output_root() / "runs" / f"{scene.name}-{args.method}"
     check_replaceable(out, RUN_FILES)  # before the precompute
     pre = precompute(scene, progress=not args.json)
+    if pre.auto_stiffness is not None and not args.json:
+        print(pre.auto_stiffness.summary())
     result = simulate(scene, pre, method=args.method, steps=args.steps, out=out,
                       influence=not args.no_influence, progress=not args.json,
                       compare=args.compare)
@@ -82,6 +94,10 @@ def run(args) -> int:
             print(f"simulate {s['scene']}: example influence {final} (ratio of the maxima "
                   f"over time {peak}, {s['influence_frame']} frame) against the same scene "
                   "without examples")
+        if s.get("visible_change") is not None:
+            print(f"simulate {s['scene']}: visible change {100 * s['visible_change']:.1f} % "
+                  f"of the bounding-box diagonal, closest: "
+                  f"{closest_text(s['closest_example'])}")
         if args.compare is not None and not result.message:
             print(compare_line(s))
     if result.message:

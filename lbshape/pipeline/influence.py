@@ -196,7 +196,7 @@ def closest_example(pre: Precomputed, u: np.ndarray, example_descriptors=None
 def has_example_force(scene: Scene, pre: Precomputed) -> bool:
     """True when the scene's examples act on its motion (examples and ``k_ex > 0``)."""
     active = pre.has_examples or pre.has_local_examples
-    return bool(active and scene.examples is not None and scene.examples.stiffness > 0)
+    return bool(active and scene.examples is not None and scene.examples.acts)
 
 
 def compare_runs(pre: Precomputed, with_ex, without, mass=None) -> Influence:

@@ -23,22 +23,27 @@ Stages (only those the scene needs; paper pre-computation steps 1–6), in order
    (:func:`~lbshape.elastic.static_equilibrium.static_equilibria`), appended to U where
    it misses them               — fixed objects with loads, up to
    :data:`STATIC_EQUILIBRIA_MAX_VERTICES` vertices;
-10. ``example-basis``: the object's responses to the example pull (Krylov blocks of the
+10. ``example-stiffness``: ``stiffness = "auto"`` only: k_ex from the examples' own
+    stiffness (their shapes' ω² on the object) and the loads' generalized force
+    (:func:`~lbshape.shapespace.auto_stiffness.auto_example_stiffness`; stored in the
+    artifact, :attr:`~lbshape.pipeline.precomputed.Precomputed.auto_stiffness`) — scenes
+    with examples and ``stiffness = "auto"``;
+11. ``example-basis``: the object's responses to the example pull (Krylov blocks of the
     spring-shifted stiffness on the examples' targets,
     :func:`~lbshape.pipeline.responses.example_responses`) that U misses, appended to it
     up to :data:`MAX_APPENDED_BASIS` columns (a free body: without their rigid part, up to
     :data:`MAX_APPENDED_FREE_BODY`, and at least :data:`MIN_APPENDED_FREE_BODY` beyond its
     own r)               — scenes with examples (k_ex > 0);
-11. ``cubature``: optimized cubature for the reduced elastic force on the final U (the
+12. ``cubature``: optimized cubature for the reduced elastic force on the final U (the
     force model of non-StVK materials and large meshes, and the energy of the ``modal``
     route);
-12. ``forces``: the exact reduced StVK force as polynomials in q (K, C̃, D̃ of
+13. ``forces``: the exact reduced StVK force as polynomials in q (K, C̃, D̃ of
     :class:`~lbshape.elastic.polynomial_forces.PolynomialForceModel`) — StVK scenes
     whose ``reduced.forces`` resolves to ``polynomial``;
-13. ``projections``: the maps ``T = Uᵀ M L`` of LB coefficients to the final reduced
+14. ``projections``: the maps ``T = Uᵀ M L`` of LB coefficients to the final reduced
     coordinates (:func:`~lbshape.shapespace.projections.reduced_projection`; also for
     the clamped LB basis, faded to zero at the fixed vertices) — scenes with examples;
-14. ``frame``: the rigid frame's reduced inertia and fictitious-force tensors
+15. ``frame``: the rigid frame's reduced inertia and fictitious-force tensors
     (:mod:`lbshape.dynamics.fictitious`)                      — free bodies.
 
 Scenes with ``[[regions]]`` (local examples) replace stages 6–8 by
@@ -96,6 +101,7 @@ from lbshape.errors import LbshapeError
 from lbshape.fem.mpi import compute_on_root
 from lbshape.geometry.mesh import TetMesh
 from lbshape.io.cache import artifact_lock, load_artifact, save_artifact
+from lbshape.pipeline.auto_stiffness import auto_stiffness_stage
 from lbshape.pipeline.meshes import (
     build_mesh,
     example_meshes,
@@ -127,7 +133,7 @@ from lbshape.pipeline.responses import (
 from lbshape.pipeline.stages import Ranks, StageRecorder
 from lbshape.scene.schema import ExamplePose, Scene
 from lbshape.shapespace.alignment import BasisAlignment
-from lbshape.shapespace.basis_choice import METHODS
+from lbshape.shapespace.basis_choice import METHODS, warn_doubtful_transfer
 from lbshape.shapespace.clamped_basis import clamped_eigenvectors
 from lbshape.shapespace.example_shapes import (
     clamp_is_safe,
@@ -186,6 +192,9 @@ def stage_names(scene: Scene) -> list[str]:
         names += ["lb", "examples", "target-table", "lb-cubature"]
     if static_load_applies(scene):
         names.append("static-equilibria")
+    if scene.examples is not None and scene.examples.auto and (
+            scene.has_examples or scene.has_local_examples):
+        names.append("example-stiffness")
     if example_response_stiffness(scene) > 0:
         names.append("example-basis")
     names.append("cubature")
@@ -256,9 +265,19 @@ def _compute(scene: Scene, stages: StageRecorder,
         elastic = elastic._replace(basis=ranks.on_root("static-equilibria", lambda: (
             _static_equilibria(scene, mesh, fixed, elastic))))
     basis = elastic.basis
+    auto = None
+    if "example-stiffness" in stages.names:
+        auto = ranks.on_root("example-stiffness", lambda: auto_stiffness_stage(
+            scene, mesh, elastic.mass, elastic.basis.U, float(elastic.modes.omega2[0]),
+            eigenvectors=None if shape is None else shape.targets.eigenvectors,
+            coefficients=() if shape is None else shape.coefficients,
+            regions=() if local is None else local.space.regions))
+        if ranks.root:
+            log.info("%s", auto.summary())
     if "example-basis" in stages.names:
         basis = ranks.on_root("example-basis", lambda: _example_basis(
-            scene, mesh, fixed, elastic, shape, local))
+            scene, mesh, fixed, elastic, shape, local,
+            None if auto is None else auto.k_ex))
     U, cubature, polynomial = _force_stages(scene, mesh, basis, ranks)
     examples = None
     if "projections" in stages.names:  # every rank takes part (the others wait)
@@ -273,7 +292,8 @@ def _compute(scene: Scene, stages: StageRecorder,
     return artifact(scene, mesh=mesh, fixed=fixed, U=U,
                     omega2=np.asarray(elastic.modes.omega2), cubature=cubature,
                     polynomial=polynomial, examples=examples, local=local,
-                    frame=frame, example_names=names, stage_ranks=ranks.count)
+                    frame=frame, example_names=names, stage_ranks=ranks.count,
+                    auto_stiffness=auto)
 
 
 def example_label(pose: ExamplePose) -> str:
@@ -360,10 +380,12 @@ def _static_equilibria(scene: Scene, mesh: TetMesh, fixed: np.ndarray,
 
 
 def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: ElasticStages,
-                   shape: _GlobalShape | None, local: LocalExamples | None) -> NonlinearBasis:
+                   shape: _GlobalShape | None, local: LocalExamples | None,
+                   auto: float | None = None) -> NonlinearBasis:
     """The ``example-basis`` stage: U with the example responses it misses appended
     (:func:`lbshape.pipeline.responses.example_responses`,
-    :func:`lbshape.elastic.basis.append_directions`)."""
+    :func:`lbshape.elastic.basis.append_directions`); ``auto``: the k_ex of
+    ``stiffness = "auto"`` (the ``example-stiffness`` stage)."""
     if scene.is_free:
         room = max(MAX_APPENDED_FREE_BODY - elastic.basis.r, MIN_APPENDED_FREE_BODY)
     else:
@@ -379,7 +401,8 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
                                                eigenvectors=shape.targets.eigenvectors,
                                                targets=shape.targets.path)
     responses = example_responses(elastic.modes.stiffness, spring,
-                                  example_response_stiffness(scene), fields, elastic.mass,
+                                  example_response_stiffness(scene, auto), fields,
+                                  elastic.mass,
                                   fixed, rigid=(rigid_body_modes(mesh.points, elastic.mass)
                                                 if scene.is_free else None))
     return append_directions(elastic.basis, responses, elastic.mass, elastic.modes.stiffness,
@@ -509,7 +532,9 @@ def _embed_examples(scene: Scene, mesh: TetMesh, spectrum: LBSpectrum) -> Embedd
             raise LbshapeError(f"{label}: {exc}") from None
         coefficients.append(embedded.coefficients[0])
         alignments.append(embedded.alignment)
-        log.info("%s: alignment residual %.3g", label, embedded.alignment.residual)
+        log.info("%s: alignment residual %.3g, transfer difference %.3g", label,
+                 embedded.alignment.residual, embedded.transfer_differences[0])
+        warn_doubtful_transfer(label, embedded)
     return EmbeddedExamples(coefficients, alignments)
 
 

@@ -39,6 +39,7 @@ from lbshape.elastic.materials import Material
 from lbshape.elastic.polynomial_forces import PolynomialForceModel
 from lbshape.geometry.mesh import TetMesh
 from lbshape.scene.schema import Scene
+from lbshape.shapespace.auto_stiffness import AutoStiffness
 from lbshape.shapespace.basis_choice import METHODS
 from lbshape.shapespace.clamped_basis import clamped_eigenvectors
 from lbshape.shapespace.example_shapes import energy_elements
@@ -293,6 +294,9 @@ class Precomputed:
         local: the local-example shape space (scenes with regions), or None.
         frame: reduced rigid-frame tensors of a free body, or None (fixed object).
         stages: how the artifact was built (:class:`StageReport`).
+        auto_stiffness: the k_ex the precompute set for ``stiffness = "auto"`` and why
+            (:class:`~lbshape.shapespace.auto_stiffness.AutoStiffness`), or None (a
+            number in the scene, or no examples).
     """
 
     scene: str
@@ -306,6 +310,7 @@ class Precomputed:
     local: LocalShapeSpace | None = None
     frame: FrameTensors | None = None
     stages: StageReport = field(default_factory=StageReport)
+    auto_stiffness: AutoStiffness | None = None
 
     @property
     def U(self) -> np.ndarray:
@@ -365,6 +370,8 @@ class Precomputed:
                                peak_mb=dict(meta.get("stage_peak_mb", {})),
                                ranks=dict(meta.get("stage_ranks", {})),
                                from_cache=from_cache),
+            auto_stiffness=(AutoStiffness.from_dict(meta["example_stiffness"])
+                            if meta.get("example_stiffness") else None),
         )
 
 
@@ -388,7 +395,8 @@ def artifact(scene: Scene, *, mesh: TetMesh, fixed: np.ndarray, U: np.ndarray,
              omega2: np.ndarray, cubature: Cubature, polynomial: PolynomialForceModel | None,
              examples: GlobalExamples | None, local: LocalExamples | None,
              frame: FrameTensors | None, example_names: list[str],
-             stage_ranks: dict[str, int]) -> tuple[dict, dict]:
+             stage_ranks: dict[str, int],
+             auto_stiffness: AutoStiffness | None = None) -> tuple[dict, dict]:
     """The stages' results as the artifact's (arrays, meta) (read by
     :meth:`Precomputed.from_arrays`)."""
     arrays = {
@@ -404,6 +412,8 @@ def artifact(scene: Scene, *, mesh: TetMesh, fixed: np.ndarray, U: np.ndarray,
         "train": cubature.train_error, "holdout": cubature.holdout_error,
         "tolerance": cubature.tol, "reached_tolerance": bool(cubature.reached_tol)},
         "stage_ranks": stage_ranks}
+    if auto_stiffness is not None:
+        meta["example_stiffness"] = auto_stiffness.to_dict()
     if local is not None:
         arrays.update(local.space.arrays())
         arrays.update({"eigenvalues": local.spectrum.eigenvalues,

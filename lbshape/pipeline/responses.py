@@ -35,6 +35,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -52,6 +53,7 @@ from lbshape.fem.cholesky import serial_cholesky
 from lbshape.geometry.mesh import TetMesh
 from lbshape.pipeline.meshes import selected_vertices
 from lbshape.scene.schema import Scene
+from lbshape.shapespace.auto_stiffness import AUTO_RULE
 from lbshape.shapespace.local_regions import rigid_fields
 from lbshape.shapespace.local_space import RegionSpace
 from lbshape.shapespace.projections import block_basis
@@ -119,11 +121,15 @@ def static_load(scene: Scene, mesh: TetMesh, mass) -> np.ndarray:
                np.zeros(3 * mesh.n_vertices))
 
 
-def example_response_stiffness(scene: Scene) -> float:
+def example_response_stiffness(scene: Scene, auto: float | None = None) -> float:
     """k_ex (1/s²) the example responses are shifted by, or 0 when the scene gets none
-    (no examples, or k_ex = 0)."""
+    (no examples, or k_ex = 0). ``stiffness = "auto"``: ``auto``, the value the precompute
+    set (:mod:`lbshape.shapespace.auto_stiffness`); without it, ``inf`` (some k_ex > 0 that
+    the precompute sets)."""
     if scene.examples is None or not scene.examples.poses:
         return 0.0
+    if scene.examples.auto:
+        return math.inf if auto is None else float(auto)
     return float(scene.examples.stiffness)
 
 
@@ -230,5 +236,8 @@ def response_key(scene: Scene) -> dict:
         loads.append({"type": load.type, "group": load.selection.group if load.selection
                       else None, "region": load.selection.region if load.selection else None,
                       "vector": np.asarray(load.vector, dtype=float).round(12).tolist()})
-    return {"loads": loads, "example_response_stiffness": example_response_stiffness(scene),
+    k_ex = example_response_stiffness(scene)
+    if scene.examples is not None and scene.examples.auto:  # a function of the rest
+        k_ex = {"auto": list(AUTO_RULE)}
+    return {"loads": loads, "example_response_stiffness": k_ex,
             "free": scene.is_free}

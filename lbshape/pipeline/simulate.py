@@ -159,10 +159,23 @@ def load_patterns(scene: Scene, pre: Precomputed, mass) -> list[TimedLoad]:
 
 
 def example_stiffness(scene: Scene, pre: Precomputed) -> float:
-    """k_ex in 1/s² when the example force is active (examples precomputed, k_ex > 0), else 0."""
-    k_ex = scene.examples.stiffness if scene.examples is not None else 0.0
+    """k_ex in 1/s² when the example force is active (examples precomputed, k_ex > 0), else 0.
+
+    ``stiffness = "auto"``: the value the precompute set (:attr:`Precomputed.auto_stiffness`).
+
+    Raises:
+        LbshapeError: ``"auto"`` with a precompute that did not set it.
+    """
     active = pre.has_examples or pre.has_local_examples
-    return float(k_ex) if active and k_ex > 0 else 0.0
+    if scene.examples is None or not active:
+        return 0.0
+    if scene.examples.auto:
+        if pre.auto_stiffness is None:
+            raise LbshapeError(f"scene {scene.name}: stiffness = \"auto\" but its precompute "
+                               "set no k_ex (recompute it)")
+        return float(pre.auto_stiffness.k_ex)
+    k_ex = float(scene.examples.stiffness)
+    return k_ex if k_ex > 0 else 0.0
 
 
 def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced",
@@ -352,6 +365,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "t_interp_ms": t_interp, "t_total_ms": t_total,
         "stable": bool(record.stable), "max_displacement": max_disp, "phase_ms": phase_ms,
         "forces": "full" if method == "full" else pre.elastic.force_model,
+        "example_stiffness": example_stiffness(scene, pre) if scene.examples else None,
         "timed_steps": int(record.steps - warmup),
         **_force_stats(pre, method),
         **estimate_stats(scene, pre, method, record, frames),

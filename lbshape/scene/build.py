@@ -38,7 +38,7 @@ def scene_from_mesh(
     damping: Any = None,
     reduced: Any = None,
     examples: Sequence[ExampleSpec] = (),
-    example_stiffness: float | None = None,
+    example_stiffness: float | str = "auto",
     loads: Sequence[Mapping[str, Any]] = (),
     planes: Sequence[Mapping[str, Any]] = (),
     regions: Sequence[Mapping[str, Any]] = (),
@@ -73,7 +73,8 @@ def scene_from_mesh(
               its ``mesh``/``rest`` may be meshes in memory;
             * a posed copy of the object: a ``TetMesh`` with the object's tetrahedra,
               ``(points, tets)``, or the posed points alone, (n, 3) m.
-        example_stiffness: k_ex in 1/s², required with examples.
+        example_stiffness: k_ex in 1/s² (>= 0), or ``"auto"`` (the default: set by the
+            precompute, :mod:`lbshape.shapespace.auto_stiffness`).
         loads: mappings as ``[[loads]]``, e.g. ``{"type": "gravity", "vector": [0, 0, -9.81]}``.
         planes: mappings as ``[[planes]]`` (contact planes).
         regions: mappings as ``[[regions]]`` (local examples).
@@ -97,7 +98,9 @@ def scene_from_mesh(
             data[key] = _plain(value)
     if fixed is not None:
         data["fixed"] = {"region": fixed} if isinstance(fixed, str) else _plain(fixed)
-    if examples or example_stiffness is not None:
+    if isinstance(examples, Mapping | TetMesh | np.ndarray):
+        raise LbshapeError(f"{label}: 'examples' must be a list of example poses")
+    if examples or example_stiffness != "auto":
         data["examples"] = _examples_table(examples, example_stiffness, obj, label)
     for key, value in (("loads", loads), ("planes", planes), ("regions", regions)):
         if value:
@@ -108,10 +111,8 @@ def scene_from_mesh(
 def _examples_table(examples: Sequence[ExampleSpec], example_stiffness, obj: TetMesh,
                     label: str) -> dict[str, Any]:
     """The scene file's ``[examples]`` table of :func:`scene_from_mesh`'s keywords."""
-    if isinstance(examples, Mapping | TetMesh | np.ndarray):
-        raise LbshapeError(f"{label}: 'examples' must be a list of example poses")
     if example_stiffness is None:  # the keyword's name, not the file's key path
-        raise LbshapeError(f"{label}: examples need example_stiffness (k_ex in 1/s^2)")
+        raise LbshapeError(f"{label}: example_stiffness must be a number >= 0 or \"auto\"")
     return {"stiffness": _plain(example_stiffness),
             "pose": [_example(entry, obj, f"{label}: examples[{k}]")
                      for k, entry in enumerate(examples)]}

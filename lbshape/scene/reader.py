@@ -224,7 +224,14 @@ def _examples(top: _Table, ctx: _Context) -> Examples | None:
     if "examples" not in top.data:
         return None
     ex = top.subtable("examples", ("stiffness", "pose"))
-    stiffness = ex.number("stiffness", low=0.0, unit="1/s^2")
+    value = ex.data.get("stiffness", Examples.AUTO)  # no number: set by the precompute
+    if isinstance(value, str):
+        if value != Examples.AUTO:
+            raise ctx.error(f"'{ex.key('stiffness')}' must be a number >= 0 (1/s^2) or "
+                            f"\"{Examples.AUTO}\", got {value!r}")
+        stiffness = Examples.AUTO
+    else:
+        stiffness = ex.number("stiffness", low=0.0, unit="1/s^2")
     poses = tuple(_example_pose(t, ctx)
                   for t in ex.array_of_tables("pose", _POSE_KEYS, minimum=1))
     return Examples(stiffness, poses)

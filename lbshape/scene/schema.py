@@ -43,8 +43,10 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
                                # ROUTE_CHOICES); auto = lb-table ("auto")
 
     [examples]                 # optional; no LB work without it
-    stiffness = 200.0          # k_ex, 1/s^2, >= 0 (required): force k_ex (q* - q)
-                               # in mass-normalised reduced coordinates
+    stiffness = "auto"         # k_ex, 1/s^2, >= 0, or "auto" ("auto"): force k_ex (q* - q)
+                               # in mass-normalised reduced coordinates; "auto": set by
+                               # the precompute from the examples' own stiffness and the
+                               # loads (lbshape.shapespace.auto_stiffness)
     [[examples.pose]]          # one table per example, at least one
     shape = "bar-cylinder"     # built-in shape or gmsh script (.py), OR
     mesh = "example.msh"       # a mesh file (relative to the TOML file), any format above
@@ -369,10 +371,28 @@ class ExamplePose:
 
 @dataclass(frozen=True)
 class Examples:
-    """The example poses and the example-force stiffness k_ex (1/s²)."""
+    """The example poses and the example-force stiffness k_ex (1/s²), or ``"auto"``
+    (:data:`AUTO_STIFFNESS`: the precompute sets it, :mod:`lbshape.shapespace.auto_stiffness`)."""
 
-    stiffness: float
+    stiffness: float | str
     poses: tuple[ExamplePose, ...]
+
+    #: the ``stiffness`` that lets the precompute set k_ex (:data:`AUTO_STIFFNESS`)
+    AUTO: ClassVar[str] = "auto"
+
+    @property
+    def auto(self) -> bool:
+        """k_ex is set by the precompute (``stiffness = "auto"``)."""
+        return isinstance(self.stiffness, str) and self.stiffness == AUTO_STIFFNESS
+
+    @property
+    def acts(self) -> bool:
+        """The example force can act: ``"auto"`` or k_ex > 0."""
+        return self.auto or self.stiffness > 0
+
+
+#: ``[examples] stiffness = "auto"`` (the default of scenes that give no number)
+AUTO_STIFFNESS = Examples.AUTO
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,21 @@ are 25× its first eigenvalue where a cube's are 1×). Measured (m = 10; see
 ``results/alignment.md``): accepted pairs have distortion ≤ 0.98 (2× stretched copy,
 8:1 and 2:1 cylinders against the 5:1 bar) and residual ≤ 0.27; refused pairs: cube for
 the 5:1 bar distortion 1.88 (residual 0.50), ball for the L-beam 1.67 (residual 1.15).
+
+**Transfer check.** A map can pass both bounds and still carry an example's displacement
+to the object as a different shape (a coarse surface-only bend, 249 vertices, accepted
+by the intrinsic map at residual 0.431, reached the object as a wave). Each
+transferred displacement is therefore compared with its source on the same reference
+correspondence (:func:`transfer_difference`): the object's reconstruction ``Φ_obj c``
+read at the example's corresponding points, ``F_ξ c``, against the best the object's m
+eigenfunctions can do there, ``F_ξ c*`` with c* the M-least-squares fit of the
+example's own displacement u (``c* = (F_ξᵀ M F_ξ)⁻¹ F_ξᵀ M u``):
+``d = ‖F_ξ (c − c*)‖_M / ‖F_ξ c*‖_M`` (the denominator at least :data:`HELD_FLOOR`
+``‖u‖_M``). It compares the low-frequency content of the
+two displacements only (the truncation to m modes is not an error of the map), is
+linear in u in both terms (scaling the pose or the example changes nothing), and is 0
+for a perfect map. Above :data:`MAX_TRANSFER_DIFFERENCE` the example is refused (one
+line naming the measure); above :data:`WARN_TRANSFER_DIFFERENCE` the precompute warns.
 """
 
 from __future__ import annotations
@@ -77,6 +92,58 @@ MAX_DISTORTION = 1.5
 TIE = 0.01
 #: the intrinsic map is offered this many times m example eigenpairs
 INTRINSIC_MODES = 5
+#: largest accepted transfer difference of an example's displacement (module docstring)
+MAX_TRANSFER_DIFFERENCE = 0.4
+#: above this transfer difference the precompute warns that the transfer is doubtful
+WARN_TRANSFER_DIFFERENCE = 0.25
+#: the transfer difference is relative to the part of the example the object's m
+#: eigenfunctions hold, but to no less than this share of the whole example: an example
+#: they barely hold cannot be carried wrongly by much (the demo's twists at m = 4: 1 %
+#: held, a difference of 0.44 of that 1 %)
+HELD_FLOOR = 0.25
+
+
+def warn_doubtful_transfer(label: str, embedded) -> None:
+    """Warn (one line naming the example) when an accepted example's displacement reached
+    the object near the refusal limit: a transfer difference above
+    :data:`WARN_TRANSFER_DIFFERENCE` (``embedded``: an
+    :class:`~lbshape.shapespace.projections.EmbeddedExample`)."""
+    differences = np.asarray(embedded.transfer_differences, dtype=float)
+    if differences.size and differences.max() > WARN_TRANSFER_DIFFERENCE:
+        log.warning("%s: its displacement reached the object only roughly like itself: "
+                    "transfer difference %.3f (warning above %g, refused above %g; "
+                    "%s map, alignment residual %.3f); check its render, or give a finer "
+                    "example or landmarks", label, differences.max(), WARN_TRANSFER_DIFFERENCE,
+                    MAX_TRANSFER_DIFFERENCE, embedded.alignment.method,
+                    embedded.alignment.residual)
+
+
+def transfer_difference(reference: np.ndarray, mass, coefficients: np.ndarray,
+                        displacement: np.ndarray) -> float:
+    """How unlike its source an example's displacement reached the object (module docstring).
+
+    Args:
+        reference: ``F_ξ`` (n_e, m), the object's eigenfunctions at the example's
+            corresponding points (:func:`reference_transfer`).
+        mass: (n_e, n_e) the example's volume mass.
+        coefficients: (m, 3) the transferred displacement coefficients c.
+        displacement: (n_e, 3) the example's own displacement u (m), in the object's frame.
+
+    Returns:
+        ``‖F_ξ (c − c*)‖_M / max(‖F_ξ c*‖_M, HELD_FLOOR ‖u‖_M)`` (dimensionless; 0 for
+        a perfect map or a zero displacement).
+    """
+    F = np.asarray(reference, dtype=float)
+    u = np.asarray(displacement, dtype=float).reshape(F.shape[0], 3)
+    MF = mass @ F
+    best = np.linalg.lstsq(F.T @ MF, MF.T @ u, rcond=1e-12)[0]
+    base = F @ best
+    diff = F @ (np.asarray(coefficients, dtype=float).reshape(best.shape) - best)
+    size = max(float(np.sum(base * (mass @ base))),
+               HELD_FLOOR ** 2 * float(np.sum(u * (mass @ u))))
+    if not size > 0:
+        return 0.0
+    return float(np.sqrt(np.sum(diff * (mass @ diff)) / size))
 
 
 def reference_transfer(object_mesh: TetMesh, object_frame: BodyFrame, object_phi: np.ndarray,

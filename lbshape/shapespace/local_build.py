@@ -48,7 +48,7 @@ from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
-from lbshape.shapespace.basis_choice import METHODS
+from lbshape.shapespace.basis_choice import METHODS, warn_doubtful_transfer
 from lbshape.shapespace.example_targets import tabulate_examples
 from lbshape.shapespace.local_regions import (
     anchor_fit,
@@ -232,8 +232,10 @@ def _region_examples(label: str, spec: RegionSpec, sub: TetMesh, spectrum, examp
         coefficients.append(embedded.coefficients[0])
         residuals.append(embedded.alignment.residual)
         methods.append(embedded.alignment.method)
-        log.info("%s: alignment residual %.3g (%s)", what, embedded.alignment.residual,
-                 embedded.alignment.method)
+        log.info("%s: alignment residual %.3g (%s), transfer difference %.3g", what,
+                 embedded.alignment.residual, embedded.alignment.method,
+                 embedded.transfer_differences[0])
+        warn_doubtful_transfer(what, embedded)
         _warn_at_rest(what, embedded.coefficients[0], sub)
     return coefficients, residuals, methods
 

@@ -53,7 +53,13 @@ from lbshape.shapespace.alignment import (
     EXAMPLE_EXTRA_MODES,
     BasisAlignment,
 )
-from lbshape.shapespace.basis_choice import MAX_RESIDUAL, choose_alignment
+from lbshape.shapespace.basis_choice import (
+    MAX_RESIDUAL,
+    MAX_TRANSFER_DIFFERENCE,
+    choose_alignment,
+    reference_transfer,
+    transfer_difference,
+)
 from lbshape.shapespace.frames import (
     MAX_RELATIVE_RMS,
     AlignedShape,
@@ -169,6 +175,11 @@ def example_coefficients_via_posed_basis(
     return posed - rest
 
 
+#: a pose whose largest displacement is below this share of the example's bounding-box
+#: diagonal is at rest (its transfer difference is 0: round-off has no shape)
+AT_REST = 1e-9
+
+
 @dataclass(frozen=True)
 class EmbeddedExample:
     """An example brought into the object's shape space.
@@ -177,11 +188,15 @@ class EmbeddedExample:
         aligned: the similarity transform of its rest mesh into the object's frame.
         alignment: its basis map to the object's eigenbasis.
         coefficients: (p, m, 3) displacement coefficients of its p poses.
+        transfer_differences: (p,) how unlike its source each pose's displacement reached
+            the object (:func:`lbshape.shapespace.basis_choice.transfer_difference`).
     """
 
     aligned: AlignedShape
     alignment: BasisAlignment
     coefficients: np.ndarray
+    transfer_differences: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.zeros(0))
 
 
 def embed_example(
@@ -195,6 +210,7 @@ def embed_example(
     max_residual: float = MAX_RESIDUAL,
     name: str | None = None,
     max_frame_rms: float | None = MAX_RELATIVE_RMS,
+    max_transfer_difference: float = MAX_TRANSFER_DIFFERENCE,
 ) -> EmbeddedExample:
     """Frame alignment, example spectrum, basis alignment and coefficients in one go.
 
@@ -216,6 +232,9 @@ def embed_example(
         max_frame_rms: largest relative RMS residual of the frame alignment at which
             the overlay is a candidate (above it the shapes do not overlap and only the
             intrinsic map is tried); None: always a candidate.
+        max_transfer_difference: largest accepted
+            :func:`~lbshape.shapespace.basis_choice.transfer_difference` of a pose's
+            displacement (its source against what reached the object).
 
     The basis map is :func:`lbshape.shapespace.basis_choice.choose_alignment`'s: the
     overlay or the intrinsic map, whichever has the smaller residual; with the intrinsic
@@ -226,7 +245,9 @@ def embed_example(
         LbshapeError: the example does not correspond to the object (the chosen map's
             residual above ``max_residual`` or its spectral distortion above
             :data:`~lbshape.shapespace.basis_choice.MAX_DISTORTION`; the message names
-            the frame residual when it ruled the overlay out).
+            the frame residual when it ruled the overlay out), or a pose whose
+            displacement reached the object unlike itself (transfer difference above
+            ``max_transfer_difference``).
     """
     m = object_spectrum.eigenvalues.shape[0]
     frame = body_frame(object_mesh) if object_frame is None else object_frame
@@ -253,7 +274,38 @@ def embed_example(
                                           rest_points=aligned.points)
         for p in posed
     ]).reshape(len(poses), m, 3)
-    return EmbeddedExample(aligned, alignment, coefficients)
+    differences = _checked_transfer(object_mesh, object_spectrum, frame, rest, spectrum,
+                                    alignment, coefficients, posed, max_transfer_difference,
+                                    name)
+    return EmbeddedExample(aligned, alignment, coefficients, differences)
+
+
+def _checked_transfer(object_mesh: TetMesh, object_spectrum: LBSpectrum, frame: BodyFrame,
+                      rest: TetMesh, spectrum: LBSpectrum, alignment: BasisAlignment,
+                      coefficients: np.ndarray, posed: list[np.ndarray], limit: float,
+                      name: str | None) -> np.ndarray:
+    """Each pose's :func:`~lbshape.shapespace.basis_choice.transfer_difference` (p,), its
+    source (``posed`` − ``rest`` on the aligned example) against what reached the object
+    (``coefficients``); a pose at rest to round-off measures 0.
+
+    Raises:
+        LbshapeError: a difference above ``limit`` (one line naming the measure).
+    """
+    reference = reference_transfer(object_mesh, frame, object_spectrum.eigenvectors, rest)
+    still = AT_REST * float(np.linalg.norm(np.ptp(rest.points, axis=0)))
+    differences = np.array([
+        transfer_difference(reference, spectrum.mass, c, p - rest.points)
+        if np.abs(p - rest.points).max() > still else 0.0
+        for c, p in zip(coefficients, posed, strict=True)])
+    if differences.size and differences.max() > limit:
+        worst = int(np.argmax(differences))
+        pose = f" (pose {worst})" if len(posed) > 1 else ""
+        message = (f"the displacement transferred by the {alignment.method} map does not "
+                   f"resemble the example{pose}: transfer difference "
+                   f"{differences[worst]:.3f} (limit {limit:g}; alignment residual "
+                   f"{alignment.residual:.3f}); give a finer example or landmarks")
+        raise LbshapeError(f"{name}: {message}" if name else message)
+    return differences
 
 
 def offered_spectrum(example: TetMesh, m: int, *, cluster_rtol: float = 1e-3) -> LBSpectrum:

@@ -233,8 +233,10 @@ def test_from_mesh_examples_from_code():
     (None, {"examples": [{"pose": "twirl", "parameters": {"angle": 1}}],
             "example_stiffness": 1.0}, "'examples.pose[0].pose' must be one of"),
     (None, {"examples": [np.zeros((3, 3))], "example_stiffness": 1.0}, "posed points"),
-    (None, {"examples": [{"pose": "arc", "parameters": {"angle": 1}}]},
-     "examples need example_stiffness"),
+    (None, {"examples": [{"pose": "arc", "parameters": {"angle": 1}}],
+            "example_stiffness": "stiff"}, "'examples.stiffness' must be a number >= 0"),
+    (None, {"examples": [{"pose": "arc", "parameters": {"angle": 1}}],
+            "example_stiffness": None}, "example_stiffness must be a number >= 0"),
     (None, {"example_stiffness": 10.0}, "'examples.pose' needs at least 1 entries"),
     (None, {"loads": [{"type": "gravity"}]}, "'loads[0].vector'"),
 ])

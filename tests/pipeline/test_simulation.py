@@ -201,7 +201,7 @@ def test_simulate_command_writes_contract_outputs(tmp_path, capsys):
     # the demo has examples: the contract keys, the error estimate, then the example influence
     assert list(stats) == ["scene", "method", "n_vertices", "n_tets", "m", "r", "s", "dt",
                            "steps", "t_interp_ms", "t_total_ms", "stable", "max_displacement",
-                           "phase_ms", "forces", "timed_steps", "force_model",
+                           "phase_ms", "forces", "example_stiffness", "timed_steps", "force_model",
                            "force_elements", *ESTIMATE_KEYS, "warnings", *STATS_KEYS]
     assert stats["warnings"] == []
     assert stats["example_influence"] > 0.0
@@ -215,7 +215,11 @@ def test_simulate_shows_both_runs_and_can_skip_the_influence(tmp_path, capsys):
     from lbshape.pipeline.influence import STATS_KEYS
 
     assert main(["simulate", "demo", "--steps", "20", "--out", str(tmp_path / "a")]) == 0
-    err = capsys.readouterr().err
+    shown = capsys.readouterr()
+    err = shown.err
+    # what the examples did, in the summary
+    assert "simulate demo: visible change " in shown.out, shown.out
+    assert "% of the bounding-box diagonal, closest: " in shown.out
     # a progress bar per run, the second one named for what it is
     assert "demo [reduced]" in err and "without examples (influence)" in err, err
     assert main(["simulate", "demo", "--steps", "20", "--out", str(tmp_path / "b"),
