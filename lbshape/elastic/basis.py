@@ -44,8 +44,7 @@ only take a derivative's place and cost accuracy. The entering responses are kep
 exactly, after the linear modes (made M-orthogonal to them, then their own M-PCA),
 and the derivatives' PCA fills the remaining columns. What the threshold and the
 responses change on the demo bar and the teddy is measured in
-``docs/decisions.md`` ("Response vectors in the basis";
-``scripts/diagnose_accuracy.py``, ``results/accuracy_diagnosis.md``).
+``docs/decisions.md`` ("Response vectors in the basis"; ``scripts/diagnose_accuracy.py``).
 
 After the PCA, U is re-orthonormalised once in the M inner product (the Gram route
 squares the condition number) and ``UᵀMU = I`` is checked to ``ORTHONORMALITY_TOL``.
