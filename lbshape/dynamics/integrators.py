@@ -75,6 +75,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from lbshape.dynamics.kernels import norm as _norm
+from lbshape.dynamics.linear_solvers import woodbury_solve
 from lbshape.dynamics.sanity import ENERGY_FACTOR
 from lbshape.errors import LbshapeError, SolverError
 
@@ -463,31 +464,12 @@ class ImplicitStepper:
 
     def _solve_newton(self, K: Matrix, R: np.ndarray, index: int, t: float) -> np.ndarray:
         correction = self._low_rank_tangent() if self._low_rank_tangent is not None else None
-        if self._linear_solver is not None:
-            try:
-                delta = self._linear_solver(self._newton_base, K, R, correction)
-            except (sla.LinAlgError, np.linalg.LinAlgError, RuntimeError) as exc:
-                raise SolverError(
-                    f"singular Newton matrix at step {index} (t = {t:.6g} s): {exc}"
-                ) from None
-            if not np.isfinite(delta).all():
-                raise SolverError(f"non-finite Newton update at step {index} (t = {t:.6g} s)")
-            return delta
-        J = self._newton_base + K
         try:
-            if self._sparse:
-                solve = spla.splu(sp.csc_matrix(J)).solve
+            if self._linear_solver is not None:
+                delta = self._linear_solver(self._newton_base, K, R, correction)
             else:
-                def solve(rhs):
-                    return sla.solve(J, rhs, assume_a=self._assume_a, check_finite=False)
-            delta = solve(R)
-            if correction is not None and correction[0].size:
-                # (J + W S Wᵀ)⁻¹ R by the Woodbury identity, in the form that needs no
-                # S⁻¹: (J + W S Wᵀ)⁻¹ = J⁻¹ − Z (I + S Wᵀ Z)⁻¹ S Wᵀ J⁻¹, Z = J⁻¹ W
-                W, S = np.asarray(correction[0], dtype=float), np.asarray(correction[1])
-                Z = solve(W)
-                small = np.eye(W.shape[1]) + S @ (W.T @ Z)
-                delta = delta - Z @ np.linalg.solve(small, S @ (W.T @ delta))
+                delta = woodbury_solve(self._direct_solver(self._newton_base + K), R,
+                                       correction)
         except (sla.LinAlgError, np.linalg.LinAlgError, RuntimeError) as exc:
             raise SolverError(
                 f"singular Newton matrix at step {index} (t = {t:.6g} s): {exc}"
@@ -495,6 +477,17 @@ class ImplicitStepper:
         if not np.isfinite(delta).all():
             raise SolverError(f"non-finite Newton update at step {index} (t = {t:.6g} s)")
         return delta
+
+    def _direct_solver(self, J: Matrix):
+        """``J⁻¹`` applied to (n,) or (n, k) arrays: one SuperLU factorisation (sparse) or a
+        dense solve."""
+        if self._sparse:
+            return spla.splu(sp.csc_matrix(J)).solve
+
+        def solve(rhs):
+            return sla.solve(J, rhs, assume_a=self._assume_a, check_finite=False)
+
+        return solve
 
     def _solve_mass(self, rhs: np.ndarray) -> np.ndarray:
         try:

@@ -141,7 +141,13 @@ def lu_each_iteration(base: sp.spmatrix, K: sp.spmatrix, R: np.ndarray,
                       correction=None) -> np.ndarray:
     """The former Newton update: a SuperLU factorisation of ``J = base + K`` for this one
     solve, with the low-rank part by the Woodbury identity (:class:`ReusedFactorSolver`)."""
-    solve = spla.splu(sp.csc_matrix(base + K)).solve
+    return woodbury_solve(spla.splu(sp.csc_matrix(base + K)).solve, R, correction)
+
+
+def woodbury_solve(solve, R: np.ndarray, correction=None) -> np.ndarray:
+    """``(J + W S Wᵀ)⁻¹ R`` (n,) from ``solve`` (J⁻¹ applied to (n,) or (n, k) arrays) and
+    ``correction = (W (n, k), S (k, k))`` or None, by the Woodbury identity in the form
+    that needs no S⁻¹: ``J⁻¹ − Z (I + S Wᵀ Z)⁻¹ S Wᵀ J⁻¹``, ``Z = J⁻¹ W``."""
     delta = solve(R)
     if correction is not None and correction[0].size:
         W, S = np.asarray(correction[0], dtype=float), np.asarray(correction[1])

@@ -52,6 +52,7 @@ from lbshape.geometry.mesh import (
 )
 from lbshape.geometry.surface_repair import (
     DEGENERATE_AREA_RTOL,
+    checked_triangles,
     merge_vertices,
     repair_surface,
 )
@@ -240,14 +241,7 @@ def check_surface(points: np.ndarray, triangles: np.ndarray, *,
             (on three or more triangles), non-manifold vertices (two fans meeting
             at a point), or several disconnected pieces.
     """
-    points = np.asarray(points, dtype=np.float64)
-    tris = np.asarray(triangles, dtype=np.int64)
-    if tris.ndim != 2 or tris.shape[1] != 3 or tris.shape[0] == 0:
-        raise LbshapeError(f"{source}: no triangles found")
-    if tris.min() < 0 or tris.max() >= points.shape[0]:
-        raise LbshapeError(f"{source}: triangle vertex index out of range")
-    if not np.isfinite(points[np.unique(tris)]).all():
-        raise LbshapeError(f"{source}: surface has NaN or infinite vertex coordinates")
+    points, tris = checked_triangles(points, triangles, source)
 
     points, tris = _merge_vertices(points, tris)
     _check_triangles(points, tris, source)

@@ -48,6 +48,24 @@ DEGENERATE_AREA_RTOL = 1e-14
 FILL_ROUNDS = 3
 
 
+def checked_triangles(points, triangles, source: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(points (n, 3) float64, triangles (f, 3) int64)`` of a triangle surface, checked:
+    at least one triangle, indices in range, finite coordinates on the used vertices.
+
+    Raises:
+        LbshapeError: one line naming the first problem (``source`` names the file).
+    """
+    points = np.asarray(points, dtype=np.float64)
+    tris = np.asarray(triangles, dtype=np.int64)
+    if tris.ndim != 2 or tris.shape[1] != 3 or tris.shape[0] == 0:
+        raise LbshapeError(f"{source}: no triangles found")
+    if tris.min() < 0 or tris.max() >= points.shape[0]:
+        raise LbshapeError(f"{source}: triangle vertex index out of range")
+    if not np.isfinite(points[np.unique(tris)]).all():
+        raise LbshapeError(f"{source}: surface has NaN or infinite vertex coordinates")
+    return points, tris
+
+
 @dataclass(frozen=True)
 class SurfaceRepair:
     """What :func:`repair_surface` changed (counts)."""
@@ -102,14 +120,7 @@ def repair_surface(points: np.ndarray, triangles: np.ndarray, *, source: str = "
             an open surface without ``fill_holes`` (number of holes), several pieces
             without ``piece`` (their volumes), or a ``piece`` out of range.
     """
-    points = np.asarray(points, dtype=np.float64)
-    tris = np.asarray(triangles, dtype=np.int64)
-    if tris.ndim != 2 or tris.shape[1] != 3 or tris.shape[0] == 0:
-        raise LbshapeError(f"{source}: no triangles found")
-    if tris.min() < 0 or tris.max() >= points.shape[0]:
-        raise LbshapeError(f"{source}: triangle vertex index out of range")
-    if not np.isfinite(points[np.unique(tris)]).all():
-        raise LbshapeError(f"{source}: surface has NaN or infinite vertex coordinates")
+    points, tris = checked_triangles(points, triangles, source)
 
     n_used = int(np.unique(tris).size)
     points, tris, _ = merge_vertices(points, tris)
