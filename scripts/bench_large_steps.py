@@ -49,6 +49,7 @@ def user_mesh_scene(folder: Path):
     ``folder/l-beam.msh`` and a scene that reads it)."""
     spec = importlib.util.spec_from_file_location("lbshape_tests_conftest", CONFTEST)
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up there
     spec.loader.exec_module(module)
     return module.user_mesh_scene(folder)
 
