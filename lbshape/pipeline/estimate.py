@@ -97,7 +97,7 @@ LOCAL_EXAMPLES_CAVEAT = (
 
 def _local_examples_act(scene: Scene, pre: Precomputed) -> bool:
     """A local example force acts (k_ex > 0 and local examples precomputed)."""
-    return (scene.examples is not None and scene.examples.stiffness > 0
+    return (scene.examples is not None and scene.examples.acts
             and pre.has_local_examples and not pre.has_examples)
 
 

@@ -112,7 +112,7 @@ def headline(summary: dict) -> str:
 def simulation_figures(out: Path) -> dict:
     """Precompute and simulate the demo scene (see the module docstring); pictures and numbers."""
     scene = load_scene("demo")
-    if scene.examples is None or scene.examples.stiffness <= 0:
+    if scene.examples is None or not scene.examples.acts:
         raise LbshapeError("the demo scene must have examples with k_ex > 0")
     started = time.perf_counter()
     pre = precompute(scene, progress=True)
