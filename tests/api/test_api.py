@@ -105,6 +105,7 @@ def _check_snippet(out: dict, n: int, dt: float, steps: int) -> None:
         assert result["after_reset"] == pytest.approx(steps * dt, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_snippet_runs_in_a_fresh_interpreter_for_every_method():
     steps = 10
     out = json.loads(_python(SNIPPET.format(scene="demo", steps=steps,
@@ -115,6 +116,7 @@ def test_snippet_runs_in_a_fresh_interpreter_for_every_method():
     assert all(result["examples"] is False for result in out.values())
 
 
+@pytest.mark.slow
 def test_snippet_runs_a_free_body():
     steps = 5
     # the free-body engine and the full one (euclidean is the reduced engine, another target)
@@ -153,6 +155,7 @@ def _box() -> TetMesh:
     return structured_box((0.2, 0.04, 0.04), (10, 2, 2))
 
 
+@pytest.mark.slow
 def test_scene_from_arrays_in_memory_writes_only_the_cache(tmp_path):
     work, tmp, cache = tmp_path / "work", tmp_path / "tmp", tmp_path / "cache"
     work.mkdir()

@@ -416,6 +416,7 @@ def test_precompute_prints_the_inverted_tetrahedra_warning_on_its_own_line(tmp_p
     assert not any(expected in p and not p.startswith("WARNING: ") for p in pieces), err
 
 
+@pytest.mark.slow
 def test_a_fresh_precompute_prints_no_compiler_build_log(tmp_path):
     """The form compiler's C build (``running build_ext``, gcc command lines) stays out of
     the progress bars: a precompute with empty precompute and form caches."""

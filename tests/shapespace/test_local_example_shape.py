@@ -36,6 +36,7 @@ def _placed_by_hand(mesh, space, indices) -> np.ndarray | None:
     return u / np.maximum(count, 1)[:, None]
 
 
+@pytest.mark.slow
 def test_local_example_shape_is_the_anchored_example_on_the_cross():
     pre = precompute(load_scene("cross"))
     k = max(int(reg.examples.max()) for reg in pre.local.regions) + 1
