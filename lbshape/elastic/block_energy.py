@@ -145,6 +145,28 @@ class BlockBasisEnergy:
 
 
 @njit
+def _displacement_gradient(YT, gphi, e, m, H9):
+    """Element e's displacement gradient ``H = F − I`` into the column ``H9`` (9, 1),
+    row-major: ``H[c, j] = Σ_k Y[k, c] ∂_j φ_k`` from the block coefficients ``YT`` (3, m)
+    and the LB functions' gradients ``gphi`` (s, 3, m) (1/m)."""
+    g0 = gphi[e, 0]
+    g1 = gphi[e, 1]
+    g2 = gphi[e, 2]
+    for c in range(3):
+        yc = YT[c]
+        h0 = 0.0
+        h1 = 0.0
+        h2 = 0.0
+        for k in range(m):
+            h0 += yc[k] * g0[k]
+            h1 += yc[k] * g1[k]
+            h2 += yc[k] * g2[k]
+        H9[3 * c, 0] = h0
+        H9[3 * c + 1, 0] = h1
+        H9[3 * c + 2, 0] = h2
+
+
+@njit
 def _fused(code, parameters, gphi, volumes, Y, pv, z):
     """One pass over the elements: returns the energy (J) and fills
     ``pv[(e, j), c] = V P[c, j]`` and ``z[(e, j), p m + l] = V Σ_q A[3c + j, 3d + q] GΦ[q, l]``
@@ -158,21 +180,8 @@ def _fused(code, parameters, gphi, volumes, Y, pv, z):
     energy = 0.0
     for e in range(s):
         V = volumes[e]
-        g0 = gphi[e, 0]
-        g1 = gphi[e, 1]
-        g2 = gphi[e, 2]
-        for c in range(3):
-            yc = YT[c]
-            h0 = 0.0
-            h1 = 0.0
-            h2 = 0.0
-            for k in range(m):
-                h0 += yc[k] * g0[k]
-                h1 += yc[k] * g1[k]
-                h2 += yc[k] * g2[k]
-            H9[3 * c, 0] = h0
-            H9[3 * c + 1, 0] = h1
-            H9[3 * c + 2, 0] = h2
+        _displacement_gradient(YT, gphi, e, m, H9)
+        g0, g1, g2 = gphi[e, 0], gphi[e, 1], gphi[e, 2]
         _element(code, parameters, H9, P9, A, 0, work, True)
         energy += V * _energy(code, parameters, H9)
         for j in range(3):
@@ -203,21 +212,7 @@ def _fused_gradient(code, parameters, gphi, volumes, Y, pv):
     YT = np.ascontiguousarray(Y.T)  # (3, m)
     energy = 0.0
     for e in range(s):
-        g0 = gphi[e, 0]
-        g1 = gphi[e, 1]
-        g2 = gphi[e, 2]
-        for c in range(3):
-            yc = YT[c]
-            h0 = 0.0
-            h1 = 0.0
-            h2 = 0.0
-            for k in range(m):
-                h0 += yc[k] * g0[k]
-                h1 += yc[k] * g1[k]
-                h2 += yc[k] * g2[k]
-            H9[3 * c, 0] = h0
-            H9[3 * c + 1, 0] = h1
-            H9[3 * c + 2, 0] = h2
+        _displacement_gradient(YT, gphi, e, m, H9)
         _element(code, parameters, H9, P9, unused, 0, work, False)
         V = volumes[e]
         energy += V * _energy(code, parameters, H9)
