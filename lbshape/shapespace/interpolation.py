@@ -335,21 +335,25 @@ class TargetSolver:
                 H += w * Hk
         return f, g, H
 
+    def _checked_start(self, weights: np.ndarray, start: np.ndarray | None):
+        """(weights (k,), z (p,)): the checked weights and the Newton start point — ``start``
+        if given, else the last target (warm start), else the weighted examples."""
+        weights = np.asarray(weights, dtype=float)
+        if weights.shape != (len(self.models),):
+            raise LbshapeError(f"expected {len(self.models)} weights, got shape {weights.shape}")
+        if start is not None:
+            return weights, np.array(start, dtype=float)
+        if self._last is not None:
+            return weights, self._last.copy()
+        return weights, weights @ self.offsets
+
     def solve(self, weights: np.ndarray, *, start: np.ndarray | None = None) -> TargetResult:
         """The target for the given example weights (k,), warm-started by default.
 
         Stops when the Newton step is below ``tolerance`` times the size of the
         example coordinates (``max_k ‖z_k‖``), or the gradient vanishes.
         """
-        weights = np.asarray(weights, dtype=float)
-        if weights.shape != (len(self.models),):
-            raise LbshapeError(f"expected {len(self.models)} weights, got shape {weights.shape}")
-        if start is not None:
-            z = np.array(start, dtype=float)
-        elif self._last is not None:
-            z = self._last.copy()
-        else:
-            z = weights @ self.offsets
+        weights, z = self._checked_start(weights, start)
         step_tolerance = self.tolerance * max(float(np.linalg.norm(self.offsets, axis=1).max()),
                                               1e-300)
         f, g, H = self._evaluate(z, weights)

@@ -33,7 +33,7 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.linalg
 
-from lbshape.errors import LbshapeError, SolverError
+from lbshape.errors import SolverError
 from lbshape.shapespace.interpolation import EnergyModel, TargetResult, TargetSolver
 
 #: refresh the Hessians at least when a step is more than this fraction of the previous one
@@ -136,15 +136,7 @@ class ReusedHessianTargetSolver(TargetSolver):
         return _positive_factor(H)
 
     def solve(self, weights: np.ndarray, *, start: np.ndarray | None = None) -> TargetResult:
-        weights = np.asarray(weights, dtype=float)
-        if weights.shape != (len(self.models),):
-            raise LbshapeError(f"expected {len(self.models)} weights, got shape {weights.shape}")
-        if start is not None:
-            z = np.array(start, dtype=float)
-        elif self._last is not None:
-            z = self._last.copy()
-        else:
-            z = weights @ self.offsets
+        weights, z = self._checked_start(weights, start)
         if self._point is None or not np.array_equal(self._point[0], z):
             self._hessians, self._point = {}, None  # not where the last solve ended
         scale = max(float(np.linalg.norm(self.offsets, axis=1).max()), 1e-300)
