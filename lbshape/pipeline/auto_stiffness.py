@@ -4,7 +4,8 @@ Gathers what :func:`lbshape.shapespace.auto_stiffness.auto_example_stiffness` ne
 the stages before it: each example's displacement on the object (global examples:
 ``Φ c_k``, a free body's without its rigid fit; local examples: on the region's own mesh,
 so that the zero displacement outside a region is no jump) and the loads' generalized
-force ``‖Uᵀ f‖`` at full strength on the basis U of the moment.
+force ``‖Uᵀ f‖`` at full strength on the basis U of the moment (a local example: of the
+loads on its region's vertices, the loads its region's pull stands out against).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from lbshape.scene.schema import Scene
 from lbshape.shapespace.auto_stiffness import AutoStiffness, auto_example_stiffness
 from lbshape.shapespace.local_space import RegionSpace
 
-__all__ = ["auto_stiffness_stage"]
+__all__ = ["auto_stiffness_stage", "region_load_force"]
 
 
 def auto_stiffness_stage(scene: Scene, mesh: TetMesh, mass, U: np.ndarray, omega1_sq: float,
@@ -42,16 +43,27 @@ def auto_stiffness_stage(scene: Scene, mesh: TetMesh, mass, U: np.ndarray, omega
     Raises:
         LbshapeError: an example without strain energy, naming the scene.
     """
+    load = static_load(scene, mesh, mass) if scene.loads else None
     if regions:
         fields = [(region.submesh(mesh), region.displacement(c))
                   for region in regions for c in region.example_coefficients]
+        load_force = [region_load_force(region, U, load)
+                      for region in regions for _ in region.example_coefficients]
     else:
         fields = [(mesh, eigenvectors @ np.asarray(c).reshape(-1, 3)) for c in coefficients]
-    load_force = 0.0
-    if scene.loads:
-        load_force = float(np.linalg.norm(U.T @ static_load(scene, mesh, mass)))
+        load_force = 0.0 if load is None else float(np.linalg.norm(U.T @ load))
     try:
         return auto_example_stiffness(fields, scene.material, omega1_sq=omega1_sq,
                                       load_force=load_force)
     except LbshapeError as exc:
         raise LbshapeError(f"scene {scene.name}: {exc}") from None
+
+
+def region_load_force(region: RegionSpace, U: np.ndarray, load: np.ndarray | None) -> float:
+    """``‖Uᵀ f_R‖`` (N/√kg): the generalized force of the loads on the region's vertices
+    (``f_R``: the rows of ``load`` (3n,) N of the region's vertices, zero elsewhere; 0
+    without loads)."""
+    if load is None:
+        return 0.0
+    rows = (3 * np.asarray(region.vertices)[:, None] + np.arange(3)).ravel()
+    return float(np.linalg.norm(U[rows].T @ load[rows]))

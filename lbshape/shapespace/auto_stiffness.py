@@ -34,6 +34,11 @@ LOAD_FACTOR times the loads' pull:
 
     k_ex ≥ LOAD_FACTOR · ‖g‖ / ‖e‖_M.
 
+A local example pulls only its region (:mod:`lbshape.shapespace.local_space`): the
+loads it stands out against are those applied on the region, ``g_R = Uᵀ f_R`` (f_R the
+loads' rows of the region's vertices, zero elsewhere); a load on another region is
+that region's examples' concern (per example, ``load_force`` takes one value each).
+
 **The rule.** Each example needs ``k_e = max(SHAPE_FACTOR ω_e², LOAD_FACTOR ‖g‖ /
 ‖e‖_M)``; ``k_ex = min over the examples of k_e``: the example that asks least is reached
 the share a* of the way against its own stiffness and pulls LOAD_FACTOR times the loads.
@@ -76,7 +81,7 @@ LOAD_FACTOR = 2.0
 RIGID_TOLERANCE = 1e-9
 #: what the rule's result depends on besides the scene (part of the precompute's cache
 #: key: a new constant recomputes the precomputes of "auto" scenes)
-AUTO_RULE = ("energy-rayleigh-min-2", SHAPE_FACTOR, LOAD_FACTOR)
+AUTO_RULE = ("energy-rayleigh-min-2-region-loads", SHAPE_FACTOR, LOAD_FACTOR)
 
 
 @dataclass(frozen=True)
@@ -89,6 +94,8 @@ class AutoStiffness:
         example_omega2: (k,) ω_e² of each example shape (its Rayleigh quotient), rad²/s².
         example_norms: (k,) ‖e‖_M of each example's displacement, m·√kg.
         load_force: ‖Uᵀ f‖ of the loads at full strength, N/√kg (0 without loads).
+        example_loads: (k,) the loads' ‖Uᵀ f‖ each example stands out against (a local
+            example: the loads on its region), N/√kg.
         governing: ``"shape"`` (an example's own stiffness set k_ex) or ``"loads"``.
         example: the index of the example that set k_ex.
     """
@@ -100,6 +107,7 @@ class AutoStiffness:
     load_force: float
     governing: str
     example: int
+    example_loads: tuple[float, ...] = ()
 
     def summary(self) -> str:
         """The one line precompute and simulate print."""
@@ -117,6 +125,7 @@ class AutoStiffness:
         data = asdict(self)
         data["example_omega2"] = list(self.example_omega2)
         data["example_norms"] = list(self.example_norms)
+        data["example_loads"] = list(self.example_loads)
         return data
 
     @classmethod
@@ -125,7 +134,8 @@ class AutoStiffness:
                    example_omega2=tuple(float(v) for v in data["example_omega2"]),
                    example_norms=tuple(float(v) for v in data["example_norms"]),
                    load_force=float(data["load_force"]), governing=str(data["governing"]),
-                   example=int(data["example"]))
+                   example=int(data["example"]),
+                   example_loads=tuple(float(v) for v in data.get("example_loads", ())))
 
 
 def example_field_stiffness(mesh: TetMesh, material: Material,
@@ -153,7 +163,7 @@ def example_field_stiffness(mesh: TetMesh, material: Material,
 
 def auto_example_stiffness(examples: Sequence[tuple[TetMesh, np.ndarray]],
                            material: Material, *, omega1_sq: float,
-                           load_force: float = 0.0) -> AutoStiffness:
+                           load_force: float | Sequence[float] = 0.0) -> AutoStiffness:
     """k_ex (1/s²) from the examples' displacement fields and the loads (module docstring).
 
     Args:
@@ -162,7 +172,9 @@ def auto_example_stiffness(examples: Sequence[tuple[TetMesh, np.ndarray]],
         material: the object's material (the example shapes' energy is its StVK energy
             with the same Lamé parameters: defined for any shape, zero for rotations).
         omega1_sq: ω₁² of the object (rad²/s²), for the report.
-        load_force: ‖Uᵀ f‖ of the loads at full strength, N/√kg (0: no loads).
+        load_force: ‖Uᵀ f‖ of the loads at full strength, N/√kg (0: no loads); or (k,)
+            one per example: the loads each example stands out against (a local example:
+            those on its region); the record's ``load_force`` is then their largest.
 
     Raises:
         LbshapeError: no examples, or an example without strain energy (naming it).
@@ -176,12 +188,14 @@ def auto_example_stiffness(examples: Sequence[tuple[TetMesh, np.ndarray]],
         except LbshapeError as exc:
             raise LbshapeError(f"example stiffness auto: example {k}: {exc}") from None
     omega2, norms = (np.array(v) for v in zip(*measures, strict=True))
+    loads = np.broadcast_to(np.asarray(load_force, dtype=float), norms.shape)
     shape_terms = SHAPE_FACTOR * omega2
-    load_terms = LOAD_FACTOR * float(load_force) / norms
+    load_terms = LOAD_FACTOR * loads / norms
     terms = np.maximum(shape_terms, load_terms)  # what each example needs
     k = int(np.argmin(terms))  # the example that needs the least
     return AutoStiffness(
         k_ex=float(terms[k]), omega1_sq=float(omega1_sq),
         example_omega2=tuple(float(v) for v in omega2),
-        example_norms=tuple(float(v) for v in norms), load_force=float(load_force),
-        governing="shape" if shape_terms[k] >= load_terms[k] else "loads", example=k)
+        example_norms=tuple(float(v) for v in norms), load_force=float(loads.max()),
+        governing="shape" if shape_terms[k] >= load_terms[k] else "loads", example=k,
+        example_loads=tuple(float(v) for v in loads))
