@@ -139,26 +139,14 @@ def repair_surface(points: np.ndarray, triangles: np.ndarray, *, source: str = "
         removed = SurfaceRepair(zero_area=zero_area, duplicates=duplicates).summary()
         _check_holes(points, tris, loops, f"{source}: {removed + '; ' if removed else ''}"
                      "surface is open", fill_holes)
+    non_manifold = _non_manifold_edges(tris)
     points, tris, flipped = _orient(points, tris)
     holes_filled = added = 0
     if loops:
         holes_filled, before = len(loops), tris.shape[0]
-        for _ in range(FILL_ROUNDS):  # a filled hole can leave a sliver loop behind
-            points, tris = _fill_holes(points, tris)
-            tris = _drop_fins(_drop_bad_triangles(points, tris)[0])
-            loops = boundary_loops(tris)
-            if not loops:
-                break
-            # MeshFix splits vertices where sheets touch, which can leave a slit: merge
-            points, tris, _ = merge_vertices(points, tris)
-            tris = _drop_fins(_drop_bad_triangles(points, tris)[0])
-            loops = boundary_loops(tris)
-            if not loops:
-                break
+        points, tris = _fill_every_hole(points, tris, f"{source}: surface is open",
+                                        len(loops), non_manifold)
         added = tris.shape[0] - before
-        if loops:
-            raise LbshapeError(f"{source}: surface is open: {_holes(loops)}; fill_holes did "
-                               "not close them")
 
     labels, volumes = pieces(points, tris)
     chosen = None
@@ -177,6 +165,35 @@ def repair_surface(points: np.ndarray, triangles: np.ndarray, *, source: str = "
     if report.summary():
         log.warning("repaired %s: %s", source, report.summary())
     return points, tris, report
+
+
+def _fill_every_hole(points: np.ndarray, tris: np.ndarray, opening: str, n_holes: int,
+                     non_manifold: int) -> tuple[np.ndarray, np.ndarray]:
+    """Close every hole (MeshFix), or the one-line error that says how many are left."""
+    for _ in range(FILL_ROUNDS):  # a filled hole can leave a sliver loop behind
+        points, tris = _fill_holes(points, tris)
+        tris = _drop_fins(_drop_bad_triangles(points, tris)[0])
+        loops = boundary_loops(tris)
+        if not loops:
+            return points, tris
+        # MeshFix splits vertices where sheets touch, which can leave a slit: merge
+        points, tris, _ = merge_vertices(points, tris)
+        tris = _drop_fins(_drop_bad_triangles(points, tris)[0])
+        loops = boundary_loops(tris)
+        if not loops:
+            return points, tris
+    why = (f"; the surface has {non_manifold} non-manifold edges (on three or more "
+           "triangles), where sheets touch and filling fails" if non_manifold else "")
+    raise LbshapeError(f"{opening}: fill_holes closed {max(n_holes - len(loops), 0)} of "
+                       f"{n_holes} holes, {_holes(loops)} remain{why}; repair the surface in "
+                       "a modelling tool")
+
+
+def _non_manifold_edges(tris: np.ndarray) -> int:
+    """Edges on three or more triangles."""
+    half = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+    _, counts = np.unique(np.sort(half, axis=1), axis=0, return_counts=True)
+    return int((counts > 2).sum())
 
 
 def _holes(loops: list[np.ndarray]) -> str:

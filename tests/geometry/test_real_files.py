@@ -135,10 +135,21 @@ def test_bearing_zero_area_triangles_removed_then_its_missing_face_named(fill_ho
 
 @needs_occt
 @pytest.mark.slow
-def test_head_is_open_and_says_how_many_holes():
+def test_head_is_open_and_says_how_many_holes_and_how_wide():
     with pytest.raises(LbshapeError, match="surface is open: 45 holes") as info:
         read_mesh_file(OCCT / "stl" / "head.stl")
-    assert "fill_holes" in _one_line_error(info)
+    message = _one_line_error(info)
+    assert "the widest 85.2 m, 20 % of the diagonal); set fill_holes = true" in message
+
+
+@needs_occt
+@pytest.mark.slow
+def test_head_holes_left_by_filling_are_counted_with_their_cause():
+    with pytest.raises(LbshapeError) as info:
+        read_mesh_file(OCCT / "stl" / "head.stl", fill_holes=True)
+    assert ("surface is open: fill_holes closed 23 of 45 holes, 22 holes (boundary loops, 136 "
+            "edges, the largest 23) remain; the surface has 64 non-manifold edges") in (
+                _one_line_error(info))
 
 
 @needs_occt
