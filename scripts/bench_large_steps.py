@@ -17,7 +17,6 @@ if __name__ == "__main__":  # single-threaded BLAS for the timings, set before n
         os.environ.setdefault(_var, "1")
 
 import argparse
-import importlib.util
 import logging
 import sys
 import tempfile
@@ -34,24 +33,13 @@ from lbshape.studies.large_steps import (
     large_steps_payload,
     large_steps_plot,
 )
+from lbshape.studies.user_meshes import user_mesh_scene
 
 log = logging.getLogger(__name__)
-#: the tests' helpers, where the user's own mesh scene is defined
-CONFTEST = Path(__file__).resolve().parents[1] / "tests" / "conftest.py"
 
 #: scene → simulated time (s), the same at every step rate
 DURATIONS = {"demo": 0.3, "bar-cuboid": 0.4, "bar-cylinder": 0.4, "bar-s-cuboid": 1.0,
              "l-beam": 0.4}
-
-
-def user_mesh_scene(folder: Path):
-    """The tests' user-mesh scene (``tests/conftest.py``: the ``l-beam`` shape written to
-    ``folder/l-beam.msh`` and a scene that reads it)."""
-    spec = importlib.util.spec_from_file_location("lbshape_tests_conftest", CONFTEST)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module.user_mesh_scene(folder)
 
 
 def main(argv: list[str] | None = None) -> list[Path]:

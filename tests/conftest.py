@@ -9,8 +9,8 @@ whole session) starts a virtual X server when the live window's tests run;
 Helpers, imported by the test modules (``from conftest import rel``):
 :func:`rel`, :func:`central_difference_errors`, :func:`observed_rates` and
 :func:`golden` (a measured value and the test's limit, from ``tests/golden.toml``) and
-:func:`user_mesh_scene` (a user's own mesh as a scene; also used by
-``scripts/bench_large_steps.py``).
+:func:`user_mesh_scene` (a user's own mesh as a scene, from
+:mod:`lbshape.studies.user_meshes`).
 
 Layout: ``tests/<subpackage>/test_*.py`` mirrors the package, without ``__init__.py``
 files (pytest's default ``prepend`` import mode), so every test file's basename is
@@ -30,10 +30,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lbshape.geometry.mesh_files import write_msh
-from lbshape.geometry.shapes import build_shape
-from lbshape.scene.reader import scene_from_dict
-from lbshape.scene.schema import Scene
+from lbshape.studies.user_meshes import user_mesh_scene as user_mesh_scene  # re-exported
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 GOLDEN = Path(__file__).resolve().with_name("golden.toml")
@@ -179,24 +176,3 @@ def golden(key: str) -> Golden:
     return Golden(key=key, measured=tuple(measured) if isinstance(measured, list) else measured,
                   limit=entry["limit"], bound=entry["bound"], what=entry["what"],
                   test=entry["test"])
-def user_mesh_scene(folder: Path) -> Scene:
-    """A user's own mesh: the ``l-beam`` shape written to ``folder/l-beam.msh`` and a scene
-    that reads it — fixed at the end of its arm (x = 1 m), sagging under gravity and pulled
-    (k_ex = 2000 s⁻²) by a twisted and a bent copy of itself."""
-    write_msh(build_shape("l-beam"), Path(folder) / "l-beam.msh")
-    pose = {"mesh": "l-beam.msh"}
-    return scene_from_dict({
-        "object": {"mesh": "l-beam.msh"},
-        "material": {"model": "stvk", "young": 1e6, "poisson": 0.3, "density": 1000.0},
-        "damping": {"alpha": 0.5, "beta": 0.01},
-        "reduced": {"m": 8, "r": 20, "s": 40},
-        "examples": {"stiffness": 2000.0, "pose": [
-            {**pose, "pose": "twist", "parameters": {"angle": 0.8, "axis": "x",
-                                                      "anchor": "max"}},
-            {**pose, "pose": "arc", "parameters": {"angle": 0.5, "axis": "x",
-                                                    "anchor": "max", "direction": "z"}}]},
-        "fixed": {"region": "x > 0.999"},
-        "loads": [{"type": "gravity", "vector": [0.0, 0.0, -9.81]}],
-        "simulation": {"dt": 0.001, "steps": 400},
-    }, name="l-beam", base_dir=Path(folder))
-

@@ -11,11 +11,14 @@ gmsh can crash (a segmentation fault) on some solids at some sizes: the OCC samp
 runs in a child process, so that a crash is a one-line error that suggests another
 size instead of ending the program.
 
-Units. A STEP file records its length unit: OpenCASCADE converts the numbers to the
-unit asked for, so a STEP file arrives in metres whatever ``units`` says. BREP and
-IGES files are read as their numbers are written (OpenCASCADE's unit conversion does
-not act on IGES here): ``units`` (or ``scale``) says what those numbers are. ``scale``
-multiplies the numbers as the file writes them (in its own unit for STEP).
+Units. ``units`` (or ``scale``) says what the file's numbers are; the solid is scaled
+to metres and the target size h divided by the same factor for gmsh, so the mesh is
+the same at any unit. BREP and IGES files are read as their numbers are written
+(OpenCASCADE's unit conversion does not act on IGES here). A STEP file records its
+length unit (:func:`step_unit`): with the default ``units = "m"`` OpenCASCADE converts
+it to metres; another ``units``, or a ``scale``, applies to the numbers as written and
+so overrides a wrong record (a warning names the recorded unit when ``units``
+disagrees with it).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import contextlib
 import logging
 import math
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -33,7 +37,7 @@ from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh, check_mesh, gmsh_model, mesh_from_gmsh_model
 from lbshape.geometry.surface_repair import select_piece
 
-__all__ = ["CAD_FORMATS", "LENGTH_UNITS", "is_cad_file", "read_cad_file"]
+__all__ = ["CAD_FORMATS", "LENGTH_UNITS", "is_cad_file", "read_cad_file", "step_unit"]
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +78,9 @@ def read_cad_file(path: str | Path, *, size: float | None = None, units: str = "
             env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE, text=True)
         if done.returncode == 0:
+            for line in done.stderr.splitlines():  # the child's warnings, said here
+                if line.startswith(_WARNING):
+                    log.warning("%s", line[len(_WARNING):])
             with np.load(out) as data:
                 return TetMesh(data["points"], data["tets"])
     lines = [line for line in done.stderr.splitlines() if line.strip()]
@@ -87,6 +94,8 @@ def read_cad_file(path: str | Path, *, size: float | None = None, units: str = "
 
 #: exit status of the child process for an LbshapeError (its message on stderr)
 _ERROR_EXIT = 2
+#: prefix of a warning line of the child process on its stderr
+_WARNING = "lbshape warning: "
 
 
 def _child() -> None:
@@ -94,6 +103,10 @@ def _child() -> None:
     import json
 
     options = json.loads(sys.argv[1])
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(_WARNING + "%(message)s"))
+    handler.setLevel(logging.WARNING)
+    logging.getLogger("lbshape").addHandler(handler)
     try:
         mesh = mesh_cad_solid(options.pop("path"), **options)
     except LbshapeError as exc:
@@ -124,9 +137,7 @@ def mesh_cad_solid(path: str | Path, *, size: float | None = None, units: str = 
     if units not in LENGTH_UNITS:
         raise LbshapeError(f"{path}: unknown units {units!r} (choose one of "
                            f"{', '.join(LENGTH_UNITS)}, or give a numeric scale)")
-    step = path.suffix.lower() in (".step", ".stp")
-    factor = float(scale) if scale is not None else LENGTH_UNITS[units]
-    target = "" if scale is not None or not step else _OCC_UNITS[units]
+    target, factor = _read_unit(path, units, scale)
     with gmsh_model("lbshape-cad") as gmsh:
         saved = gmsh.option.getString("Geometry.OCCTargetUnit")
         gmsh.option.setString("Geometry.OCCTargetUnit", target)
@@ -148,7 +159,7 @@ def mesh_cad_solid(path: str | Path, *, size: float | None = None, units: str = 
             raise LbshapeError(f"{path}: no solid in the CAD file (found {kinds}); lbshape "
                                "needs a closed volume")
         volumes = [gmsh.model.occ.getMass(3, tag) * factor ** 3 for tag in solids]
-        if len(solids) > 1:
+        if len(solids) > 1 or piece is not None:
             keep = solids[select_piece(volumes, piece, source=str(path), what="CAD file",
                                         kind="solids")]
             gmsh.model.occ.remove([(3, t) for t in solids if t != keep], recursive=True)
@@ -173,6 +184,45 @@ def mesh_cad_solid(path: str | Path, *, size: float | None = None, units: str = 
     mesh = check_mesh(TetMesh(mesh.points * factor, mesh.tets), source=str(path))
     log.info("%s: meshed to %d vertices, %d tets", path, mesh.n_vertices, mesh.n_tets)
     return mesh
+
+
+def step_unit(path: str | Path) -> str | None:
+    """The length unit a STEP file records (a key of :data:`LENGTH_UNITS`), or None when
+    its header names none that lbshape knows."""
+    with open(path, "rb") as handle:
+        text = handle.read().decode("latin-1")
+    if re.search(r"CONVERSION_BASED_UNIT\s*\(\s*'INCH'", text, re.IGNORECASE):
+        return "in"
+    found = re.search(r"LENGTH_UNIT\s*\(\s*\)[^;]*?SI_UNIT\s*\(\s*(\.\w+\.|\$)\s*,"
+                      r"\s*\.METRE\.", text)
+    if found is None:
+        return None
+    return {"$": "m", ".MILLI.": "mm", ".CENTI.": "cm"}.get(found.group(1).upper())
+
+
+def _read_unit(path: Path, units: str, scale: float | None) -> tuple[str, float]:
+    """(OpenCASCADE's target unit, metres per number it gives) for a CAD file.
+
+    BREP and IGES numbers arrive as written: times ``scale`` or the factor of ``units``.
+    A STEP file records its unit: with ``units = "m"`` (the default) OpenCASCADE
+    converts to metres; another ``units`` or a ``scale`` takes the numbers as written
+    (converted to the recorded unit, i.e. unchanged) times that factor, so that they
+    override a wrong record — with a warning when ``units`` disagrees with it.
+    """
+    factor = float(scale) if scale is not None else LENGTH_UNITS[units]
+    if path.suffix.lower() not in (".step", ".stp"):
+        return "", factor
+    if scale is None and units == "m":
+        return _OCC_UNITS["m"], 1.0
+    recorded = step_unit(path)
+    if recorded is None:
+        raise LbshapeError(f"{path}: the STEP file records no length unit lbshape knows, so "
+                           "units and scale cannot say what its numbers are; leave them out "
+                           "(OpenCASCADE converts to metres)")
+    if scale is None and units != recorded:
+        log.warning("%s records its numbers in %s; read as %s (units = %r)", path.name,
+                    recorded, units, units)
+    return _OCC_UNITS[recorded], factor
 
 
 @contextlib.contextmanager

@@ -20,8 +20,11 @@ the largest piece and rebuilds self-intersecting regions, which changed the volu
 two closed sample surfaces by 4 % and 90 %.
 
 What is not repaired is refused in one line that says how to go on: a surface of
-several pieces lists their volumes and the ``piece`` key that chooses one; an open
-surface gives its number of holes and offers ``fill_holes``.
+several pieces lists their volumes and the ``piece`` key that chooses one (``piece``
+on a surface of one piece says so); an open surface gives its number of holes and the
+widest's width and offers ``fill_holes`` — unless a hole is wider than
+:data:`MAX_HOLE_SHARE` of the bounding-box diagonal: that is a missing face, whose
+shape a filling would guess, and the message says so.
 """
 
 from __future__ import annotations
@@ -36,7 +39,8 @@ from scipy.spatial import cKDTree
 
 from lbshape.errors import LbshapeError
 
-__all__ = ["SurfaceRepair", "boundary_loops", "pieces", "repair_surface", "select_piece"]
+__all__ = ["SurfaceRepair", "boundary_loops", "hole_spans", "pieces", "repair_surface",
+           "select_piece"]
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +50,8 @@ MERGE_RTOL = 1e-9
 DEGENERATE_AREA_RTOL = 1e-14
 #: rounds of hole filling (each fills every hole left)
 FILL_ROUNDS = 3
+#: a hole wider than this share of the bounding-box diagonal is not filled (a missing face)
+MAX_HOLE_SHARE = 0.5
 
 
 def checked_triangles(points, triangles, source: str) -> tuple[np.ndarray, np.ndarray]:
@@ -129,33 +135,22 @@ def repair_surface(points: np.ndarray, triangles: np.ndarray, *, source: str = "
     if tris.shape[0] == 0:
         raise LbshapeError(f"{source}: every triangle has zero area")
     loops = boundary_loops(tris)
-    if loops and not fill_holes:
-        raise LbshapeError(f"{source}: surface is open: {_holes(loops)}; set fill_holes = "
-                           "true (scene) or --fill-holes (lbshape mesh) to close small ones")
+    if loops:
+        removed = SurfaceRepair(zero_area=zero_area, duplicates=duplicates).summary()
+        _check_holes(points, tris, loops, f"{source}: {removed + '; ' if removed else ''}"
+                     "surface is open", fill_holes)
+    non_manifold = _non_manifold_edges(tris)
     points, tris, flipped = _orient(points, tris)
     holes_filled = added = 0
     if loops:
         holes_filled, before = len(loops), tris.shape[0]
-        for _ in range(FILL_ROUNDS):  # a filled hole can leave a sliver loop behind
-            points, tris = _fill_holes(points, tris)
-            tris = _drop_fins(_drop_bad_triangles(points, tris)[0])
-            loops = boundary_loops(tris)
-            if not loops:
-                break
-            # MeshFix splits vertices where sheets touch, which can leave a slit: merge
-            points, tris, _ = merge_vertices(points, tris)
-            tris = _drop_fins(_drop_bad_triangles(points, tris)[0])
-            loops = boundary_loops(tris)
-            if not loops:
-                break
+        points, tris = _fill_every_hole(points, tris, f"{source}: surface is open",
+                                        len(loops), non_manifold)
         added = tris.shape[0] - before
-        if loops:
-            raise LbshapeError(f"{source}: surface is open: {_holes(loops)}; fill_holes did "
-                               "not close them")
 
     labels, volumes = pieces(points, tris)
     chosen = None
-    if len(volumes) > 1:
+    if len(volumes) > 1 or piece is not None:
         chosen = select_piece(volumes, piece, source=source, what="surface")
         tris = tris[labels == chosen]
         used = np.unique(tris)
@@ -172,9 +167,67 @@ def repair_surface(points: np.ndarray, triangles: np.ndarray, *, source: str = "
     return points, tris, report
 
 
+def _fill_every_hole(points: np.ndarray, tris: np.ndarray, opening: str, n_holes: int,
+                     non_manifold: int) -> tuple[np.ndarray, np.ndarray]:
+    """Close every hole (MeshFix), or the one-line error that says how many are left."""
+    for _ in range(FILL_ROUNDS):  # a filled hole can leave a sliver loop behind
+        points, tris = _fill_holes(points, tris)
+        tris = _drop_fins(_drop_bad_triangles(points, tris)[0])
+        loops = boundary_loops(tris)
+        if not loops:
+            return points, tris
+        # MeshFix splits vertices where sheets touch, which can leave a slit: merge
+        points, tris, _ = merge_vertices(points, tris)
+        tris = _drop_fins(_drop_bad_triangles(points, tris)[0])
+        loops = boundary_loops(tris)
+        if not loops:
+            return points, tris
+    why = (f"; the surface has {non_manifold} non-manifold edges (on three or more "
+           "triangles), where sheets touch and filling fails" if non_manifold else "")
+    raise LbshapeError(f"{opening}: fill_holes closed {max(n_holes - len(loops), 0)} of "
+                       f"{n_holes} holes, {_holes(loops)} remain{why}; repair the surface in "
+                       "a modelling tool")
+
+
+def _non_manifold_edges(tris: np.ndarray) -> int:
+    """Edges on three or more triangles."""
+    half = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+    _, counts = np.unique(np.sort(half, axis=1), axis=0, return_counts=True)
+    return int((counts > 2).sum())
+
+
 def _holes(loops: list[np.ndarray]) -> str:
     return (f"{len(loops)} holes (boundary loops, {sum(len(loop) for loop in loops)} edges, "
             f"the largest {max(len(loop) for loop in loops)})")
+
+
+def hole_spans(points: np.ndarray, tris: np.ndarray, loops: list[np.ndarray]) -> np.ndarray:
+    """(len(loops),) the width of each hole (m): the diagonal of its rim's bounding box."""
+    half = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+    edges, counts = np.unique(np.sort(half, axis=1), axis=0, return_counts=True)
+    boundary = edges[counts == 1]
+    return np.array([float(np.linalg.norm(np.ptp(points[np.unique(boundary[loop])], axis=0)))
+                     for loop in loops])
+
+
+def _check_holes(points, tris, loops, opening: str, fill_holes: bool) -> None:
+    """An open surface: the one-line error that says how many holes and how wide, and
+    what to do (``fill_holes`` for small ones; none for a hole too wide to fill)."""
+    spans = hole_spans(points, tris, loops)
+    diag = float(np.linalg.norm(np.ptp(points[np.unique(tris)], axis=0)))
+    widest = float(spans.max())
+    share = widest / max(diag, np.finfo(float).tiny)
+    holes = (f"{_holes(loops)[:-1]}, the widest {widest:.3g} m, {100 * share:.2g} % of the "
+             "diagonal)")
+    if share > MAX_HOLE_SHARE:
+        big = int((spans > MAX_HOLE_SHARE * diag).sum())
+        raise LbshapeError(
+            f"{opening}: {holes}; {big} hole(s) wider than "
+            f"{MAX_HOLE_SHARE:.0%} of the diagonal are missing faces, too big for fill_holes "
+            "to guess: close the surface in a modelling tool")
+    if not fill_holes:
+        raise LbshapeError(f"{opening}: {holes}; set fill_holes = true "
+                           "(scene) or --fill-holes (lbshape mesh) to close them")
 
 
 def select_piece(volumes, piece: int | str | None, *, source: str, what: str,
@@ -182,6 +235,9 @@ def select_piece(volumes, piece: int | str | None, *, source: str, what: str,
     """The index of the piece to keep among ``volumes`` (m³), or a one-line error that
     lists them and names the ``piece`` key."""
     volumes = [float(v) for v in volumes]
+    if len(volumes) == 1 and piece not in (None, 0, "largest"):
+        raise LbshapeError(f"{source}: piece = {piece!r}, but the {what} has one piece "
+                           f"(volume {volumes[0]:.3g} m³); leave out piece")
     if piece == "largest":
         return int(np.argmax(volumes))
     listed = ", ".join(f"{k}: {v:.3g}" for k, v in enumerate(volumes))

@@ -2,7 +2,8 @@
 Table 2 (:mod:`.bench`, :mod:`.tables`), speed/error and Pareto sweeps (:mod:`.sweep`,
 :mod:`.pareto`), tuning, scaling, large steps, the Newton study and the free-body step
 (:mod:`.realtime`), the runs behind the figures (:mod:`.figures`), the movie
-(:mod:`.animation`) and the demo job. Only the command line and the scripts import them."""
+(:mod:`.animation`), the demo job and a user's own mesh as a scene
+(:mod:`.user_meshes`). Only the command line and the scripts import them."""
 
 __all__ = [
     "animation",
@@ -16,4 +17,5 @@ __all__ = [
     "sweep",
     "tables",
     "tune",
+    "user_meshes",
 ]

@@ -17,6 +17,7 @@ import pytest
 
 from lbshape.cli import main as cli_main
 from lbshape.errors import LbshapeError
+from lbshape.geometry.cad_files import step_unit
 from lbshape.geometry.mesh import check_mesh
 from lbshape.geometry.mesh_files import read_mesh_file, read_surface
 from lbshape.geometry.surface_repair import pieces, repair_surface
@@ -119,30 +120,60 @@ def test_propeller_zero_area_triangle_repaired(caplog):
 
 
 @needs_occt
-def test_bearing_is_open_once_its_zero_area_triangles_are_gone():
-    with pytest.raises(LbshapeError, match="surface is open: 2 holes .*134 edges") as info:
-        read_mesh_file(OCCT / "stl" / "bearing.stl")
-    assert "fill_holes = true" in _one_line_error(info)
+@pytest.mark.parametrize("fill_holes", [False, True])
+def test_bearing_zero_area_triangles_removed_then_its_missing_face_named(fill_holes):
+    # 16 zero-area triangles (two vertices equal) go; what is left has a hole 98 % of
+    # the diagonal wide: a missing face, which hole filling would only guess
+    with pytest.raises(LbshapeError) as info:
+        read_mesh_file(OCCT / "stl" / "bearing.stl", fill_holes=fill_holes)
+    message = _one_line_error(info)
+    assert (": removed 16 zero-area triangles; surface is open: 2 holes (boundary loops, 134 "
+            "edges, the largest 108, the widest 158 m, 98 % of the diagonal)") in message
+    assert "1 hole(s) wider than 50% of the diagonal are missing faces" in message
+    assert "set fill_holes" not in message
 
 
 @needs_occt
 @pytest.mark.slow
-def test_bearing_filled_counts_reported(caplog):
-    points, tris = read_surface(OCCT / "stl" / "bearing.stl")
-    with caplog.at_level(logging.WARNING):
-        _, _, report = repair_surface(points, tris, source="bearing.stl", fill_holes=True,
-                                      piece="largest")
-    assert (report.zero_area, report.holes_filled, report.pieces) == (16, 2, 2)
-    assert ("repaired bearing.stl: removed 16 zero-area triangles, flipped 29 triangles, "
-            "filled 2 holes with 586 triangles, kept piece 0 of 2") in caplog.text
-
-
-@needs_occt
-@pytest.mark.slow
-def test_head_is_open_and_says_how_many_holes():
+def test_head_is_open_and_says_how_many_holes_and_how_wide():
     with pytest.raises(LbshapeError, match="surface is open: 45 holes") as info:
         read_mesh_file(OCCT / "stl" / "head.stl")
-    assert "fill_holes" in _one_line_error(info)
+    message = _one_line_error(info)
+    assert "the widest 85.2 m, 20 % of the diagonal); set fill_holes = true" in message
+
+
+@needs_occt
+@pytest.mark.slow
+def test_head_holes_left_by_filling_are_counted_with_their_cause():
+    with pytest.raises(LbshapeError) as info:
+        read_mesh_file(OCCT / "stl" / "head.stl", fill_holes=True)
+    assert ("surface is open: fill_holes closed 23 of 45 holes, 22 holes (boundary loops, 136 "
+            "edges, the largest 23) remain; the surface has 64 non-manifold edges") in (
+                _one_line_error(info))
+
+
+@needs_occt
+@pytest.mark.slow
+def test_piece_on_a_file_of_one_piece_is_refused(capsys):
+    shape = OCCT / "stl" / "shape.stl"
+    with pytest.raises(LbshapeError, match=r"piece = 1, but the surface has one piece "
+                       r"\(volume 3.29e\+05 m³\); leave out piece") as info:
+        read_mesh_file(shape, piece=1)
+    _one_line_error(info)
+    assert read_mesh_file(shape, piece=0).volume() == pytest.approx(328753, rel=1e-5)
+    assert cli_main(["mesh", str(OCCT / "occ" / "wedge_ok.brep"), "--piece", "2",
+                     "--size", "2"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.count("\n") == 0
+    assert "piece = 2, but the CAD file has one piece (volume 560 m³)" in error
+
+
+@needs_occt
+@pytest.mark.slow
+def test_piece_out_of_range_lists_the_solids():
+    with pytest.raises(LbshapeError, match=r"piece = 5 is not one of the 2 pieces "
+                       r"\(volumes in m³: 0: 4.71e-07, 1: 4.14e-06\)"):
+        read_mesh_file(OCCT / "occ" / "Ball.brep", size=2e-3, units="mm", piece=5)
 
 
 @needs_occt
@@ -154,7 +185,7 @@ def test_clean_stl_reads():
 # --------------------------------------------------------- occt-misc CAD
 @needs_occt
 def test_step_solid_meshes_to_occ_volume():
-    screw = OCCT / "step" / "screw.step"  # recorded in metres
+    screw = OCCT / "step" / "screw.step"  # recorded in millimetres
     mesh = read_mesh_file(screw, size=0.004)
     assert check_mesh(mesh).n_tets > 100
     assert mesh.volume() == pytest.approx(_gmsh_mass(screw, unit="M"), rel=0.08)
@@ -169,6 +200,22 @@ def test_step_converts_from_its_recorded_millimetres():
     for units in ("m", "mm"):  # STEP records its unit: the same metres either way
         assert read_mesh_file(rods, size=0.002, units=units).volume() == pytest.approx(
             mass, rel=0.03)
+
+
+@needs_occt
+@pytest.mark.slow
+def test_step_units_and_scale_override_its_recorded_unit(caplog):
+    rods = OCCT / "step" / "linkrods.step"
+    assert step_unit(rods) == "mm" and step_unit(OCCT / "step" / "screw.step") == "mm"
+    box_mm = np.array([5.02028, 1.49379, 2.0])  # the numbers as written
+    with caplog.at_level(logging.WARNING):
+        inches = read_mesh_file(rods, size=0.05, units="in")
+    assert "linkrods.step records its numbers in mm; read as in" in caplog.text
+    np.testing.assert_allclose(np.ptp(inches.points, axis=0), 0.0254 * box_mm, rtol=2e-3)
+    tenfold = read_mesh_file(rods, size=0.02, scale=0.01)  # a 10:1 model of the part
+    np.testing.assert_allclose(np.ptp(tenfold.points, axis=0), 0.01 * box_mm, rtol=2e-3)
+    # the size scales with the part: the same tetrahedra at h / 10 in metres
+    assert tenfold.n_tets == read_mesh_file(rods, size=0.002, scale=0.001).n_tets
 
 
 @needs_occt
