@@ -90,7 +90,10 @@ def test_concurrent_precomputes_of_one_scene_leave_one_valid_entry(tmp_path, mon
     from lbshape.pipeline.precompute_key import scene_cache_key
     from lbshape.scene import load_scene
 
-    arrays, meta = load_artifact("demo", scene_cache_key(load_scene("demo")), required=["U"])
+    from lbshape.pipeline.precompute_key import ARTIFACT_NAME
+
+    arrays, meta = load_artifact(ARTIFACT_NAME, scene_cache_key(load_scene("demo")),
+                                 required=["U"])
     assert np.isfinite(arrays["U"]).all() and meta["scene"] == "demo"
 
 
