@@ -87,10 +87,8 @@ def test_concurrent_precomputes_of_one_scene_leave_one_valid_entry(tmp_path, mon
     entries = sorted(cache.glob("*.npz"))
     assert len(entries) == 1, entries
     assert not [p for p in cache.iterdir() if p.name.startswith(".")]  # no temporaries
-    from lbshape.pipeline.precompute_key import scene_cache_key
+    from lbshape.pipeline.precompute_key import ARTIFACT_NAME, scene_cache_key
     from lbshape.scene import load_scene
-
-    from lbshape.pipeline.precompute_key import ARTIFACT_NAME
 
     arrays, meta = load_artifact(ARTIFACT_NAME, scene_cache_key(load_scene("demo")),
                                  required=["U"])
