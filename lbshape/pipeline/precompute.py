@@ -113,6 +113,7 @@ from lbshape.pipeline.precompute_key import (
     ARTIFACT_NAME,
     CUBATURE_TRAINING_POSES,
     PRECOMPUTE_SEED,
+    example_label,
     scene_cache_key,
     stage_keys,
 )
@@ -134,7 +135,7 @@ from lbshape.pipeline.responses import (
     static_load_applies,
 )
 from lbshape.pipeline.stages import Ranks, StageCache, StageRecorder
-from lbshape.scene.schema import ExamplePose, Scene
+from lbshape.scene.schema import Scene
 from lbshape.shapespace.alignment import BasisAlignment
 from lbshape.shapespace.basis_choice import METHODS, warn_doubtful_transfer
 from lbshape.shapespace.clamped_basis import clamped_eigenvectors
@@ -239,7 +240,9 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False,
         if comm.bcast(cached is not None, root=0):
             return Precomputed.from_arrays(scene, key, *cached) if root else None
         stages = StageRecorder(stage_names(scene), show=progress and root)
-        cache = StageCache(stage_keys(scene, stages.names), read=not force, write=save)
+        cache = StageCache(stage_keys(scene, stages.names, [
+            CLAMPED_TARGETS, MAX_APPENDED_BASIS, MAX_APPENDED_FREE_BODY,
+            MIN_APPENDED_FREE_BODY, STATIC_EQUILIBRIA_MAX_VERTICES]), read=not force, write=save)
         arrays, meta = _compute(scene, stages, comm, cache)
         peaks = comm.gather(stages.peak_mb, root=0)
         if not root:
@@ -299,14 +302,6 @@ def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
                     polynomial=polynomial, examples=examples, local=local,
                     frame=frame, example_names=names, stage_ranks=ranks.count,
                     auto_stiffness=auto)
-
-
-def example_label(pose: ExamplePose) -> str:
-    """How messages and the artifact name an example: its mesh source and pose."""
-    source = pose.source.label
-    if pose.parts:
-        return f"{source}:parts({', '.join(part.pose for part in pose.parts)})"
-    return f"{source}:{pose.pose}" if pose.pose else str(source)
 
 
 # ------------------------------------------------------------- the elastic stages

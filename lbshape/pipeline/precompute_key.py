@@ -17,11 +17,17 @@ from __future__ import annotations
 import numpy as np
 
 from lbshape import __version__
+from lbshape.elastic.basis import default_linear_modes
 from lbshape.geometry.shapes import MESHES_DIR, get_shape
 from lbshape.io.cache import cache_key, file_digest
 from lbshape.pipeline.precomputed import PIPELINE_VERSION
-from lbshape.pipeline.responses import response_key
-from lbshape.scene.schema import MeshSource, Scene
+from lbshape.pipeline.responses import (
+    EXAMPLE_RESPONSE_DEPTH,
+    example_response_stiffness,
+    response_key,
+)
+from lbshape.scene.schema import ExamplePose, MeshSource, Scene
+from lbshape.shapespace.auto_stiffness import AUTO_RULE
 
 #: training poses for the elastic cubature (held-out poses: half as many)
 CUBATURE_TRAINING_POSES = 120
@@ -70,20 +76,26 @@ def load_key(scene: Scene) -> list[dict]:
     return response_key(scene)["loads"]
 
 
-def stage_keys(scene: Scene, names: list[str]) -> dict[str, str]:
+def example_label(pose: ExamplePose) -> str:
+    """How messages and the artifact name an example: its mesh source and pose."""
+    source = pose.source.label
+    if pose.parts:
+        return f"{source}:parts({', '.join(part.pose for part in pose.parts)})"
+    return f"{source}:{pose.pose}" if pose.pose else str(source)
+
+
+def stage_keys(scene: Scene, names: list[str], settings: list) -> dict[str, str]:
     """The cache key of each stage in ``names`` (:func:`~lbshape.pipeline.precompute.
     stage_names`): a digest of exactly the scene inputs the stage reads, the keys of the
-    stages whose results it takes, the stage's code version and the packages' versions.
+    stages whose results it takes, the stage's code version and the packages' versions;
+    ``settings``: the precompute's constants (``[CLAMPED_TARGETS, MAX_APPENDED_BASIS,
+    MAX_APPENDED_FREE_BODY, MIN_APPENDED_FREE_BODY, STATIC_EQUILIBRIA_MAX_VERTICES]`` of
+    :mod:`lbshape.pipeline.precompute`), read by the stages after the basis and the targets.
 
     So a new load re-runs ``derivatives`` (the static responses share its factorisation)
     and the stages after the basis; dt, steps, a load's profile and damping re-run none.
     """
     import dolfinx
-
-    from lbshape.elastic.basis import default_linear_modes
-    from lbshape.pipeline import precompute as stages
-    from lbshape.pipeline.responses import EXAMPLE_RESPONSE_DEPTH, example_response_stiffness
-    from lbshape.shapespace.auto_stiffness import AUTO_RULE
 
     versions = {"lbshape": __version__, "dolfinx": dolfinx.__version__,
                 "numpy": np.__version__, "pipeline": PIPELINE_VERSION}
@@ -104,13 +116,11 @@ def stage_keys(scene: Scene, names: list[str]) -> dict[str, str]:
     basis = key("basis", modes, derivatives, reduced.r)
     lb = key("lb", mesh, reduced.m)
     embedded = key("examples", mesh, lb, examples)
-    targets = key("target-table", mesh, lb, embedded, material, stages.CLAMPED_TARGETS)
+    targets = key("target-table", mesh, lb, embedded, material, settings[0])
     shape = [lb, embedded, targets, key(
         "lb-cubature", mesh, lb, embedded, targets, material, reduced.s,
         reduced.cubature_tolerance, PRECOMPUTE_SEED), key(
         "regions", mesh, lb, material, examples, fields["regions"])]
-    settings = [stages.MAX_APPENDED_BASIS, stages.MAX_APPENDED_FREE_BODY,
-                stages.MIN_APPENDED_FREE_BODY, stages.STATIC_EQUILIBRIA_MAX_VERTICES]
     current = key("static-equilibria", basis, modes, derivatives, material, loads,
                   settings) or basis
     auto = key("example-stiffness", current, modes, derivatives, material, loads, shape,
@@ -122,6 +132,6 @@ def stage_keys(scene: Scene, names: list[str]) -> dict[str, str]:
                    reduced.cubature_tolerance, CUBATURE_TRAINING_POSES, PRECOMPUTE_SEED)
     key("forces", cubature, mesh, material, reduced.forces)
     key("projections", cubature, mesh, material, shape,
-        [] if scene.examples is None else [stages.example_label(p) for p in scene.examples.poses])
+        [] if scene.examples is None else [example_label(p) for p in scene.examples.poses])
     key("frame", cubature, mesh, material)
     return keys

@@ -16,6 +16,7 @@ import numpy as np
 import lbshape
 from lbshape.geometry.primitives import structured_box
 from lbshape.io.cache import STAGE_MAGIC, load_stage, save_stage, stage_path
+from lbshape.pipeline import precompute as stages
 from lbshape.pipeline.precompute import precompute, stage_names
 from lbshape.pipeline.precompute_key import ARTIFACT_NAME, stage_keys
 
@@ -35,6 +36,12 @@ def _bar(cells=(8, 2, 2), *, load=(0.0, 0.0, -2.0), stiffness="auto", **options)
                             "region": "x > 0.399", "profile": "ramp", "duration": 0.1}],
                     dt=0.002, steps=20)
     return lbshape.Scene.from_mesh(box, **{**settings, **options})
+
+
+def _keys(scene, names) -> dict[str, str]:
+    return stage_keys(scene, names, [
+        stages.CLAMPED_TARGETS, stages.MAX_APPENDED_BASIS, stages.MAX_APPENDED_FREE_BODY,
+        stages.MIN_APPENDED_FREE_BODY, stages.STATIC_EQUILIBRIA_MAX_VERTICES])
 
 
 def _recomputed(pre) -> set[str]:
@@ -60,20 +67,20 @@ def test_stage_keys_follow_what_each_stage_reads():
     scene = _bar()
     names = stage_names(scene)
     assert {"derivatives", "static-equilibria", "example-stiffness"} <= set(names)
-    keys = stage_keys(scene, names)
+    keys = _keys(scene, names)
     assert set(keys) == set(names)
     renamed = dataclasses.replace(scene, name="another-name")
-    assert stage_keys(renamed, names) == keys
+    assert _keys(renamed, names) == keys
     runtime = _bar(dt=0.01, steps=500, damping={"alpha": 2.0, "beta": 0.0})
-    assert stage_keys(runtime, names) == keys
-    loaded = stage_keys(_bar(load=(0.0, 0.0, -5.0)), names)
+    assert _keys(runtime, names) == keys
+    loaded = _keys(_bar(load=(0.0, 0.0, -5.0)), names)
     changed = {name for name in names if loaded[name] != keys[name]}
     assert changed == set(names) - LOAD_FREE
-    remeshed = stage_keys(_bar(cells=(10, 2, 2)), names)
+    remeshed = _keys(_bar(cells=(10, 2, 2)), names)
     assert not {name for name in names if remeshed[name] == keys[name]}
     more_modes = _bar(reduced={"m": 7, "r": 10, "s": 20})  # m: the LB stages and after
-    assert stage_keys(more_modes, names)["modes"] == keys["modes"]
-    assert stage_keys(more_modes, names)["lb"] != keys["lb"]
+    assert _keys(more_modes, names)["modes"] == keys["modes"]
+    assert _keys(more_modes, names)["lb"] != keys["lb"]
 
 
 def test_a_stage_entry_that_is_foreign_or_stale_is_recomputed(tmp_path):
@@ -117,7 +124,7 @@ def test_a_renamed_scene_reuses_every_stage(tmp_path, monkeypatch):
     _assert_same_artifact(tmp_path / "cache", tmp_path / "fresh")
 
 
-def test_a_new_load_reruns_only_the_stages_that_read_it(tmp_path, monkeypatch):
+def test_a_new_load_reruns_only_the_stages_that_read_it(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("LBSHAPE_CACHE", str(tmp_path / "cache"))
     precompute(_bar())
     runtime = precompute(_bar(name="slower", dt=0.01, steps=400,
@@ -127,8 +134,11 @@ def test_a_new_load_reruns_only_the_stages_that_read_it(tmp_path, monkeypatch):
     for path in (tmp_path / "cache").glob(f"{ARTIFACT_NAME}-*.npz"):
         path.unlink()
     loaded = _bar(load=(0.0, 0.0, -5.0))
-    pre = precompute(loaded)
+    capsys.readouterr()
+    pre = precompute(loaded, progress=True)
     assert set(pre.stages.cached) == LOAD_FREE  # modes, LB spectrum, examples: reused
+    bars = capsys.readouterr().err  # the progress bars say which stages came from the cache
+    assert "modes        (cache)" in bars and "derivatives  (cache)" not in bars, bars
     assert _recomputed(pre) == set(stage_names(loaded)) - LOAD_FREE
     assert {"derivatives", "static-equilibria", "example-stiffness"} <= _recomputed(pre)
     monkeypatch.setenv("LBSHAPE_CACHE", str(tmp_path / "fresh"))
