@@ -18,6 +18,12 @@ path and locks again, so the lock stays exclusive. The kernel releases a lock wh
 process ends; a lock file left by a killed process (stale: nobody holds it) is deleted
 by the next :func:`artifact_lock` in the same cache (:func:`remove_stale_locks`).
 
+Stage entries (:func:`save_stage`, :func:`load_stage`): one stage's result under its own
+key in ``<root>/stages/<name>-<key[:16]>.pkl`` — a header line, then a pickle of (key,
+result) read back by an unpickler that admits only the classes of lbshape, numpy and
+scipy.sparse and plain containers; a foreign, truncated or differently keyed file is
+reported stale and recomputed, never run.
+
 The root is ``$LBSHAPE_CACHE`` if set, else ``~/.cache/lbshape``.
 """
 

@@ -9,7 +9,12 @@ example responses are shifted by), the precompute's fixed settings
 (:data:`~lbshape.pipeline.precomputed.PIPELINE_VERSION`). So changing dt, steps, a
 load's profile or damping never redoes the precompute, while changing any mesh byte,
 material value, m, r, s, example, k_ex, or where, along what and how strongly a load
-acts does.
+acts does. The artifact's file is named by the key alone (:data:`ARTIFACT_NAME`), not by
+the scene.
+
+:func:`stage_keys` keys each stage's own cache entry on what that stage reads, so a
+changed scene re-runs only the stages that read the change and those after them (the
+table: ``docs/scenes.md``, section 7).
 """
 
 from __future__ import annotations
