@@ -82,6 +82,7 @@ def precompute_record(pre) -> dict:
             "stage_seconds": dict(pre.stages.seconds),
             "stage_peak_mb": dict(pre.stages.peak_mb),
             "stage_ranks": dict(pre.stages.ranks),
+            "stages_from_cache": list(pre.stages.cached),
             "total_seconds": float(sum(pre.stages.seconds.values())),
             "example_stiffness": (None if pre.auto_stiffness is None
                                   else pre.auto_stiffness.to_dict())}
@@ -122,6 +123,8 @@ def run_one(name: str, *, force: bool = False, as_json: bool = False) -> int:
     print("  stage times (s): " + ", ".join(
         f"{name} {seconds:.2f}" for name, seconds in pre.stages.seconds.items())
         + f"; total {total:.2f}" + (" (when computed)" if pre.stages.from_cache else ""))
+    if pre.stages.cached and not pre.stages.from_cache:
+        print(f"  stages from the cache: {', '.join(pre.stages.cached)}")
     if pre.stages.peak_mb:
         print("  stage peak memory (MB): " + ", ".join(
             f"{name} {mb:.0f}" for name, mb in pre.stages.peak_mb.items())

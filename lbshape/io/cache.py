@@ -18,6 +18,12 @@ path and locks again, so the lock stays exclusive. The kernel releases a lock wh
 process ends; a lock file left by a killed process (stale: nobody holds it) is deleted
 by the next :func:`artifact_lock` in the same cache (:func:`remove_stale_locks`).
 
+Stage entries (:func:`save_stage`, :func:`load_stage`): one stage's result under its own
+key in ``<root>/stages/<name>-<key[:16]>.pkl`` — a header line, then a pickle of (key,
+result) read back by an unpickler that admits only the classes of lbshape, numpy and
+scipy.sparse and plain containers; a foreign, truncated or differently keyed file is
+reported stale and recomputed, never run.
+
 The root is ``$LBSHAPE_CACHE`` if set, else ``~/.cache/lbshape``.
 """
 
@@ -26,9 +32,11 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import hashlib
+import io
 import json
 import logging
 import os
+import pickle
 import zipfile
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
@@ -36,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from lbshape.errors import LbshapeError
-from lbshape.io.atomic import write_npz_atomic
+from lbshape.io.atomic import write_bytes_atomic, write_npz_atomic
 
 log = logging.getLogger(__name__)
 
@@ -210,3 +218,66 @@ def load_artifact(
         log.warning("cache: %s is stale or corrupt (%s); recomputing", path.name, reason)
         return None
     return arrays, meta
+
+
+# ------------------------------------------------------------------ stage entries
+#: a stage entry's first bytes: what a foreign or older file lacks
+STAGE_MAGIC = b"lbshape-stage-1\n"
+#: the modules whose classes a stage entry may hold (plus :data:`_SAFE_GLOBALS`)
+_STAGE_MODULES = ("lbshape.", "numpy", "scipy.sparse")
+_SAFE_GLOBALS = {("copyreg", "_reconstructor"), ("collections", "OrderedDict"),
+                 *(("builtins", name) for name in ("tuple", "list", "dict", "set", "frozenset",
+                                                   "complex", "float", "int", "str", "bytes",
+                                                   "bytearray", "slice", "range", "object",
+                                                   "bool"))}
+_NUMPY_FUNCTIONS = {"_reconstruct", "scalar", "_frombuffer"}
+
+
+def stage_path(name: str, key: str, root: Path | None = None) -> Path:
+    """The file of one stage's entry: ``<root>/stages/<name>-<key[:16]>.pkl``."""
+    return (root or cache_root()) / "stages" / f"{name}-{key[:16]}.pkl"
+
+
+class _StageUnpickler(pickle.Unpickler):
+    """Unpickles only the classes of lbshape, numpy and scipy.sparse and plain
+    containers: a foreign file cannot call anything else."""
+
+    def find_class(self, module: str, name: str):
+        value = super().find_class(module, name)
+        if (module, name) in _SAFE_GLOBALS:
+            return value
+        if module.split(".")[0] in ("numpy",) and name in _NUMPY_FUNCTIONS:
+            return value
+        if isinstance(value, type) and (module + ".").startswith(_STAGE_MODULES):
+            return value
+        raise pickle.UnpicklingError(f"{module}.{name} is not allowed in a stage entry")
+
+
+def save_stage(name: str, key: str, value, *, root: Path | None = None) -> Path | None:
+    """Write one stage's result atomically under its key; ``None`` (logged) if it
+    cannot be stored (the stage is then simply not cached)."""
+    try:
+        payload = pickle.dumps((key, value), protocol=pickle.HIGHEST_PROTOCOL)
+        return write_bytes_atomic(stage_path(name, key, root), STAGE_MAGIC + payload)
+    except (OSError, pickle.PicklingError, TypeError, AttributeError, LbshapeError) as exc:
+        log.info("cache: stage %s not stored (%s)", name, exc)
+        return None
+
+
+def load_stage(name: str, key: str, *, root: Path | None = None):
+    """(True, value) of a stored stage entry, or (False, None) if absent, foreign,
+    unreadable or keyed otherwise (logged; the caller recomputes — never raises)."""
+    path = stage_path(name, key, root)
+    if not path.exists():
+        return False, None
+    try:
+        data = path.read_bytes()
+        if not data.startswith(STAGE_MAGIC):
+            raise ValueError("not a stage entry")
+        stored, value = _StageUnpickler(io.BytesIO(data[len(STAGE_MAGIC):])).load()
+        if stored != key:
+            raise ValueError("its key does not match")
+    except Exception as exc:  # noqa: BLE001 -- any unreadable entry means: recompute
+        log.warning("cache: %s is stale or unreadable (%s); recomputing", path.name, exc)
+        return False, None
+    return True, value

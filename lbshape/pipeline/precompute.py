@@ -53,9 +53,10 @@ matrices in reduced coordinates come in ``projections``,
 computes the whole object's spectrum (eigenfunction pictures, and the measured
 comparison of the two local-example variants).
 
-Everything is cached under :func:`~lbshape.pipeline.precompute_key.scene_cache_key`;
-the artifact's format is :mod:`lbshape.pipeline.precomputed`, and each stage's time,
-peak memory and rank count are recorded by :mod:`lbshape.pipeline.stages`.
+The artifact (:mod:`lbshape.pipeline.precomputed`) is cached under
+:func:`~lbshape.pipeline.precompute_key.scene_cache_key`, each stage's result under
+:func:`~lbshape.pipeline.precompute_key.stage_keys` (what it reads); each stage's time,
+peak memory, ranks and cache hit are recorded by :mod:`lbshape.pipeline.stages`.
 
 **MPI.** ``precompute(scene, comm=MPI.COMM_WORLD)`` on every rank distributes the
 n-sized stages over the ranks: ``modes`` and ``lb`` (DOLFINx assembly, SLEPc with
@@ -64,10 +65,10 @@ passes of ``cubature`` and ``lb-cubature`` (split with
 :func:`lbshape.fem.mpi.rank_share`; their inputs broadcast from rank 0). The other
 stages run on rank 0 only (:func:`lbshape.fem.mpi.compute_on_root`: the other ranks
 sleep, and a user error on rank 0 is raised on every rank). Rank 0 alone reads and
-writes the cache and gets the :class:`~lbshape.pipeline.precomputed.Precomputed`; the
-others get ``None``. ``stage_ranks`` in the artifact's metadata says over how many
-ranks each stage ran (``stage_peak_mb`` is summed over the ranks). The result equals
-the serial one to solver tolerance.
+writes the cache (the artifact; stage entries serve serial runs only) and gets the
+:class:`~lbshape.pipeline.precomputed.Precomputed`, the others ``None``. ``stage_ranks``
+(artifact metadata): ranks per stage (``stage_peak_mb``: summed over them). The result
+equals the serial one to solver tolerance.
 """
 
 from __future__ import annotations
@@ -109,9 +110,12 @@ from lbshape.pipeline.meshes import (
     selected_vertices,
 )
 from lbshape.pipeline.precompute_key import (
+    ARTIFACT_NAME,
     CUBATURE_TRAINING_POSES,
     PRECOMPUTE_SEED,
+    example_label,
     scene_cache_key,
+    stage_keys,
 )
 from lbshape.pipeline.precomputed import (
     GlobalExamples,
@@ -130,8 +134,8 @@ from lbshape.pipeline.responses import (
     static_load,
     static_load_applies,
 )
-from lbshape.pipeline.stages import Ranks, StageRecorder
-from lbshape.scene.schema import ExamplePose, Scene
+from lbshape.pipeline.stages import Ranks, StageCache, StageRecorder
+from lbshape.scene.schema import Scene
 from lbshape.shapespace.alignment import BasisAlignment
 from lbshape.shapespace.basis_choice import METHODS, warn_doubtful_transfer
 from lbshape.shapespace.clamped_basis import clamped_eigenvectors
@@ -177,9 +181,8 @@ MAX_APPENDED_FREE_BODY = 24
 #: example-driven deformation lay outside U (5.6 % off the full reference); its two
 #: responses above the threshold (r = 32) leave 0.3 % outside (0.4 % off)
 MIN_APPENDED_FREE_BODY = 4
-#: the static equilibria are solved in full space by sparse Cholesky (the stage took 7 s
-#: of the 6.7k-vertex bar's precompute and 30 s of the 18.6k-vertex one's, 90 s in all;
-#: by LU it had taken 383 s in all); larger meshes skip the stage
+#: the static equilibria are solved in full space by sparse Cholesky (7 s of the 6.7k-vertex
+#: bar's precompute, 30 s of the 18.6k one's; by LU 383 s); larger meshes skip the stage
 STATIC_EQUILIBRIA_MAX_VERTICES = 20_000
 
 
@@ -229,32 +232,37 @@ def precompute(scene: Scene, *, force: bool = False, progress: bool = False,
     key = scene_cache_key(scene)
     # concurrent jobs on one scene compute it once; only the rank that saves locks, the
     # others stay in step with its collective solves
-    lock = artifact_lock(scene.name, key) if save and root else contextlib.nullcontext()
+    lock = artifact_lock(ARTIFACT_NAME, key) if save and root else contextlib.nullcontext()
     with lock:
         cached = None if force else compute_on_root(
-            comm, lambda: load_artifact(scene.name, key, required=required_arrays(scene)),
+            comm, lambda: load_artifact(ARTIFACT_NAME, key, required=required_arrays(scene)),
             share=False)
         if comm.bcast(cached is not None, root=0):
             return Precomputed.from_arrays(scene, key, *cached) if root else None
         stages = StageRecorder(stage_names(scene), show=progress and root)
-        arrays, meta = _compute(scene, stages, comm)
+        cache = StageCache(stage_keys(scene, stages.names, [
+            CLAMPED_TARGETS, MAX_APPENDED_BASIS, MAX_APPENDED_FREE_BODY,
+            MIN_APPENDED_FREE_BODY, STATIC_EQUILIBRIA_MAX_VERTICES]), read=not force, write=save)
+        arrays, meta = _compute(scene, stages, comm, cache)
         peaks = comm.gather(stages.peak_mb, root=0)
         if not root:
             return None
         meta["stage_seconds"] = stages.seconds
+        meta["stage_cached"] = stages.cached
         meta["stage_peak_mb"] = {name: float(sum(peak.get(name, 0.0) for peak in peaks))
                                  for name in stages.peak_mb}
         if save:
-            save_artifact(scene.name, key, arrays, meta)
+            save_artifact(ARTIFACT_NAME, key, arrays, meta)
     return Precomputed.from_arrays(scene, key, arrays, meta, from_cache=False)
 
 
 # ------------------------------------------------------------------ all stages
-def _compute(scene: Scene, stages: StageRecorder,
-             comm: MPI.Comm) -> tuple[dict | None, dict | None]:
-    """Every stage; the artifact's (arrays, meta) on rank 0, (None, None) on the others."""
-    ranks = Ranks(comm, stages)
+def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
+             cache: StageCache | None = None) -> tuple[dict | None, dict | None]:
+    """Every stage (or its ``cache`` entry); (arrays, meta) on rank 0, else (None, None)."""
+    ranks = Ranks(comm, stages, cache)
     mesh, fixed = ranks.on_root("mesh", lambda: _read_mesh(scene), share=True)
+    _check_sizes(scene, mesh, fixed)
     elastic = _basis_stages(scene, mesh, fixed, ranks)
     shape = local = None
     if scene.has_local_examples:
@@ -296,14 +304,6 @@ def _compute(scene: Scene, stages: StageRecorder,
                     auto_stiffness=auto)
 
 
-def example_label(pose: ExamplePose) -> str:
-    """How messages and the artifact name an example: its mesh source and pose."""
-    source = pose.source.label
-    if pose.parts:
-        return f"{source}:parts({', '.join(part.pose for part in pose.parts)})"
-    return f"{source}:{pose.pose}" if pose.pose else str(source)
-
-
 # ------------------------------------------------------------- the elastic stages
 class ElasticStages(NamedTuple):
     """What the ``modes`` to ``basis`` stages produced (the modes' vectors, the mass and
@@ -315,11 +315,10 @@ class ElasticStages(NamedTuple):
 
 
 def _read_mesh(scene: Scene) -> tuple[TetMesh, np.ndarray]:
-    """The ``mesh`` stage: the object's rest mesh and its fixed vertices (checked sizes)."""
+    """The ``mesh`` stage: the object's rest mesh and its fixed vertices."""
     mesh = build_mesh(scene.object)
     fixed = (np.empty(0, dtype=np.int64) if scene.fixed is None
              else selected_vertices(scene.fixed, mesh, what="fixed region"))
-    _check_sizes(scene, mesh, fixed)
     return mesh, fixed
 
 

@@ -269,12 +269,15 @@ class StageReport:
         ranks: the number of MPI ranks each stage of that run was distributed over
             (1: rank 0 alone, or a serial run).
         from_cache: True when loaded from the cache.
+        cached: the stages this call took from the cache (all of them when the artifact
+            itself came from it; else the stage entries that were stored).
     """
 
     seconds: dict = field(default_factory=dict)
     peak_mb: dict = field(default_factory=dict)
     ranks: dict = field(default_factory=dict)
     from_cache: bool = False
+    cached: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -369,7 +372,9 @@ class Precomputed:
             stages=StageReport(seconds=dict(meta.get("stage_seconds", {})),
                                peak_mb=dict(meta.get("stage_peak_mb", {})),
                                ranks=dict(meta.get("stage_ranks", {})),
-                               from_cache=from_cache),
+                               from_cache=from_cache,
+                               cached=tuple(meta.get("stage_seconds", {}) if from_cache
+                                            else meta.get("stage_cached", ()))),
             auto_stiffness=(AutoStiffness.from_dict(meta["example_stiffness"])
                             if meta.get("example_stiffness") else None),
         )

@@ -9,7 +9,11 @@ memory of each, and over how many MPI ranks each ran.
 * :class:`Ranks` — runs a stage either on every rank of a communicator (a collective
   solver stage, :meth:`Ranks.distributed`) or on rank 0 alone
   (:meth:`Ranks.on_root`, :func:`lbshape.fem.mpi.compute_on_root`), timing it with a
-  :class:`StageRecorder` and recording the rank count (the artifact's ``stage_ranks``).
+  :class:`StageRecorder` and recording the rank count (the artifact's ``stage_ranks``);
+  given a :class:`StageCache`, a stage whose entry is stored is loaded instead of run.
+* :class:`StageCache` — each stage's result stored under its own key
+  (:func:`lbshape.pipeline.precompute_key.stage_keys`,
+  :func:`lbshape.io.cache.load_stage`), serial runs only.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from typing import TypeVar
 from mpi4py import MPI
 
 from lbshape.fem.mpi import compute_on_root
+from lbshape.io.cache import load_stage, save_stage
 
 #: seconds between two samples of the resident set size
 RSS_INTERVAL = 0.02
@@ -43,6 +48,7 @@ class StageRecorder:
         seconds: stage name -> wall time (s).
         peak_mb: stage name -> largest resident set size of the process during the
             stage (MB, :class:`PeakMemory`).
+        cached: the stages loaded from the cache (their seconds: the loading).
     """
 
     def __init__(self, names: list[str], *, show: bool):
@@ -50,6 +56,7 @@ class StageRecorder:
         self.show = show
         self.seconds: dict[str, float] = {}
         self.peak_mb: dict[str, float] = {}
+        self.cached: list[str] = []
 
     @contextlib.contextmanager
     def stage(self, name: str):
@@ -66,6 +73,8 @@ class StageRecorder:
         finally:
             self.seconds[name] = time.perf_counter() - started
             self.peak_mb[name] = sampler.peak_mb
+            if name in self.cached:
+                bar.set_description_str(f"[{index}/{len(self.names)}] {name:<12} (cache)")
             bar.update(1)
             bar.close()
 
@@ -119,8 +128,8 @@ class Ranks:
         count: stage name -> number of ranks it ran over.
     """
 
-    def __init__(self, comm: MPI.Comm, stages: StageRecorder):
-        self.comm, self.stages = comm, stages
+    def __init__(self, comm: MPI.Comm, stages: StageRecorder, cache: StageCache | None = None):
+        self.comm, self.stages, self.cache = comm, stages, cache
         self.count: dict[str, int] = {}
 
     @property
@@ -131,13 +140,49 @@ class Ranks:
     def distributed(self, name: str, compute: Callable[[], T]) -> T:
         """``compute()`` on every rank (a collective solver stage)."""
         with self.stages.stage(name):
-            value = compute()
+            value = self._run(name, compute)
         self.count[name] = self.comm.size
         return value
 
     def on_root(self, name: str, compute: Callable[[], T], *, share: bool = False) -> T | None:
         """``compute()`` on rank 0 only; ``None`` on the other ranks unless ``share``."""
         with self.stages.stage(name):
-            value = compute_on_root(self.comm, compute, share=share)
+            value = self._run(name, lambda: compute_on_root(self.comm, compute, share=share))
         self.count[name] = 1
         return value
+
+    def _run(self, name: str, compute: Callable[[], T]) -> T:
+        if self.cache is None or self.comm.size > 1:
+            return compute()
+        hit, value = self.cache.fetch(name, compute)
+        if hit:
+            self.stages.cached.append(name)
+        return value
+
+
+class StageCache:
+    """Each stage's result stored under its own key: a stage whose entry exists is
+    loaded, not run (serial runs; under MPI every stage runs).
+
+    Args:
+        keys: stage name -> cache key (:func:`~lbshape.pipeline.precompute_key.stage_keys`).
+        read: look entries up (False: recompute every stage, ``--force``).
+        write: store each computed stage's result (atomically).
+    """
+
+    def __init__(self, keys: dict[str, str], *, read: bool = True, write: bool = True):
+        self.keys, self.read, self.write = keys, read, write
+
+    def fetch(self, name: str, compute: Callable[[], T]) -> tuple[bool, T]:
+        """(True, the stored result) or (False, ``compute()``, then stored)."""
+        key = self.keys.get(name)
+        if key is None:
+            return False, compute()
+        if self.read:
+            hit, value = load_stage(name, key)
+            if hit:
+                return True, value
+        value = compute()
+        if self.write:
+            save_stage(name, key, value)
+        return False, value

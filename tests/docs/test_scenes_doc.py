@@ -18,7 +18,9 @@ HEADING = "## 6. A scene built in code"
 
 def _section() -> str:
     assert HEADING in TEXT, f"docs/scenes.md has no section {HEADING!r}"
-    return TEXT[TEXT.index(HEADING):]
+    section = TEXT[TEXT.index(HEADING):]
+    end = section.find("\n## ", len(HEADING))
+    return section if end < 0 else section[:end]  # up to the next section
 
 
 def test_the_example_builds_the_scene_it_describes():

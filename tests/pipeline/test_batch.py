@@ -87,10 +87,11 @@ def test_concurrent_precomputes_of_one_scene_leave_one_valid_entry(tmp_path, mon
     entries = sorted(cache.glob("*.npz"))
     assert len(entries) == 1, entries
     assert not [p for p in cache.iterdir() if p.name.startswith(".")]  # no temporaries
-    from lbshape.pipeline.precompute_key import scene_cache_key
+    from lbshape.pipeline.precompute_key import ARTIFACT_NAME, scene_cache_key
     from lbshape.scene import load_scene
 
-    arrays, meta = load_artifact("demo", scene_cache_key(load_scene("demo")), required=["U"])
+    arrays, meta = load_artifact(ARTIFACT_NAME, scene_cache_key(load_scene("demo")),
+                                 required=["U"])
     assert np.isfinite(arrays["U"]).all() and meta["scene"] == "demo"
 
 
