@@ -447,6 +447,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
                 arrays[f"warm{index}"] = solver._last
             for key, value in getattr(solver, "kept_arrays", dict)().items():
                 arrays[f"warm{index}:{key}"] = value  # a modified Newton's Hessians
+        for key, value in stepper.kept_tangent().items():
+            arrays["tangent:" + key] = value  # the modified Newton's kept tangent
         scalars = {name: getattr(stepper, name) for name in self._STEPPER_SCALARS}
         return snapshot(self.time, arrays, scalars)
 
@@ -462,7 +464,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             restore[name] = value.item() if value.ndim == 0 else value.copy()
         for name, value in restore.items():
             setattr(self.stepper, name, value)
-        self.stepper.forget_tangent()
+        self.stepper.restore_tangent({k[len("tangent:"):]: v for k, v in saved.items()
+                                      if k.startswith("tangent:")})
         for name in self._CACHES:
             value = saved.get("cache" + name)
             setattr(self, name, None if value is None else value.copy())

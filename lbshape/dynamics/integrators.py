@@ -487,6 +487,30 @@ class ImplicitStepper:
         """The next update evaluates the tangent (``force`` given; the forces changed)."""
         self._kept, self._fresh_tangent = None, True
 
+    def kept_tangent(self) -> dict[str, np.ndarray]:
+        """The kept tangent (sparse) and its low-rank part as arrays (empty: none)."""
+        if self._kept is None or not sp.issparse(self._kept[0]):
+            return {}
+        K = sp.csr_matrix(self._kept[0])
+        out = {"data": K.data, "indices": K.indices, "indptr": K.indptr,
+               "fresh": np.array(self._fresh_tangent)}
+        if self._kept[1] is not None:
+            out["W"], out["S"] = self._kept[1]
+        return out
+
+    def restore_tangent(self, arrays: dict[str, np.ndarray]) -> None:
+        """Keep the tangent of :meth:`kept_tangent`'s arrays (empty: forget it); a reused
+        factor is then taken afresh of it, as when it was evaluated."""
+        self.forget_tangent()
+        if not arrays:
+            return
+        K = sp.csr_matrix((arrays["data"].copy(), arrays["indices"].copy(),
+                           arrays["indptr"].copy()), shape=(self.n, self.n))
+        low_rank = (arrays["W"].copy(), arrays["S"].copy()) if "W" in arrays else None
+        self._kept, self._fresh_tangent = (K, low_rank), bool(arrays["fresh"])
+        if hasattr(self._linear_solver, "reset"):
+            self._linear_solver.reset()
+
     def _update(self, x1: np.ndarray, K: Matrix | None, R: np.ndarray, index: int,
                 t: float) -> np.ndarray:
         """The Newton update δ of R at x₁: with K (the iterate's tangent), or with the kept
@@ -494,7 +518,7 @@ class ImplicitStepper:
         if K is not None:
             return self._solve_newton(K, R, index, t)
         if self._kept is None or self._fresh_tangent:
-            if self._kept is not None and hasattr(self._linear_solver, "reset"):
+            if hasattr(self._linear_solver, "reset"):
                 self._linear_solver.reset()  # a reused factor: of this tangent's matrix
             _, tangent = self._evaluate(x1, index, t)
             self.tangent_evaluations += 1
