@@ -155,7 +155,10 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             (:class:`~lbshape.elastic.assembly.CompiledElasticity`), one sparse
             factorisation reused across Newton iterations and steps
             (:class:`~lbshape.dynamics.linear_solvers.ReusedFactorSolver`) and the compiled
-            block evaluation of the example target; ``"lu-each-iteration"``: the former
+            block evaluation of the example target; without friction or a fitted pull a
+            modified Newton (the residual test on :meth:`_force` alone, the tangent and its
+            factor kept while each update lowers ‖R‖ ten-fold: the stepper's ``force``
+            option); ``"lu-each-iteration"``: the former
             path (numpy assembly, a SuperLU factorisation per Newton iteration), for
             comparison runs. Same answers to round-off and the Newton tolerance.
         omega_max: the highest vibration frequency (rad/s) of the object's modes the
