@@ -155,7 +155,10 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             (:class:`~lbshape.elastic.assembly.CompiledElasticity`), one sparse
             factorisation reused across Newton iterations and steps
             (:class:`~lbshape.dynamics.linear_solvers.ReusedFactorSolver`) and the compiled
-            block evaluation of the example target; ``"lu-each-iteration"``: the former
+            block evaluation of the example target; without friction or a fitted pull a
+            modified Newton (the residual test on :meth:`_force` alone, the tangent and its
+            factor kept while each update lowers ‖R‖ ten-fold: the stepper's ``force``
+            option); ``"lu-each-iteration"``: the former
             path (numpy assembly, a SuperLU factorisation per Newton iteration), for
             comparison runs. Same answers to round-off and the Newton tolerance.
         omega_max: the highest vibration frequency (rad/s) of the object's modes the
@@ -292,6 +295,9 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             linear_solver=(make_linear_solver(self._linear_solver, symmetric=not friction)
                            if self._fast else None),
             check_state=self._check_inversion if self._inversion else None,
+            # a modified Newton where the updates are full ones (no friction, no fitted
+            # pull: with a line search a kept tangent slowed the car's Newton)
+            force=self._force if self._fast and not (friction or fitted_pull) else None,
         )
 
     def _check_inversion(self, x: np.ndarray, index: int, t: float) -> None:
@@ -384,6 +390,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             self._k_ex = k_ex
             self._pull_rigid = None  # the fitted pull's tangent part, of the last evaluation
             self.stepper.credit_work(self._example_energy(x) - before)
+            self.stepper.forget_tangent()
         return self.uses_examples
 
     def set_drag(self, drag: Drag | None) -> None:
@@ -408,6 +415,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
                  (self._drag_dofs, self._drag_dofs)), shape=(size, size))
         self._drag = drag
         self.stepper.credit_work(self._drag_energy(x) - before)
+        self.stepper.forget_tangent()
 
     # --------------------------------------------------------------- state
     #: the engine's caches of the step that are replaced (not changed in place) and may
@@ -442,6 +450,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
                 arrays[f"warm{index}"] = solver._last
             for key, value in getattr(solver, "kept_arrays", dict)().items():
                 arrays[f"warm{index}:{key}"] = value  # a modified Newton's Hessians
+        for key, value in stepper.kept_tangent().items():
+            arrays["tangent:" + key] = value  # the modified Newton's kept tangent
         scalars = {name: getattr(stepper, name) for name in self._STEPPER_SCALARS}
         return snapshot(self.time, arrays, scalars)
 
@@ -457,6 +467,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             restore[name] = value.item() if value.ndim == 0 else value.copy()
         for name, value in restore.items():
             setattr(self.stepper, name, value)
+        self.stepper.restore_tangent({k[len("tangent:"):]: v for k, v in saved.items()
+                                      if k.startswith("tangent:")})
         for name in self._CACHES:
             value = saved.get("cache" + name)
             setattr(self, name, None if value is None else value.copy())
@@ -514,6 +526,32 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             f[self._drag_dofs] += self._drag.stiffness * x[self._drag_dofs]
             K = (K + self._drag_tangent).tocsr()
         return f, K
+
+    def _force(self, x: np.ndarray) -> np.ndarray:
+        """The force of :meth:`_force_and_tangent` alone (the fast path's residual test;
+        the stepper evaluates the tangent only where a Newton update needs it)."""
+        u = self.full_displacement(x).reshape(-1)
+        f = self._compiled.force(u)
+        if self.contact is not None:
+            velocity, rate = self._contact_velocity(x)
+            fc, Kc, _ = self.contact.evaluate(u, velocity, rate)
+            if Kc is not None:
+                f = f + fc[self.free_dofs]
+        if self._k_ex and self._target_body is not None:  # free body, global examples
+            f = f + self._k_ex * (self._spring_ff @ self._free_gap(x))
+        elif self._k_ex:
+            f = f + self._k_ex * (self._spring_ff @ x)
+        stepper = getattr(self, "stepper", None)
+        if self._corotated_beta and stepper is not None:
+            v1, _ = stepper.kinematics(x - stepper.x)
+            kept = getattr(self, "_damping_rigid", None)
+            f = f + self._deformation_damping(x, self._corotated_beta * self._damping_now, v1,
+                                              stepper.scheme.cv / stepper.dt)
+            self._damping_rigid = kept  # the kept tangent's low-rank part stays
+        if self._drag is not None:
+            f = f.copy()
+            f[self._drag_dofs] += self._drag.stiffness * x[self._drag_dofs]
+        return f
 
     def _contact_velocity(self, x: np.ndarray) -> tuple[np.ndarray | None, float]:
         """The vertex velocities (3n,) m/s the contact's friction reads at the end-of-step

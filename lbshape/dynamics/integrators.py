@@ -206,6 +206,13 @@ class ImplicitStepper:
             factorisation.
         check_state: ``(x₁, step index, t₁) -> None``, called with each converged state
             before it is accepted; raises :class:`~lbshape.errors.SolverError` to refuse it.
+        force: ``x (N,) -> f (N,)``, the force of ``force_and_tangent`` alone, or None.
+            Given, the residual test reads the force alone and the tangent (with the
+            low-rank part) is evaluated only where an update needs it and kept across
+            updates and steps while each update contracts ``‖R‖`` by at least
+            ``tangent_contraction`` (a modified Newton with the same residual test; a
+            slower update re-evaluates the tangent at the next one).
+        tangent_contraction: the contraction a kept tangent must achieve (0 < c < 1).
     """
 
     #: the scheme's coefficients (one of :data:`SCHEMES`)
@@ -235,6 +242,8 @@ class ImplicitStepper:
         low_rank_tangent: Callable[[], tuple[np.ndarray, np.ndarray] | None] | None = None,
         linear_solver: Callable | None = None,
         check_state: Callable[[np.ndarray, int, float], None] | None = None,
+        force: Callable[[np.ndarray], np.ndarray] | None = None,
+        tangent_contraction: float = 0.1,
     ):
         self._sparse = sp.issparse(mass)
         self.mass = _square_matrix(mass, "mass")
@@ -254,6 +263,11 @@ class ImplicitStepper:
         self._low_rank_tangent = low_rank_tangent
         self._linear_solver = linear_solver if self._sparse else None
         self.check_state = check_state
+        self._force = force
+        self.tangent_contraction = float(tangent_contraction)
+        self._kept = None  # (K, low-rank part) kept for updates (``force`` given)
+        self._fresh_tangent = True  # the next update evaluates the tangent
+        self.tangent_evaluations = 0
 
         self._x = self._vector(x0, "x0")
         self._v = self._vector(v0, "v0")
@@ -378,10 +392,11 @@ class ImplicitStepper:
                     f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
                     f"residual {relative:.3e} after {iteration} iterations (rtol {self.rtol:g})"
                 )
-            delta = self._solve_newton(K, R, index, t1)
+            delta = self._update(x1, K, R, index, t1)
             if not self.line_search:
                 dx = dx - delta
                 state = self._residual(dx, fext, index, t1)
+                self._fresh_tangent = state[-1] > self.tangent_contraction * norm
                 continue
             # backtracking: the last trial is the accepted one
             fraction = 1.0
@@ -392,6 +407,7 @@ class ImplicitStepper:
                     break
                 fraction *= 0.5
             dx = trial
+            self._fresh_tangent = state[-1] > self.tangent_contraction * norm
         energy = self.total_energy(x1, v1)
         work = self._work + abs(0.5 * float((self._fext + fext) @ dx))
         self._check_energy(energy, work, index, t1)
@@ -410,7 +426,12 @@ class ImplicitStepper:
         """``(x₁, f, K, v₁, a₁, R, ‖R‖)`` of the increment ``dx`` (the step's residual
         ``R = M a₁ + D v₁ + f(x₁) − f_ext``)."""
         x1 = self._x + dx
-        f, K = self._evaluate(x1, index, t1)
+        if self._force is not None:  # the tangent where an update needs it (_update)
+            f, K = np.asarray(self._force(x1), dtype=float).reshape(-1), None
+            if f.shape != (self.n,) or not np.isfinite(f).all():
+                raise SolverError(f"non-finite force at step {index} (t = {t1:.6g} s)")
+        else:
+            f, K = self._evaluate(x1, index, t1)
         v1, a1 = self.kinematics(dx)
         R = self.mass @ a1 + self.damping @ v1 + f - fext
         return x1, f, K, v1, a1, R, float(_norm(R))
@@ -462,8 +483,53 @@ class ImplicitStepper:
             raise SolverError(f"non-finite {what} or tangent at step {index} (t = {t:.6g} s)")
         return f, K
 
-    def _solve_newton(self, K: Matrix, R: np.ndarray, index: int, t: float) -> np.ndarray:
-        correction = self._low_rank_tangent() if self._low_rank_tangent is not None else None
+    def forget_tangent(self) -> None:
+        """The next update evaluates the tangent (``force`` given; the forces changed)."""
+        self._kept, self._fresh_tangent = None, True
+
+    def kept_tangent(self) -> dict[str, np.ndarray]:
+        """The kept tangent (sparse) and its low-rank part as arrays (empty: none)."""
+        if self._kept is None or not sp.issparse(self._kept[0]):
+            return {}
+        K = sp.csr_matrix(self._kept[0])
+        out = {"data": K.data, "indices": K.indices, "indptr": K.indptr,
+               "fresh": np.array(self._fresh_tangent)}
+        if self._kept[1] is not None:
+            out["W"], out["S"] = self._kept[1]
+        return out
+
+    def restore_tangent(self, arrays: dict[str, np.ndarray]) -> None:
+        """Keep the tangent of :meth:`kept_tangent`'s arrays (empty: forget it); a reused
+        factor is then taken afresh of it, as when it was evaluated."""
+        self.forget_tangent()
+        if not arrays:
+            return
+        K = sp.csr_matrix((arrays["data"].copy(), arrays["indices"].copy(),
+                           arrays["indptr"].copy()), shape=(self.n, self.n))
+        low_rank = (arrays["W"].copy(), arrays["S"].copy()) if "W" in arrays else None
+        self._kept, self._fresh_tangent = (K, low_rank), bool(arrays["fresh"])
+        if hasattr(self._linear_solver, "reset"):
+            self._linear_solver.reset()
+
+    def _update(self, x1: np.ndarray, K: Matrix | None, R: np.ndarray, index: int,
+                t: float) -> np.ndarray:
+        """The Newton update δ of R at x₁: with K (the iterate's tangent), or with the kept
+        tangent (``force`` given), evaluated at x₁ first when :attr:`_fresh_tangent`."""
+        if K is not None:
+            return self._solve_newton(K, R, index, t)
+        if self._kept is None or self._fresh_tangent:
+            if hasattr(self._linear_solver, "reset"):
+                self._linear_solver.reset()  # a reused factor: of this tangent's matrix
+            _, tangent = self._evaluate(x1, index, t)
+            self.tangent_evaluations += 1
+            low_rank = self._low_rank_tangent() if self._low_rank_tangent is not None else None
+            self._kept = (tangent, low_rank)
+        return self._solve_newton(self._kept[0], R, index, t, self._kept[1])
+
+    def _solve_newton(self, K: Matrix, R: np.ndarray, index: int, t: float,
+                      low_rank=False) -> np.ndarray:
+        correction = low_rank if low_rank is not False else (
+            self._low_rank_tangent() if self._low_rank_tangent is not None else None)
         try:
             if self._linear_solver is not None:
                 delta = self._linear_solver(self._newton_base, K, R, correction)

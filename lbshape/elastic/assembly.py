@@ -157,6 +157,17 @@ class CompiledElasticity:
         return float(_energy_total(self._code, self._parameters, u, self._full_dofs,
                                    self._gradients, self._volumes))
 
+    def force(self, u: np.ndarray) -> np.ndarray:
+        """The force (nf,) N of :meth:`force_and_tangent` alone (the same sums, in the same
+        order: equal to its force bit for bit)."""
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        if u.shape != (self.n_dofs,):
+            raise LbshapeError(f"displacement must have shape ({self.n_dofs},), got {u.shape}")
+        f = np.empty(self._shape[0])
+        _assemble_force(self._code, self._parameters, u, self._full_dofs, self._element_dofs,
+                        self._gradients, self._volumes, f)
+        return f
+
     def force_and_tangent(self, u: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
         """(force (nf,) N, tangent (nf, nf) N/m CSR) on the free dofs at the full
         node-major displacement u (3n,) m (``+∂E/∂u`` and its derivative)."""
@@ -169,6 +180,34 @@ class CompiledElasticity:
                   self._gradients, self._volumes, self._slots, f, data)
         K = sp.csr_matrix((data, self.indices, self.indptr), shape=self._shape)
         return f, K
+
+
+@njit
+def _assemble_force(code, parameters, u, full_dofs, element_dofs, gradients, volumes, f):
+    f[:] = 0.0
+    H9 = np.empty((9, 1))
+    P9 = np.empty((9, 1))
+    A = np.empty((1, 9, 9))
+    work = np.empty((6, 3, 3))
+    for e in range(full_dofs.shape[0]):
+        G = gradients[e]
+        V = volumes[e]
+        for i in range(3):
+            for j in range(3):
+                value = 0.0
+                for a in range(4):
+                    value += u[full_dofs[e, 3 * a + i]] * G[a, j]
+                H9[3 * i + j, 0] = value
+        _element(code, parameters, H9, P9, A, 0, work, False)
+        for a in range(4):  # f_ai = V Σ_j P_ij G_aj
+            for i in range(3):
+                row = element_dofs[e, 3 * a + i]
+                if row < 0:
+                    continue
+                value = 0.0
+                for j in range(3):
+                    value += P9[3 * i + j, 0] * G[a, j]
+                f[row] += V * value
 
 
 @njit

@@ -93,6 +93,7 @@ def test_compiled_assembly_equals_the_numpy_assembly(bar, model):
     assert compiled.on_pattern(K)
     energy = FullSpaceElasticity(mesh, mat).energy(u)
     assert abs(compiled.energy(u) - energy) <= 1e-13 * energy
+    assert np.array_equal(compiled.force(u), f)  # the force alone: the same sums
     # a matrix inside the pattern is added in place, one outside by a sparse sum
     mass = mass_matrix(mesh, mat.density)[free][:, free]
     total = compiled.add_into(K.copy(), mass, constant=True)
@@ -210,6 +211,32 @@ def test_held_bar_under_gravity_matches_the_former_reference(bar):
     assert trajectory_difference(new, old, sim.mass) <= AGREEMENT
     solver = sim.stepper._linear_solver
     assert solver.factorisations < solver.solves  # the factorisation was reused
+    # the modified Newton: the tangent kept across updates and steps, not one per update
+    assert sim.stepper.tangent_evaluations < solver.solves / 4
+
+
+def test_kept_tangent_matches_the_exact_newton_and_is_refreshed_when_slow(bar):
+    """The fast path's force-only residual test with a kept tangent against the same
+    path evaluating the tangent at every iterate: the same states to the Newton tolerance,
+    a tangent evaluated for a few updates only; a reset forgets the kept tangent."""
+    mesh, mat = bar.mesh, material()
+    g = gravity_pattern(mass_matrix(mesh, mat.density), np.array([0.0, 0.0, -9.81]))
+    runs = []
+    for kept in (True, False):
+        sim = FullSpaceSimulator(mesh=mesh, material=mat, dt=0.005, fixed_vertices=bar.fixed,
+                                 loads=[TimedLoad(g, TimeProfile("ramp", 0.0, 0.05))])
+        if not kept:
+            sim.stepper._force = None  # force and tangent at every iterate
+        record = sim.run(30)
+        assert record.stable, record.message
+        runs.append((np.asarray(record.states), sim))
+    (kept_states, sim), (exact_states, exact) = runs
+    assert exact.stepper.tangent_evaluations == 0
+    assert 0 < sim.stepper.tangent_evaluations < sim.stepper._linear_solver.solves / 3
+    assert trajectory_difference(kept_states, exact_states, sim.mass) <= 1e-7
+    assert sim.stepper._kept is not None
+    sim.reset()
+    assert sim.stepper._kept is None
 
 
 @pytest.mark.parametrize("model", MODELS)
