@@ -1,9 +1,16 @@
 """Penalty contact of an object's surface vertices with the scene's planes.
 
 A plane is a point p (m), a unit normal n pointing into the free side and a
-penalty stiffness k (N/m per surface vertex). A surface vertex at world position
-x penetrates by ``d = max(0, −(x − p)·n)`` and feels ``f = k d n`` (N, world),
-with the potential ``½ k d²``.
+penalty stiffness k per area (N/m³: a pressure per metre of penetration). A surface
+vertex i carries the lumped area A_i of the surface (a third of each boundary triangle
+at it, times its outward normal: the area vector a_i, :func:`surface_areas`); facing the
+plane it has the area ``A_i = max(0, −R a_i · n)`` (a_i in the body frame turned by the
+rotation R; the full reference takes it from the deformed surface), so its stiffness is
+``k_i = k A_i`` (N/m) and the total stiffness of a face resting on the plane is k times
+the face's area whatever the mesh. The change of A_i with the pose is left out of the
+tangents.
+A vertex at world position x penetrates by ``d = max(0, −(x − p)·n)`` and feels
+``f = k_i d n`` (N, world), with the potential ``½ k_i d²``; below, k stands for k_i.
 
 **Friction** (regularised Coulomb). A plane's coefficient μ ≥ 0 adds, at every
 penetrating vertex, the tangential force ``f_t = −μ k d · v_t / √(|v_t|² + ε²)`` (N,
@@ -65,8 +72,9 @@ _EPS = float(np.finfo(float).eps)
 
 @dataclass(frozen=True)
 class ContactPlane:
-    """A contact plane: point (3,) m, unit normal (3,) into the free side, k in N/m,
-    Coulomb friction coefficient μ ≥ 0 (0: frictionless)."""
+    """A contact plane: point (3,) m, unit normal (3,) into the free side, k in N/m³
+    (per area of the surface: a vertex of lumped area A feels k A d), Coulomb friction
+    coefficient μ ≥ 0 (0: frictionless)."""
 
     point: tuple[float, float, float]
     normal: tuple[float, float, float]
@@ -111,6 +119,24 @@ def surface_vertices(tets: np.ndarray) -> np.ndarray:
     return np.unique(boundary_faces(np.asarray(tets)).ravel())
 
 
+def surface_areas(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertices (s,), area vectors (s, 3) m²)``: the surface vertices
+    (:func:`surface_vertices`) and their lumped outward area vectors, a third of each
+    boundary triangle's area times its outward unit normal at each of its corners. A
+    vertex's area facing a plane of unit normal n is ``max(0, −a_i·n)`` (its share of the
+    surface projected on the plane): a flat face resting on the plane gets exactly its
+    area, whatever the mesh, and the faces standing on it nothing."""
+    faces = boundary_faces(np.asarray(tets))
+    p = np.asarray(points, dtype=float)[faces]
+    normal = 0.5 * np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])  # area × unit normal
+    vertices, inverse = np.unique(faces.ravel(), return_inverse=True)
+    inverse = inverse.ravel()
+    share = np.repeat(normal / 3.0, 3, axis=0)
+    vectors = np.column_stack([np.bincount(inverse, weights=share[:, a],
+                                           minlength=vertices.size) for a in range(3)])
+    return vertices, vectors
+
+
 class PlaneContact:
     """Penalty contact of a body's surface vertices with planes (module docstring).
 
@@ -119,10 +145,12 @@ class PlaneContact:
         body_points: (s, 3) surface vertex positions X̄ in the body frame (m).
         basis: (s, 3, r) the surface vertices' rows of U.
         vertices: (s,) their indices in the mesh (for reference).
+        areas: (s, 3) their lumped outward area vectors a_i (m², body frame,
+            :func:`surface_areas`).
     """
 
     def __init__(self, planes: Sequence[ContactPlane], body_points: np.ndarray,
-                 basis: np.ndarray, vertices: np.ndarray):
+                 basis: np.ndarray, vertices: np.ndarray, areas: np.ndarray):
         if not planes:
             raise LbshapeError("contact needs at least one plane")
         self.points = np.array([p.point for p in planes], dtype=float)
@@ -133,15 +161,20 @@ class PlaneContact:
         self.normals = normals / lengths[:, None]
         self.stiffness = np.array([p.stiffness for p in planes], dtype=float)
         if np.any(~np.isfinite(self.stiffness)) or np.any(self.stiffness <= 0):
-            raise LbshapeError("contact stiffness must be > 0 N/m")
+            raise LbshapeError("contact stiffness must be > 0 N/m^3")
         self.friction = plane_frictions(planes)
         #: some plane has friction (the contact then depends on the velocities)
         self.has_friction = bool(np.any(self.friction > 0))
-        self._k_max = float(self.stiffness.max())
+        self._k_max = float(self.stiffness.max()) * float(
+            np.linalg.norm(np.asarray(areas, dtype=float), axis=1).max(initial=0.0))
         self._mu_max = float(self.friction.max())
         self.body_points = np.ascontiguousarray(body_points, dtype=float)
         self.basis = np.ascontiguousarray(basis, dtype=float)
         self.vertices = np.asarray(vertices, dtype=np.int64)
+        #: (s, 3) the vertices' lumped outward area vectors a_i (m², body frame)
+        self.areas = np.ascontiguousarray(areas, dtype=float)
+        if self.areas.shape != self.body_points.shape or not np.all(np.isfinite(self.areas)):
+            raise LbshapeError("contact area vectors must be finite, (s, 3)")
         r = self.basis.shape[2]
         self.r = r
         self.radius0 = float(np.linalg.norm(self.body_points, axis=1).max())
@@ -180,12 +213,12 @@ class PlaneContact:
     def for_mesh(cls, planes: Sequence[ContactPlane], points: np.ndarray, tets: np.ndarray,
                  U: np.ndarray, *, center: np.ndarray | None = None) -> PlaneContact:
         """Contact of a mesh's surface; ``center`` (3,) is subtracted (free bodies)."""
-        idx = surface_vertices(tets)
+        idx, areas = surface_areas(points, tets)
         n = points.shape[0]
         r = U.shape[1]
         body = points[idx] - (np.zeros(3) if center is None else np.asarray(center))
         basis = np.asarray(U).reshape(n, 3, r)[idx]
-        return cls(planes, body, basis, idx)
+        return cls(planes, body, basis, idx, areas)
 
     def may_touch(self, center: np.ndarray, q: np.ndarray) -> np.ndarray:
         """(P,) bool: planes the bounding sphere around ``center`` reaches."""
@@ -214,14 +247,15 @@ class PlaneContact:
             np.add(self._deformed, self.body_points, out=self._deformed)
         else:
             self.skipped += 1
-        active = _contact_kernel(center, rotation, self._deformed, self.basis, self._planes,
-                                 self._reach, rigid, self._work.data, self._out.data)
+        active = _contact_kernel(center, rotation, self._deformed, self.basis, self.areas,
+                                 self._planes, self._reach, rigid, self._work.data,
+                                 self._out.data)
         if self.has_friction and active:
             _pack_motion(self._rest3 if velocity is None else velocity,
                          self._rest3 if omega is None else omega,
                          self._rest_q if qd is None else qd, float(rate), self._motion)
             _friction_kernel(center, rotation, self._motion, self._deformed, self.basis,
-                             self._planes, SLIP_SPEED, self._reach, rigid, self._work.data,
+                             self.areas, self._planes, SLIP_SPEED, self._reach, rigid, self._work.data,
                              self._out.data)
         elif self.has_friction:
             self.damping_rigid[:] = 0.0
@@ -292,6 +326,14 @@ def friction_force(velocity: np.ndarray, normal: np.ndarray, normal_force: np.nd
     rates = scale[:, None, None] * (projection[None]
                                     - direction[:, :, None] * direction[:, None, :])
     return -(friction * normal_force)[:, None] * direction, rates, direction
+
+
+@njit
+def facing_area(areas, i, nb):
+    """Vertex i's area facing a plane, ``max(0, −a_i · Rᵀ n)`` (``areas`` (s, 3) the area
+    vectors a_i in the body frame, ``nb`` = Rᵀ n)."""
+    value = -(areas[i, 0] * nb[0] + areas[i, 1] * nb[1] + areas[i, 2] * nb[2])
+    return value if value > 0.0 else 0.0
 
 
 @njit
@@ -429,7 +471,8 @@ def _pack_motion(velocity, omega, qd, rate, motion):
 
 
 @njit
-def _contact_kernel(center, rotation, deformed, basis, planes, reach, rigid, work, out):
+def _contact_kernel(center, rotation, deformed, basis, areas, planes, reach, rigid, work,
+                    out):
     """One pass over the surface vertices (see :meth:`PlaneContact.evaluate_into`).
 
     Vertex i: ``y = X̄_i + U_i q`` (body, the row i of ``deformed`` (s, 3)), arm ``R y``
@@ -437,7 +480,9 @@ def _contact_kernel(center, rotation, deformed, basis, planes, reach, rigid, wor
     ``(R y + c − p)·n``; a penetration d > 0 adds ``k d n`` to the force, ``k d (arm × n)``
     to the torque, ``k d g`` with ``g = U_iᵀ Rᵀ n`` to the generalized force, ``k g gᵀ`` to
     ``stiffness_q`` and ``k J Jᵀ`` (J = [n; arm × n]) to the 6 × 6 stiffness.
-    ``planes`` (P, 8): point, unit normal, k, μ; ``work`` and ``out`` the buffers of
+    ``planes`` (P, 8): point, unit normal, k (per area), μ; k above is k times the area
+    facing the plane (:func:`facing_area`);
+    ``work`` and ``out`` the buffers of
     :class:`ContactWork` and :class:`ContactOutput`.
     Returns the number of penetrations (vertex, plane).
     """
@@ -466,14 +511,15 @@ def _contact_kernel(center, rotation, deformed, basis, planes, reach, rigid, wor
             if not gap < 0.0:
                 continue
             d = -gap
-            k = planes[p, 6]
+            for a in range(3):
+                nb[a] = (rotation[0, a] * planes[p, 3] + rotation[1, a] * planes[p, 4]
+                         + rotation[2, a] * planes[p, 5])  # Rᵀ n
+            k = planes[p, 6] * facing_area(areas, i, nb)
             active += 1
             depth = max(depth, d)
             energy += 0.5 * k * d * d
             for a in range(3):
                 force[a] += k * d * planes[p, 3 + a]
-                nb[a] = (rotation[0, a] * planes[p, 3] + rotation[1, a] * planes[p, 4]
-                         + rotation[2, a] * planes[p, 5])  # Rᵀ n
             for j in range(r):
                 g[j] = basis[i, 0, j] * nb[0] + basis[i, 1, j] * nb[1] + basis[i, 2, j] * nb[2]
                 generalized[j] += k * d * g[j]
@@ -505,8 +551,8 @@ def _contact_kernel(center, rotation, deformed, basis, planes, reach, rigid, wor
 
 
 @njit
-def _friction_kernel(center, rotation, motion, deformed, basis, planes, eps, reach, rigid,
-                     work, out):
+def _friction_kernel(center, rotation, motion, deformed, basis, areas, planes, eps, reach,
+                     rigid, work, out):
     """The friction of the penetrating vertices (module docstring), added to ``force``,
     ``torque``, ``generalized`` and ``Kq`` of ``out``; its ``C6`` (6, 6) receives ``C₆``.
 
@@ -551,7 +597,11 @@ def _friction_kernel(center, rotation, motion, deformed, basis, planes, eps, rea
             gap = _plane_gap(arm, center, planes, p)
             if not gap < 0.0:
                 continue
-            _plane_friction(planes, p, -gap, eps, rigid, views, result)
+            area = 0.0
+            for a in range(3):
+                area -= (areas[i, 0] * rotation[a, 0] + areas[i, 1] * rotation[a, 1]
+                         + areas[i, 2] * rotation[a, 2]) * planes[p, 3 + a]
+            _plane_friction(planes, p, -gap, max(area, 0.0), eps, rigid, views, result)
     rate, Kq, Kf = motion[6], result.Kq, views.Kf
     for j in range(r):  # rate Σ Gᵀ C G from its upper triangle
         Kq[j, j] += rate * Kf[j, j]
@@ -562,8 +612,9 @@ def _friction_kernel(center, rotation, motion, deformed, basis, planes, eps, rea
 
 
 @njit
-def _plane_friction(planes, p, d, eps, rigid, views, result):
-    """The friction of one vertex penetrating plane p by d (m), its arm and velocity w and
+def _plane_friction(planes, p, d, area, eps, rigid, views, result):
+    """The friction of one vertex of area A penetrating plane p by d (m; k below is the
+    vertex's ``k A``), its arm and velocity w and
     its G = R U_i in ``views`` (:class:`ContactWork`): ``t = (I − n nᵀ) w``,
     ``s = √(|t|² + ε²)``, ``T = t/s``, ``f_t = −μ k d T``, ``C = μ k d (P − T Tᵀ)/s``, added
     to ``result`` (:class:`ContactOutput`)."""
@@ -580,7 +631,7 @@ def _plane_friction(planes, p, d, eps, rigid, views, result):
     for a in range(3):
         t[a] = w[a] - wn * n[a]
     s = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + eps * eps)
-    mu_k = planes[p, 7] * planes[p, 6]
+    mu_k = planes[p, 7] * planes[p, 6] * area
     scale = mu_k * d / s
     for a in range(3):
         t[a] /= s  # T

@@ -1,5 +1,7 @@
 """Penalty contact of a full-space object's surface vertices with planes
-(:class:`FullSpaceContact`), with the planes' regularised Coulomb friction, as the
+(:class:`FullSpaceContact`; a vertex's stiffness is the plane's k per area times its
+lumped area facing the plane on the deformed surface, as in
+:mod:`lbshape.dynamics.contact`), with the planes' regularised Coulomb friction, as the
 full-space reference (:mod:`lbshape.dynamics.full`) evaluates it on full displacements."""
 
 from __future__ import annotations
@@ -13,8 +15,9 @@ from lbshape.dynamics.contact import (
     ContactPlane,
     friction_force,
     plane_frictions,
-    surface_vertices,
+    surface_areas,
 )
+from lbshape.geometry.mesh import boundary_faces
 from lbshape.errors import LbshapeError
 
 
@@ -28,7 +31,10 @@ class FullSpaceContact:
     """
 
     def __init__(self, planes: Sequence[ContactPlane], points: np.ndarray, tets: np.ndarray):
-        self.vertices = surface_vertices(tets)
+        self.vertices, _ = surface_areas(points, tets)
+        faces = boundary_faces(np.asarray(tets))
+        #: (f, 3) the boundary triangles as rows of the surface vertices
+        self.faces = np.searchsorted(self.vertices, faces)
         self.rest = np.asarray(points, dtype=float)[self.vertices]
         self.n = points.shape[0]
         self.planes = list(planes)
@@ -42,6 +48,16 @@ class FullSpaceContact:
         #: some plane has friction (the force then depends on the velocity)
         self.has_friction = bool(np.any(self.friction > 0))
 
+    def area_vectors(self, x: np.ndarray) -> np.ndarray:
+        """(s, 3) the surface vertices' lumped outward area vectors (m²) on the deformed
+        surface x (s, 3) (:func:`~lbshape.dynamics.contact.surface_areas`)."""
+        p = x[self.faces]
+        share = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]) / 6.0
+        out = np.zeros_like(x)
+        for corner in range(3):
+            np.add.at(out, self.faces[:, corner], share)
+        return out
+
     def evaluate(self, u: np.ndarray, v: np.ndarray | None = None, rate: float = 0.0):
         """``(f (3n,) = +∂E/∂u − f_friction, K (3n, 3n) CSR or None, energy J)`` for
         u (3n,) m and the vertex velocities v (3n,) m/s (zero when ``None``).
@@ -52,6 +68,7 @@ class FullSpaceContact:
         T the slip direction): the consistent tangent, not symmetric.
         """
         x = self.rest + u.reshape(-1, 3)[self.vertices]
+        areas = self.area_vectors(x)
         force = np.zeros((self.n, 3))
         rows, cols, vals = [], [], []
         energy = 0.0
@@ -61,16 +78,17 @@ class FullSpaceContact:
             if hit.size == 0:
                 continue
             d = -gap[hit]
-            energy += 0.5 * plane.stiffness * float(d @ d)
-            np.add.at(force, self.vertices[hit], -plane.stiffness * d[:, None] * n[None, :])
-            blocks = np.broadcast_to(plane.stiffness * np.outer(n, n), (hit.size, 3, 3))
+            k = plane.stiffness * np.maximum(-(areas[hit] @ n), 0.0)  # (h,) N/m
+            energy += 0.5 * float(k @ (d * d))
+            np.add.at(force, self.vertices[hit], -(k * d)[:, None] * n[None, :])
+            blocks = k[:, None, None] * np.outer(n, n)[None]
             if mu > 0:
                 w = (np.zeros((hit.size, 3)) if v is None
                      else v.reshape(-1, 3)[self.vertices[hit]])
-                friction, rates, direction = friction_force(w, n, plane.stiffness * d, mu)
+                friction, rates, direction = friction_force(w, n, k * d, mu)
                 np.add.at(force, self.vertices[hit], -friction)
                 blocks = (blocks + rate * rates
-                          - mu * plane.stiffness * direction[:, :, None] * n[None, None, :])
+                          - mu * k[:, None, None] * direction[:, :, None] * n[None, None, :])
             dofs = 3 * self.vertices[hit][:, None] + np.arange(3)[None, :]  # (h, 3)
             rows.append(np.repeat(dofs, 3, axis=1).ravel())
             cols.append(np.tile(dofs, (1, 3)).ravel())
