@@ -65,7 +65,7 @@ from lbshape.geometry.mesh import boundary_faces
 
 #: ε of the regularised Coulomb friction (m/s): the slip speed below which the friction
 #: force grows linearly with the slip (module docstring)
-SLIP_SPEED = 1e-2
+SLIP_SPEED = 1e-4
 #: machine ε (the contact's round-off level)
 _EPS = float(np.finfo(float).eps)
 
@@ -255,8 +255,8 @@ class PlaneContact:
                          self._rest3 if omega is None else omega,
                          self._rest_q if qd is None else qd, float(rate), self._motion)
             _friction_kernel(center, rotation, self._motion, self._deformed, self.basis,
-                             self.areas, self._planes, SLIP_SPEED, self._reach, rigid, self._work.data,
-                             self._out.data)
+                             self.areas, self._planes, SLIP_SPEED, self._reach, rigid,
+                             self._work.data, self._out.data)
         elif self.has_friction:
             self.damping_rigid[:] = 0.0
             self.coupling[:] = 0.0

@@ -17,8 +17,8 @@ from lbshape.dynamics.contact import (
     plane_frictions,
     surface_areas,
 )
-from lbshape.geometry.mesh import boundary_faces
 from lbshape.errors import LbshapeError
+from lbshape.geometry.mesh import boundary_faces
 
 
 class FullSpaceContact:

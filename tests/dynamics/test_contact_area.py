@@ -1,0 +1,50 @@
+"""Contact per area: a plane's stiffness k is per area of the surface facing it (N/m³),
+so a flat face resting on a plane is held by k × its area × the depth whatever the mesh,
+in the reduced contact and the full reference alike; a vertex's share is its lumped
+area facing the plane (``max(0, −a_i · n)``, :func:`~lbshape.dynamics.contact.surface_areas`),
+the faces standing on the plane add nothing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lbshape.dynamics.contact import ContactPlane, PlaneContact, surface_areas
+from lbshape.dynamics.full_contact import FullSpaceContact
+from lbshape.geometry.primitives import structured_box
+
+K = 1e6  # N/m³
+DEPTH = 1e-3  # m
+SIZE = (0.3, 0.2, 0.1)  # m: the bottom face has 0.06 m²
+
+
+@pytest.mark.parametrize("divisions", [(2, 2, 1), (6, 4, 3)])
+def test_flat_face_is_held_by_its_area(divisions):
+    """The box's bottom face pressed DEPTH into the floor: the total force is k A d at two
+    mesh resolutions (9 and 35 bottom vertices; per vertex it was k d times their count,
+    with plain lumped areas the side faces' strip added 100 % and 33 %)."""
+    mesh = structured_box(SIZE, divisions)
+    n = mesh.n_vertices
+    plane = ContactPlane((0.0, 0.0, DEPTH), (0.0, 0.0, 1.0), K)
+    expected = K * SIZE[0] * SIZE[1] * DEPTH
+    full, K_full, _ = FullSpaceContact([plane], mesh.points, mesh.tets).evaluate(np.zeros(3 * n))
+    total = -full.reshape(n, 3).sum(axis=0)  # evaluate returns +∂E/∂u
+    np.testing.assert_allclose(total, [0.0, 0.0, expected], rtol=1e-12, atol=1e-12 * expected)
+    reduced = PlaneContact.for_mesh([plane], mesh.points, mesh.tets, np.zeros((3 * n, 1)))
+    got = reduced.evaluate(np.zeros(3), np.eye(3), np.zeros(1))
+    np.testing.assert_allclose(got.force, [0.0, 0.0, expected], rtol=1e-12,
+                               atol=1e-12 * expected)
+    # the stiffness too: the rigid 6 × 6's vertical entry and the full tangent's sum
+    assert got.stiffness_rigid[2, 2] == pytest.approx(K * SIZE[0] * SIZE[1], rel=1e-12)
+    assert K_full.sum() == pytest.approx(K * SIZE[0] * SIZE[1], rel=1e-12)
+
+
+def test_area_vectors_close_the_surface():
+    """The lumped area vectors sum to zero (a closed surface) and each face's vertices
+    facing a plane add up to the face's area."""
+    mesh = structured_box(SIZE, (3, 2, 2))
+    _, areas = surface_areas(mesh.points, mesh.tets)
+    assert np.abs(areas.sum(axis=0)).max() < 1e-15
+    facing = np.maximum(areas @ np.eye(3), 0.0).sum(axis=0)  # faces +x, +y, +z
+    np.testing.assert_allclose(facing, [SIZE[1] * SIZE[2], SIZE[0] * SIZE[2],
+                                        SIZE[0] * SIZE[1]], rtol=1e-12)
