@@ -1,6 +1,6 @@
 """Penalty contact of a full-space object's surface vertices with planes
 (:class:`FullSpaceContact`; a vertex's stiffness is the plane's k per area times its
-lumped area facing the plane on the deformed surface, as in
+the pressure integrated over the deformed surface's triangles, as in
 :mod:`lbshape.dynamics.contact`), with the planes' regularised Coulomb friction, as the
 full-space reference (:mod:`lbshape.dynamics.full`) evaluates it on full displacements."""
 
@@ -17,8 +17,8 @@ from lbshape.dynamics.contact import (
     plane_frictions,
     surface_areas,
 )
+from lbshape.dynamics.contact_faces import face_loads, surface_faces
 from lbshape.errors import LbshapeError
-from lbshape.geometry.mesh import boundary_faces
 
 
 class FullSpaceContact:
@@ -32,9 +32,8 @@ class FullSpaceContact:
 
     def __init__(self, planes: Sequence[ContactPlane], points: np.ndarray, tets: np.ndarray):
         self.vertices, _ = surface_areas(points, tets)
-        faces = boundary_faces(np.asarray(tets))
         #: (f, 3) the boundary triangles as rows of the surface vertices
-        self.faces = np.searchsorted(self.vertices, faces)
+        self.faces, _ = surface_faces(points, tets, self.vertices)
         self.rest = np.asarray(points, dtype=float)[self.vertices]
         self.n = points.shape[0]
         self.planes = list(planes)
@@ -48,53 +47,72 @@ class FullSpaceContact:
         #: some plane has friction (the force then depends on the velocity)
         self.has_friction = bool(np.any(self.friction > 0))
 
-    def area_vectors(self, x: np.ndarray) -> np.ndarray:
-        """(s, 3) the surface vertices' lumped outward area vectors (m²) on the deformed
-        surface x (s, 3) (:func:`~lbshape.dynamics.contact.surface_areas`)."""
+    def face_shares(self, x: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """(f,) the boundary triangles' areas facing a plane of unit normal ``normal``,
+        ``max(0, −a_T · n)`` (m², a_T the outward area vector on the deformed surface x
+        (s, 3))."""
         p = x[self.faces]
-        share = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]) / 6.0
-        out = np.zeros_like(x)
-        for corner in range(3):
-            np.add.at(out, self.faces[:, corner], share)
-        return out
+        vectors = 0.5 * np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        return np.maximum(-(vectors @ normal), 0.0)
 
     def evaluate(self, u: np.ndarray, v: np.ndarray | None = None, rate: float = 0.0):
         """``(f (3n,) = +∂E/∂u − f_friction, K (3n, 3n) CSR or None, energy J)`` for
         u (3n,) m and the vertex velocities v (3n,) m/s (zero when ``None``).
 
-        The friction force ``f_t`` (:func:`~lbshape.dynamics.contact.friction_force`)
-        enters ``f`` with the internal-force sign; its tangent per vertex is
-        ``rate C − μ k T nᵀ`` (``rate = ∂v/∂u`` of the step in 1/s, C the rate matrix,
-        T the slip direction): the consistent tangent, not symmetric.
+        The normal forces F_i and their pair blocks ``k c_T M_jl n nᵀ`` come from the
+        pressure over the triangles (:func:`~lbshape.dynamics.contact_faces.face_loads`).
+        The friction force ``f_t = −μ F_i T_i`` (:func:`~lbshape.dynamics.contact.friction_force`)
+        enters ``f`` with the internal-force sign; its tangent is ``rate C`` per vertex
+        (``rate = ∂v/∂u`` of the step in 1/s, C the rate matrix) and ``−μ k c_T M_jl T_j nᵀ``
+        per pair (T the slip direction): not symmetric. The change of the triangles'
+        facing shares with u is left out.
         """
         x = self.rest + u.reshape(-1, 3)[self.vertices]
-        areas = self.area_vectors(x)
+        s_count = x.shape[0]
         force = np.zeros((self.n, 3))
         rows, cols, vals = [], [], []
         energy = 0.0
         for plane, n, mu in zip(self.planes, self.normals, self.friction, strict=True):
-            gap = (x - np.asarray(plane.point)) @ n
-            hit = np.flatnonzero(gap < 0.0)
-            if hit.size == 0:
+            depth = -((x - np.asarray(plane.point)) @ n)
+            if not depth.max() > 0.0:
                 continue
-            d = -gap[hit]
-            k = plane.stiffness * np.maximum(-(areas[hit] @ n), 0.0)  # (h,) N/m
-            energy += 0.5 * float(k @ (d * d))
-            np.add.at(force, self.vertices[hit], -(k * d)[:, None] * n[None, :])
-            blocks = k[:, None, None] * np.outer(n, n)[None]
+            F, S = np.zeros(s_count), np.zeros(s_count)
+            blocks = np.zeros((self.faces.shape[0], 9))
+            energy += face_loads(self.faces, depth, self.face_shares(x, n),
+                                 float(plane.stiffness), F, S, blocks, np.zeros((6, 3)))
+            loaded = np.flatnonzero(S > 0.0)
+            np.add.at(force, self.vertices[loaded], -F[loaded, None] * n[None, :])
+            touched = np.flatnonzero(np.any(blocks != 0.0, axis=1))
+            M = blocks[touched].reshape(-1, 3, 3)  # (m, 3, 3) the triangles' pairs
+            corners = self.faces[touched]
+            pair = M[:, :, :, None, None] * np.outer(n, n)[None, None, None]
             if mu > 0:
-                w = (np.zeros((hit.size, 3)) if v is None
-                     else v.reshape(-1, 3)[self.vertices[hit]])
-                friction, rates, direction = friction_force(w, n, k * d, mu)
-                np.add.at(force, self.vertices[hit], -friction)
-                blocks = (blocks + rate * rates
-                          - mu * k[:, None, None] * direction[:, :, None] * n[None, None, :])
-            dofs = 3 * self.vertices[hit][:, None] + np.arange(3)[None, :]  # (h, 3)
-            rows.append(np.repeat(dofs, 3, axis=1).ravel())
-            cols.append(np.tile(dofs, (1, 3)).ravel())
-            vals.append(np.ascontiguousarray(blocks).ravel())
+                w = (np.zeros((loaded.size, 3)) if v is None
+                     else v.reshape(-1, 3)[self.vertices[loaded]])
+                friction, rates, direction = friction_force(w, n, F[loaded], mu)
+                np.add.at(force, self.vertices[loaded], -friction)
+                slip = np.zeros((s_count, 3))
+                slip[loaded] = direction
+                pair = pair - mu * (M[:, :, :, None, None] * slip[corners][:, :, None, :, None]
+                                    * n[None, None, None, None, :])
+                self._add_blocks(rows, cols, vals, self.vertices[loaded], self.vertices[loaded],
+                                 rate * rates)
+            self._add_blocks(rows, cols, vals,
+                             np.repeat(self.vertices[corners], 3, axis=1).ravel(),
+                             np.tile(self.vertices[corners], (1, 3)).ravel(),
+                             pair.reshape(-1, 3, 3))
         if not rows:
             return force.ravel(), None, 0.0
         K = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                           shape=(3 * self.n, 3 * self.n))
         return force.ravel(), K, energy
+
+    @staticmethod
+    def _add_blocks(rows: list, cols: list, vals: list, left: np.ndarray, right: np.ndarray,
+                    blocks: np.ndarray) -> None:
+        """3 × 3 ``blocks`` (m, 3, 3) at the vertex pairs (left, right) (m,) as COO lists."""
+        a = 3 * left[:, None] + np.arange(3)[None, :]
+        b = 3 * right[:, None] + np.arange(3)[None, :]
+        rows.append(np.repeat(a, 3, axis=1).ravel())
+        cols.append(np.tile(b, (1, 3)).ravel())
+        vals.append(np.ascontiguousarray(blocks).ravel())

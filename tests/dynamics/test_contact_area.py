@@ -48,3 +48,30 @@ def test_area_vectors_close_the_surface():
     facing = np.maximum(areas @ np.eye(3), 0.0).sum(axis=0)  # faces +x, +y, +z
     np.testing.assert_allclose(facing, [SIZE[1] * SIZE[2], SIZE[0] * SIZE[2],
                                         SIZE[0] * SIZE[1]], rtol=1e-12)
+
+
+@pytest.mark.parametrize("divisions", [(2, 2, 1), (6, 4, 3)])
+def test_tilted_face_strip_is_held_by_its_integral(divisions):
+    """The box tilted by 0.2 rad about y so that only a strip along its lowest edge,
+    narrower than an element, penetrates: the total force is ``k ∫ d dA`` of the strip
+    (the penetration linear across it) at both resolutions, full and reduced."""
+    mesh = structured_box(SIZE, divisions)
+    n = mesh.n_vertices
+    angle, depth = 0.2, 2e-3
+    c, s = np.cos(angle), np.sin(angle)
+    R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    turned = mesh.points @ R.T
+    lowest = turned[:, 2].min()
+    plane = ContactPlane((0.0, 0.0, lowest + depth), (0.0, 0.0, 1.0), K)
+    # the lowest edge is the bottom face's at x = 0.3: the bottom face penetrates by
+    # depth − (0.3 − x) sin over a strip depth / sin wide (facing share cos), the side
+    # face x = 0.3 by depth − z cos over depth / cos (facing share sin)
+    bottom = 0.5 * depth * (depth / s) * SIZE[1] * c
+    side = 0.5 * depth * (depth / c) * SIZE[1] * s
+    expected = K * (bottom + side)
+    full = FullSpaceContact([plane], mesh.points, mesh.tets)
+    f, _, _ = full.evaluate((turned - mesh.points).ravel())
+    assert -f.reshape(n, 3).sum(axis=0)[2] == pytest.approx(expected, rel=1e-10)
+    reduced = PlaneContact.for_mesh([plane], mesh.points, mesh.tets, np.zeros((3 * n, 1)))
+    got = reduced.evaluate(np.zeros(3), R, np.zeros(1))
+    assert got.force[2] == pytest.approx(expected, rel=1e-10)
