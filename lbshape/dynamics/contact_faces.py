@@ -5,8 +5,8 @@ reduced contact (:mod:`lbshape.dynamics.contact`) and the full reference
 A plane of stiffness k per area (N/m³) presses a surface point that penetrates it by d
 with the pressure k d. The penetration is linear over a boundary triangle T (its
 corners' depths ``d_j = −gap_j``), so the force the triangle takes,
-``k c_T ∫_{T, d > 0} d dA`` (``c_T = max(0, −N_T · n)`` its facing share, N_T its unit
-outward normal), is integrated exactly over the part of T that penetrates (a triangle
+``k c_T ∫_{T, d > 0} d dA`` (``c_T = max(β, −N_T · n)`` its facing share, N_T its unit
+outward normal, β = :data:`FACING_FLOOR`), is integrated exactly over the part of T that penetrates (a triangle
 or T minus a triangle, cut where d = 0) and shared by the corners' linear shape
 functions φ_j: corner j takes ``F_j = k c_T Σ_l M_jl d_l``,
 ``M_jl = ∫_{T, d > 0} φ_j φ_l dA``; the energy is ``½ k c_T Σ M_jl d_j d_l``. A flat face
@@ -22,6 +22,12 @@ import numpy as np
 
 from lbshape._jit import njit
 from lbshape.geometry.mesh import boundary_faces
+
+#: β, the least facing share of a triangle: a face standing on the plane or facing away
+#: (a crumpled or buckled surface) still resists its penetration with β of its area. On
+#: a face pressed by d its standing neighbours add β k d²/2 per metre of edge, second
+#: order in d and independent of the mesh
+FACING_FLOOR = 0.1
 
 
 def surface_areas(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -162,11 +168,13 @@ def face_kernel(center, rotation, deformed, faces, face_areas, planes, reach, ar
             deepest = max(deepest, depth[i])
         if not deepest > 0.0:
             continue
-        for t in range(faces.shape[0]):  # c_T |T| = max(0, −(R a_T)·n)
+        for t in range(faces.shape[0]):  # c_T |T| = max(β |a_T|, −(R a_T)·n)
             value = 0.0
             for a in range(3):
                 value -= (rotation[a, 0] * face_areas[t, 0] + rotation[a, 1] * face_areas[t, 1]
                           + rotation[a, 2] * face_areas[t, 2]) * planes[p, 3 + a]
-            shares[t] = value if value > 0.0 else 0.0
+            least = FACING_FLOOR * np.sqrt(face_areas[t, 0] ** 2 + face_areas[t, 1] ** 2
+                                           + face_areas[t, 2] ** 2)
+            shares[t] = value if value > least else least
         energy += face_loads(faces, depth, shares, planes[p, 6], F, S, blocks, work)
     return energy

@@ -17,7 +17,7 @@ from lbshape.dynamics.contact import (
     plane_frictions,
     surface_areas,
 )
-from lbshape.dynamics.contact_faces import face_loads, surface_faces
+from lbshape.dynamics.contact_faces import FACING_FLOOR, face_loads, surface_faces
 from lbshape.errors import LbshapeError
 
 
@@ -49,11 +49,11 @@ class FullSpaceContact:
 
     def face_shares(self, x: np.ndarray, normal: np.ndarray) -> np.ndarray:
         """(f,) the boundary triangles' areas facing a plane of unit normal ``normal``,
-        ``max(0, −a_T · n)`` (m², a_T the outward area vector on the deformed surface x
-        (s, 3))."""
+        ``max(β |a_T|, −a_T · n)`` (m², a_T the outward area vector on the deformed
+        surface x (s, 3), β :data:`~lbshape.dynamics.contact_faces.FACING_FLOOR`)."""
         p = x[self.faces]
         vectors = 0.5 * np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-        return np.maximum(-(vectors @ normal), 0.0)
+        return np.maximum(-(vectors @ normal), FACING_FLOOR * np.linalg.norm(vectors, axis=1))
 
     def evaluate(self, u: np.ndarray, v: np.ndarray | None = None, rate: float = 0.0):
         """``(f (3n,) = +∂E/∂u − f_friction, K (3n, 3n) CSR or None, energy J)`` for

@@ -2,7 +2,8 @@
 so a flat face resting on a plane is held by k × its area × the depth whatever the mesh,
 in the reduced contact and the full reference alike; a vertex's share is its lumped
 area facing the plane (``max(0, −a_i · n)``, :func:`~lbshape.dynamics.contact.surface_areas`),
-the faces standing on the plane add nothing."""
+the faces standing on the plane add only their least share β of what they penetrate
+(second order in the depth)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 
 from lbshape.dynamics.contact import ContactPlane, PlaneContact, surface_areas
+from lbshape.dynamics.contact_faces import FACING_FLOOR
 from lbshape.dynamics.full_contact import FullSpaceContact
 from lbshape.geometry.primitives import structured_box
 
@@ -26,7 +28,11 @@ def test_flat_face_is_held_by_its_area(divisions):
     mesh = structured_box(SIZE, divisions)
     n = mesh.n_vertices
     plane = ContactPlane((0.0, 0.0, DEPTH), (0.0, 0.0, 1.0), K)
-    expected = K * SIZE[0] * SIZE[1] * DEPTH
+    # the face, and the standing sides' strip DEPTH high (penetration DEPTH − z) at β
+    perimeter = 2.0 * (SIZE[0] + SIZE[1])
+    area = SIZE[0] * SIZE[1]
+    expected = K * (area * DEPTH + FACING_FLOOR * perimeter * DEPTH**2 / 2)
+    stiffness = K * (area + FACING_FLOOR * perimeter * DEPTH)
     full, K_full, _ = FullSpaceContact([plane], mesh.points, mesh.tets).evaluate(np.zeros(3 * n))
     total = -full.reshape(n, 3).sum(axis=0)  # evaluate returns +∂E/∂u
     np.testing.assert_allclose(total, [0.0, 0.0, expected], rtol=1e-12, atol=1e-12 * expected)
@@ -35,8 +41,8 @@ def test_flat_face_is_held_by_its_area(divisions):
     np.testing.assert_allclose(got.force, [0.0, 0.0, expected], rtol=1e-12,
                                atol=1e-12 * expected)
     # the stiffness too: the rigid 6 × 6's vertical entry and the full tangent's sum
-    assert got.stiffness_rigid[2, 2] == pytest.approx(K * SIZE[0] * SIZE[1], rel=1e-12)
-    assert K_full.sum() == pytest.approx(K * SIZE[0] * SIZE[1], rel=1e-12)
+    assert got.stiffness_rigid[2, 2] == pytest.approx(stiffness, rel=1e-12)
+    assert K_full.sum() == pytest.approx(stiffness, rel=1e-12)
 
 
 def test_area_vectors_close_the_surface():
@@ -68,7 +74,9 @@ def test_tilted_face_strip_is_held_by_its_integral(divisions):
     # face x = 0.3 by depth − z cos over depth / cos (facing share sin)
     bottom = 0.5 * depth * (depth / s) * SIZE[1] * c
     side = 0.5 * depth * (depth / c) * SIZE[1] * s
-    expected = K * (bottom + side)
+    # the end faces y = ±0.1 stand on the plane (share β): a corner wedge each
+    ends = 2.0 * FACING_FLOOR * depth**3 / (6.0 * s * c)
+    expected = K * (bottom + side + ends)
     full = FullSpaceContact([plane], mesh.points, mesh.tets)
     f, _, _ = full.evaluate((turned - mesh.points).ravel())
     assert -f.reshape(n, 3).sum(axis=0)[2] == pytest.approx(expected, rel=1e-10)
