@@ -70,7 +70,7 @@ from lbshape.geometry.mesh import boundary_faces
 
 #: ε of the regularised Coulomb friction (m/s): the slip speed below which the friction
 #: force grows linearly with the slip (module docstring). Held by friction a block creeps
-#: at about ε, 0.05 mm in 0.5 s (1e-2 crept 5 mm, tests/dynamics/test_friction.py); the
+#: at about ε, 0.05 mm in 0.5 s (tests/dynamics/test_friction.py); the
 #: kick and the deformation solve take its rate implicitly, with its tangent
 SLIP_SPEED = 1e-4
 #: machine ε (the contact's round-off level)
