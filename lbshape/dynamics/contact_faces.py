@@ -7,8 +7,8 @@ with the pressure k d. The penetration is linear over a boundary triangle T (its
 corners' depths ``d_j = −gap_j``), so the force the triangle takes,
 ``k c_T ∫_{T, d > 0} d dA`` (``c_T = max(β, −N_T · n)`` its facing share, N_T its unit
 outward normal, β = :data:`FACING_FLOOR`), is integrated exactly over the part of T
-that penetrates (a triangle or T minus a triangle, cut where d = 0) and shared by the corners' linear shape
-functions φ_j: corner j takes ``F_j = k c_T Σ_l M_jl d_l``,
+that penetrates (a triangle or T minus a triangle, cut where d = 0) and shared by the
+corners' linear shape functions φ_j: corner j takes ``F_j = k c_T Σ_l M_jl d_l``,
 ``M_jl = ∫_{T, d > 0} φ_j φ_l dA``; the energy is ``½ k c_T Σ M_jl d_j d_l``. A flat face
 pressed into the plane, fully or tilted so that only a strip along an edge penetrates,
 takes the same force at any mesh resolution. ``S_j = k c_T Σ_l M_jl`` (the force's
