@@ -122,9 +122,12 @@ def main() -> None:
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True, check=False).stdout.strip()
     load = os.getloadavg()[0]
+    cpu = next((line.split(":", 1)[1].strip() for line in
+                Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name")),
+               platform.processor() or platform.machine())
     lines = ["# Contact per area and friction that holds", "",
              "Command: `PYTHONPATH=$PWD OMP_NUM_THREADS=1 python scripts/bench_contact.py`; "
-             f"commit {commit}; machine {platform.processor() or platform.machine()}, "
+             f"commit {commit}; machine {cpu}, "
              f"{os.cpu_count()} cores; threads OMP_NUM_THREADS="
              f"{os.environ.get('OMP_NUM_THREADS', 'unset')}; load {load:.2f} at the start. "
              f"No timings. Slip speed ε = {SLIP_SPEED:g} m/s, facing floor β = {FACING_FLOOR}.",
