@@ -122,7 +122,7 @@ def _first_bounce(size: float | None) -> float:
 def test_full_bar_bounce_under_refinement():
     """The Figure 4 bar's full reference on its mesh (332 vertices) and refined (448): the
     centre's vertical speed after the first (edge-on) floor contact moves by less than
-    golden ``contact_area.bounce_refinement`` (per vertex: −0.372 → −0.480 m/s, 22 % of the finer)."""
+    golden ``contact_area.bounce_refinement`` (per vertex: −0.372 → −0.480 m/s, 22 %)."""
     coarse, fine = _first_bounce(None), _first_bounce(0.055)
     change = abs(coarse / fine - 1)
     assert change <= golden("contact_area.bounce_refinement").limit, (coarse, fine)
