@@ -255,6 +255,7 @@ def test_block_held_by_friction_stays(block, method):
     s = math.tan(theta) / mu
     creep = SLIP_SPEED * s / math.sqrt(1 - s * s)  # m/s
     times, x, v = block.slide(theta, mu, duration=0.5, method=method)
+    assert times[-1] == pytest.approx(0.5)  # the run went the whole way
     assert np.abs(x).max() <= golden("friction.stick_travel").limit, (np.abs(x).max(), creep)
     # without friction it would have slid g sin θ t² / 2 = 0.55 m
     assert creep * times[-1] < 1e-4
