@@ -1,9 +1,16 @@
 """Penalty contact of an object's surface vertices with the scene's planes.
 
 A plane is a point p (m), a unit normal n pointing into the free side and a
-penalty stiffness k (N/m per surface vertex). A surface vertex at world position
-x penetrates by ``d = max(0, −(x − p)·n)`` and feels ``f = k d n`` (N, world),
-with the potential ``½ k d²``.
+penalty stiffness k per area (N/m³: a pressure per metre of penetration). A surface
+vertex at world position x penetrates by ``d = −(x − p)·n`` where positive; the pressure
+k d, linear over each boundary triangle, is integrated exactly over the triangles' parts
+that penetrate, weighted by the triangle's facing share ``max(0, −N_T·n)``
+(:mod:`lbshape.dynamics.contact_faces`: the triangles' outward normals N_T in the body
+frame turned by the rotation R; the full reference takes them from the deformed
+surface), and shared by the corners: vertex i feels ``f = F_i n`` (N, world) with the
+lumped stiffness S_i (N/m), the potential the integral of ``½ k d²``. A face resting on
+the plane, or a strip of it along an edge, is held by the same force at any mesh
+resolution. Below, for a vertex, ``k d`` stands for F_i and k for S_i.
 
 **Friction** (regularised Coulomb). A plane's coefficient μ ≥ 0 adds, at every
 penetrating vertex, the tangential force ``f_t = −μ k d · v_t / √(|v_t|² + ε²)`` (N,
@@ -52,21 +59,29 @@ from typing import NamedTuple
 import numpy as np
 
 from lbshape._jit import njit, py_func
+from lbshape.dynamics.contact_faces import (
+    face_kernel,
+    surface_areas,
+    surface_faces,
+)
 from lbshape.dynamics.kernels import check_size, take
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import boundary_faces
 
 #: ε of the regularised Coulomb friction (m/s): the slip speed below which the friction
-#: force grows linearly with the slip (module docstring)
-SLIP_SPEED = 1e-2
+#: force grows linearly with the slip (module docstring). Held by friction a block creeps
+#: at about ε, 0.05 mm in 0.5 s (tests/dynamics/test_friction.py); the
+#: kick and the deformation solve take its rate implicitly, with its tangent
+SLIP_SPEED = 1e-4
 #: machine ε (the contact's round-off level)
 _EPS = float(np.finfo(float).eps)
 
 
 @dataclass(frozen=True)
 class ContactPlane:
-    """A contact plane: point (3,) m, unit normal (3,) into the free side, k in N/m,
-    Coulomb friction coefficient μ ≥ 0 (0: frictionless)."""
+    """A contact plane: point (3,) m, unit normal (3,) into the free side, k in N/m³
+    (per area of the surface: a vertex of lumped area A feels k A d), Coulomb friction
+    coefficient μ ≥ 0 (0: frictionless)."""
 
     point: tuple[float, float, float]
     normal: tuple[float, float, float]
@@ -119,10 +134,14 @@ class PlaneContact:
         body_points: (s, 3) surface vertex positions X̄ in the body frame (m).
         basis: (s, 3, r) the surface vertices' rows of U.
         vertices: (s,) their indices in the mesh (for reference).
+        faces: (f, 3) the boundary triangles as rows of the surface vertices and
+            ``face_areas`` (f, 3) their outward area vectors (m², body frame,
+            :func:`~lbshape.dynamics.contact_faces.surface_faces`).
     """
 
     def __init__(self, planes: Sequence[ContactPlane], body_points: np.ndarray,
-                 basis: np.ndarray, vertices: np.ndarray):
+                 basis: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+                 face_areas: np.ndarray):
         if not planes:
             raise LbshapeError("contact needs at least one plane")
         self.points = np.array([p.point for p in planes], dtype=float)
@@ -133,7 +152,7 @@ class PlaneContact:
         self.normals = normals / lengths[:, None]
         self.stiffness = np.array([p.stiffness for p in planes], dtype=float)
         if np.any(~np.isfinite(self.stiffness)) or np.any(self.stiffness <= 0):
-            raise LbshapeError("contact stiffness must be > 0 N/m")
+            raise LbshapeError("contact stiffness must be > 0 N/m^3")
         self.friction = plane_frictions(planes)
         #: some plane has friction (the contact then depends on the velocities)
         self.has_friction = bool(np.any(self.friction > 0))
@@ -142,6 +161,20 @@ class PlaneContact:
         self.body_points = np.ascontiguousarray(body_points, dtype=float)
         self.basis = np.ascontiguousarray(basis, dtype=float)
         self.vertices = np.asarray(vertices, dtype=np.int64)
+        #: (f, 3) the boundary triangles (rows of the surface vertices) and (f, 3) their
+        #: outward area vectors (m², body frame)
+        self.faces = np.ascontiguousarray(faces, dtype=np.int64)
+        self.face_areas = np.ascontiguousarray(face_areas, dtype=float)
+        if (self.face_areas.shape != self.faces.shape
+                or not np.all(np.isfinite(self.face_areas))):
+            raise LbshapeError("contact faces and their area vectors must be (f, 3), finite")
+        s_count, P = self.body_points.shape[0], len(planes)
+        #: per plane and vertex: [depth (m), normal force F (N), lumped stiffness S (N/m)]
+        self._loads = np.zeros((P, 3, s_count))
+        self._shares = np.zeros(self.faces.shape[0])
+        self._blocks = np.zeros((self.faces.shape[0], 9))
+        self._face_work = np.zeros((6, 3))
+        self._arms = np.zeros((s_count, 3))
         r = self.basis.shape[2]
         self.r = r
         self.radius0 = float(np.linalg.norm(self.body_points, axis=1).max())
@@ -180,12 +213,13 @@ class PlaneContact:
     def for_mesh(cls, planes: Sequence[ContactPlane], points: np.ndarray, tets: np.ndarray,
                  U: np.ndarray, *, center: np.ndarray | None = None) -> PlaneContact:
         """Contact of a mesh's surface; ``center`` (3,) is subtracted (free bodies)."""
-        idx = surface_vertices(tets)
+        idx, _ = surface_areas(points, tets)
+        faces, face_areas = surface_faces(points, tets, idx)
         n = points.shape[0]
         r = U.shape[1]
         body = points[idx] - (np.zeros(3) if center is None else np.asarray(center))
         basis = np.asarray(U).reshape(n, 3, r)[idx]
-        return cls(planes, body, basis, idx)
+        return cls(planes, body, basis, idx, faces, face_areas)
 
     def may_touch(self, center: np.ndarray, q: np.ndarray) -> np.ndarray:
         """(P,) bool: planes the bounding sphere around ``center`` reaches."""
@@ -214,19 +248,30 @@ class PlaneContact:
             np.add(self._deformed, self.body_points, out=self._deformed)
         else:
             self.skipped += 1
-        active = _contact_kernel(center, rotation, self._deformed, self.basis, self._planes,
+        self._face_pass(center, rotation)
+        active = _contact_kernel(self._arms, self.basis, self._loads, rotation, self._planes,
                                  self._reach, rigid, self._work.data, self._out.data)
         if self.has_friction and active:
             _pack_motion(self._rest3 if velocity is None else velocity,
                          self._rest3 if omega is None else omega,
                          self._rest_q if qd is None else qd, float(rate), self._motion)
-            _friction_kernel(center, rotation, self._motion, self._deformed, self.basis,
+            _friction_kernel(rotation, self._motion, self._arms, self.basis, self._loads,
                              self._planes, SLIP_SPEED, self._reach, rigid, self._work.data,
                              self._out.data)
         elif self.has_friction:
             self.damping_rigid[:] = 0.0
             self.coupling[:] = 0.0
         return active
+
+    def _face_pass(self, center: np.ndarray, rotation: np.ndarray) -> None:
+        """The vertices' arms and, per reached plane, their depths, normal forces and
+        lumped stiffnesses (:func:`~lbshape.dynamics.contact_faces.face_kernel`) into
+        ``_arms`` and ``_loads``."""
+        if self._reach.any():
+            self.scalars[0] = face_kernel(center, rotation, self._deformed, self.faces,
+                                           self.face_areas, self._planes, self._reach,
+                                           self._arms, self._loads, self._shares,
+                                           self._blocks, self._face_work)
 
     def evaluate(self, center: np.ndarray, rotation: np.ndarray, q: np.ndarray,
                  *, rigid: bool = True, velocity: np.ndarray | None = None,
@@ -292,25 +337,6 @@ def friction_force(velocity: np.ndarray, normal: np.ndarray, normal_force: np.nd
     rates = scale[:, None, None] * (projection[None]
                                     - direction[:, :, None] * direction[:, None, :])
     return -(friction * normal_force)[:, None] * direction, rates, direction
-
-
-@njit
-def _body_arm(i, rotation, deformed, arm):
-    """The world arm ``R y_i`` (3,) about the centre of mass of surface point i, deformed
-    ``y_i = X̄_i + U_i q`` (``deformed`` (s, 3), body frame, m), written into arm."""
-    for a in range(3):
-        arm[a] = (rotation[a, 0] * deformed[i, 0] + rotation[a, 1] * deformed[i, 1]
-                  + rotation[a, 2] * deformed[i, 2])
-
-
-@njit
-def _plane_gap(arm, center, planes, p):
-    """Signed distance (m) of the point ``center + arm`` from plane p (negative: inside);
-    ``planes`` (P, 8): point, unit normal, k, μ."""
-    gap = 0.0
-    for a in range(3):
-        gap += (arm[a] + (center[a] - planes[p, a])) * planes[p, 3 + a]
-    return gap
 
 
 @njit
@@ -429,17 +455,17 @@ def _pack_motion(velocity, omega, qd, rate, motion):
 
 
 @njit
-def _contact_kernel(center, rotation, deformed, basis, planes, reach, rigid, work, out):
-    """One pass over the surface vertices (see :meth:`PlaneContact.evaluate_into`).
+def _contact_kernel(arms, basis, loads, rotation, planes, reach, rigid, work, out):
+    """One pass over the surface vertices (see :meth:`PlaneContact.evaluate_into`), after
+    :func:`~lbshape.dynamics.contact_faces.face_kernel` (its arms and loads; ``out``'s
+    energy already set).
 
-    Vertex i: ``y = X̄_i + U_i q`` (body, the row i of ``deformed`` (s, 3)), arm ``R y``
-    (world), gap per reached plane
-    ``(R y + c − p)·n``; a penetration d > 0 adds ``k d n`` to the force, ``k d (arm × n)``
-    to the torque, ``k d g`` with ``g = U_iᵀ Rᵀ n`` to the generalized force, ``k g gᵀ`` to
-    ``stiffness_q`` and ``k J Jᵀ`` (J = [n; arm × n]) to the 6 × 6 stiffness.
-    ``planes`` (P, 8): point, unit normal, k, μ; ``work`` and ``out`` the buffers of
-    :class:`ContactWork` and :class:`ContactOutput`.
-    Returns the number of penetrations (vertex, plane).
+    Vertex i with a stiffness S > 0 on a reached plane (normal force F, arm a): adds
+    ``F n`` to the force, ``F (a × n)`` to the torque, ``F g`` with ``g = U_iᵀ Rᵀ n`` to the
+    generalized force, ``S g gᵀ`` to ``stiffness_q`` and ``S J Jᵀ`` (J = [n; a × n]) to the
+    6 × 6 stiffness. ``planes`` (P, 8): point, unit normal, k (per area), μ; ``work`` and
+    ``out`` the buffers of :class:`ContactWork` and :class:`ContactOutput`.
+    Returns the number of loaded (vertex, plane) pairs.
     """
     r = basis.shape[2]
     views, result = contact_work(work, r), contact_output(out, r)
@@ -450,45 +476,43 @@ def _contact_kernel(center, rotation, deformed, basis, planes, reach, rigid, wor
     generalized[:] = 0.0
     Kq[:, :] = 0.0
     K6[:, :] = 0.0
-    energy = 0.0
     depth = 0.0
     active = 0
-    J, arm, nb = views.small[0:6], views.small[6:9], views.small[9:12]
+    J, nb = views.small[0:6], views.small[9:12]
     if not reach.any():
         scalars[0] = scalars[1] = scalars[2] = 0.0
         return 0
-    for i in range(deformed.shape[0]):
-        _body_arm(i, rotation, deformed, arm)
-        for p in range(planes.shape[0]):
-            if not reach[p]:
+    for p in range(planes.shape[0]):
+        if not reach[p]:
+            continue
+        for a in range(3):
+            nb[a] = (rotation[0, a] * planes[p, 3] + rotation[1, a] * planes[p, 4]
+                     + rotation[2, a] * planes[p, 5])  # Rᵀ n
+        n0, n1, n2 = planes[p, 3], planes[p, 4], planes[p, 5]
+        for i in range(arms.shape[0]):
+            k = loads[p, 2, i]
+            if not k > 0.0:
                 continue
-            gap = _plane_gap(arm, center, planes, p)
-            if not gap < 0.0:
-                continue
-            d = -gap
-            k = planes[p, 6]
+            fn = loads[p, 1, i]
+            arm = arms[i]
             active += 1
-            depth = max(depth, d)
-            energy += 0.5 * k * d * d
+            depth = max(depth, loads[p, 0, i])
             for a in range(3):
-                force[a] += k * d * planes[p, 3 + a]
-                nb[a] = (rotation[0, a] * planes[p, 3] + rotation[1, a] * planes[p, 4]
-                         + rotation[2, a] * planes[p, 5])  # Rᵀ n
+                force[a] += fn * planes[p, 3 + a]
             for j in range(r):
                 g[j] = basis[i, 0, j] * nb[0] + basis[i, 1, j] * nb[1] + basis[i, 2, j] * nb[2]
-                generalized[j] += k * d * g[j]
+                generalized[j] += fn * g[j]
             for j in range(r):
                 kg = k * g[j]
                 for k2 in range(j + 1):
                     Kq[j, k2] += kg * g[k2]
             if rigid:
-                n0, n1, n2 = planes[p, 3], planes[p, 4], planes[p, 5]
                 J[0], J[1], J[2] = n0, n1, n2
                 J[3] = arm[1] * n2 - arm[2] * n1
                 J[4] = arm[2] * n0 - arm[0] * n2
                 J[5] = arm[0] * n1 - arm[1] * n0
                 for a in range(3):
-                    torque[a] += k * d * J[3 + a]
+                    torque[a] += fn * J[3 + a]
                 for a in range(6):
                     for b in range(a + 1):
                         K6[a, b] += k * J[a] * J[b]
@@ -498,22 +522,23 @@ def _contact_kernel(center, rotation, deformed, basis, planes, reach, rigid, wor
     for a in range(6):
         for b in range(a):
             K6[b, a] = K6[a, b]
-    scalars[0] = energy
     scalars[1] = active
     scalars[2] = depth
     return active
 
 
 @njit
-def _friction_kernel(center, rotation, motion, deformed, basis, planes, eps, reach, rigid,
-                     work, out):
-    """The friction of the penetrating vertices (module docstring), added to ``force``,
+def _friction_kernel(rotation, motion, arms, basis, loads, planes, eps, reach, rigid, work,
+                     out):
+    """The friction of the loaded vertices (module docstring), added to ``force``,
     ``torque``, ``generalized`` and ``Kq`` of ``out``; its ``C6`` (6, 6) receives ``C₆``.
 
-    Vertex i: ``y = X̄_i + U_i q`` (row i of ``deformed``), arm ``a = R y``, world velocity
-    ``w = v + ω × a + R U_i q̇`` (``motion`` = [v, ω, rate, q̇], :func:`_pack_motion`); per
-    penetrating plane with μ > 0 :func:`_plane_friction`. ``work`` and ``out`` are the
-    buffers of :class:`ContactWork` and :class:`ContactOutput`.
+    Vertex i (arm a, row i of ``arms``, :func:`~lbshape.dynamics.contact_faces.face_kernel`),
+    world velocity ``w = v + ω × a + R U_i q̇`` (``motion`` = [v, ω, rate, q̇],
+    :func:`_pack_motion`); per
+    reached plane with μ > 0 on which it has a stiffness, :func:`_plane_friction` with its
+    normal force and stiffness (``loads``). ``work`` and ``out`` are the buffers of
+    :class:`ContactWork` and :class:`ContactOutput`.
     """
     r = basis.shape[2]
     views, result = contact_work(work, r), contact_output(out, r)
@@ -522,17 +547,15 @@ def _friction_kernel(center, rotation, motion, deformed, basis, planes, eps, rea
     views.Kf[:, :] = 0.0
     arm, w = views.friction_small[3:6], views.friction_small[6:9]
     G = views.rows[0:3]
-    for i in range(deformed.shape[0]):
-        _body_arm(i, rotation, deformed, arm)
+    for i in range(arms.shape[0]):
         touching = False
         for p in range(planes.shape[0]):
-            if not reach[p] or planes[p, 7] == 0.0:
-                continue
-            gap = _plane_gap(arm, center, planes, p)
-            if gap < 0.0:
+            if reach[p] and planes[p, 7] != 0.0 and loads[p, 2, i] > 0.0:
                 touching = True
         if not touching:
             continue
+        for a in range(3):
+            arm[a] = arms[i, a]
         for a in range(3):  # G = R U_i, w = v + ω × a + G q̇
             for j in range(r):
                 G[a, j] = (rotation[a, 0] * basis[i, 0, j] + rotation[a, 1] * basis[i, 1, j]
@@ -546,12 +569,9 @@ def _friction_kernel(center, rotation, motion, deformed, basis, planes, eps, rea
                 value += G[a, j] * motion[7 + j]
             w[a] += value
         for p in range(planes.shape[0]):
-            if not reach[p] or planes[p, 7] == 0.0:
-                continue
-            gap = _plane_gap(arm, center, planes, p)
-            if not gap < 0.0:
-                continue
-            _plane_friction(planes, p, -gap, eps, rigid, views, result)
+            if reach[p] and planes[p, 7] != 0.0 and loads[p, 2, i] > 0.0:
+                _plane_friction(planes, p, loads[p, 1, i], loads[p, 2, i], eps, rigid, views,
+                                result)
     rate, Kq, Kf = motion[6], result.Kq, views.Kf
     for j in range(r):  # rate Σ Gᵀ C G from its upper triangle
         Kq[j, j] += rate * Kf[j, j]
@@ -562,11 +582,12 @@ def _friction_kernel(center, rotation, motion, deformed, basis, planes, eps, rea
 
 
 @njit
-def _plane_friction(planes, p, d, eps, rigid, views, result):
-    """The friction of one vertex penetrating plane p by d (m), its arm and velocity w and
-    its G = R U_i in ``views`` (:class:`ContactWork`): ``t = (I − n nᵀ) w``,
-    ``s = √(|t|² + ε²)``, ``T = t/s``, ``f_t = −μ k d T``, ``C = μ k d (P − T Tᵀ)/s``, added
-    to ``result`` (:class:`ContactOutput`)."""
+def _plane_friction(planes, p, fn, kn, eps, rigid, views, result):
+    """The friction of one vertex pressed onto plane p with the normal force fn (N) and
+    the lumped stiffness kn (N/m), its arm and velocity w and its G = R U_i in ``views``
+    (:class:`ContactWork`): ``t = (I − n nᵀ) w``, ``s = √(|t|² + ε²)``, ``T = t/s``,
+    ``f_t = −μ fn T``, ``C = μ fn (P − T Tᵀ)/s``, added to ``result``
+    (:class:`ContactOutput`)."""
     r = views.g.shape[0]
     G, CG, GT, GN = views.rows[0:3], views.rows[3:6], views.rows[6], views.rows[7]
     small = views.friction_small
@@ -580,8 +601,9 @@ def _plane_friction(planes, p, d, eps, rigid, views, result):
     for a in range(3):
         t[a] = w[a] - wn * n[a]
     s = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + eps * eps)
-    mu_k = planes[p, 7] * planes[p, 6]
-    scale = mu_k * d / s
+    mu = planes[p, 7]
+    mu_k = mu * kn
+    scale = mu * fn / s
     for a in range(3):
         t[a] /= s  # T
         f[a] = -scale * s * t[a]

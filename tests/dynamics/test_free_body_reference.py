@@ -19,6 +19,7 @@ import scipy.linalg as sla
 from test_free_body import Body, _gravity
 
 from lbshape.dynamics.contact import ContactPlane, PlaneContact
+from lbshape.dynamics.contact_faces import FACING_FLOOR, face_loads
 from lbshape.dynamics.fictitious import LEVI_CIVITA
 from lbshape.dynamics.free_body import PHASES, FreeLoad
 from lbshape.dynamics.free_body_contact import MAX_CONTACT_SWEEPS, SWEEP_RTOL, contact_theta
@@ -77,7 +78,9 @@ def ref_coriolis(frame, omega):
 
 
 def ref_contact(contact, center, R, q, rigid=True):
-    """The penalty contact, vectorised over the surface vertices."""
+    """The penalty contact, vectorised over the surface vertices; the vertices' normal
+    forces F and lumped stiffnesses S from the pressure over the triangles
+    (:func:`~lbshape.dynamics.contact_faces.face_loads`)."""
     r = contact.r
     out = dict(force=np.zeros(3), torque=np.zeros(3), generalized=np.zeros(r),
                stiffness_q=np.zeros((r, r)), stiffness_rigid=np.zeros((6, 6)), energy=0.0,
@@ -90,23 +93,26 @@ def ref_contact(contact, center, R, q, rigid=True):
     arm = local @ R.T
     for plane in np.flatnonzero(reach):
         n, k = contact.normals[plane], contact.stiffness[plane]
-        gap = (arm + (center - contact.points[plane])) @ n
-        hit = np.flatnonzero(gap < 0.0)
-        if hit.size == 0:
+        depth = -((arm + (center - contact.points[plane])) @ n)
+        if not depth.max() > 0:
             continue
-        d = -gap[hit]
+        shares = np.maximum(-(contact.face_areas @ R.T) @ n,
+                            FACING_FLOOR * np.linalg.norm(contact.face_areas, axis=1))
+        F, S = np.zeros(len(depth)), np.zeros(len(depth))
+        out["energy"] += face_loads(contact.faces, depth, shares, k, F, S,
+                                    np.zeros((len(shares), 9)), np.zeros((6, 3)))
+        hit = np.flatnonzero(S > 0.0)
         out["active"] += hit.size
-        out["depth"] = max(out["depth"], float(d.max()))
-        out["energy"] += 0.5 * k * float(d @ d)
-        out["force"] += k * d.sum() * n
+        out["depth"] = max(out["depth"], float(depth[hit].max(initial=0.0)))
+        out["force"] += F[hit].sum() * n
         g = np.einsum("sar,a->sr", contact.basis[hit], R.T @ n)
-        out["generalized"] += k * (d @ g)
-        out["stiffness_q"] += k * g.T @ g
+        out["generalized"] += F[hit] @ g
+        out["stiffness_q"] += (S[hit, None] * g).T @ g
         if rigid:
             a = np.cross(arm[hit], n)
-            out["torque"] += k * (d @ a)
+            out["torque"] += F[hit] @ a
             J = np.concatenate([np.broadcast_to(n, a.shape), a], axis=1)
-            out["stiffness_rigid"] += k * J.T @ J
+            out["stiffness_rigid"] += (S[hit, None] * J).T @ J
     return out
 
 
@@ -398,7 +404,7 @@ def _scenario(body: Body, *, integrator: str, push: bool = False):
     kick with θ, contact in the Newton solve, fictitious forces (``push``: and a load
     that changes in time, whose start-of-step value every contact sweep uses)."""
     target = 0.02 * np.linspace(-1.0, 1.0, 8)
-    planes = [ContactPlane((0.0, 0.0, -0.02), (0.05, 0.1, 1.0), 2e4)]
+    planes = [ContactPlane((0.0, 0.0, -0.02), (0.05, 0.1, 1.0), 2e4 * 225.0)]  # N/m³
     loads = [_gravity(body)] + ([_push(body)] if push else [])
     options = dict(dt=2e-3, integrator=integrator, beta=0.002, loads=loads,
                    k_ex=400.0, velocity=(0.3, 0.0, -0.5), angular_velocity=(1.0, 2.0, 3.0))

@@ -1,0 +1,148 @@
+"""Contact per area and friction that holds: writes results/contact.md.
+
+1. A unit cube (E = 1e7 Pa, 1000 kg, 3 × 3 × 3 cells, 12 linear modes in the reduced
+   method) dropped 1 mm onto a floor of 1e8 N/m³ with gravity tilted by atan(0.5), dt =
+   1 ms: with μ = 0.7 > tan θ its travel along the slope between 0.1 / 0.2 s and 0.6 /
+   0.7 s (the landing's bounces end by about 0.2 s); with μ = 0.3 its acceleration
+   (quadratic fit over 0.2-0.6 s) against g (sin θ − μ cos θ). Reduced and full.
+2. The full reference of bar-s-cuboid (no examples) on its mesh and two refinements: the
+   centre of mass's vertical velocity after its first floor contact.
+
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 python scripts/bench_contact.py [--out results/contact.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import os
+import platform
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import scipy.linalg as sla
+
+from lbshape.dynamics.contact import SLIP_SPEED, ContactPlane, PlaneContact
+from lbshape.dynamics.contact_faces import FACING_FLOOR
+from lbshape.dynamics.fictitious import frame_tensors
+from lbshape.dynamics.free_body import FreeBodySimulation, FreeLoad
+from lbshape.dynamics.full import FullSpaceContact, FullSpaceSimulator, rigid_velocity
+from lbshape.dynamics.loads import TimedLoad, TimeProfile, gravity_pattern
+from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
+from lbshape.elastic.materials import Material
+from lbshape.elastic.reduced_forces import ReducedForceModel
+from lbshape.geometry.primitives import structured_box
+from lbshape.pipeline.meshes import build_mesh
+from lbshape.scene import load_scene
+
+G, DT = 9.81, 1e-3
+
+
+def incline(method: str, mu: float, steps: int = 700) -> tuple[np.ndarray, np.ndarray]:
+    """(times, travel along the slope (m)) of the dropped unit cube."""
+    mesh = structured_box((1.0, 1.0, 1.0), (3, 3, 3))
+    material = Material(model="stvk", young=1e7, poisson=0.3, density=1000.0)
+    M = mass_matrix(mesh, material.density)
+    theta = math.atan(0.5)
+    pattern = gravity_pattern(M, G * np.array([math.sin(theta), 0.0, -math.cos(theta)]))
+    plane = ContactPlane((0.0, 0.0, -0.001), (0.0, 0.0, 1.0), 1e8, mu)
+    if method == "reduced":
+        K = FullSpaceElasticity(mesh, material).tangent(np.zeros(3 * mesh.n_vertices))
+        U = sla.eigh(K.toarray(), M.toarray())[1][:, 6:18]
+        elastic = ReducedForceModel(mesh.points, mesh.tets, material, U,
+                                    np.arange(mesh.n_tets), np.ones(mesh.n_tets))
+        frame = frame_tensors(mesh.points, mesh.tets, M, U)
+        contact = PlaneContact.for_mesh([plane], mesh.points, mesh.tets, U, center=frame.center)
+        load = FreeLoad.from_pattern(pattern, U, mesh.points - frame.center, TimeProfile())
+        record = FreeBodySimulation(elastic, frame, dt=DT, loads=[load], contact=contact,
+                                    beta=1e-3).run(steps)
+        return record.times, record.centers[:, 0] - record.centers[0, 0]
+    weights = np.asarray(M[0::3, 0::3].sum(axis=1)).ravel()
+    weights /= weights.sum()
+    sim = FullSpaceSimulator(mesh, material, dt=DT, beta=1e-3,
+                             loads=[TimedLoad(pattern, TimeProfile())],
+                             contact=FullSpaceContact([plane], mesh.points, mesh.tets))
+    states = [(0.0, 0.0)]
+    sim.run(steps, on_step=lambda i, t, u: states.append((t, float(u[:, 0] @ weights))))
+    times, x = (np.array(column) for column in zip(*states, strict=True))
+    return times, x
+
+
+def incline_rows() -> list[str]:
+    """The incline table's rows."""
+    theta = math.atan(0.5)
+    rows = []
+    for method in ("reduced", "full"):
+        t, x = incline(method, 0.7)
+        at = {s: x[np.searchsorted(t, s)] for s in (0.1, 0.2, 0.6, 0.7)}
+        t3, x3 = incline(method, 0.3)
+        fit = (t3 >= 0.2) & (t3 <= 0.6)
+        accel = 2.0 * np.polyfit(t3[fit], x3[fit], 2)[0]
+        expected = G * (math.sin(theta) - 0.3 * math.cos(theta))
+        rows.append(f"| {method} | {1e3 * (at[0.6] - at[0.1]):.3f} | "
+                    f"{1e3 * (at[0.7] - at[0.2]):.3f} | {accel:.4f} | {expected:.4f} | "
+                    f"{100 * (accel / expected - 1):+.3f} % |")
+    return rows
+
+
+def bounce(size: float | None) -> tuple[int, float]:
+    """(vertices, vertical centre-of-mass velocity after the first floor contact (m/s))
+    of bar-s-cuboid's full reference without examples on its mesh at ``size``."""
+    scene = load_scene("bar-s-cuboid")
+    obj = scene.object if size is None else dataclasses.replace(scene.object, size=size)
+    mesh = build_mesh(obj)
+    M = mass_matrix(mesh, scene.material.density)
+    weights = np.asarray(M[0::3, 0::3].sum(axis=1)).ravel()
+    weights /= weights.sum()
+    loads = [TimedLoad(gravity_pattern(M, np.array(load.vector)), TimeProfile())
+             for load in scene.loads]
+    sim = FullSpaceSimulator(
+        mesh, scene.material, dt=scene.simulation.dt, beta=scene.damping.beta,
+        alpha=scene.damping.alpha, loads=loads,
+        contact=FullSpaceContact(list(scene.planes), mesh.points, mesh.tets),
+        initial_velocity=rigid_velocity(mesh, scene.material.density, scene.initial.velocity,
+                                        scene.initial.angular_velocity))
+    floor = scene.planes[0].point[2]
+    n = mesh.n_vertices
+    rows: list[tuple[float, bool]] = []
+    sim.run(450, on_step=lambda i, t, u: rows.append(
+        (float(sim.stepper.v.reshape(n, 3)[:, 2] @ weights),
+         bool((mesh.points[:, 2] + u[:, 2] < floor).any()))))
+    first = next(i for i, row in enumerate(rows) if row[1])
+    end = next(i for i in range(first, len(rows)) if not rows[i][1])
+    return n, rows[end][0]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="results/contact.md")
+    args = parser.parse_args()
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                            text=True, check=False).stdout.strip()
+    load = os.getloadavg()[0]
+    cpu = next((line.split(":", 1)[1].strip() for line in
+                Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name")),
+               platform.processor() or platform.machine())
+    lines = ["# Contact per area and friction that holds", "",
+             "Command: `PYTHONPATH=$PWD OMP_NUM_THREADS=1 python scripts/bench_contact.py`; "
+             f"commit {commit}; machine {cpu}, "
+             f"{os.cpu_count()} cores; threads OMP_NUM_THREADS="
+             f"{os.environ.get('OMP_NUM_THREADS', 'unset')}; load {load:.2f} at the start. "
+             f"No timings. Slip speed ε = {SLIP_SPEED:g} m/s, facing floor β = {FACING_FLOOR}.",
+             "", "## Unit cube on an incline (tan θ = 0.5), dropped 1 mm, dt = 1 ms", "",
+             "| method | μ = 0.7 travel 0.1-0.6 s (mm) | 0.2-0.7 s (mm) | μ = 0.3 acceleration "
+             "(m/s²) | g (sin θ − μ cos θ) | deviation |", "|---|---|---|---|---|---|"]
+    lines += incline_rows()
+    lines += ["", "## bar-s-cuboid full reference (no examples): first bounce under refinement",
+              "", "| mesh size (m) | vertices | v_z after the first contact (m/s) |",
+              "|---|---|---|"]
+    for size in (None, 0.055, 0.048):
+        n, v = bounce(size)
+        lines.append(f"| {'scene (0.0665)' if size is None else size} | {n} | {v:.4f} |")
+    Path(args.out).write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
