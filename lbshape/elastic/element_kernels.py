@@ -18,6 +18,8 @@ For one P1 tetrahedron with rest vertices ``X_a`` and rest volume V:
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -91,15 +93,21 @@ class ElementKernel:
         self._shape = (e, 4, 3)
         # forces: f[e, a, i] = Σ_j (V G)[e, a, j] P[e, i, j]
         self._vg = self.volumes[:, None, None] * G
-        # F.ravel() = I.ravel() + B @ ue.ravel(): B[e, (i, j), (a, k)] = δ_ik ∂_j N_a
-        B = np.zeros((e, 3, 3, 4, 3))
-        for i in range(3):
-            B[:, i, :, :, i] = G.transpose(0, 2, 1)
-        self.gradient_operator = B.reshape(e, 9, 12)
-        # tangents: K = V Bᵀ A B with A[e, (i, j), (k, l)]
-        self._vbt = np.ascontiguousarray(
-            self.volumes[:, None, None] * self.gradient_operator.transpose(0, 2, 1)
-        )
+
+    @functools.cached_property
+    def gradient_operator(self) -> np.ndarray:
+        """(e, 9, 12) B with ``F.ravel() = I.ravel() + B @ ue.ravel()``, built on first use
+        (the reduced models and the cubature's passes never ask for it)."""
+        B = np.zeros((self.n_elements, 3, 3, 4, 3))
+        for i in range(3):  # B[e, (i, j), (a, k)] = δ_ik ∂_j N_a
+            B[:, i, :, :, i] = self.gradients.transpose(0, 2, 1)
+        return B.reshape(self.n_elements, 9, 12)
+
+    @functools.cached_property
+    def _vbt(self) -> np.ndarray:
+        """(e, 12, 9) ``V Bᵀ`` of the tangents ``K = V Bᵀ A B``."""
+        return np.ascontiguousarray(
+            self.volumes[:, None, None] * self.gradient_operator.transpose(0, 2, 1))
 
     # -- kinematics --------------------------------------------------------------------
     def _check(self, ue: np.ndarray) -> np.ndarray:

@@ -10,9 +10,10 @@ derivatives of the **StVK** energy with the given (E, ν, ρ), whatever the simu
 material: as in Barbič & James, the derivatives span the quadratic (StVK)
 nonlinearity of the rest geometry. Both material models share K at rest.
 
-H is compiled once as a linear form with two coefficient Functions (a, b) and
-re-assembled per pair. Because E is a quartic polynomial of ∇u for StVK, f is cubic
-and ``H(ψ, ψ) = (f(εψ) + f(−εψ))/ε²`` holds exactly for every ε.
+H of every pair is evaluated in one compiled pass over the elements
+(:func:`force_hessians`, rank 0; its rows are sent to the ranks); :class:`ForceHessian`,
+the UFL form of the same H, is its independent check. Because E is a quartic polynomial
+of ∇u for StVK, f is cubic and ``H(ψ, ψ) = (f(εψ) + f(−εψ))/ε²`` holds exactly for every ε.
 
 Solving. One sparse Cholesky factorisation (PETSc KSP ``preonly`` + Cholesky: CHOLMOD
 serially, MUMPS over several ranks; options prefix ``md_``) serves every right-hand side.
@@ -38,10 +39,9 @@ DOFs of a free body, so the equations of the pinned DOFs are checked too), else
 
 **Distributed** (``comm`` with several ranks, e.g. under ``mpirun``): the mesh is
 distributed by DOLFINx, K and M are assembled in parallel (:func:`lbshape.elastic.modes.
-elastic_matrices`), each H(ψ_i, ψ_j) is assembled over each rank's cells, the
-projections and residuals use PETSc products and sums over the ranks, and MUMPS
-factors K once over all ranks. Only the modes' vectors (on rank 0) are sent to
-the ranks, each receiving the rows of its dofs; the derivatives are gathered to
+elastic_matrices`), the H(ψ_i, ψ_j) of rank 0 are sent to the ranks, each receiving the
+rows of its dofs, the projections and residuals use PETSc products and sums over the
+ranks, and MUMPS factors K once over all ranks; the derivatives are gathered to
 rank 0 (:mod:`lbshape.fem.petsc_gather`). One rank runs the same code.
 """
 
@@ -55,6 +55,7 @@ import numpy as np
 import scipy.linalg
 from mpi4py import MPI
 
+from lbshape._jit import njit
 from lbshape.elastic.materials import Material, strain_energy_ufl
 from lbshape.elastic.modes import LinearModes, elastic_matrices, rigid_body_modes
 from lbshape.errors import LbshapeError, SolverError
@@ -174,6 +175,83 @@ def stvk_material(material: Material) -> Material:
     return dataclasses.replace(material, model="stvk")
 
 
+def force_hessians(mesh: TetMesh, material: Material, vectors: np.ndarray,
+                   pairs: np.ndarray) -> np.ndarray:
+    """``H(ψ_i, ψ_j)`` (3n, p) in N/m² of the StVK energy for every pair ``(i, j)`` of the
+    columns of ``vectors`` (3n, k), node-major, input order: one compiled pass over the
+    elements for all pairs (the same quantity as :class:`ForceHessian`, to round-off).
+
+    With ``G = ∇a``, ``S(G) = μ(G + Gᵀ) + λ tr(G) I`` (the stress of the strain ``sym G``),
+    the second derivative of ``P = F S`` at rest is
+    ``G_a S(G_b) + G_b S(G_a) + μ(G_aᵀG_b + G_bᵀG_a) + λ (G_a : G_b) I``, and each element
+    adds ``V P ∇N_v`` at its vertex v (P1: constant gradients, exact).
+    """
+    stvk = stvk_material(material)
+    vectors = np.ascontiguousarray(vectors, dtype=np.float64)
+    out = np.zeros((vectors.shape[0], pairs.shape[0]))
+    _hessian_kernel(np.ascontiguousarray(mesh.points, dtype=np.float64),
+                    np.ascontiguousarray(mesh.tets, dtype=np.int64), vectors,
+                    np.ascontiguousarray(pairs, dtype=np.int64), stvk.mu, stvk.lam, out)
+    return out
+
+
+@njit
+def _hessian_kernel(points, tets, vectors, pairs, mu, lam, out):  # pragma: no cover - jit
+    k, p = vectors.shape[1], pairs.shape[0]
+    edges, inv, grads = np.empty((3, 3)), np.empty((3, 3)), np.empty((4, 3))
+    G, S, P = np.empty((k, 3, 3)), np.empty((k, 3, 3)), np.empty((3, 3))
+    for e in range(tets.shape[0]):
+        for c in range(3):
+            for a in range(3):
+                edges[c, a] = points[tets[e, a + 1], c] - points[tets[e, 0], c]
+        det = (edges[0, 0] * (edges[1, 1] * edges[2, 2] - edges[1, 2] * edges[2, 1])
+               - edges[0, 1] * (edges[1, 0] * edges[2, 2] - edges[1, 2] * edges[2, 0])
+               + edges[0, 2] * (edges[1, 0] * edges[2, 1] - edges[1, 1] * edges[2, 0]))
+        for a in range(3):  # inv = edges⁻¹ by cofactors; row a is ∇N_(a+1)
+            for j in range(3):
+                r0, r1 = (j + 1) % 3, (j + 2) % 3
+                c0, c1 = (a + 1) % 3, (a + 2) % 3
+                inv[a, j] = (edges[r0, c0] * edges[r1, c1] - edges[r0, c1] * edges[r1, c0]) / det
+        volume = abs(det) / 6.0
+        for j in range(3):
+            grads[0, j] = -(inv[0, j] + inv[1, j] + inv[2, j])
+            for a in range(3):
+                grads[a + 1, j] = inv[a, j]
+        for m in range(k):
+            for c in range(3):
+                for j in range(3):
+                    value = 0.0
+                    for a in range(4):
+                        value += vectors[3 * tets[e, a] + c, m] * grads[a, j]
+                    G[m, c, j] = value
+            trace = G[m, 0, 0] + G[m, 1, 1] + G[m, 2, 2]
+            for c in range(3):
+                for j in range(3):
+                    S[m, c, j] = mu * (G[m, c, j] + G[m, j, c])
+                S[m, c, c] += lam * trace
+        for q in range(p):
+            i, b = pairs[q, 0], pairs[q, 1]
+            inner = 0.0
+            for c in range(3):
+                for j in range(3):
+                    inner += G[i, c, j] * G[b, c, j]
+            for c in range(3):
+                for j in range(3):
+                    value = 0.0
+                    for m in range(3):
+                        value += (G[i, c, m] * S[b, m, j] + G[b, c, m] * S[i, m, j]
+                                  + mu * (G[i, m, c] * G[b, m, j] + G[b, m, c] * G[i, m, j]))
+                    P[c, j] = value
+                P[c, c] += lam * inner
+            for a in range(4):
+                row = 3 * tets[e, a]
+                for c in range(3):
+                    value = 0.0
+                    for j in range(3):
+                        value += P[c, j] * grads[a, j]
+                    out[row + c, q] += volume * value
+
+
 def all_pairs(k: int) -> np.ndarray:
     """(k(k+1)/2, 2) int64 pairs (i, j), i ≤ j < k, row by row."""
     i, j = np.triu_indices(int(k))
@@ -225,17 +303,14 @@ def modal_derivatives(
     with elastic_matrices(mesh, stvk, fixed_vertices=fixed, comm=comm) as mats:
         rows = mats.local_rows  # input DOF of each local row of K, M (free DOFs)
         rigid, solve_rows = _rigid_null_space(mesh, mats, free=not fixed.size, comm=comm)
-        hessian = ForceHessian(None, stvk, space=mats.space)
-        directions = scatter_rows(modes.vectors, hessian.local_dofs, comm=comm)
         system = _DistributedSystem(mats, rigid, solve_rows)
         rhs = np.zeros((rows.size, p + c))
         if c:
             rhs[:, p:] = scatter_rows(static_loads, rows, comm=comm)
         with system:
-            _hessian_right_hand_sides(rhs, hessian, directions, pairs, mats, system, rigid,
+            _hessian_right_hand_sides(rhs, mesh, stvk, modes.vectors, pairs, system, rigid,
                                       comm)
             vectors, misfit = _solve_block(system, rhs, rigid, comm)
-        hessian.destroy()
         residuals = _checked_residuals(misfit, rhs, pairs, comm)
         vectors = gather_rows(vectors, rows, comm=comm, size=3 * n)
     seconds = time.perf_counter() - started
@@ -262,13 +337,18 @@ def _rigid_null_space(mesh: TetMesh, mats, *, free: bool, comm: MPI.Comm
     return rigid, np.flatnonzero(~np.isin(rows, pinned))
 
 
-def _hessian_right_hand_sides(rhs: np.ndarray, hessian: ForceHessian, directions: np.ndarray,
-                              pairs: np.ndarray, mats, system: _DistributedSystem,
-                              rigid: np.ndarray | None, comm: MPI.Comm) -> None:
-    """Column q of ``rhs`` (local rows) ← ``−H(ψ_i, ψ_j)`` for ``pairs[q] = (i, j)``, a
-    free body's projected onto the consistent range (``h ← (I − M R Rᵀ) h``)."""
-    for q, (i, j) in enumerate(pairs):
-        h = hessian.assemble(directions[:, i], directions[:, j])[mats.owned_free]
+def _hessian_right_hand_sides(rhs: np.ndarray, mesh: TetMesh, stvk: Material,
+                              vectors: np.ndarray | None, pairs: np.ndarray,
+                              system: _DistributedSystem, rigid: np.ndarray | None,
+                              comm: MPI.Comm) -> None:
+    """Column q of ``rhs`` (local rows) ← ``−H(ψ_i, ψ_j)`` for ``pairs[q] = (i, j)``
+    (:func:`force_hessians` on rank 0, its rows sent to the ranks), a free body's
+    projected onto the consistent range (``h ← (I − M R Rᵀ) h``)."""
+    hessians = compute_on_root(comm, lambda: force_hessians(mesh, stvk, vectors, pairs),
+                               share=False)
+    local = scatter_rows(hessians, system.rows, comm=comm)
+    for q in range(pairs.shape[0]):
+        h = local[:, q]
         if rigid is not None:
             h -= system.mass_times(rigid @ sum_over_ranks(comm, rigid.T @ h))
         rhs[:, q] = -h
@@ -370,6 +450,7 @@ class _DistributedSystem:
         from petsc4py import PETSc
 
         self._K, self._M = mats.stiffness_petsc, mats.mass_petsc
+        self.rows = mats.local_rows  # input DOF of each local row
         self._x, self._y = self._K.createVecs()
         self._sub = None
         self._solve_rows = solve_rows

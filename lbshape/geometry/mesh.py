@@ -89,8 +89,13 @@ def boundary_faces(tets: np.ndarray) -> np.ndarray:
     # faces opposite to vertex 0..3, each ordered so that its normal points outward
     local = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
     faces = tets[:, local].reshape(-1, 3)
-    key = np.sort(faces, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    key = np.sort(faces, axis=1).astype(np.int64)
+    n = int(key.max(initial=0)) + 1
+    if n < 2**21:  # one int64 per face: a 1-D sort, not a sort of rows
+        key = (key[:, 0] * n + key[:, 1]) * n + key[:, 2]
+        _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    else:
+        _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     return faces[counts[inverse.ravel()] == 1]
 
 

@@ -10,7 +10,12 @@ from conftest import rel
 
 from lbshape.elastic.basis import default_linear_modes, nonlinear_basis
 from lbshape.elastic.materials import Material, strain_energy_ufl
-from lbshape.elastic.modal_derivatives import ForceHessian, all_pairs, modal_derivatives
+from lbshape.elastic.modal_derivatives import (
+    ForceHessian,
+    all_pairs,
+    force_hessians,
+    modal_derivatives,
+)
 from lbshape.elastic.modes import linear_modes
 from lbshape.errors import LbshapeError
 from lbshape.fem.dolfinx_bridge import (
@@ -221,3 +226,14 @@ def test_rigid_pinning_accepts_a_free_car_body():
     assert kept.size == 3 * car.n_vertices - 6
     pinned = np.setdiff1d(np.arange(3 * car.n_vertices), kept)
     assert np.linalg.matrix_rank(rigid[pinned]) == 6
+
+
+def test_compiled_hessians_equal_the_ufl_form_for_every_pair(clamped):
+    mesh, modes, _ = clamped
+    hessian = ForceHessian(mesh, MATERIAL)
+    pairs = all_pairs(K_MODES)
+    compiled = force_hessians(mesh, MATERIAL, modes.vectors, pairs)
+    assert compiled.shape == (3 * mesh.n_vertices, pairs.shape[0])
+    for q, (i, j) in enumerate(pairs):
+        reference = hessian(modes.vectors[:, i], modes.vectors[:, j])
+        assert rel(compiled[:, q], reference) < 1e-12, f"pair {(i, j)}"
