@@ -15,11 +15,13 @@ in ``range(M U)``, the residual equals its part outside the subspace,
 
 ``ρ = P (f_ext − β K₀ U q̇ − f_int(U q))``,  ``P = I − M U Uᵀ``,
 
-so no acceleration is needed and only the frames' q (and their finite-difference q̇) enter.
+so no acceleration is needed and only the frames' q (and their q̇, central differences
+over every saved frame) enter.
 The error ``e = u_full − u_r`` obeys ``M ë + D ė + f_int(u_r + e) − f_int(u_r) = ρ``; its
-linearisation at rest, ``M ë + D ė + K₀ e = ρ(t)``, is integrated from ``e = 0`` over the saved
-frames with the average-acceleration Newmark scheme at the frame spacing Δ, one solve per
-frame with one factor of the effective stiffness ``(1 + 2β/Δ) K₀ + (4/Δ² + 2α/Δ) M``. The
+linearisation at rest, ``M ë + D ė + K₀ e = ρ(t)``, is integrated from ``e = 0`` over the
+saved frames (every k-th, at most :data:`MAX_FRAMES` intervals) with the
+average-acceleration Newmark scheme at the frame spacing Δ, one solve per frame with one
+factor of the effective stiffness ``(1 + 2β/Δ) K₀ + (4/Δ² + 2α/Δ) M``. The
 estimate is :data:`CALIBRATION` ``× max_t ‖e(t)‖_M / max_t ‖u_r(t)‖_M`` (the reduced run's
 own size in the denominator, the reference being unknown).
 
@@ -32,14 +34,16 @@ with its local examples; 0.48: the cross without examples), median about 0.9. Th
 1.5 puts the log-centre of that range (≈ 0.66) at 1, leaving the measured ratios in
 [0.58, 1.65], inside the factor-2 band with some margin on both sides. It was fitted on the
 same runs it is validated on. Held out, on a user-style L-beam (374 vertices, global
-examples, gravity; the tests' ``user_mesh_scene``), the calibrated ratios were 1.89 (1 ms)
-and 2.12 (60 Hz) with examples, 0.61 without: the band is not guaranteed off the
-calibration set.
+examples, gravity; the tests' ``user_mesh_scene``), the calibrated ratios are 1.59 (1 ms)
+and 2.12 (60 Hz) with examples, 0.61 and 0.60 without (docs/decisions.md): the band is not
+guaranteed off the calibration set.
 
 Everything here is n-sized but runs on the saved frames only, after the run: the
 real-time step is untouched. The full-space elastic force at all frames is one sparse
 gradient product, one compiled stress pass and one sparse scatter
-(:class:`FrameForces`).
+(:class:`FrameForces`); M comes from the element-vertex incidence and K₀ from its element
+blocks summed in linear time (:func:`assemble`), all at full size with the fixed dofs'
+rows and columns zero (no sparse slicing).
 
 What is not in the residual: the difference between the reduced and the full-space
 example targets (the reduced target is the full one's projection for the global
