@@ -121,7 +121,7 @@ def test_stats_json_holds_the_error_estimate(tmp_path):
     import json
 
     scene = load_scene("demo")
-    simulate(scene, precompute(scene), method="reduced", steps=20, out=tmp_path / "run")
+    simulate(scene, precompute(scene), method="reduced", steps=4, out=tmp_path / "run")
     stats = json.loads((tmp_path / "run" / "stats.json").read_text())
     assert isinstance(stats["error_estimate"], float) and stats["error_estimate"] >= 0.0
     assert stats["error_estimate_message"] == "" and stats["error_estimate_ms"] > 0.0
