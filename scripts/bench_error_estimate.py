@@ -32,7 +32,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from lbshape.analysis.error_estimate import CALIBRATION  # noqa: E402
+from lbshape.analysis.error_estimate import CALIBRATION, MAX_FRAMES  # noqa: E402
 from lbshape.analysis.norms import trajectory_error  # noqa: E402
 from lbshape.elastic.element_kernels import mass_matrix  # noqa: E402
 from lbshape.io.machine import load_text, machine_description, machine_text  # noqa: E402
@@ -157,7 +157,8 @@ def write(rows: list[dict], args, argv, started: str) -> tuple[Path, Path]:
         "Each reduced run reports `error_estimate` (stats.json, the summary line of "
         "`lbshape simulate`): the residual of the full equations of motion at the reduced "
         "frames, outside the basis, propagated by the linearised error equation with one "
-        "Cholesky factor of the effective stiffness, times the calibration factor "
+        "Cholesky factor of the effective stiffness over every k-th saved frame (at most "
+        f"{MAX_FRAMES} intervals), times the calibration factor "
         f"{CALIBRATION:g} (`lbshape/analysis/error_estimate.py`; `raw` = estimate / "
         f"{CALIBRATION:g}). "
         "`error` is the measured `max_t ‖u − u_full‖_M / max_t ‖u_full‖_M` of the same run "

@@ -15,11 +15,13 @@ in ``range(M U)``, the residual equals its part outside the subspace,
 
 ``ρ = P (f_ext − β K₀ U q̇ − f_int(U q))``,  ``P = I − M U Uᵀ``,
 
-so no acceleration is needed and only the frames' q (and their finite-difference q̇) enter.
+so no acceleration is needed and only the frames' q (and their q̇, central differences
+over every saved frame) enter.
 The error ``e = u_full − u_r`` obeys ``M ë + D ė + f_int(u_r + e) − f_int(u_r) = ρ``; its
-linearisation at rest, ``M ë + D ė + K₀ e = ρ(t)``, is integrated from ``e = 0`` over the saved
-frames with the average-acceleration Newmark scheme at the frame spacing Δ, one solve per
-frame with one factor of the effective stiffness ``(1 + 2β/Δ) K₀ + (4/Δ² + 2α/Δ) M``. The
+linearisation at rest, ``M ë + D ė + K₀ e = ρ(t)``, is integrated from ``e = 0`` over the
+saved frames (every k-th, at most :data:`MAX_FRAMES` intervals) with the
+average-acceleration Newmark scheme at the frame spacing Δ, one solve per frame with one
+factor of the effective stiffness ``(1 + 2β/Δ) K₀ + (4/Δ² + 2α/Δ) M``. The
 estimate is :data:`CALIBRATION` ``× max_t ‖e(t)‖_M / max_t ‖u_r(t)‖_M`` (the reduced run's
 own size in the denominator, the reference being unknown).
 
@@ -32,14 +34,16 @@ with its local examples; 0.48: the cross without examples), median about 0.9. Th
 1.5 puts the log-centre of that range (≈ 0.66) at 1, leaving the measured ratios in
 [0.58, 1.65], inside the factor-2 band with some margin on both sides. It was fitted on the
 same runs it is validated on. Held out, on a user-style L-beam (374 vertices, global
-examples, gravity; the tests' ``user_mesh_scene``), the calibrated ratios were 1.89 (1 ms)
-and 2.12 (60 Hz) with examples, 0.61 without: the band is not guaranteed off the
-calibration set.
+examples, gravity; the tests' ``user_mesh_scene``), the calibrated ratios are 1.59 (1 ms)
+and 2.12 (60 Hz) with examples, 0.61 and 0.60 without (docs/decisions.md): the band is not
+guaranteed off the calibration set.
 
 Everything here is n-sized but runs on the saved frames only, after the run: the
 real-time step is untouched. The full-space elastic force at all frames is one sparse
 gradient product, one compiled stress pass and one sparse scatter
-(:class:`FrameForces`).
+(:class:`FrameForces`); M comes from the element-vertex incidence and K₀ from its element
+blocks summed in linear time (:func:`assemble`), all at full size with the fixed dofs'
+rows and columns zero (no sparse slicing).
 
 What is not in the residual: the difference between the reduced and the full-space
 example targets (the reduced target is the full one's projection for the global
@@ -67,7 +71,7 @@ CALIBRATION = 1.5
 #: relative spread of the frame spacing accepted as uniform
 SPACING_RTOL = 1e-6
 #: most frame intervals the estimate integrates over (the saved frames thinned to this)
-MAX_FRAMES = 50
+MAX_FRAMES = 25
 
 
 @dataclass(frozen=True)
@@ -126,14 +130,46 @@ class FrameForces:
                                   shape=(9 * e, n3)).T.tocsr()
         self._jit = density_parameters(material)
         self._e = e
+        self._G, self._volumes, self._tets, self._n3 = G, volumes, tets, n3
 
     def rest_stiffness(self) -> sp.csr_matrix:
         """(3n, 3n) the elastic tangent at rest K₀ in N/m: ``Bᵀ V (C ⊗ I) B``, C the
         material's (9, 9) stress derivative at rest (one material for every element)."""
+        return self.operators(1.0, np.ones(self._n3, dtype=bool))[1]
+
+    def operators(self, density: float, keep: np.ndarray
+                  ) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+        """(M, K₀), both (3n, 3n) CSR: the consistent mass in kg (density in kg/m³) and the
+        rest tangent in N/m, with the rows and columns of the dofs not in ``keep`` (3n,)
+        bool set to zero. K₀ from its (12, 12) element blocks in one vectorised pass, M from
+        the element-vertex incidence (:meth:`mass`)."""
         P9, C = np.empty((9, 1)), np.empty((1, 9, 9))
         stress_and_tangent(self._jit[0], self._jit[1], np.zeros((9, 1)), P9, C)
-        blocks = sp.kron(sp.csr_matrix(C[0]), sp.identity(self._e, format="csr"), format="csr")
-        return (self._BtV @ blocks @ self._B).tocsr()
+        C4 = C[0].reshape(3, 3, 3, 3)  # ∂P_ik / ∂H_jl as [i, k, j, l]
+        G, e = self._G, self._e
+        # Σ_k V ∂_k N_a C[i,k,j,l] as one (4e, 3) @ (3, 27) product, then Σ_l ... ∂_l N_b
+        # as a batched (36, 3) @ (3, 4) product per element
+        GC = ((G * self._volumes[:, None, None]).reshape(4 * e, 3)
+              @ C4.transpose(1, 0, 2, 3).reshape(3, 27)).reshape(e, 36, 3)
+        blocks = np.matmul(GC, G.transpose(0, 2, 1)).reshape(e, 4, 3, 3, 4)
+        blocks = blocks.transpose(0, 1, 2, 4, 3).reshape(e, 144)  # [a, i, b, j]
+        dofs = (3 * self._tets[:, :, None] + np.arange(3)).reshape(e, 12)
+        K = assemble(blocks.ravel(), np.repeat(dofs, 12, axis=1).ravel(),
+                     np.tile(dofs, (1, 12)).ravel(), (self._n3, self._n3))
+        return masked(self.mass(density), keep), masked(K, keep)
+
+    def mass(self, density: float) -> sp.csr_matrix:
+        """(3n, 3n) the consistent mass in kg (density in kg/m³; as
+        :func:`~lbshape.elastic.element_kernels.mass_matrix`): ``M_ab = ρV/20 (1 + δ_ab)``
+        per element, as ``Aᵀ (ρV/20) A`` plus its diagonal part (A the (e, n) incidence),
+        times I₃ per vertex block."""
+        e, n = self._e, self._n3 // 3
+        weights = density * self._volumes / 20.0
+        A = sp.csr_matrix((np.ones(4 * e), self._tets.ravel(), np.arange(0, 4 * e + 1, 4)),
+                          shape=(e, n))
+        scalar = A.T @ sp.diags(weights) @ A + sp.diags(
+            np.bincount(self._tets.ravel(), np.repeat(weights, 4), minlength=n))
+        return sp.kron(scalar, sp.identity(3), format="csr")
 
     def __call__(self, u: np.ndarray) -> np.ndarray:
         """(3n, f) forces in N of the displacements u (3n, f) in m (node-major)."""
@@ -144,6 +180,27 @@ class FrameForces:
         P9 = np.empty_like(H9)
         stress(self._jit[0], self._jit[1], H9, P9)
         return np.asarray(self._BtV @ P9.reshape(9 * self._e, frames))
+
+
+def assemble(data: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+             shape: tuple[int, int]) -> sp.csr_matrix:
+    """The CSR matrix of (row, col, value) triplets, duplicates summed, in linear time: the
+    triplets go to CSR unsummed, one transposition orders each row's columns (a counting
+    sort) and the sorted duplicates are summed, instead of sorting every row. The matrix
+    must be symmetric in its pattern and values (the transposition is not undone)."""
+    coo = sp.coo_matrix((data, (rows, cols)), shape=shape)
+    coo.has_canonical_format = True  # skip tocsr's summing (it sorts every row)
+    matrix = coo.tocsr().T.tocsr()
+    matrix.sum_duplicates()
+    return matrix
+
+
+def masked(matrix: sp.csr_matrix, keep: np.ndarray) -> sp.csr_matrix:
+    """A copy of the square CSR matrix with the rows and columns not in ``keep`` zero."""
+    matrix = sp.csr_matrix(matrix, copy=True)
+    rows = np.repeat(np.arange(matrix.shape[0]), np.diff(matrix.indptr))
+    matrix.data *= keep[rows] & keep[matrix.indices]
+    return matrix
 
 
 def shape_gradients(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -161,6 +218,9 @@ def shape_gradients(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, n
 class ResidualErrorEstimator:
     """The residual-based error estimate of a reduced run (see the module docstring).
 
+    Every operator is kept at full size (3n) with the rows and columns of the fixed dofs
+    zero (no sparse slicing); the effective matrix has 1 on their diagonal.
+
     Args:
         forces: the full-space elastic force of many frames (:class:`FrameForces`).
         basis: (3n, r) mass-orthonormal basis U, zero on fixed dofs.
@@ -175,56 +235,72 @@ class ResidualErrorEstimator:
     def __init__(self, forces: FrameForces, basis: np.ndarray, mass, stiffness,
                  free_dofs: np.ndarray, *, alpha: float, beta: float,
                  loads: Sequence[tuple[np.ndarray, Callable[[float], float]]] = ()):
-        self.free = np.asarray(free_dofs, dtype=np.int64)
         self.U = np.asarray(basis, dtype=float)
+        self.keep = np.zeros(self.U.shape[0], dtype=bool)
+        self.keep[np.asarray(free_dofs, dtype=np.int64)] = True
+        self.free = np.flatnonzero(self.keep)
         self._forces = forces
-        self.M = sp.csr_matrix(mass)[self.free][:, self.free].tocsr()
-        self.K = sp.csr_matrix(stiffness)[self.free][:, self.free].tocsr()
-        self._Uf = np.ascontiguousarray(self.U[self.free])
-        self._MU = np.asarray(self.M @ self._Uf)
-        self._KU = np.asarray(self.K @ self._Uf)
+        mask = sp.diags(self.keep.astype(float))
+        self.M = (mask @ sp.csr_matrix(mass) @ mask).tocsr()
+        self.K = (mask @ sp.csr_matrix(stiffness) @ mask).tocsr()
+        self._MU = np.asarray(self.M @ self.U)
+        self._KU = np.asarray(self.K @ self.U)
+        self._gram = self.U.T @ self._MU  # Uᵀ M U (the identity up to round-off)
         self.alpha, self.beta = float(alpha), float(beta)
-        self._loads = [(np.asarray(p, dtype=float)[self.free], profile) for p, profile in loads]
+        self._loads = [(np.where(self.keep, np.asarray(p, dtype=float), 0.0), profile)
+                       for p, profile in loads]
 
     def effective_matrix(self, spacing: float) -> sp.csr_matrix:
-        """``(1 + 2β/Δ) K₀ + (4/Δ² + 2α/Δ) M`` on the free dofs for the frame spacing Δ (s):
-        the matrix to factor once (symmetric positive definite)."""
+        """``(1 + 2β/Δ) K₀ + (4/Δ² + 2α/Δ) M`` for the frame spacing Δ (s), 1 on the fixed
+        dofs' diagonal: the matrix to factor once (symmetric positive definite)."""
         if not spacing > 0:
             raise LbshapeError(f"frame spacing must be > 0 s, got {spacing}")
         return ((1.0 + 2.0 * self.beta / spacing) * self.K
-                + (4.0 / spacing**2 + 2.0 * self.alpha / spacing) * self.M).tocsr()
+                + (4.0 / spacing**2 + 2.0 * self.alpha / spacing) * self.M
+                + sp.diags((~self.keep).astype(float))).tocsr()
 
-    def residuals(self, times: np.ndarray, Q: np.ndarray) -> np.ndarray:
-        """(nf, f) residuals ``P (f_ext − β K₀ U q̇ − f_int(U q))`` on the free dofs at the
-        frames (times (f,) in s, Q (f, r))."""
-        Qdot = np.gradient(Q, times, axis=0) if len(times) > 1 else np.zeros_like(Q)
-        g = -np.asarray(self._forces(self.U @ Q.T))[self.free]
+    def residuals(self, times: np.ndarray, Q: np.ndarray,
+                  Qdot: np.ndarray | None = None) -> np.ndarray:
+        """(3n, f) residuals ``P (f_ext − β K₀ U q̇ − f_int(U q))`` at the frames (times (f,)
+        in s, Q (f, r); Qdot (f, r) the reduced velocities, default the finite differences
+        of Q), zero on the fixed dofs."""
+        if Qdot is None:
+            Qdot = np.gradient(Q, times, axis=0) if len(times) > 1 else np.zeros_like(Q)
+        g = -np.asarray(self._forces(self.U @ Q.T))
+        g[~self.keep] = 0.0
         g -= self.beta * (self._KU @ Qdot.T)
         for pattern, profile in self._loads:
             g += np.outer(pattern, [profile(float(t)) for t in times])
-        return g - self._MU @ (self._Uf.T @ g)
+        return g - self._MU @ (self.U.T @ g)
 
     def estimate(self, times: np.ndarray, Q: np.ndarray,
-                 solve: Callable[[np.ndarray], np.ndarray]) -> ErrorEstimate:
+                 solve: Callable[[np.ndarray], np.ndarray],
+                 Qdot: np.ndarray | None = None, size: float | None = None) -> ErrorEstimate:
         """The estimate over uniformly spaced frames (:func:`select_frames`).
 
         Args:
             times: (f,) frame times in s, uniformly spaced.
             Q: (f, r) reduced coordinates at the frames.
-            solve: ``solve(rhs (nf,)) -> (nf,)`` with the factor of
+            solve: ``solve(rhs (3n,)) -> (3n,)`` with the factor of
                 :meth:`effective_matrix` at the frame spacing.
+            Qdot: (f, r) reduced velocities at the frames (default: finite differences).
+            size: ``max_t ‖U q‖_M`` over the whole run (default: over these frames).
         """
         started = time.perf_counter()
         times, Q = np.asarray(times, dtype=float), np.asarray(Q, dtype=float)
-        size = float(np.sqrt(np.max(np.einsum("ft,tf->f", Q @ self._Uf.T,
-                                              self.M @ (self._Uf @ Q.T)))))
+        if size is None:
+            size = self.size(Q)
         if len(times) < 2 or not size > 0:
             return ErrorEstimate(0.0, "", np.zeros(len(times)), time.perf_counter() - started)
         spacing = float(times[1] - times[0])
-        R = self.residuals(times, Q)
+        R = self.residuals(times, Q, Qdot)
         norms = newmark_error_norms(R, self.M, self.K, self.alpha, self.beta, spacing, solve)
         return ErrorEstimate(CALIBRATION * float(norms.max()) / size, "", norms,
                              time.perf_counter() - started)
+
+    def size(self, Q: np.ndarray) -> float:
+        """``max_t ‖U q(t)‖_M`` over the rows of Q (f, r), in reduced space."""
+        return float(np.sqrt(max(0.0, np.max(np.einsum("fr,rs,fs->f", Q, self._gram, Q)))))
 
 
 def newmark_error_norms(R: np.ndarray, M, K, alpha: float, beta: float, spacing: float,
@@ -252,14 +328,19 @@ def newmark_error_norms(R: np.ndarray, M, K, alpha: float, beta: float, spacing:
 
 
 def select_frames(times: np.ndarray, Q: np.ndarray, max_frames: int = MAX_FRAMES
-                  ) -> tuple[np.ndarray, np.ndarray]:
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The frames the estimate uses: the leading uniformly spaced ones (a last, shorter
-    interval is dropped), thinned to every k-th so that at most ``max_frames`` + 1 remain.
+    interval is dropped), thinned to every k-th so that at most ``max_frames`` + 1 remain,
+    with their reduced velocities taken by central differences over every uniform frame
+    before the thinning (the β K₀ U q̇ term of the residual needs them accurate).
 
     Args:
         times: (f,) frame times in s.
         Q: (f, r) reduced coordinates.
         max_frames: most intervals kept.
+
+    Returns:
+        (times (k,), Q (k, r), Qdot (k, r)).
     """
     times, Q = np.asarray(times, dtype=float), np.asarray(Q, dtype=float)
     if len(times) >= 3:
@@ -267,5 +348,6 @@ def select_frames(times: np.ndarray, Q: np.ndarray, max_frames: int = MAX_FRAMES
         uniform = np.abs(gaps - gaps[0]) <= SPACING_RTOL * gaps[0]
         count = len(times) if uniform.all() else int(np.argmin(uniform)) + 1
         times, Q = times[:count], Q[:count]
+    Qdot = np.gradient(Q, times, axis=0) if len(times) > 1 else np.zeros_like(Q)
     every = max(1, math.ceil((len(times) - 1) / max(1, int(max_frames))))
-    return times[::every], Q[::every]
+    return times[::every], Q[::every], Qdot[::every]

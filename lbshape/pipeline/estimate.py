@@ -25,7 +25,6 @@ from lbshape.analysis.error_estimate import (
     unavailable,
 )
 from lbshape.dynamics.record import RunRecord
-from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.fem.cholesky import serial_cholesky
 from lbshape.pipeline.precomputed import Precomputed
@@ -38,16 +37,20 @@ STATS_KEYS = ("error_estimate", "error_estimate_message", "error_estimate_ms")
 
 def estimator(scene: Scene, pre: Precomputed) -> ResidualErrorEstimator:
     """The :class:`~lbshape.analysis.error_estimate.ResidualErrorEstimator` of a fixed
-    object's scene (n-sized set-up: the full-space force operators, M and K₀)."""
+    object's scene (n-sized set-up: the full-space force operators, M and K₀ assembled
+    from the element blocks with the fixed dofs' rows and columns zero)."""
     mesh = pre.mesh
-    mass = mass_matrix(mesh, pre.material.density)
     forces = FrameForces(mesh.points, mesh.tets, pre.material)
     fixed = np.asarray(pre.fixed_vertices, dtype=np.int64)
-    fixed_dofs = (3 * fixed[:, None] + np.arange(3)).ravel()
-    free = np.setdiff1d(np.arange(3 * mesh.n_vertices), fixed_dofs)
-    loads = [(load.pattern, load.profile) for load in mesh_load_patterns(scene, mesh, mass)]
+    keep = np.ones(3 * mesh.n_vertices, dtype=bool)
+    keep[(3 * fixed[:, None] + np.arange(3)).ravel()] = False
+    mass, stiffness = forces.operators(pre.material.density, keep)
+    loads = []
+    if scene.loads:  # the patterns need the mass of every dof (reactions included)
+        loads = [(load.pattern, load.profile) for load in
+                 mesh_load_patterns(scene, mesh, forces.mass(pre.material.density))]
     return ResidualErrorEstimator(
-        forces, pre.U, mass, forces.rest_stiffness(), free,
+        forces, pre.U, mass, stiffness, np.flatnonzero(keep),
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads)
 
 
@@ -66,7 +69,7 @@ def estimate_error(scene: Scene, pre: Precomputed, record: RunRecord,
         return unavailable(free_body_reason(scene, pre, record, frames))
     if pre.elastic.force_model != "polynomial":
         return unavailable(CUBATURE_REASON)
-    times, Q = select_frames(record.times, record.states, max_frames)
+    times, Q, Qdot = select_frames(record.times, record.states, max_frames)
     if len(times) < 2:
         return ErrorEstimate(0.0, "", np.zeros(len(times)),
                              time.perf_counter() - started)
@@ -75,7 +78,8 @@ def estimate_error(scene: Scene, pre: Precomputed, record: RunRecord,
     try:
         with serial_cholesky(est.effective_matrix(spacing),
                              what="the effective stiffness of the error estimate") as solve:
-            result = est.estimate(times, Q, solve.vector)
+            result = est.estimate(times, Q, solve.vector, Qdot=Qdot,
+                                  size=est.size(np.asarray(record.states, dtype=float)))
     except LbshapeError as exc:
         return unavailable(f"the estimate failed: {exc}")
     caveat = LOCAL_EXAMPLES_CAVEAT if _local_examples_act(scene, pre) else result.message
