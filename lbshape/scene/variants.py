@@ -109,9 +109,9 @@ def impact_scene(scene: Scene, points: np.ndarray, normal, speed: float, gap: fl
                  name: str) -> Scene:
     """A designed impact: the free body of ``scene`` (rest points ``points`` (n, 3), m)
     thrown at ``speed`` (m/s) along −``normal`` at one plane, normal ``normal`` (made
-    unit), ``gap`` (m) beyond the body's extreme point in −normal, with gravity (the
-    scene's magnitude, 9.81 m/s² without one) along −normal too; no spin; the scene's
-    first plane's stiffness and friction. The steps and dt are the scene's."""
+    unit), ``gap`` (m) beyond the body's extreme point in −normal, without loads (no
+    gravity: the impact alone) and without spin; the scene's first plane's stiffness and
+    friction. The steps and dt are the scene's."""
     normal = np.asarray(normal, dtype=float)
     normal = normal / np.linalg.norm(normal)
     if not scene.planes or not scene.is_free:
@@ -122,13 +122,8 @@ def impact_scene(scene: Scene, points: np.ndarray, normal, speed: float, gap: fl
     point = tuple(float(v) for v in (support.min() - gap) * normal)
     plane = dataclasses.replace(scene.planes[0], point=point,
                                 normal=tuple(float(v) for v in normal))
-    gravity = next((load for load in scene.loads if load.type == "gravity"), None)
-    loads = ()
-    if gravity is not None:
-        g = float(np.linalg.norm(gravity.vector))
-        loads = (dataclasses.replace(gravity, vector=tuple(float(v) for v in -g * normal)),)
     initial = dataclasses.replace(scene.initial,
                                   velocity=tuple(float(v) for v in -speed * normal),
                                   angular_velocity=(0.0, 0.0, 0.0))
-    return dataclasses.replace(scene, name=name, planes=(plane,), loads=loads,
+    return dataclasses.replace(scene, name=name, planes=(plane,), loads=(),
                                initial=initial)

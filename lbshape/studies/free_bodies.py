@@ -82,7 +82,9 @@ IMPACT_NORMALS: dict[str, tuple[float, float, float]] = {
 IMPACT_SPEEDS: tuple[float, ...] = (1.5, 3.0)
 IMPACT_FLIGHT = 0.008
 #: steps of a designed impact's runs
-IMPACT_STEPS = 150
+IMPACT_STEPS = 200
+#: the job name of the designed impacts among :func:`free_body_job`'s scene names
+IMPACTS_JOB = "@impacts"
 #: the reduced body restarts this many steps before the reference's first contact
 PRE_STEPS = 3
 #: an impact is over after this many consecutive samples without penetration
@@ -352,3 +354,69 @@ def ratio_text(error: float | None, floor: float | None) -> str:
     if error is None or not floor or not math.isfinite(error):
         return "—"
     return f"{error / floor:.1f}"
+
+
+# ------------------------------------------------------------------- per scene
+@dataclass(frozen=True)
+class WholeRun:
+    """One free body's whole-trajectory evaluation with or without its examples.
+
+    Attributes:
+        scene: the scene's name.
+        examples: whether its examples act.
+        error: Table 2's whole-trajectory error of the reduced run against full (None
+            if a run stopped).
+        keys: the :data:`KEYS` (:func:`whole_run`).
+        floor: the reference's :class:`NoiseFloor`.
+    """
+
+    scene: str
+    examples: bool
+    error: float | None
+    keys: dict
+    floor: NoiseFloor
+
+    def stats(self) -> dict:
+        """The JSON entry."""
+        return {"scene": self.scene, "examples": self.examples, "error_vs_full": self.error,
+                **self.keys, "floor_changes": dict(self.floor.changes),
+                "floor_rest_pose_chamfer": dict(self.floor.rest_pose)}
+
+
+def evaluate_scene(scene, pre, *, steps: int | None = None,
+                   perturb: bool = True) -> list[WholeRun]:
+    """The whole-trajectory evaluation of a free body, with its examples and (if it has
+    an example force) without: full and reduced runs, the noise floor (``perturb``
+    False: no floor) and :func:`whole_run`."""
+    if not scene.is_free:
+        raise LbshapeError(f"scene {scene.name} is not a free body")
+    steps = scene.simulation.steps if steps is None else int(steps)
+    mass = mass_matrix(pre.mesh, pre.material.density)
+    variants = [(True, scene)]
+    if scene.examples is not None and scene.examples.stiffness != 0:
+        variants.append((False, without_examples(scene)))
+    out = []
+    for examples, variant in variants:
+        log.info("free bodies %s (examples %s): full and reduced", scene.name, examples)
+        full = simulate(variant, pre, method="full", steps=steps)
+        reduced = simulate(variant, pre, method="reduced", steps=steps)
+        floor = (noise_floor(variant, pre, full, mass, steps=steps) if perturb
+                 else NoiseFloor((), ()))
+        keys = whole_run(variant, pre, reduced, full, mass, floor.floor)
+        out.append(WholeRun(scene.name, examples and len(variants) == 2,
+                            run_difference(reduced, full, mass), keys, floor))
+    return out
+
+
+def free_body_job(item: str, *, steps: int | None = None) -> tuple[str, list]:
+    """One job of ``lbshape bench --free-bodies`` (picklable, for worker processes):
+    ``("impacts", designed impacts of IMPACT_BODY)`` for :data:`IMPACTS_JOB`, else
+    ``("whole", evaluate_scene of the scene item)``."""
+    from lbshape.pipeline.precompute import precompute
+    from lbshape.scene.reader import load_scene
+
+    if item == IMPACTS_JOB:
+        body = load_scene(IMPACT_BODY)
+        return "impacts", designed_impacts(body, precompute(body))
+    scene = load_scene(item)
+    return "whole", evaluate_scene(scene, precompute(scene), steps=steps)
