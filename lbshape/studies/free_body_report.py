@@ -139,8 +139,8 @@ def write_free_bodies(runs: Sequence[WholeRun], impacts: Sequence[ImpactComparis
         "(no other load acts), error `|Δp − Δp_full| / |Δp_full|`; ΔL: change of "
         "angular momentum about the centre of mass, error `|ΔL − ΔL_full| / "
         "max(|ΔL_full|, |Δp_full| × half diagonal)`; energy lost: kinetic energy lost over "
-        "the centre's kinetic energy before (the vibration's elastic energy counts as lost). Target: restitution, Δp and ΔL "
-        "within 5 % without examples, 10 % with.",
+        "the centre's kinetic energy before (the vibration's elastic energy counts as lost). "
+        "Target: restitution, Δp and ΔL within 5 % without examples, 10 % with.",
         "",
         *impact_lines(impacts),
         "",
