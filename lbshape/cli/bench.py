@@ -41,7 +41,6 @@ from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
 from lbshape.studies import free_bodies, pareto, scaling
 from lbshape.studies.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene, paper_setting
-from lbshape.studies.free_body_report import write_free_bodies
 from lbshape.studies.realtime import PAPER_TABLE2
 from lbshape.studies.tables import settings_payload, write_table2
 
@@ -203,7 +202,8 @@ def _free_bodies(args) -> int:
     command = " ".join(["OMP_NUM_THREADS=1 lbshape bench --free-bodies", *args.scenes,
                         *([f"--steps {args.steps}"] if args.steps else []),
                         *([f"-j {args.jobs}"] if args.jobs > 1 else [])])
-    md, js = write_free_bodies(runs, impacts, args.out_dir or DEFAULT_OUT, command=command)
+    md, js = free_bodies.write_free_bodies(runs, impacts, args.out_dir or DEFAULT_OUT,
+                                           command=command)
     if args.json:
         print_json({"whole": [run.stats() for run in runs],
                     "impacts": [impact.stats() for impact in impacts]})
