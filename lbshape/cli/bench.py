@@ -36,7 +36,14 @@ from pathlib import Path
 
 import numpy as np
 
-from lbshape.api import WARMUP_STEPS, expand_scenes, load_scene, run_jobs, summary_table
+from lbshape.api import (
+    WARMUP_STEPS,
+    expand_scenes,
+    load_scene,
+    precompute,
+    run_jobs,
+    summary_table,
+)
 from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
 from lbshape.studies import free_bodies, pareto, scaling
@@ -182,8 +189,6 @@ def bench_one(name: str, *, steps: int | None, repeats: int, paper_settings: boo
 
 def _free_bodies(args) -> int:
     """``--free-bodies``: the free bodies' evaluation (:mod:`lbshape.studies.free_bodies`)."""
-    from lbshape.pipeline.precompute import precompute
-
     scenes = [load_scene(name) for name in (args.scenes or free_bodies.FREE_SCENES)]
     fixed = [scene.name for scene in scenes if not scene.is_free]
     if fixed:

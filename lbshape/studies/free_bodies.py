@@ -55,8 +55,10 @@ from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
 from lbshape.io.machine import load_text, machine_description, threads_text
+from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import simulate
 from lbshape.pipeline.simulation import Simulation
+from lbshape.scene.reader import load_scene
 from lbshape.scene.variants import (
     impact_scene,
     with_contact_stiffness,
@@ -418,9 +420,6 @@ def free_body_job(item: str, *, steps: int | None = None) -> tuple[str, list]:
     """One job of ``lbshape bench --free-bodies`` (picklable, for worker processes):
     ``("impacts", designed impacts of IMPACT_BODY)`` for :data:`IMPACTS_JOB`, else
     ``("whole", evaluate_scene of the scene item)``."""
-    from lbshape.pipeline.precompute import precompute
-    from lbshape.scene.reader import load_scene
-
     if item == IMPACTS_JOB:
         body = load_scene(IMPACT_BODY)
         return "impacts", designed_impacts(body, precompute(body))
