@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from lbshape.analysis.free_body_eval import project_state
+from lbshape.cli import main
 from lbshape.analysis.norms import trajectory_error
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
@@ -28,15 +29,13 @@ from lbshape.studies.free_bodies import (
     restart_reduced,
 )
 
-pytestmark = pytest.mark.slow
-
-
 @pytest.fixture(scope="module")
 def bar():
     scene = load_scene("bar-s-cuboid")
     return scene, precompute(scene)
 
 
+@pytest.mark.slow
 def test_the_designed_impact_scene_throws_the_body_at_its_plane(bar):
     scene, pre = bar
     normal = np.array(IMPACT_NORMALS["corner"]) / np.sqrt(3.0)
@@ -52,6 +51,7 @@ def test_the_designed_impact_scene_throws_the_body_at_its_plane(bar):
         impact_scene(scene, pre.mesh.points, (0.0, 0.0, 1.0), 0.0, 0.02, "x")
 
 
+@pytest.mark.slow
 def test_the_noise_floor_perturbations_change_what_they_name(bar):
     scene, _ = bar
     assert with_throw(scene, 1.01).initial.angular_velocity[1] == pytest.approx(1.5 * 1.01)
@@ -61,6 +61,7 @@ def test_the_noise_floor_perturbations_change_what_they_name(bar):
     assert half.simulation.steps == 2 * scene.simulation.steps
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("examples", [False, True])
 def test_the_restart_reproduces_the_full_pre_impact_state(bar, examples):
     scene, pre = bar
@@ -82,6 +83,7 @@ def test_the_restart_reproduces_the_full_pre_impact_state(bar, examples):
     assert trajectory_error(later[None], points[start + 3][None] - rest, mass) < 1e-3
 
 
+@pytest.mark.slow
 def test_a_designed_face_hit_bounces_both_bodies(bar):
     scene, pre = bar
     impact = designed_impact(scene, pre, "face", 1.5, examples=False)
@@ -93,6 +95,7 @@ def test_a_designed_face_hit_bounces_both_bodies(bar):
     assert impact.restart_error < 1e-9
 
 
+@pytest.mark.slow
 def test_bench_free_eval_fills_the_free_body_keys(bar):
     scene, pre = bar
     scene = without_examples(scene)
@@ -107,3 +110,11 @@ def test_bench_free_eval_fills_the_free_body_keys(bar):
     assert reduced["rest_pose_chamfer"] < 1e-6
     assert reduced["error_over_floor"] == pytest.approx(
         reduced["error_vs_full"] / reduced["noise_floor"])
+
+
+@pytest.mark.parametrize("argv", [["--free-bodies", "bar-cuboid"],
+                                  ["--free-bodies", "--sweep"],
+                                  ["--free-eval", "--scaling"]])
+def test_free_body_options_refuse_what_they_do_not_measure(argv, capsys):
+    assert main(["bench", *argv]) == 2
+    assert capsys.readouterr().err.count("\n") == 1
