@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from lbshape.analysis.free_body_eval import project_state
-from lbshape.cli import main
 from lbshape.analysis.norms import trajectory_error
+from lbshape.cli import main
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import precompute
@@ -28,6 +28,7 @@ from lbshape.studies.free_bodies import (
     perturbed,
     restart_reduced,
 )
+
 
 @pytest.fixture(scope="module")
 def bar():
