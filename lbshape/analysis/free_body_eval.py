@@ -35,6 +35,9 @@ from lbshape.errors import LbshapeError
 
 #: sample-to-triangle distances are evaluated in chunks of this many points
 _CHUNK = 256
+#: a vertex counts as behind a plane from this depth on (m): a body whose rest mesh sits
+#: on a plane touches it to round-off (1e-17 m) without being in contact
+CONTACT_DEPTH = 1e-9
 
 
 # ------------------------------------------------------------------ contact window
@@ -51,9 +54,9 @@ def penetration(points: np.ndarray, planes) -> np.ndarray:
 
 
 def first_contact(points: np.ndarray, planes) -> int | None:
-    """Index of the first sample of ``points`` (k, n, 3) with a vertex strictly behind a
-    plane; None if none is (or there are no planes)."""
-    touching = np.flatnonzero(penetration(points, planes) > 0.0)
+    """Index of the first sample of ``points`` (k, n, 3) with a vertex more than
+    :data:`CONTACT_DEPTH` behind a plane; None if none is (or there are no planes)."""
+    touching = np.flatnonzero(penetration(points, planes) > CONTACT_DEPTH)
     return int(touching[0]) if touching.size else None
 
 

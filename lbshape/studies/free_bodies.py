@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from lbshape.analysis.free_body_eval import (
+    CONTACT_DEPTH,
     first_contact,
     impact_measures,
     penetration,
@@ -242,10 +243,10 @@ def _impact_end(points: np.ndarray, planes, start: int) -> int | None:
     """The first sample after ``start`` that begins :data:`CLEAR_SAMPLES` samples without
     penetration, after a penetrating one (None if the contact never ends in the run)."""
     depth = penetration(points, planes)
-    touching = np.flatnonzero(depth[start:] > 0.0)
+    touching = np.flatnonzero(depth[start:] > CONTACT_DEPTH)
     if not touching.size:
         return None
-    clear = depth == 0.0
+    clear = depth <= CONTACT_DEPTH
     for index in range(start + int(touching[0]) + 1, len(points) - CLEAR_SAMPLES):
         if clear[index:index + CLEAR_SAMPLES].all():
             return index

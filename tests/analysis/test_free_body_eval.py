@@ -140,3 +140,10 @@ def test_a_rigid_spinning_state_projects_onto_its_frame_and_momenta(bar):
     world_inertia = np.trace(inertia) * np.eye(3) - inertia
     expected = world_inertia @ spin
     np.testing.assert_allclose(state.L, expected, atol=1e-5 * np.linalg.norm(expected))
+
+
+def test_a_body_resting_on_a_plane_to_round_off_is_not_in_contact(bar):
+    mesh, _, _ = bar
+    points = mesh.points - [0.0, 0.0, 1e-17]  # its lowest vertices 1e-17 m behind the floor
+    assert first_contact(points[None], [FLOOR]) is None
+    assert first_contact((points - [0.0, 0.0, 1e-6])[None], [FLOOR]) == 0
