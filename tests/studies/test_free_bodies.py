@@ -12,6 +12,7 @@ from lbshape.analysis.norms import trajectory_error
 from lbshape.cli import main
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
+from lbshape.io.machine import machine_description
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulation import Simulation
 from lbshape.scene.reader import load_scene
@@ -28,6 +29,7 @@ from lbshape.studies.free_bodies import (
     perturbed,
     restart_reduced,
 )
+from lbshape.studies.tables import table2_markdown
 
 
 @pytest.fixture(scope="module")
@@ -111,6 +113,9 @@ def test_bench_free_eval_fills_the_free_body_keys(bar):
     assert reduced["rest_pose_chamfer"] < 1e-6
     assert reduced["error_over_floor"] == pytest.approx(
         reduced["error_vs_full"] / reduced["noise_floor"])
+    text = table2_markdown([result], machine_description())
+    section = text.split("beside the reference's noise floor", 1)[1]
+    assert f"| bar-s-cuboid | reduced | {100 * reduced['error_vs_full']:.2f}% | " in section
 
 
 @pytest.mark.parametrize("argv", [["--free-bodies", "bar-cuboid"],
