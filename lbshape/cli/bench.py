@@ -1,5 +1,6 @@
 """``lbshape bench [SCENE…] [--json] [--steps N] [--repeats K] [--out-dir DIR] [-j N]
-[--no-paper-settings] [--sweep] [--scaling [--sizes H…] [--ranks N]]``.
+[--no-paper-settings] [--free-eval] [--sweep] [--scaling [--sizes H…] [--ranks N]]
+[--free-bodies]``.
 
 Runs ``full``, ``euclidean`` and ``reduced`` side by side in one process per scene
 (default scenes: bar-cuboid, bar-cylinder; names, TOML paths or globs) and writes
@@ -18,6 +19,13 @@ With ``--scaling`` it measures the cost growth with mesh size instead
 object sizes, each precomputed from scratch in a fresh process (``--ranks N``: under
 ``mpirun -n N``), then the reduced per-step time of all sizes interleaved; writes
 ``scaling.csv``, ``scaling.md`` and ``scaling.png``.
+With ``--free-eval`` a free body's Table 2 rows gain the field's evaluation
+(:data:`lbshape.studies.free_bodies.KEYS`: the error before the first contact, the rest
+pose's symmetric surface distance, the reference's noise floor and the error over it).
+With ``--free-bodies`` it evaluates the free bodies instead (default car, bar-s-cuboid,
+bar-s-cylinder; :mod:`lbshape.studies.free_bodies`: those keys with and without
+examples, and the designed impacts of the bar from a synchronised pre-impact state) and
+writes ``free_bodies.md`` and ``free_bodies.json`` (errors only, no timings).
 """
 
 from __future__ import annotations
@@ -28,10 +36,17 @@ from pathlib import Path
 
 import numpy as np
 
-from lbshape.api import WARMUP_STEPS, expand_scenes, load_scene, run_jobs, summary_table
+from lbshape.api import (
+    WARMUP_STEPS,
+    expand_scenes,
+    load_scene,
+    precompute,
+    run_jobs,
+    summary_table,
+)
 from lbshape.cli._output import print_json
 from lbshape.errors import LbshapeError
-from lbshape.studies import pareto, scaling
+from lbshape.studies import free_bodies, pareto, scaling
 from lbshape.studies.bench import DEFAULT_OUT, DEFAULT_SCENES, bench_scene, paper_setting
 from lbshape.studies.realtime import PAPER_TABLE2
 from lbshape.studies.tables import settings_payload, write_table2
@@ -56,6 +71,15 @@ def register(subparsers) -> None:
                         help="leave out the reduced method at the paper's m, r, s with "
                              "cubature forces (run by default beside the scene as written, "
                              "with its own precompute)")
+    parser.add_argument("--free-eval", action="store_true",
+                        help="free bodies: add the error before first contact, the rest "
+                             "pose's surface distance, the reference's noise floor and the "
+                             "error over it to Table 2 (re-runs full 5 times per scene)")
+    parser.add_argument("--free-bodies", action="store_true",
+                        help="instead: evaluate the free bodies (default car bar-s-cuboid "
+                             "bar-s-cylinder) before contact, per designed impact, at rest "
+                             "and against the reference's noise floor; write "
+                             "free_bodies.md/.json")
     parser.add_argument("--sweep", action="store_true",
                         help="instead: sweep r, s and m per scene (default: bar-cuboid "
                              "bar-cylinder demo) and write pareto.md/.json/.png")
@@ -80,13 +104,18 @@ def run(args) -> int:
         raise LbshapeError(f"--repeats must be >= 1, got {args.repeats}")
     if args.jobs < 1:
         raise LbshapeError(f"-j/--jobs must be >= 1, got {args.jobs}")
-    if args.sweep and args.scaling:
-        raise LbshapeError("--sweep and --scaling are different benchmarks: give one")
+    if sum((args.sweep, args.scaling, args.free_bodies)) > 1:
+        raise LbshapeError("--sweep, --scaling and --free-bodies are different benchmarks: "
+                           "give one")
+    if args.free_eval and (args.sweep or args.scaling or args.free_bodies):
+        raise LbshapeError("--free-eval belongs to the Table 2 benchmark")
     if (args.sizes is not None or args.ranks != 1) and not args.scaling:
         raise LbshapeError("--sizes and --ranks belong to --scaling")
     if not args.paper_settings and (args.sweep or args.scaling):
         raise LbshapeError("--no-paper-settings belongs to the Table 2 benchmark, not to "
                            "--sweep or --scaling")
+    if args.free_bodies:
+        return _free_bodies(args)
     if args.sweep:
         return _sweep(args)
     if args.scaling:
@@ -95,11 +124,12 @@ def run(args) -> int:
     if len(names) == 1 and not unmatched:  # one scene: errors as a one-line error
         jobs = []
         results = [bench_one(names[0], steps=args.steps, repeats=args.repeats,
-                             paper_settings=args.paper_settings, progress=not args.json)]
+                             paper_settings=args.paper_settings, progress=not args.json,
+                             free_eval=args.free_eval)]
     else:
         jobs = unmatched + run_jobs(
             functools.partial(bench_one, steps=args.steps, repeats=args.repeats,
-                              paper_settings=args.paper_settings),
+                              paper_settings=args.paper_settings, free_eval=args.free_eval),
             names, jobs=args.jobs, progress=not args.json, desc="bench")
         results = [job.value for job in jobs if job.ok]
     if not results:
@@ -147,13 +177,50 @@ def run(args) -> int:
 
 
 def bench_one(name: str, *, steps: int | None, repeats: int, paper_settings: bool = True,
-              progress: bool = False):
+              progress: bool = False, free_eval: bool = False):
     """:func:`~lbshape.studies.bench.bench_scene` of one scene argument (a batch job), with
     the settings comparison at :func:`~lbshape.studies.bench.paper_setting` unless
-    ``paper_settings`` is False."""
+    ``paper_settings`` is False, and a free body's evaluation with ``free_eval``."""
     scene = load_scene(name)
     paper = paper_setting(scene, PAPER_TABLE2) if paper_settings else None
-    return bench_scene(scene, steps=steps, repeats=repeats, paper=paper, progress=progress)
+    return bench_scene(scene, steps=steps, repeats=repeats, paper=paper, progress=progress,
+                       free_eval=free_eval)
+
+
+def _free_bodies(args) -> int:
+    """``--free-bodies``: the free bodies' evaluation (:mod:`lbshape.studies.free_bodies`)."""
+    scenes = [load_scene(name) for name in (args.scenes or free_bodies.FREE_SCENES)]
+    fixed = [scene.name for scene in scenes if not scene.is_free]
+    if fixed:
+        raise LbshapeError(f"--free-bodies takes free bodies; fixed: {', '.join(fixed)}")
+    for scene in scenes:  # built once here, read from the cache by the workers
+        precompute(scene)
+    jobs = run_jobs(functools.partial(free_bodies.free_body_job, steps=args.steps),
+                    [scene.name for scene in scenes] + [free_bodies.IMPACTS_JOB],
+                    jobs=args.jobs, progress=not args.json, desc="free bodies")
+    failed = [job for job in jobs if not job.ok]
+    if failed:
+        raise LbshapeError("--free-bodies: " + "; ".join(f"{job.scene}: {job.error}"
+                                                          for job in failed))
+    runs = [run for job in jobs if job.value[0] == "whole" for run in job.value[1]]
+    impacts = [item for job in jobs if job.value[0] == "impacts" for item in job.value[1]]
+    command = " ".join(["OMP_NUM_THREADS=1 lbshape bench --free-bodies", *args.scenes,
+                        *([f"--steps {args.steps}"] if args.steps else []),
+                        *([f"-j {args.jobs}"] if args.jobs > 1 else [])])
+    md, js = free_bodies.write_free_bodies(runs, impacts, args.out_dir or DEFAULT_OUT,
+                                           command=command)
+    if args.json:
+        print_json({"whole": [run.stats() for run in runs],
+                    "impacts": [impact.stats() for impact in impacts]})
+    else:
+        for run in runs:
+            print(f"bench --free-bodies {run.scene} (examples {'on' if run.examples else 'off'}"
+                  f"): error {_percent(run.error)}, noise floor "
+                  f"{_percent(run.keys['noise_floor'])}, before contact "
+                  f"{_percent(run.keys['error_pre_contact'])}, rest pose "
+                  f"{_percent(run.keys['rest_pose_chamfer'])}")
+        print(f"bench --free-bodies: {md} and {js}")
+    return 0
 
 
 def _print_summary(jobs, *, file) -> None:

@@ -4,7 +4,10 @@
   or at another stiffness (same precompute);
 * :func:`with_reduced` — other ``[reduced]`` m, r, s (and force model);
 * :func:`with_step` — another time step over a given duration;
-* :func:`scaled_scene` — a built-in scene's TOML with another object size, written to a file.
+* :func:`scaled_scene` — a built-in scene's TOML with another object size, written to a file;
+* :func:`with_throw`, :func:`with_contact_stiffness` — a free body thrown faster or slower,
+  its contact planes stiffer or softer (the reference's noise floor);
+* :func:`impact_scene` — a designed impact: the body thrown at one plane of a given normal.
 """
 
 from __future__ import annotations
@@ -83,3 +86,44 @@ def scaled_scene(base: str, size: float, folder: Path) -> Path:
     target.write_text(dumps(data), encoding="utf-8")
     return target
 
+
+
+def with_throw(scene: Scene, factor: float) -> Scene:
+    """A free body's ``[initial]`` velocity and angular velocity times ``factor``."""
+    initial = scene.initial
+    return dataclasses.replace(scene, initial=dataclasses.replace(
+        initial, velocity=tuple(factor * v for v in initial.velocity),
+        angular_velocity=tuple(factor * w for w in initial.angular_velocity)))
+
+
+def with_contact_stiffness(scene: Scene, factor: float) -> Scene:
+    """Every contact plane's penalty stiffness times ``factor`` (> 0)."""
+    if not (math.isfinite(factor) and factor > 0):
+        raise LbshapeError(f"a stiffness factor must be > 0, got {factor}")
+    return dataclasses.replace(scene, planes=tuple(
+        dataclasses.replace(plane, stiffness=factor * plane.stiffness)
+        for plane in scene.planes))
+
+
+def impact_scene(scene: Scene, points: np.ndarray, normal, speed: float, gap: float,
+                 name: str) -> Scene:
+    """A designed impact: the free body of ``scene`` (rest points ``points`` (n, 3), m)
+    thrown at ``speed`` (m/s) along −``normal`` at one plane, normal ``normal`` (made
+    unit), ``gap`` (m) beyond the body's extreme point in −normal, without loads (no
+    gravity: the impact alone) and without spin; the scene's first plane's stiffness and
+    friction. The steps and dt are the scene's."""
+    normal = np.asarray(normal, dtype=float)
+    normal = normal / np.linalg.norm(normal)
+    if not scene.planes or not scene.is_free:
+        raise LbshapeError(f"scene {scene.name}: a designed impact needs a free body and a plane")
+    if not (speed > 0 and gap > 0):
+        raise LbshapeError(f"impact speed and gap must be > 0, got {speed} and {gap}")
+    support = np.asarray(points, dtype=float) @ normal
+    point = tuple(float(v) for v in (support.min() - gap) * normal)
+    plane = dataclasses.replace(scene.planes[0], point=point,
+                                normal=tuple(float(v) for v in normal))
+    initial = dataclasses.replace(scene.initial,
+                                  velocity=tuple(float(v) for v in -speed * normal),
+                                  angular_velocity=(0.0, 0.0, 0.0))
+    return dataclasses.replace(scene, name=name, planes=(plane,), loads=(),
+                               initial=initial)

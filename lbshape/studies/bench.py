@@ -15,7 +15,9 @@ The error of a run against ``full`` is :func:`lbshape.analysis.norms.trajectory_
   scene as written, both timed in the same interleaved repeats, each with its error
   against ``full`` with and without the scene's examples (:class:`SettingResult`);
 * free bodies: beside the whole-field error, the centre-of-mass path, the rotation
-  and the body-frame deformation errors (:mod:`lbshape.analysis.free_body`);
+  and the body-frame deformation errors (:mod:`lbshape.analysis.free_body`); with
+  ``free_eval`` also the error before the first contact, the rest pose's symmetric
+  surface distance and the reference's noise floor (:mod:`lbshape.studies.free_bodies`);
 * the speed/error sweep over r, s (and m) is :mod:`lbshape.studies.sweep`.
 
 Timings are wall clock. The tables are written by :mod:`lbshape.studies.tables`, the
@@ -47,6 +49,8 @@ from lbshape.pipeline.simulate import (
     simulate,
 )
 from lbshape.scene.variants import with_reduced, without_examples
+from lbshape.studies.free_bodies import KEYS as FREE_EVAL_KEYS
+from lbshape.studies.free_bodies import noise_floor, whole_run
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +63,11 @@ ROW_KEYS: tuple[str, ...] = (
 #: centre-of-mass path, rotation (degrees) and body-frame deformation
 #: (:mod:`lbshape.analysis.free_body`; None for a fixed object)
 ROW_EXTRA_KEYS: tuple[str, ...] = FREE_BODY_KEYS
+#: the keys every row has after :data:`ROW_EXTRA_KEYS`: a free body's evaluation with
+#: ``free_eval`` (:data:`lbshape.studies.free_bodies.KEYS`: error before the first contact,
+#: its time, the rest pose's symmetric surface distances, the reference's noise floor and
+#: the error over it; None for a fixed object or without ``free_eval``)
+ROW_FREE_EVAL_KEYS: tuple[str, ...] = FREE_EVAL_KEYS
 #: scenes benchmarked by default (the paper's first two Table 2 rows)
 DEFAULT_SCENES: tuple[str, ...] = ("bar-cuboid", "bar-cylinder")
 #: methods benchmarked by default
@@ -316,6 +325,7 @@ def bench_scene(
     progress: bool = False,
     influence: bool = True,
     paper: PaperSetting | None = None,
+    free_eval: bool = False,
 ) -> SceneBenchmark:
     """Run the methods side by side on one scene (see the module docstring).
 
@@ -366,6 +376,8 @@ def bench_scene(
              *_vs_full(outputs[method], full, pre, mass))
         for method in methods
     )
+    if free_eval and is_free_body(pre) and full is not None:
+        rows = _free_eval_rows(scene, pre, rows, outputs, mass, steps=steps)
     effects, references = _influence(scene, pre, outputs, steps=steps) if influence else ((), {})
     settings = ()
     if paper is not None:
@@ -374,6 +386,23 @@ def bench_scene(
     return SceneBenchmark(scene.name, float(scene.simulation.dt), steps, repeats, WARMUP_STEPS,
                           rows, tuple(timings[m] for m in methods), effects,
                           force_model=pre.elastic.force_model, settings=settings)
+
+
+def _free_eval_rows(scene, pre, rows: tuple[dict, ...], outputs: dict, mass, *,
+                    steps: int) -> tuple[dict, ...]:
+    """The rows with a free body's :data:`ROW_FREE_EVAL_KEYS` filled: the noise floor of the
+    ``full`` run on every row, each other method's evaluation against it."""
+    full = outputs["full"]
+    floor = noise_floor(scene, pre, full, mass, steps=steps).floor \
+        if full.stats["stable"] else None
+    out = []
+    for row in rows:
+        if row["method"] == "full":
+            out.append({**row, "noise_floor": floor})
+        else:
+            out.append({**row, **whole_run(scene, pre, outputs[row["method"]], full, mass,
+                                           floor)})
+    return tuple(out)
 
 
 def _paper_variant(scene, paper: PaperSetting, *, progress: bool):
@@ -591,7 +620,8 @@ def _vs_full(output, full, pre, mass) -> tuple[float | None, dict | None]:
 def _row(scene: str, output, timing: MethodTiming, examples: int,
          error: float | None, free_body: dict | None = None) -> dict:
     """The row of one method: the contract keys :data:`ROW_KEYS` (sizes, median times,
-    error) and then :data:`ROW_EXTRA_KEYS` (a free body's split error, else None)."""
+    error), then :data:`ROW_EXTRA_KEYS` (a free body's split error, else None) and
+    :data:`ROW_FREE_EVAL_KEYS` (None; filled by ``free_eval``)."""
     stats = output.stats
     return {
         "scene": scene, "method": timing.method,
@@ -602,6 +632,7 @@ def _row(scene: str, output, timing: MethodTiming, examples: int,
         "t_total_ms": timing.summary("t_total_ms")["median"],
         "error_vs_full": error,
         **(free_body or dict.fromkeys(ROW_EXTRA_KEYS)),
+        **dict.fromkeys(ROW_FREE_EVAL_KEYS),
     }
 
 

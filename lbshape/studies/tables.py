@@ -264,6 +264,42 @@ def _free_body_lines(results: Sequence[SceneBenchmark]) -> list[str]:
             "| body-frame deformation |", "|---|---|---|---|---|---|", *rows]
 
 
+_FREE_EVAL_INTRO = (
+    "With `lbshape bench --free-eval`: each free body's whole-trajectory error beside the "
+    "full reference's noise floor, the largest change of the reference's own trajectory "
+    "when it is re-run with the throw ±1 %, the contact stiffness ±10 % and half the step "
+    "(same norm; error / floor below about 1: inside what the reference does not "
+    "determine); the error over the samples before the reference's first contact; the rest "
+    "pose's symmetric Chamfer and Hausdorff distance between the final surfaces over the "
+    "diagonal (blind to the object's symmetries). Per impact and in detail: "
+    "`free_bodies.md`.")
+
+
+def _free_eval_lines(results: Sequence[SceneBenchmark]) -> list[str]:
+    """The free bodies' evaluation section (rows with a noise floor only)."""
+    rows = [row for result in results for row in result.rows
+            if row.get("noise_floor") is not None and row["method"] != "full"]
+    if not rows:
+        return []
+    lines = ["", "## Free bodies: before contact, at rest, beside the reference's noise floor",
+             "", _FREE_EVAL_INTRO, "",
+             "| model | run | error (whole trajectory) | noise floor | error / floor | error "
+             "before first contact | first contact (s) | rest pose Chamfer | rest pose "
+             "Hausdorff |", "|---|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        lines.append(
+            f"| {row['scene']} | {row['method']} | {_fmt(_pct(row['error_vs_full']), '')} | "
+            f"{_fmt(_pct(row['noise_floor']), '')} | {_fmt(row['error_over_floor'], '.1f')} | "
+            f"{_fmt(_pct(row['error_pre_contact']), '')} | {_fmt(row['first_contact_s'])} | "
+            f"{_fmt(_pct(row['rest_pose_chamfer']), '')} | "
+            f"{_fmt(_pct(row['rest_pose_hausdorff']), '')} |")
+    return lines
+
+
+def _pct(value: float | None) -> str | None:
+    return None if value is None else f"{100 * value:.2f}%"
+
+
 def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
     """The Markdown of ``table2.md`` (see :func:`write_table2`).
 
@@ -280,6 +316,7 @@ def table2_markdown(results: Sequence[SceneBenchmark], machine: dict) -> str:
     lines += [row for result in results for row in _spread_rows(result)]
     lines += _settings_lines(results)
     lines += _free_body_lines(results)
+    lines += _free_eval_lines(results)
     if any(result.influence for result in results):
         lines += ["", "## Example influence", "", _INFLUENCE_INTRO, "",
                   "| model | method | frame | influence at T | ratio of maxima over t "

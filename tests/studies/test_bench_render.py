@@ -17,7 +17,7 @@ from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.pipeline.simulate import force_elements
-from lbshape.studies.bench import ROW_EXTRA_KEYS, ROW_KEYS
+from lbshape.studies.bench import ROW_EXTRA_KEYS, ROW_FREE_EVAL_KEYS, ROW_KEYS
 from lbshape.studies.realtime import NEWTON_VARIANTS
 
 STEPS = 15  # > the 10 warm-up steps
@@ -107,7 +107,8 @@ def test_bench_command_rows_match_the_contract_and_independent_errors(tmp_path, 
     rows = json.loads(capsys.readouterr().out)["rows"]
     assert [row["method"] for row in rows] == ["full", "euclidean", "reduced"]
     for row in rows:
-        assert tuple(row) == ROW_KEYS + ROW_EXTRA_KEYS, f"keys {list(row)}"
+        assert tuple(row) == ROW_KEYS + ROW_EXTRA_KEYS + ROW_FREE_EVAL_KEYS, f"keys {list(row)}"
+        assert all(row[key] is None for key in ROW_FREE_EVAL_KEYS), row  # no --free-eval
         assert all(row[key] is None for key in ROW_EXTRA_KEYS), row  # a fixed object
         assert row["scene"] == "demo"
         assert 0.0 < row["t_interp_ms"] <= row["t_total_ms"], row

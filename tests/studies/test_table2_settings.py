@@ -27,6 +27,7 @@ from lbshape.studies.bench import (
     LBSHAPE_SOURCE,
     PAPER_SOURCE,
     ROW_EXTRA_KEYS,
+    ROW_FREE_EVAL_KEYS,
     ROW_KEYS,
     SCENE_SOURCE,
     PaperSetting,
@@ -213,7 +214,7 @@ def test_free_body_rows_and_settings_split_the_error(runs):
     expected = free_body_error(reduced.displacements, full.displacements, pre.mesh.points,
                                mass).stats()
     row = result.row("reduced")
-    assert tuple(row) == ROW_KEYS + ROW_EXTRA_KEYS
+    assert tuple(row) == ROW_KEYS + ROW_EXTRA_KEYS + ROW_FREE_EVAL_KEYS
     for key, value in expected.items():
         np.testing.assert_allclose(row[key], value, rtol=1e-9, err_msg=key)
     assert row["rotation_error_deg"] > 0.0 and row["body_deformation_error"] > 0.0
