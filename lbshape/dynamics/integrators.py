@@ -392,20 +392,24 @@ class ImplicitStepper:
                     f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
                     f"residual {relative:.3e} after {iteration} iterations (rtol {self.rtol:g})"
                 )
+            stale = K is None and self._kept is not None and not self._fresh_tangent
             delta = self._update(x1, K, R, index, t1)
-            if not self.line_search:
+            state = self._residual(dx - delta, fext, index, t1)
+            if stale and not state[-1] < norm:  # the kept tangent's update is refused
+                self._fresh_tangent = True
+                delta = self._update(x1, K, R, index, t1)
+                state = self._residual(dx - delta, fext, index, t1)
+            # a modified Newton (``force``) halves an update that raises ‖R‖, as the search
+            if not (self.line_search or self._force is not None and not state[-1] < norm):
                 dx = dx - delta
-                state = self._residual(dx, fext, index, t1)
                 self._fresh_tangent = state[-1] > self.tangent_contraction * norm
                 continue
             # backtracking: the last trial is the accepted one
-            fraction = 1.0
-            while True:
+            fraction, trial = 1.0, dx - delta
+            while not (state[-1] < norm or fraction <= 1.0 / 64):
+                fraction *= 0.5
                 trial = dx - fraction * delta
                 state = self._residual(trial, fext, index, t1)
-                if state[-1] < norm or fraction <= 1.0 / 64:
-                    break
-                fraction *= 0.5
             dx = trial
             self._fresh_tangent = state[-1] > self.tangent_contraction * norm
         energy = self.total_energy(x1, v1)
