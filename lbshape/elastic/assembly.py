@@ -183,6 +183,33 @@ class CompiledElasticity:
 
 
 @njit
+def _displacement_gradient(u, dofs, G, H9):
+    """H9 (9, 1): the element's displacement gradient H_ij = Σ_a u[dofs[3a + i]] G_aj
+    (dofs (12,) its full node-major dofs, G (4, 3) its shape-function gradients)."""
+    for i in range(3):
+        for j in range(3):
+            value = 0.0
+            for a in range(4):
+                value += u[dofs[3 * a + i]] * G[a, j]
+            H9[3 * i + j, 0] = value
+
+
+@njit
+def _add_element_force(dofs, P9, G, V, f):
+    """f += the element's force f_ai = V Σ_j P_ij G_aj on its free dofs (dofs (12,), −1 where
+    fixed; P9 (9, 1) the first Piola stress, V the volume)."""
+    for a in range(4):
+        for i in range(3):
+            row = dofs[3 * a + i]
+            if row < 0:
+                continue
+            value = 0.0
+            for j in range(3):
+                value += P9[3 * i + j, 0] * G[a, j]
+            f[row] += V * value
+
+
+@njit
 def _assemble_force(code, parameters, u, full_dofs, element_dofs, gradients, volumes, f):
     f[:] = 0.0
     H9 = np.empty((9, 1))
@@ -192,22 +219,9 @@ def _assemble_force(code, parameters, u, full_dofs, element_dofs, gradients, vol
     for e in range(full_dofs.shape[0]):
         G = gradients[e]
         V = volumes[e]
-        for i in range(3):
-            for j in range(3):
-                value = 0.0
-                for a in range(4):
-                    value += u[full_dofs[e, 3 * a + i]] * G[a, j]
-                H9[3 * i + j, 0] = value
+        _displacement_gradient(u, full_dofs[e], G, H9)
         _element(code, parameters, H9, P9, A, 0, work, False)
-        for a in range(4):  # f_ai = V Σ_j P_ij G_aj
-            for i in range(3):
-                row = element_dofs[e, 3 * a + i]
-                if row < 0:
-                    continue
-                value = 0.0
-                for j in range(3):
-                    value += P9[3 * i + j, 0] * G[a, j]
-                f[row] += V * value
+        _add_element_force(element_dofs[e], P9, G, V, f)
 
 
 @njit
@@ -216,12 +230,7 @@ def _energy_total(code, parameters, u, full_dofs, gradients, volumes):
     total = 0.0
     for e in range(full_dofs.shape[0]):
         G = gradients[e]
-        for i in range(3):
-            for j in range(3):
-                value = 0.0
-                for a in range(4):
-                    value += u[full_dofs[e, 3 * a + i]] * G[a, j]
-                H9[3 * i + j, 0] = value
+        _displacement_gradient(u, full_dofs[e], G, H9)
         total += volumes[e] * _energy(code, parameters, H9)
     return total
 
@@ -261,23 +270,9 @@ def _assemble(code, parameters, u, full_dofs, element_dofs, gradients, volumes, 
     for e in range(full_dofs.shape[0]):
         G = gradients[e]
         V = volumes[e]
-        for i in range(3):
-            for j in range(3):
-                value = 0.0
-                for a in range(4):
-                    value += u[full_dofs[e, 3 * a + i]] * G[a, j]
-                H9[3 * i + j, 0] = value
+        _displacement_gradient(u, full_dofs[e], G, H9)
         _element(code, parameters, H9, P9, A, 0, work, True)
-        # force f_ai = V Σ_j P_ij G_aj
-        for a in range(4):
-            for i in range(3):
-                row = element_dofs[e, 3 * a + i]
-                if row < 0:
-                    continue
-                value = 0.0
-                for j in range(3):
-                    value += P9[3 * i + j, 0] * G[a, j]
-                f[row] += V * value
+        _add_element_force(element_dofs[e], P9, G, V, f)
         # T[(ij), (bk)] = Σ_l A[ij, kl] G_bl; K[(ai), (bk)] = V Σ_j G_aj T[(ij), (bk)]
         for ij in range(9):
             for b in range(4):
