@@ -554,7 +554,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
 
     # ------------------------------------------------------------------- step
     def step(self) -> int:
-        """Advance one step: the example target from the state at the start of the step
+        """Advance one step: the example target at the predicted end of the step
         (with examples), a free body's co-rotated damping, then the implicit step; returns
         the Newton iterations. The wall times are left in ``_marks`` for :meth:`run`.
 

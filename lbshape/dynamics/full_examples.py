@@ -1,7 +1,7 @@
 """The example force of the full-space reference (:class:`FullSpaceExampleForce`, a part of
 :class:`~lbshape.dynamics.full.FullSpaceSimulator`): its shape-space arrays
-(:class:`FullSpaceExamples`), the weights and target of each step from the state at its
-start, and for a free body the rigid-invariant pull towards the target placed by its best
+(:class:`FullSpaceExamples`), the weights and target of each step at the scheme's
+predicted end of the step, and for a free body the rigid-invariant pull towards the target placed by its best
 rigid fit (the steps are in :mod:`lbshape.dynamics.full`).
 """
 
@@ -170,10 +170,12 @@ class FullSpaceExampleForce:
         return center, R
 
     def _update_target(self) -> None:
-        """Weights and target from the current state; sets the example force."""
+        """Weights and target at the scheme's predicted end of the step (where the step's
+        other forces are evaluated); sets the example force."""
         x = self.stepper.x
+        guess = x + self.stepper._predict()
         if self._local is not None:
-            pull = self._local.pull(self.full_displacement(x))
+            pull = self._local.pull(self.full_displacement(guess))
             self.weights = np.concatenate(list(self._local.weights.values()))
             self._b = self._k_ex * pull[self.free_dofs]
             return
@@ -181,10 +183,10 @@ class FullSpaceExampleForce:
             # the fitted pull is part of the potential: the energy the moved target puts
             # in at the fixed state is work done on the body (the energy monitor's budget)
             before = self._example_energy(x)
-            self._update_free_target(x)
+            self._update_free_target(guess)
             self.stepper.credit_work(self._example_energy(x) - before)
             return
-        weights = self._simplex(self._descriptor @ x)
+        weights = self._simplex(self._descriptor @ guess)
         c_star = self._target_solver.solve(weights).z
         self.weights = weights
         self.target_coefficients = c_star
