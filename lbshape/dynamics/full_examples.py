@@ -1,8 +1,8 @@
 """The example force of the full-space reference (:class:`FullSpaceExampleForce`, a part of
 :class:`~lbshape.dynamics.full.FullSpaceSimulator`): its shape-space arrays
 (:class:`FullSpaceExamples`), the weights and target of each step at the scheme's
-predicted end of the step, and for a free body the rigid-invariant pull towards the target placed by its best
-rigid fit (the steps are in :mod:`lbshape.dynamics.full`).
+predicted end of the step, and for a free body the rigid-invariant pull towards the
+target placed by its best rigid fit (the steps are in :mod:`lbshape.dynamics.full`).
 """
 
 from __future__ import annotations

@@ -4,8 +4,9 @@ Equation of motion in mass-orthonormal reduced coordinates q (r,):
 ``q̈ + D q̇ + f_int(q) + k_ex (q − q*) = Uᵀ f_ext(t)``, with ``f_int`` from the
 cubature (:class:`~lbshape.elastic.reduced_forces.ReducedForceModel`), Rayleigh damping
 ``D = α I + β K₀`` (K₀ the elastic tangent at rest), and the target ``q*``
-recomputed once per step at the scheme's predicted end of the step ``q + h q̇ + ½ k_a h² q̈``,
-where the step's other forces are evaluated (weights and target: :class:`~lbshape.shapespace.example_driver.ExampleDriver`). The example force is
+recomputed once per step at the scheme's predicted end of the step
+``q + h q̇ + ½ k_a h² q̈``, where the step's other forces are evaluated (weights and
+target: :class:`~lbshape.shapespace.example_driver.ExampleDriver`). The example force is
 split, as in the full-space reference, into a spring ``k_ex q`` (position
 dependent, potential ``½ k_ex |q|²``) and a pull ``k_ex q*`` held constant within
 the step and applied as an external load, so the energy monitor counts the pull
