@@ -1,8 +1,9 @@
 """The example force of the full-space reference (:class:`FullSpaceExampleForce`, a part of
 :class:`~lbshape.dynamics.full.FullSpaceSimulator`): its shape-space arrays
-(:class:`FullSpaceExamples`), the weights and target of each step at the scheme's
-predicted end of the step, and for a free body the rigid-invariant pull towards the
-target placed by its best rigid fit (the steps are in :mod:`lbshape.dynamics.full`).
+(:class:`FullSpaceExamples`), the weights and target of each step (a free body's at the
+scheme's predicted end of the step, a fixed object's at its start), and for a free body
+the rigid-invariant pull towards the target placed by its best rigid fit (the steps are
+in :mod:`lbshape.dynamics.full`).
 """
 
 from __future__ import annotations
@@ -170,10 +171,11 @@ class FullSpaceExampleForce:
         return center, R
 
     def _update_target(self) -> None:
-        """Weights and target at the scheme's predicted end of the step (where the step's
-        other forces are evaluated); sets the example force."""
+        """Weights and target from the state at the start of the step (a fixed object) or,
+        for a free body, at the scheme's predicted end of the step (where the step's other
+        forces are evaluated, as the reduced free body does); sets the example force."""
         x = self.stepper.x
-        guess = x + self.stepper._predict()
+        guess = x + self.stepper._predict() if self.fixed_vertices.size == 0 else x
         if self._local is not None:
             pull = self._local.pull(self.full_displacement(guess))
             self.weights = np.concatenate(list(self._local.weights.values()))

@@ -4,8 +4,7 @@ Equation of motion in mass-orthonormal reduced coordinates q (r,):
 ``q̈ + D q̇ + f_int(q) + k_ex (q − q*) = Uᵀ f_ext(t)``, with ``f_int`` from the
 cubature (:class:`~lbshape.elastic.reduced_forces.ReducedForceModel`), Rayleigh damping
 ``D = α I + β K₀`` (K₀ the elastic tangent at rest), and the target ``q*``
-recomputed once per step at the scheme's predicted end of the step
-``q + h q̇ + ½ k_a h² q̈``, where the step's other forces are evaluated (weights and
+recomputed once per step from the state at the start of the step (weights and
 target: :class:`~lbshape.shapespace.example_driver.ExampleDriver`). The example force is
 split, as in the full-space reference, into a spring ``k_ex q`` (position
 dependent, potential ``½ k_ex |q|²``) and a pull ``k_ex q*`` held constant within
@@ -224,7 +223,6 @@ class ReducedSimulation:
         self.q_target = np.zeros(r)
         self._fext, self._fext_old = np.zeros(r), np.zeros(r)
         self._dx, self._x1, self._v1, self._a1 = (np.zeros(r) for _ in range(4))
-        self._x_guess = np.zeros(r)  # the predicted x₁ the example target is evaluated at
         self._f, self._K = np.zeros(r), np.zeros((r, r))
         self._R, self._J = np.zeros(r), np.zeros((r, r))
         self._norms = np.zeros(4)
@@ -414,23 +412,21 @@ class ReducedSimulation:
         marks[0] = clock()
         index = self.steps_taken + 1
         t1 = self.time + self.dt
-        coefficients = self._coefficients
-        predict(self.v, self.a, self.dt, self._dx, coefficients)
-        guess = self._x_guess
-        np.add(self.x, self._dx, out=guess)
         if self._in_place:
-            self.driver.weights_into(guess)
+            self.driver.weights_into(self.x)
             marks[1] = clock()
             self.driver.target_from_weights_into(self.q_target)
             marks[2] = clock()
         elif self.driver is not None:  # e.g. local examples: one call, allocating
             marks[1] = marks[0]
-            self.q_target[:] = self.driver.target(guess).q_target
+            self.q_target[:] = self.driver.target(self.x).q_target
             marks[2] = clock()
         else:
             marks[1] = marks[2] = marks[0]
         self._external_into(t1, self._fext)
         marks[3] = clock()
+        coefficients = self._coefficients
+        predict(self.v, self.a, self.dt, self._dx, coefficients)
         if self.newton_iterations is None:
             forces, solves, updates = self._solve_to_tolerance(index, t1)
         else:
