@@ -258,6 +258,7 @@ class FreeBodySimulation(FreeBodyContact):
         self._frame_arrays = self.frame.kernel_arrays
         self._dq, self._dqt = np.zeros(r), np.zeros(r)  # accepted and trial increments
         self._gen = np.zeros(r)  # the loads' generalized force at t₀ (not used by the step)
+        self._q_guess = np.zeros(r)  # the predicted q₁ of the example target
         # the rigid motion the contact's friction reads: velocity of c and world ω
         self._velocity, self._omega = np.zeros(3), np.zeros(3)
         # the friction's effective rigid rate: J⁻¹ Xᵀ (6, r) and X J⁻¹ Xᵀ (6, 6)
@@ -466,18 +467,19 @@ class FreeBodySimulation(FreeBodyContact):
             axpy(self.k_ex, self.q_target, out)
 
     def _interpolate(self, marks: np.ndarray) -> None:
-        """Step 1: the example weights and target ``q*`` from q (``marks[1]`` after the
-        weights, ``marks[2]`` after the target)."""
-        clock = self._clock
+        """Step 1: weights and target ``q*`` at the predicted ``q₁ = q + h q̇ + ½ k_a h² q̈``,
+        where the step's other forces act (``marks[1]``, ``marks[2]`` after each)."""
+        clock, guess, state = self._clock, self._q_guess, self._now
+        predict(state.qd, state.qa, self.dt, guess, self._solve.rates)
+        guess += state.q
         if self._in_place:
-            self.driver.weights_into(self._now.q)
+            self.driver.weights_into(guess)
             marks[1] = clock()
             self.driver.target_from_weights_into(self.q_target)
-        elif self.driver is not None:  # a driver without the in-place methods
+        else:  # without a driver, or one without the in-place methods
             marks[1] = marks[0]
-            self.q_target[:] = self.driver.target(self._now.q).q_target
-        else:
-            marks[1] = marks[0]
+            if self.driver is not None:
+                self.q_target[:] = self.driver.target(guess).q_target
         marks[2] = clock()
 
     def _evaluate(self, index: int, t1: float, times: np.ndarray) -> float:

@@ -592,9 +592,9 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
 
     # ------------------------------------------------------------------- step
     def step(self) -> int:
-        """Advance one step: the example target from the state at the start of the step
-        (with examples), a free body's co-rotated damping, then the implicit step; returns
-        the Newton iterations. The wall times are left in ``_marks`` for :meth:`run`.
+        """Advance one step: the example target (with examples; a free body's at the
+        predicted end of the step), a free body's co-rotated damping, then the implicit
+        step; returns the Newton iterations. The wall times are left in ``_marks`` for :meth:`run`.
 
         Raises:
             SolverError: the step failed, named by its index and time; the state stays at

@@ -1,8 +1,9 @@
 """The example force of the full-space reference (:class:`FullSpaceExampleForce`, a part of
 :class:`~lbshape.dynamics.full.FullSpaceSimulator`): its shape-space arrays
-(:class:`FullSpaceExamples`), the weights and target of each step from the state at its
-start, and for a free body the rigid-invariant pull towards the target placed by its best
-rigid fit (the steps are in :mod:`lbshape.dynamics.full`).
+(:class:`FullSpaceExamples`), the weights and target of each step (a free body's at the
+scheme's predicted end of the step, a fixed object's at its start), and for a free body
+the rigid-invariant pull towards the target placed by its best rigid fit (the steps are
+in :mod:`lbshape.dynamics.full`).
 """
 
 from __future__ import annotations
@@ -170,10 +171,13 @@ class FullSpaceExampleForce:
         return center, R
 
     def _update_target(self) -> None:
-        """Weights and target from the current state; sets the example force."""
+        """Weights and target from the state at the start of the step (a fixed object) or,
+        for a free body, at the scheme's predicted end of the step (where the step's other
+        forces are evaluated, as the reduced free body does); sets the example force."""
         x = self.stepper.x
+        guess = x + self.stepper._predict() if self.fixed_vertices.size == 0 else x
         if self._local is not None:
-            pull = self._local.pull(self.full_displacement(x))
+            pull = self._local.pull(self.full_displacement(guess))
             self.weights = np.concatenate(list(self._local.weights.values()))
             self._b = self._k_ex * pull[self.free_dofs]
             return
@@ -181,10 +185,10 @@ class FullSpaceExampleForce:
             # the fitted pull is part of the potential: the energy the moved target puts
             # in at the fixed state is work done on the body (the energy monitor's budget)
             before = self._example_energy(x)
-            self._update_free_target(x)
+            self._update_free_target(guess)
             self.stepper.credit_work(self._example_energy(x) - before)
             return
-        weights = self._simplex(self._descriptor @ x)
+        weights = self._simplex(self._descriptor @ guess)
         c_star = self._target_solver.solve(weights).z
         self.weights = weights
         self.target_coefficients = c_star
