@@ -13,7 +13,7 @@ from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.geometry.mesh import TetMesh
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
-from lbshape.shapespace.interpolation import TargetSolver, simplex_weights
+from lbshape.shapespace.interpolation import SimplexWeights, TargetSolver
 from lbshape.shapespace.local_regions import anchor_fit
 from lbshape.shapespace.local_space import LocalShapeSpace
 from lbshape.shapespace.projections import block_basis, descriptor_matrix
@@ -64,7 +64,8 @@ class FullSpaceLocalForce:
             models = [EuclideanExampleEnergy(x, tets, material, L) for x in rests]
             solver = TargetSolver(models, region.example_coefficients.reshape(k, -1),
                                   tolerance=tolerance)
-            examples = region.example_descriptors(rho, free_rigid=self.free_rigid)
+            # the weights' supports, once (eq. 5 for fixed examples)
+            examples = SimplexWeights(region.example_descriptors(rho, free_rigid=self.free_rigid))
             self._regions.append((rows, descriptor, examples, solver, ML,
                                   mass_QF, rows.reshape(-1)[anchor_rows]))
         self.mass = sp.csr_matrix(sum(blocks))
@@ -76,7 +77,7 @@ class FullSpaceLocalForce:
         out = np.zeros_like(u)
         for name, (rows, descriptor, examples, solver, ML, mass_QF, anchor_rows) in zip(
                 self.names, self._regions, strict=True):
-            w = simplex_weights(examples, descriptor @ u[rows])
+            w = examples(descriptor @ u[rows])
             self.weights[name] = w
             out[rows] += ML @ solver.solve(w).z
             if self.free_rigid:
