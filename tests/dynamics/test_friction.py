@@ -248,9 +248,9 @@ def test_line_search_tames_a_saturating_force():
 # ------------------------------------------------------------- closed forms
 @pytest.mark.parametrize("method", ["reduced", pytest.param("full", marks=pytest.mark.slow)])
 def test_block_held_by_friction_stays(block, method):
-    """A slope of tan θ = ½ and μ = 0.7 > tan θ: the block moves less than 1 mm in
-    0.5 s (the regularisation's creep ε s / √(1 − s²) is 0.05 mm in that time; with
-    ε = 0.01 m/s it was 5 mm)."""
+    """A slope of tan θ = ½ and μ = 0.7 > tan θ: the block is held to the golden travel
+    over 0.5 s (the regularisation's creep ε s / √(1 − s²) is 0.5 mm in that time at
+    ε = 1e-3 m/s; ε = 0.01 m/s creeps 5 mm)."""
     theta, mu = math.atan(0.5), 0.7
     s = math.tan(theta) / mu
     creep = SLIP_SPEED * s / math.sqrt(1 - s * s)  # m/s
@@ -258,7 +258,7 @@ def test_block_held_by_friction_stays(block, method):
     assert times[-1] == pytest.approx(0.5)  # the run went the whole way
     assert np.abs(x).max() <= golden("friction.stick_travel").limit, (np.abs(x).max(), creep)
     # without friction it would have slid g sin θ t² / 2 = 0.55 m
-    assert creep * times[-1] < 1e-4
+    assert creep * times[-1] < 1e-3
 
 
 @pytest.mark.parametrize("theta", [math.radians(30.0), math.atan(0.5)])
