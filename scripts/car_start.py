@@ -1,9 +1,9 @@
 """The car's start with its example pull: first floor contact and the error, reduced vs full.
 
-    OMP_NUM_THREADS=1 python scripts/car_start.py [--ramp S] [--lift M] [--steps N] [--json]
+    OMP_NUM_THREADS=1 python scripts/car_start.py [--ramp S] [--floor Z] [--steps N] [--json]
 
-``--ramp``: ``[examples] ramp`` in s (the scene's own value if omitted); ``--lift``: the
-floor lowered by M metres (the car starts M above it). Prints, per method, the first
+``--ramp``: ``[examples] ramp`` in s, ``--floor``: the floor's height z in m (each the
+scene's own value if omitted; the car's wheels stand on z = 0). Prints, per method, the first
 step with a vertex behind a plane (time, s), the deepest penetration over the first
 50 ms and over the run (mm), and the trajectory errors of the reduced run against the
 full one: the whole run (every step both reached), before the reference's first contact and up
@@ -26,13 +26,13 @@ from lbshape.pipeline.simulate import full_simulation, reduced_simulation
 WALL_S = 0.138
 
 
-def _scene(ramp: float | None, lift: float):
+def _scene(ramp: float | None, floor: float | None):
     scene = load_scene("car")
     if ramp is not None:
         scene = dataclasses.replace(scene, examples=dataclasses.replace(scene.examples,
                                                                         ramp=ramp))
-    if lift:
-        planes = tuple(dataclasses.replace(p, point=(p.point[0], p.point[1], p.point[2] - lift))
+    if floor is not None:
+        planes = tuple(dataclasses.replace(p, point=(p.point[0], p.point[1], floor))
                        if p.normal[2] > 0.5 else p for p in scene.planes)
         scene = dataclasses.replace(scene, planes=planes)
     return scene
@@ -44,6 +44,11 @@ def _run(scene, pre, method: str, steps: int):
               else reduced_simulation(scene, pre, method=method))
     record = engine.run(steps, stride=1)
     return np.asarray(record.times), engine.displacements(record), bool(record.stable)
+
+
+def floor_height(scene) -> float:
+    """The floor's height z (m)."""
+    return next(p.point[2] for p in scene.planes if p.normal[2] > 0.5)
 
 
 def _contact(scene, pre, run) -> dict:
@@ -61,16 +66,16 @@ def _contact(scene, pre, run) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ramp", type=float, default=None)
-    parser.add_argument("--lift", type=float, default=0.0)
+    parser.add_argument("--floor", type=float, default=None)
     parser.add_argument("--steps", type=int, default=None)
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
-    scene = _scene(args.ramp, args.lift)
+    scene = _scene(args.ramp, args.floor)
     pre = precompute(scene)
     steps = scene.simulation.steps if args.steps is None else args.steps
     mass = mass_matrix(pre.mesh, pre.material.density)
     runs = {m: _run(scene, pre, m, steps) for m in ("reduced", "full")}
-    out = {"ramp_s": getattr(scene.examples, "ramp", 0.0), "lift_m": args.lift,
+    out = {"ramp_s": getattr(scene.examples, "ramp", 0.0), "floor_z_m": floor_height(scene),
            "steps": steps, "dt": scene.simulation.dt}
     for method, output in runs.items():
         out[method] = _contact(scene, pre, output)

@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+import lbshape
 from lbshape.cli import main
 from lbshape.dynamics.example_ramp import check_ramp, ramp_factor
 from lbshape.dynamics.free_body import FreeBodySimulation
@@ -113,6 +114,10 @@ def test_reduced_engine_pulls_with_the_ramped_stiffness():
     plain = reduced_simulation(_demo(0.0), pre)
     plain.run(12)
     assert np.linalg.norm(plain.x - sim.x) > 1e-3 * np.linalg.norm(plain.x)
+    # the public API (and the live window, which steps it) ramps the same engine
+    api = lbshape.simulation(scene, pre, method="reduced")
+    api.step()
+    assert api.engine.k_ex == pytest.approx(k * ramp_factor(scene.simulation.dt, RAMP))
 
 
 @pytest.mark.slow
