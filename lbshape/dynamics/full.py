@@ -97,6 +97,7 @@ from lbshape.dynamics.engine import (
     check_run,
     snapshot,
 )
+from lbshape.dynamics.example_ramp import check_ramp, ramp_factor
 from lbshape.dynamics.free_dofs import CsrRestriction, submatrix, vertex_indices
 from lbshape.dynamics.full_contact import FullSpaceContact
 from lbshape.dynamics.full_damping import FullSpaceDamping
@@ -151,6 +152,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             (default :data:`FULL_NEWTON`: rtol 1e-8, 20 iterations; with friction or a free
             body's fitted example pull at least :data:`FRICTION_NEWTON_ITERATIONS`).
         contact: penalty contact with planes, or ``None``.
+        example_ramp: T in s of ``k_ex(t) = k_ex s(min(1, t/T))`` in the pull and its
+            tangent (:mod:`lbshape.dynamics.example_ramp`); 0 (default): k_ex from t = 0.
         linear_solver: ``"reuse"``: compiled assembly
             (:class:`~lbshape.elastic.assembly.CompiledElasticity`), one sparse
             factorisation reused across Newton iterations and steps
@@ -202,6 +205,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         target_tolerance: float = 1e-6,
         newton: NewtonSettings = FULL_NEWTON,
         contact: FullSpaceContact | None = None,
+        example_ramp: float = 0.0,
         linear_solver: str = "reuse",
         omega_max: float | None = None,
         load_reach=None,
@@ -249,11 +253,15 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             self._spring_ff = submatrix(self._local.mass, self.free_dofs)
             self._kM_ff = self._k_ex * self._spring_ff
 
+        self._kM_full = getattr(self, "_kM_ff", None)  # k_ex M at the full k_ex
         x0 = self._initial(initial_displacement, "initial_displacement")
         v0 = self._initial(initial_velocity, "initial_velocity")
         self._v_start = v0  # the friction's velocity while the stepper is set up
         self._make_stepper(integrator, x0, v0, alpha, beta, K0_ff)
         self._configured_k_ex = self._k_ex  # the example force set_examples switches
+        self.example_ramp, self._examples_on = check_ramp(example_ramp), True
+        if self.example_ramp:
+            self._ramp_examples(0.0)
         self._marks = np.zeros(3)  # start, after the target, end of the last step (s)
         self._initial_state = self.state
 
@@ -359,7 +367,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
     @property
     def uses_examples(self) -> bool:
         """True when the example force is active (k_ex > 0 and at least one example)."""
-        return self._k_ex > 0.0
+        return self._k_ex > 0.0 or (self._examples_on and self._configured_k_ex > 0.0)
 
     @property
     def time(self) -> float:
@@ -386,6 +394,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         returns whether it acts. The example spring's energy the switch adds or removes at
         the current state counts as work for the energy monitor."""
         k_ex = self._configured_k_ex if on else 0.0
+        self._examples_on = bool(on)
         if k_ex != self._k_ex:
             x = self.stepper.x
             before = self._example_energy(x)
@@ -508,10 +517,10 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             gap = self._free_gap(x, tangent=True)
             f = f + self._k_ex * (self._spring_ff @ gap)
             # minus the rigid part W Wᵀ (_tangent_correction)
-            K = add(K, self._kM_ff, constant=True)
+            K = add(K, self._kM_ff, constant=self._kM_ff is self._kM_full)
         elif self._k_ex:
             f = f + self._k_ex * (self._spring_ff @ x)
-            K = add(K, self._kM_ff, constant=True)
+            K = add(K, self._kM_ff, constant=self._kM_ff is self._kM_full)
         stepper = getattr(self, "stepper", None)  # None while the stepper is set up
         if self._corotated_beta and stepper is not None:
             # β Pᵀ R K₀ Rᵀ P v₁(x), v₁ the scheme's end-of-step velocity, linear in x
@@ -592,6 +601,22 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             load[self._drag_dofs] += self._drag_pull
         return load + self._b if self._k_ex else load
 
+    def _ramp_examples(self, t: float) -> None:
+        """k_ex(t) of the ``[examples] ramp`` while the examples are on, in the spring and
+        its tangent (the pull ``b`` follows at the target update); the spring energy the
+        change adds at the current state counts as work for the energy monitor."""
+        factor = ramp_factor(t, self.example_ramp)
+        k_ex = factor * self._configured_k_ex
+        if not (self._examples_on and self._configured_k_ex) or k_ex == self._k_ex:
+            return
+        x = self.stepper.x
+        before = self._example_energy(x)
+        self._k_ex = k_ex
+        # a new matrix each step of the ramp (added as a varying one), the kept one after
+        self._kM_ff = self._kM_full if factor == 1.0 else k_ex * self._spring_ff
+        self._pull_rigid = None  # the fitted pull's tangent part, of the last evaluation
+        self.stepper.credit_work(self._example_energy(x) - before)
+
     # ------------------------------------------------------------------- step
     def step(self) -> int:
         """Advance one step: the example target (with examples; a free body's at the
@@ -604,6 +629,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         """
         marks = self._marks
         marks[0] = time.perf_counter()
+        if self.example_ramp:
+            self._ramp_examples(self.time + self.dt)
         if self._k_ex:
             self._update_target_at_step()
         marks[1] = time.perf_counter()

@@ -69,6 +69,7 @@ from lbshape.dynamics.engine import (
     restore_arrays,
     snapshot,
 )
+from lbshape.dynamics.example_ramp import check_ramp, ramp_factor
 from lbshape.dynamics.integrators import get_scheme
 from lbshape.dynamics.kernels import (
     all_finite,
@@ -128,6 +129,8 @@ class ReducedSimulation:
             in-place methods (``weights_into``, ``target_from_weights_into``) is called
             through ``target(q)``.
         k_ex: example stiffness (1/s²); 0 disables the example force.
+        example_ramp: T in s of ``k_ex(t) = k_ex s(min(1, t/T))``
+            (:mod:`lbshape.dynamics.example_ramp`); 0 (default): k_ex from t = 0.
         contact: penalty contact with planes (:class:`~lbshape.dynamics.contact.PlaneContact`
             built on the rest positions, ``x = X + U q``), implicit in q; or ``None``.
             Frictionless: friction is modelled on free bodies only.
@@ -175,7 +178,7 @@ class ReducedSimulation:
         beta: float = 0.0,
         loads: Sequence[TimedLoad] = (),
         driver: ExampleDriver | None = None,
-        k_ex: float = 0.0,
+        k_ex: float = 0.0, example_ramp: float = 0.0,
         contact: PlaneContact | None = None,
         newton_iterations: int | None = None,
         newton: NewtonSettings = REALTIME_NEWTON,
@@ -206,8 +209,7 @@ class ReducedSimulation:
         self.newton = newton
         self.basis = None if basis is None else np.asarray(basis, dtype=float)
         self.rest_points = None if rest_points is None else np.asarray(rest_points, dtype=float)
-        self._examples = (self.driver, self.k_ex)  # the configured example force
-        self._setup_checks(energy_factor, omega_max, load_reach)
+        self._setup_checks(energy_factor, omega_max, load_reach, example_ramp)
         # [c_a/h², k_v/h, k_a, c_v/h, j_v, k_ex]: the scheme's step rates and the spring
         rates = scheme.step_rates(h)
         self._coefficients = np.array([*rates, self.k_ex])
@@ -245,8 +247,12 @@ class ReducedSimulation:
         self._initial = self.state
 
     def _setup_checks(self, energy_factor: float | None, omega_max: float | None,
-                      load_reach) -> None:
-        """The divergence checks and the warnings (see the constructor's arguments)."""
+                      load_reach, example_ramp: float) -> None:
+        """The divergence checks, the warnings and the example force as configured
+        (``_examples``, with the full k_ex) and ramped (``k_ex``: the current step's)."""
+        self.example_ramp = check_ramp(example_ramp)
+        self._examples = (self.driver, self.k_ex)  # the configured example force
+        self._k_full, self.k_ex = self.k_ex, self.k_ex * ramp_factor(0.0, self.example_ramp)
         self.energy_factor = energy_factor
         self.omega_max = None if omega_max is None else float(omega_max)
         self.load_reach = load_reach
@@ -297,7 +303,8 @@ class ReducedSimulation:
         """Switch the example force: ``driver`` and ``k_ex`` (1/s²) as in the
         constructor (``None`` or 0: no example force) from the next step on."""
         self.driver = driver if (driver is not None and k_ex > 0.0) else None
-        self.k_ex = float(k_ex) if self.driver is not None else 0.0
+        self._k_full = float(k_ex) if self.driver is not None else 0.0
+        self.k_ex = self._k_full * ramp_factor(self.time, self.example_ramp)
         self._coefficients[5] = self.k_ex
         self._relinearise()
 
@@ -386,6 +393,13 @@ class ReducedSimulation:
         if self.drag is not None:
             self.drag.spring_into(q, self._f, self._K)
 
+    def _ramp_examples(self, t1: float) -> None:
+        """k_ex(t₁) of the ramp, in the pull and the spring; the spring energy the change
+        adds at the current state is work for the energy monitor."""
+        before = self._spring_energy(self.x)
+        self.k_ex = self._coefficients[5] = self._k_full * ramp_factor(t1, self.example_ramp)
+        self._work += self._spring_energy(self.x) - before
+
     def _spring_energy(self, q: np.ndarray) -> float:
         """The example spring's potential ``½ k_ex qᵀ S q`` (J; r²-sized, no allocation)."""
         return 0.5 * self.k_ex * float(quadratic_form(self._spring, q)) if self.k_ex else 0.0
@@ -423,6 +437,8 @@ class ReducedSimulation:
             marks[2] = clock()
         else:
             marks[1] = marks[2] = marks[0]
+        if self.example_ramp and self.driver is not None:
+            self._ramp_examples(t1)
         self._external_into(t1, self._fext)
         marks[3] = clock()
         coefficients = self._coefficients

@@ -39,6 +39,7 @@ from lbshape.analysis.reference import reference_error
 from lbshape.dynamics.contact import PlaneContact
 from lbshape.dynamics.engine import Engine, NewtonSettings
 from lbshape.dynamics.free_body import FreeBodySimulation, FreeLoad
+from lbshape.dynamics.free_body_ramp import RampedFreeBody
 from lbshape.dynamics.full import (
     FullSpaceContact,
     FullSpaceExamples,
@@ -178,6 +179,11 @@ def example_stiffness(scene: Scene, pre: Precomputed) -> float:
     return k_ex if k_ex > 0 else 0.0
 
 
+def example_ramp(scene: Scene) -> float:
+    """The ``[examples] ramp`` in s (0: none; :mod:`lbshape.dynamics.example_ramp`)."""
+    return 0.0 if scene.examples is None else float(scene.examples.ramp)
+
+
 def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced",
                        newton_iterations: int | None = None,
                        newton: NewtonSettings = REALTIME_NEWTON,
@@ -214,7 +220,8 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
-        k_ex=k_ex, contact=_contact(scene, pre, None), newton_iterations=newton_iterations,
+        k_ex=k_ex, example_ramp=example_ramp(scene), contact=_contact(scene, pre, None),
+        newton_iterations=newton_iterations,
         newton=newton, omega_max=basis_omega_max(pre), load_reach=load_reach(scene, pre),
         basis=pre.U, rest_points=pre.mesh.points,
     )
@@ -265,13 +272,16 @@ def _free_body_simulation(scene: Scene, pre: Precomputed, elastic, driver, k_ex:
         mass = mass_matrix(pre.mesh, pre.material.density)
         loads = [FreeLoad.from_pattern(load.pattern, pre.U, body, load.profile)
                  for load in load_patterns(scene, pre, mass)]
-    return FreeBodySimulation(
+    ramp = example_ramp(scene)
+    engine, extra = ((RampedFreeBody, {"example_ramp": ramp}) if ramp and k_ex > 0
+                     else (FreeBodySimulation, {}))
+    return engine(
         elastic, pre.frame, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
         k_ex=k_ex, contact=_contact(scene, pre, pre.frame.center),
         velocity=scene.initial.velocity, angular_velocity=scene.initial.angular_velocity,
         rest_points=pre.mesh.points, omega_max=basis_omega_max(pre), basis=pre.U,
-        newton=newton, load_reach=load_reach(scene, pre),
+        newton=newton, load_reach=load_reach(scene, pre), **extra,
     )
 
 
@@ -302,7 +312,7 @@ def full_simulation(scene: Scene, pre: Precomputed) -> FullSpaceSimulator:
         integrator=scene.simulation.integrator, alpha=scene.damping.alpha,
         beta=scene.damping.beta, loads=loads, examples=examples, local_examples=local,
         contact=contact, initial_velocity=velocity, omega_max=basis_omega_max(pre),
-        load_reach=load_reach(scene, pre),
+        load_reach=load_reach(scene, pre), example_ramp=example_ramp(scene),
     )
 
 

@@ -223,7 +223,7 @@ def _reduced(top: _Table) -> Reduced:
 def _examples(top: _Table, ctx: _Context) -> Examples | None:
     if "examples" not in top.data:
         return None
-    ex = top.subtable("examples", ("stiffness", "pose"))
+    ex = top.subtable("examples", ("stiffness", "ramp", "pose"))
     value = ex.data.get("stiffness", Examples.AUTO)  # no number: set by the precompute
     if isinstance(value, str):
         if value != Examples.AUTO:
@@ -234,7 +234,7 @@ def _examples(top: _Table, ctx: _Context) -> Examples | None:
         stiffness = ex.number("stiffness", low=0.0, unit="1/s^2")
     poses = tuple(_example_pose(t, ctx)
                   for t in ex.array_of_tables("pose", _POSE_KEYS, minimum=1))
-    return Examples(stiffness, poses)
+    return Examples(stiffness, poses, ex.number("ramp", 0.0, low=0.0, unit="s"))
 
 
 def _initial(top: _Table, ctx: _Context, fixed: Selection | None) -> Initial:

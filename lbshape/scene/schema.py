@@ -47,6 +47,9 @@ Schema (units SI; ``[a, b)`` are ranges; defaults in parentheses)::
                                # in mass-normalised reduced coordinates; "auto": set by
                                # the precompute from the examples' own stiffness and the
                                # loads (lbshape.shapespace.auto_stiffness)
+    ramp = 0.0                 # s, >= 0, finite: k_ex rises as k_ex s(min(1, t/ramp)),
+                               # s(x) = 3x^2 - 2x^3, in every method
+                               # (lbshape.dynamics.example_ramp); 0 = none (0)
     [[examples.pose]]          # one table per example, at least one
     shape = "bar-cylinder"     # built-in shape or gmsh script (.py), OR
     mesh = "example.msh"       # a mesh file (relative to the TOML file), any format above
@@ -109,7 +112,7 @@ the others default in lbshape.geometry.poses. ``axis``, ``direction``: ``"x"``, 
 :meth:`Scene.precompute_key_fields` holds exactly what determines the precompute
 (object, material, m/r/s and the other ``[reduced]`` settings, examples without
 k_ex, fixed region, local regions); :meth:`Scene.runtime_fields` holds the rest
-(dt, steps, integrator, damping, loads, k_ex, planes).
+(dt, steps, integrator, damping, loads, k_ex and its ramp, planes).
 """
 
 from __future__ import annotations
@@ -376,6 +379,8 @@ class Examples:
 
     stiffness: float | str
     poses: tuple[ExamplePose, ...]
+    #: seconds over which k_ex rises from 0 (:mod:`lbshape.dynamics.example_ramp`); 0: none
+    ramp: float = 0.0
 
     #: the ``stiffness`` that lets the precompute set k_ex (:data:`AUTO_STIFFNESS`)
     AUTO: ClassVar[str] = "auto"
@@ -538,6 +543,8 @@ class Scene:
             "damping": {"alpha": self.damping.alpha, "beta": self.damping.beta},
             "loads": [load.key() for load in self.loads],
             "k_ex": None if self.examples is None else self.examples.stiffness,
+            **({"example_ramp": self.examples.ramp}
+               if self.examples is not None and self.examples.ramp else {}),
             "planes": [{"point": list(p.point), "normal": list(p.normal),
                         "stiffness": p.stiffness, "friction": p.friction}
                        for p in self.planes],

@@ -57,7 +57,6 @@ from lbshape.report.figures import (
     simulation_figure,
 )
 from lbshape.report.render import render_shapes, scene_planes
-from lbshape.scene.schema import Examples
 from lbshape.scene.variants import without_examples
 from lbshape.shapespace.local_space import region_example_distance
 
@@ -321,7 +320,7 @@ def figure5(scene, path: str | Path, *, steps: int | None = None, frames: int = 
     names = [pose.pose or f"posed {k}" for k, pose in enumerate(scene.examples.poses)]
     variants = [("no example", dataclasses.replace(scene, examples=None))]
     for pose in scene.examples.poses:
-        single = Examples(scene.examples.stiffness, (pose,))
+        single = dataclasses.replace(scene.examples, poses=(pose,))
         variants.append((f"{pose.pose or 'posed'} example", dataclasses.replace(
             scene, examples=single)))
     runs = []

@@ -308,7 +308,7 @@ def test_scene_adapter_reports_a_divergence_as_unstable_with_the_partial_run(bar
     c1 = example_coefficients(bar.phi, np.ones(3 * M_LB), 0.05)
     scene = SimpleNamespace(
         name="t", planes=(), regions=(), loads=(),
-        examples=SimpleNamespace(stiffness=1e4, auto=False),
+        examples=SimpleNamespace(stiffness=1e4, auto=False, ramp=0.0),
         simulation=SimpleNamespace(dt=0.01, integrator="newmark"),
         damping=SimpleNamespace(alpha=0.0, beta=0.0),
     )
