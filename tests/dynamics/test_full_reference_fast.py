@@ -203,7 +203,7 @@ def test_reused_factor_solver_solves_changing_systems(symmetric):
 
 
 def test_stvk_scalar_kernels_equal_the_general_kernels_bit_for_bit(bar):
-    """The StVK force and example gradient in scalars: the general kernels' operations in
+    """The StVK force, energy and example gradient in scalars: the general kernels' operations in
     their order, so the same numbers bit for bit."""
     from lbshape.elastic import assembly, block_energy
 
@@ -221,6 +221,10 @@ def test_stvk_scalar_kernels_equal_the_general_kernels_bit_for_bit(bar):
                          compiled._element_dofs, compiled._gradients, compiled._volumes,
                          scalar)
     assert np.array_equal(scalar, general) and np.abs(general).max() > 0
+    energy = assembly._energy_total(compiled._code, compiled._parameters, u,
+                                    compiled._full_dofs, compiled._gradients, compiled._volumes)
+    assert assembly._stvk_energy_total(*compiled._parameters[:2], u, compiled._full_dofs,
+                                       compiled._gradients, compiled._volumes) == energy > 0
     block = BlockBasisEnergy(mesh.points, mesh.tets, mat, bar.phi)
     Y = np.random.default_rng(12).normal(size=(M_LB, 3)) * 0.01
     pv0, pv1 = np.empty_like(block._pv), np.empty_like(block._pv)
