@@ -190,6 +190,7 @@ class ReusedFactorSolver:
         self._factor = None
         self._stale = True
         self._pattern = None
+        self._last_matrix = None  # (base, K, J) of the last newton_matrix
         self._woodbury = None  # (W, S, J₀⁻¹W, (I + S Wᵀ J₀⁻¹ W)⁻¹ S) of the factor
         self._norm = 0.0  # ‖J‖∞ of the factorised matrix (the round-off level)
         self.frame: np.ndarray | None = None
@@ -216,7 +217,17 @@ class ReusedFactorSolver:
     def newton_matrix(self, base: sp.spmatrix, K: sp.spmatrix) -> sp.csr_matrix:
         """``J = base + K`` (CSR, sorted): on K's own pattern when it holds base's (one
         vector addition; K from :class:`~lbshape.elastic.assembly.CompiledElasticity`
-        keeps its pattern arrays), else by a sparse addition."""
+        keeps its pattern arrays), else by a sparse addition. The last J is kept for the
+        same ``base`` and ``K`` objects (a modified Newton's kept tangent, never changed
+        in place once evaluated)."""
+        last = self._last_matrix
+        if last is not None and last[0] is base and last[1] is K:
+            return last[2]
+        J = self._newton_matrix(base, K)
+        self._last_matrix = (base, K, J)
+        return J
+
+    def _newton_matrix(self, base: sp.spmatrix, K: sp.spmatrix) -> sp.csr_matrix:
         if sp.isspmatrix_csr(K) and K.has_sorted_indices:
             kept = self._pattern
             if kept is None or kept[0] is not base or not (

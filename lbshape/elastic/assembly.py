@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from lbshape._jit import njit
-from lbshape.elastic.block_energy import _energy
+from lbshape.elastic.block_energy import _energy, stvk_stress
 from lbshape.elastic.element_kernels import ElementKernel
 from lbshape.elastic.jit_densities import _element, density_parameters
 from lbshape.elastic.materials import Material
@@ -154,6 +154,9 @@ class CompiledElasticity:
         u = np.ascontiguousarray(u, dtype=np.float64)
         if u.shape != (self.n_dofs,):
             raise LbshapeError(f"displacement must have shape ({self.n_dofs},), got {u.shape}")
+        if self._code == 0:  # StVK: in scalars (same operations)
+            return float(_stvk_energy_total(self._parameters[0], self._parameters[1], u,
+                                            self._full_dofs, self._gradients, self._volumes))
         return float(_energy_total(self._code, self._parameters, u, self._full_dofs,
                                    self._gradients, self._volumes))
 
@@ -164,8 +167,12 @@ class CompiledElasticity:
         if u.shape != (self.n_dofs,):
             raise LbshapeError(f"displacement must have shape ({self.n_dofs},), got {u.shape}")
         f = np.empty(self._shape[0])
-        _assemble_force(self._code, self._parameters, u, self._full_dofs, self._element_dofs,
-                        self._gradients, self._volumes, f)
+        if self._code == 0:  # StVK: the element's stress in scalars (same operations)
+            _stvk_force(self._parameters[0], self._parameters[1], u, self._full_dofs,
+                        self._element_dofs, self._gradients, self._volumes, f)
+        else:
+            _assemble_force(self._code, self._parameters, u, self._full_dofs,
+                            self._element_dofs, self._gradients, self._volumes, f)
         return f
 
     def force_and_tangent(self, u: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
@@ -222,6 +229,59 @@ def _assemble_force(code, parameters, u, full_dofs, element_dofs, gradients, vol
         _displacement_gradient(u, full_dofs[e], G, H9)
         _element(code, parameters, H9, P9, A, 0, work, False)
         _add_element_force(element_dofs[e], P9, G, V, f)
+
+
+@njit
+def _gradient_tuple(u, d, G):
+    """The element's displacement gradient H (9-tuple, row-major), summed as
+    :func:`_displacement_gradient` sums it."""
+    h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = 0.0
+    for a in range(4):
+        u0, u1, u2 = u[d[3 * a]], u[d[3 * a + 1]], u[d[3 * a + 2]]
+        ga0, ga1, ga2 = G[a, 0], G[a, 1], G[a, 2]
+        h00 += u0 * ga0
+        h01 += u0 * ga1
+        h02 += u0 * ga2
+        h10 += u1 * ga0
+        h11 += u1 * ga1
+        h12 += u1 * ga2
+        h20 += u2 * ga0
+        h21 += u2 * ga1
+        h22 += u2 * ga2
+    return (h00, h01, h02, h10, h11, h12, h20, h21, h22)
+
+
+@njit
+def _stvk_energy_total(mu, lam, u, full_dofs, gradients, volumes):
+    """:func:`_energy_total` for StVK, in scalars (the same sums in the same order)."""
+    total = 0.0
+    for e in range(full_dofs.shape[0]):
+        _, psi = stvk_stress(_gradient_tuple(u, full_dofs[e], gradients[e]), mu, lam)
+        total += volumes[e] * psi
+    return total
+
+
+@njit
+def _stvk_force(mu, lam, u, full_dofs, element_dofs, gradients, volumes, f):
+    """:func:`_assemble_force` for StVK (:func:`~lbshape.elastic.block_energy.stvk_stress`):
+    the same sums in the same order, the element's quantities in scalars."""
+    f[:] = 0.0
+    for e in range(full_dofs.shape[0]):
+        G = gradients[e]
+        P, _ = stvk_stress(_gradient_tuple(u, full_dofs[e], G), mu, lam)
+        V = volumes[e]
+        dofs = element_dofs[e]
+        for a in range(4):
+            ga0, ga1, ga2 = G[a, 0], G[a, 1], G[a, 2]
+            row = dofs[3 * a]
+            if row >= 0:
+                f[row] += V * (P[0] * ga0 + P[1] * ga1 + P[2] * ga2)
+            row = dofs[3 * a + 1]
+            if row >= 0:
+                f[row] += V * (P[3] * ga0 + P[4] * ga1 + P[5] * ga2)
+            row = dofs[3 * a + 2]
+            if row >= 0:
+                f[row] += V * (P[6] * ga0 + P[7] * ga1 + P[8] * ga2)
 
 
 @njit

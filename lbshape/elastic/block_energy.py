@@ -139,8 +139,13 @@ class BlockBasisEnergy:
         last = self._last
         if last is not None and np.array_equal(last[0], y):
             return last[1], last[2].copy()
-        energy = _fused_gradient(self._code, self._parameters, self._gphi, self._volumes,
-                                 np.ascontiguousarray(y.reshape(self.m, 3)), self._pv)
+        Y = np.ascontiguousarray(y.reshape(self.m, 3))
+        if self._code == 0:  # StVK: the stress and energy in registers
+            energy = _stvk_gradient(self._parameters[0], self._parameters[1], self._gphi,
+                                    self._volumes, Y, self._pv)
+        else:
+            energy = _fused_gradient(self._code, self._parameters, self._gphi,
+                                     self._volumes, Y, self._pv)
         return energy, (self._x.T @ self._pv).reshape(-1)
 
 
@@ -219,6 +224,69 @@ def _fused_gradient(code, parameters, gphi, volumes, Y, pv):
         for j in range(3):
             for c in range(3):
                 pv[3 * e + j, c] = V * P9[3 * c + j, 0]
+    return energy
+
+
+@njit
+def stvk_stress(h, mu, lam):
+    """StVK at the displacement gradient ``h`` (the 9-tuple H[i, j], row-major):
+    ``(P as a 9-tuple row-major, Ψ)`` with ``E = (H + Hᵀ + HᵀH)/2``, ``S = 2μE + λ tr(E) I``,
+    ``P = F S``, ``Ψ = μ E:E + λ/2 (tr E)²`` (J/m³) — the operations of
+    :func:`~lbshape.elastic.jit_densities._stvk` and :func:`_energy` in their order (equal
+    bit for bit), in scalars."""
+    h00, h01, h02, h10, h11, h12, h20, h21, h22 = h
+    e00 = 0.5 * (h00 + h00 + h00 * h00 + h10 * h10 + h20 * h20)
+    e11 = 0.5 * (h11 + h11 + h01 * h01 + h11 * h11 + h21 * h21)
+    e22 = 0.5 * (h22 + h22 + h02 * h02 + h12 * h12 + h22 * h22)
+    e01 = 0.5 * (h01 + h10 + h00 * h01 + h10 * h11 + h20 * h21)
+    e02 = 0.5 * (h02 + h20 + h00 * h02 + h10 * h12 + h20 * h22)
+    e12 = 0.5 * (h12 + h21 + h01 * h02 + h11 * h12 + h21 * h22)
+    trace = e00 + e11 + e22
+    ee = (e00 * e00 + e01 * e01 + e02 * e02 + e01 * e01 + e11 * e11 + e12 * e12
+          + e02 * e02 + e12 * e12 + e22 * e22)
+    psi = mu * ee + 0.5 * lam * trace * trace
+    two_mu = 2.0 * mu
+    s00, s11, s22 = two_mu * e00 + lam * trace, two_mu * e11 + lam * trace, \
+        two_mu * e22 + lam * trace
+    s01, s02, s12 = two_mu * e01, two_mu * e02, two_mu * e12
+    f00, f11, f22 = 1.0 + h00, 1.0 + h11, 1.0 + h22
+    return ((f00 * s00 + h01 * s01 + h02 * s02, f00 * s01 + h01 * s11 + h02 * s12,
+             f00 * s02 + h01 * s12 + h02 * s22,
+             h10 * s00 + f11 * s01 + h12 * s02, h10 * s01 + f11 * s11 + h12 * s12,
+             h10 * s02 + f11 * s12 + h12 * s22,
+             h20 * s00 + h21 * s01 + f22 * s02, h20 * s01 + h21 * s11 + f22 * s12,
+             h20 * s02 + h21 * s12 + f22 * s22), psi)
+
+
+@njit
+def _stvk_gradient(mu, lam, gphi, volumes, Y, pv):
+    """:func:`_fused_gradient` for StVK (:func:`stvk_stress`, in scalars): the energy (J)
+    and ``pv[(e, j), c] = V P[c, j]``."""
+    s, _, m = gphi.shape
+    YT = np.ascontiguousarray(Y.T)  # (3, m)
+    y0, y1, y2 = YT[0], YT[1], YT[2]
+    energy = 0.0
+    for e in range(s):
+        g0, g1, g2 = gphi[e, 0], gphi[e, 1], gphi[e, 2]
+        h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = 0.0
+        for k in range(m):
+            a, b, c = g0[k], g1[k], g2[k]
+            h00 += y0[k] * a
+            h01 += y0[k] * b
+            h02 += y0[k] * c
+            h10 += y1[k] * a
+            h11 += y1[k] * b
+            h12 += y1[k] * c
+            h20 += y2[k] * a
+            h21 += y2[k] * b
+            h22 += y2[k] * c
+        P, psi = stvk_stress((h00, h01, h02, h10, h11, h12, h20, h21, h22), mu, lam)
+        V = volumes[e]
+        energy += V * psi
+        row = 3 * e
+        pv[row, 0], pv[row, 1], pv[row, 2] = V * P[0], V * P[3], V * P[6]
+        pv[row + 1, 0], pv[row + 1, 1], pv[row + 1, 2] = V * P[1], V * P[4], V * P[7]
+        pv[row + 2, 0], pv[row + 2, 1], pv[row + 2, 2] = V * P[2], V * P[5], V * P[8]
     return energy
 
 

@@ -53,11 +53,11 @@ class FullSpaceLocalForce:
             L = block_basis(region.eigenvectors)
             ML = np.asarray(mass_R @ L)  # (3n_R, 3m) kg
             Q, F, anchor_rows = anchor_fit(sub.points, mass_R, region.anchor)
-            mass_QF = np.asarray(mass_R @ Q) @ F  # (3n_R, anchor rows)
+            mass_Q = np.asarray(mass_R @ Q)  # (3n_R, 6): M_R Q F kept as two factors
             relative = ML.T.copy()  # (3m, 3n_R): Lᵀ M_R (I − Q F S) when anchored
             if self.free_rigid:
-                relative[:, anchor_rows] -= L.T @ mass_QF
-                ML = ML - mass_QF @ L[anchor_rows]
+                relative[:, anchor_rows] -= (L.T @ mass_Q) @ F
+                ML = ML - mass_Q @ (F @ L[anchor_rows])
             descriptor = descriptor_matrix(region.eigenvalues, relative.T, rho)
             k = region.example_coefficients.shape[0]
             rests, tets = region.example_energy_shapes(mesh)
@@ -67,7 +67,7 @@ class FullSpaceLocalForce:
             # the weights' supports, once (eq. 5 for fixed examples)
             examples = SimplexWeights(region.example_descriptors(rho, free_rigid=self.free_rigid))
             self._regions.append((rows, descriptor, examples, solver, ML,
-                                  mass_QF, rows.reshape(-1)[anchor_rows]))
+                                  (mass_Q, F), rows.reshape(-1)[anchor_rows]))
         self.mass = sp.csr_matrix(sum(blocks))
         self.weights: dict[str, np.ndarray] = {}
 
@@ -75,11 +75,12 @@ class FullSpaceLocalForce:
         """(3n,) the pull (kg·m) for the displacement u (3n,) or (n, 3)."""
         u = np.asarray(u, dtype=float).reshape(-1)
         out = np.zeros_like(u)
-        for name, (rows, descriptor, examples, solver, ML, mass_QF, anchor_rows) in zip(
+        for name, (rows, descriptor, examples, solver, ML, (mass_Q, F), anchor_rows) in zip(
                 self.names, self._regions, strict=True):
             w = examples(descriptor @ u[rows])
             self.weights[name] = w
-            out[rows] += ML @ solver.solve(w).z
-            if self.free_rigid:
-                out[rows] += mass_QF @ u[anchor_rows]
+            pull = ML @ solver.solve(w).z
+            if self.free_rigid:  # M_R Q F u[anchor] (rank 6)
+                pull += mass_Q @ (F @ u[anchor_rows])
+            out[rows] += pull
         return out

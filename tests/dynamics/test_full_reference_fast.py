@@ -202,6 +202,54 @@ def test_reused_factor_solver_solves_changing_systems(symmetric):
         make_linear_solver("cg")
 
 
+def test_stvk_scalar_kernels_equal_the_general_kernels_bit_for_bit(bar):
+    """The StVK force, energy and example gradient in scalars: the general kernels' operations in
+    their order, so the same numbers bit for bit."""
+    from lbshape.elastic import assembly, block_energy
+
+    mesh, mat = bar.mesh, material("stvk")
+    free = np.setdiff1d(np.arange(3 * mesh.n_vertices),
+                        (3 * bar.fixed[:, None] + np.arange(3)).ravel())
+    compiled = CompiledElasticity(mesh, mat, free)
+    u = np.random.default_rng(11).normal(size=3 * mesh.n_vertices) * 0.02
+    general = np.empty(free.size)
+    assembly._assemble_force(compiled._code, compiled._parameters, u, compiled._full_dofs,
+                             compiled._element_dofs, compiled._gradients, compiled._volumes,
+                             general)
+    scalar = np.empty(free.size)
+    assembly._stvk_force(*compiled._parameters[:2], u, compiled._full_dofs,
+                         compiled._element_dofs, compiled._gradients, compiled._volumes,
+                         scalar)
+    assert np.array_equal(scalar, general) and np.abs(general).max() > 0
+    energy = assembly._energy_total(compiled._code, compiled._parameters, u,
+                                    compiled._full_dofs, compiled._gradients, compiled._volumes)
+    assert assembly._stvk_energy_total(*compiled._parameters[:2], u, compiled._full_dofs,
+                                       compiled._gradients, compiled._volumes) == energy > 0
+    block = BlockBasisEnergy(mesh.points, mesh.tets, mat, bar.phi)
+    Y = np.random.default_rng(12).normal(size=(M_LB, 3)) * 0.01
+    pv0, pv1 = np.empty_like(block._pv), np.empty_like(block._pv)
+    e0 = block_energy._fused_gradient(block._code, block._parameters, block._gphi,
+                                      block._volumes, Y, pv0)
+    e1 = block_energy._stvk_gradient(*block._parameters[:2], block._gphi, block._volumes,
+                                     Y, pv1)
+    assert e1 == e0 > 0 and np.array_equal(pv1, pv0)
+
+
+def test_newton_matrix_of_a_kept_tangent_is_built_once():
+    """The same (base, K) objects give the kept J; another K (a fresh evaluation) a new one."""
+    n = 12
+    base = sp.csr_matrix(3.0 * sp.identity(n))
+    K = sp.csr_matrix(sp.diags([-np.ones(n - 1), 2.0 * np.ones(n), -np.ones(n - 1)],
+                               [-1, 0, 1]))
+    solver = ReusedFactorSolver()
+    J = solver.newton_matrix(base, K)
+    assert solver.newton_matrix(base, K) is J
+    other = sp.csr_matrix(2.0 * K)
+    J2 = solver.newton_matrix(base, other)
+    assert J2 is not J and abs(J2 - (base + other)).max() == 0.0
+    assert abs(solver.newton_matrix(base, K) - (base + K)).max() == 0.0
+
+
 # ------------------------------------------------------------------ whole runs
 def test_held_bar_under_gravity_matches_the_former_reference(bar):
     mesh, mat = bar.mesh, material()
