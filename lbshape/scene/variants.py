@@ -62,9 +62,10 @@ def with_step(scene: Scene, dt: float, duration: float) -> Scene:
 
 
 
-def scaled_scene(base: str, size: float, folder: Path) -> Path:
+def scaled_scene(base: str, size: float, folder: Path, *, r: int | None = None) -> Path:
     """Write the scene ``base`` (a built-in name) with ``[object] size = size`` to
-    ``folder`` and return the TOML path (named ``<base>-h<size>``).
+    ``folder`` and return the TOML path (named ``<base>-h<size>``; with ``r``, its
+    ``[reduced] r`` set to it and ``-r<r>`` appended to the name).
 
     Every size keeps the cubature force model (``reduced.forces = "cubature"``): the
     exact polynomial forces' build grows as t r⁴ and ``auto`` leaves them for large
@@ -79,9 +80,11 @@ def scaled_scene(base: str, size: float, folder: Path) -> Path:
     data = tomllib.loads(path.read_text(encoding="utf-8"))
     if "shape" not in data.get("object", {}):
         raise LbshapeError(f"scene {base!r}: its object is not a built-in shape with a size")
-    data["name"] = f"{base}-h{size:g}"
+    data["name"] = f"{base}-h{size:g}" + ("" if r is None else f"-r{int(r)}")
     data["object"]["size"] = float(size)
     data.setdefault("reduced", {})["forces"] = "cubature"
+    if r is not None:
+        data["reduced"]["r"] = int(r)
     target = folder / f"{data['name']}.toml"
     target.write_text(dumps(data), encoding="utf-8")
     return target

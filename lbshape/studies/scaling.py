@@ -20,6 +20,11 @@ vertices:
   the table, else the per-step solve it falls back to) and with :data:`COMMON_ROUTE`,
   the per-step target solve, at every size — the same work per step whatever the
   size, so that column shows whether the step itself grows with the mesh.
+* **the step at the same (m, r, s)** — the appended responses give each size its own r
+  (the step's cost follows r), so the smallest size is precomputed once more with its
+  scene's r raised until its basis has the largest size's columns
+  (:func:`matched_r_precompute`) and timed interleaved with the others: the
+  ``same (m, r, s)`` verdict compares the largest size with that copy.
 
 Writes ``scaling.csv`` (one row per size), ``scaling.md`` (tables, machine, the ≥100k
 verdicts) and ``scaling.png`` (log-log precompute time and peak memory per stage, and
@@ -67,6 +72,8 @@ TARGET_VERTICES = 100_000
 TARGET_SECONDS = 300.0
 TARGET_PEAK_MB = 8 * 1024.0
 TARGET_STEP_RATIO = 1.2
+#: precomputes tried to reach the largest size's r at the smallest size
+MATCH_R_TRIES = 3
 #: CSV columns before the per-stage ones
 _COLUMNS = ("size_m", "n_vertices", "n_tets", "r", "ranks", "wall_s", "stages_s", "peak_mb",
             "t_total_ms", "t_total_min_ms", "t_total_max_ms", "t_interp_ms", "target_table",
@@ -95,6 +102,11 @@ class ScalingPoint:
             follows r, which can differ between sizes).
         t_total_common_ms: per repeat, the mean reduced step time (ms) with the
             target route :data:`COMMON_ROUTE` at every size.
+        s: the cubature's elements.
+        same_r: the smallest size only: the r of its copy precomputed with the largest
+            size's r (:func:`matched_r_precompute`), None elsewhere.
+        same_r_s: that copy's cubature elements.
+        t_total_same_r_ms: per repeat, that copy's mean reduced step time (ms).
     """
 
     size: float
@@ -110,6 +122,10 @@ class ScalingPoint:
     target_table: bool | None = None
     t_total_common_ms: list = field(default_factory=list)
     r: int | None = None
+    s: int | None = None
+    same_r: int | None = None
+    same_r_s: int | None = None
+    t_total_same_r_ms: list = field(default_factory=list)
 
     @property
     def stages_seconds(self) -> float:
@@ -168,13 +184,16 @@ def run_scaling(sizes: Sequence[float] = DEFAULT_SIZES, *, scene: str = DEFAULT_
                 ranks=ranks, wall_seconds=wall, peak_mb=peak,
                 stage_seconds=dict(pre.stages.seconds), stage_peak_mb=dict(pre.stages.peak_mb),
                 target_table=(pre.examples.target_table is not None) if pre.has_examples else None,
-                r=int(pre.r))
+                r=int(pre.r), s=int(pre.elastic.cubature_elements.size))
             points.append(point)
             runs.append((loaded, pre))
             if progress:
                 print(f"scaling: h={size:g} m, {point.n_vertices} vertices: precompute "
                       f"{wall:.1f} s, peak {peak:.0f} MB", file=sys.stderr)
+        matched = _matched_small(points, runs, scene, Path(folder), progress)
         for _ in range(repeats):
+            if matched is not None:
+                points[0].t_total_same_r_ms.append(_timed_run(*matched, steps)[1])
             for point, (loaded, pre) in zip(points, runs, strict=True):
                 t_interp, t_total = _timed_run(loaded, pre, steps)
                 point.t_total_ms.append(t_total)
@@ -184,6 +203,44 @@ def run_scaling(sizes: Sequence[float] = DEFAULT_SIZES, *, scene: str = DEFAULT_
                         loaded.reduced, interpolation=COMMON_ROUTE))
                     point.t_total_common_ms.append(_timed_run(common, pre, steps)[1])
     return points
+
+
+def matched_r_precompute(scene: str, size: float, r_target: int, r_asked: int,
+                         folder: Path, *, tries: int = MATCH_R_TRIES):
+    """``(scene, precompute)`` of ``scene`` at ``size`` whose basis has ``r_target``
+    columns: the scene's ``[reduced] r`` raised by what is missing (the appended
+    responses add their own columns), at most ``tries`` precomputes; None if no try hits
+    it exactly."""
+    asked = int(r_asked)
+    for _ in range(tries):
+        loaded = load_scene(scaled_scene(scene, size, folder, r=asked))
+        pre = precompute(loaded, force=True, save=False)
+        if int(pre.r) == r_target:
+            return loaded, pre
+        asked += r_target - int(pre.r)
+        if asked < 1:
+            return None
+    return None
+
+
+def _matched_small(points: list[ScalingPoint], runs: list, scene: str, folder: Path,
+                   progress: bool):
+    """The smallest size precomputed with the largest size's r (None when they already
+    agree, when there is one size, or when no precompute reaches it); sets its point's
+    ``same_r`` and ``same_r_s``."""
+    small, big = points[0], max(points, key=lambda p: p.n_vertices)
+    if small is big or small.r == big.r:
+        return None
+    matched = matched_r_precompute(scene, small.size, big.r,
+                                   runs[0][0].reduced.r + big.r - small.r, folder)
+    if matched is None:
+        return None
+    small.same_r = int(matched[1].r)
+    small.same_r_s = int(matched[1].elastic.cubature_elements.size)
+    if progress:
+        print(f"scaling: h={small.size:g} m again with r = {small.same_r} (scene r = "
+              f"{matched[0].reduced.r})", file=sys.stderr)
+    return matched
 
 
 def _timed_run(scene, pre, steps: int) -> tuple[float, float]:
@@ -202,7 +259,9 @@ def point_payload(point: ScalingPoint) -> dict:
             "stage_seconds": point.stage_seconds, "stage_peak_mb": point.stage_peak_mb,
             "t_total_ms": list(point.t_total_ms), "t_interp_ms": list(point.t_interp_ms),
             "target_table": point.target_table,
-            "t_total_common_route_ms": list(point.t_total_common_ms), "r": point.r}
+            "t_total_common_route_ms": list(point.t_total_common_ms), "r": point.r,
+            "s": point.s, "same_r": point.same_r, "same_r_s": point.same_r_s,
+            "t_total_same_r_ms": list(point.t_total_same_r_ms)}
 
 
 def write_scaling(points: Sequence[ScalingPoint], out: Path, *,
@@ -243,6 +302,13 @@ def verdicts(points: Sequence[ScalingPoint]) -> list[str]:
                  f"{big.n_vertices} / {small.n_vertices} vertices{_r_pair(big, small)}",
                  np.median(big.t_total_common_ms) / np.median(small.t_total_common_ms),
                  TARGET_STEP_RATIO, "x")])
+    same = ([] if not small.t_total_same_r_ms else [
+        _verdict(f"reduced t_total at the same (m, r, s), {big.n_vertices} / "
+                 f"{small.n_vertices} vertices (r = {big.r} / {small.same_r}, s = "
+                 f"{_or_dash(big.s)} / {_or_dash(small.same_r_s)}; the small bar precomputed "
+                 f"again with the large one's r)",
+                 np.median(big.t_total_ms) / np.median(small.t_total_same_r_ms),
+                 TARGET_STEP_RATIO, "x")])
     return [
         _verdict(f"precompute of {big.n_vertices} vertices (-n {big.ranks})",
                  big.wall_seconds, TARGET_SECONDS, "s"),
@@ -252,7 +318,12 @@ def verdicts(points: Sequence[ScalingPoint]) -> list[str]:
                  f"{_r_pair(big, small)}",
                  ratio, TARGET_STEP_RATIO, "x"),
         *common,
+        *same,
     ]
+
+
+def _or_dash(value) -> str:
+    return "—" if value is None else str(value)
 
 
 def _r_pair(big: ScalingPoint, small: ScalingPoint) -> str:

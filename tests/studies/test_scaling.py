@@ -119,3 +119,28 @@ def test_each_size_reports_its_basis_columns(tmp_path):
     scaling.write_scaling(points, tmp_path)
     assert [r["r"] for r in csv.DictReader((tmp_path / "scaling.csv").open())] == ["32", "37"]
     assert "| 103000 | 515000 | 37 | 1 |" in (tmp_path / "scaling.md").read_text()
+
+
+def test_same_r_verdict_compares_the_small_bar_precomputed_with_the_large_r(tmp_path):
+    """The step ratio at the same (m, r, s): the largest size against the smallest one
+    precomputed again with the largest size's r, besides the ratio at each size's own r."""
+    points = [point(0.0665, 330, 3.0, 400.0, 0.12), point(0.0068, 103_000, 290.0, 900.0, 0.15)]
+    points[0].r, points[1].r, points[0].s, points[1].s = 32, 37, 60, 60
+    assert not any("same (m, r, s)" in line for line in scaling.verdicts(points))
+    points[0].same_r, points[0].same_r_s = 37, 60
+    points[0].t_total_same_r_ms = [0.14, 0.13, 0.145]
+    line = scaling.verdicts(points)[-1]
+    assert "same (m, r, s)" in line and "(r = 37 / 37, s = 60 / 60" in line
+    assert "1.07 x" in line and ": met" in line  # 0.15 / 0.14
+    assert scaling.point_payload(points[0])["t_total_same_r_ms"] == [0.14, 0.13, 0.145]
+
+
+@pytest.mark.slow
+def test_scaled_scene_with_r_and_matched_precompute(tmp_path):
+    """scaled_scene(r=...) sets [reduced] r; matched_r_precompute reaches a target r."""
+    scene = load_scene(scaling.scaled_scene("demo", 0.15, tmp_path, r=7))
+    assert scene.reduced.r == 7 and scene.name == "demo-h0.15-r7"
+    # asked 4 gives 12 columns (appended responses): the target 15 needs asked r = 8
+    loaded, pre = scaling.matched_r_precompute("demo", 0.15, 15, 4, tmp_path)
+    assert pre.r == 15 and loaded.reduced.r == 8
+    assert scaling.matched_r_precompute("demo", 0.15, 15, 4, tmp_path, tries=1) is None
