@@ -134,6 +134,7 @@ from lbshape.pipeline.responses import (
     static_load,
     static_load_applies,
 )
+from lbshape.pipeline.estimate import estimate_operators
 from lbshape.pipeline.stages import Ranks, StageCache, StageRecorder
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.alignment import BasisAlignment
@@ -205,8 +206,7 @@ def stage_names(scene: Scene) -> list[str]:
         names.append("forces")
     if scene.has_examples or scene.has_local_examples:
         names.append("projections")
-    if scene.is_free:
-        names.append("frame")
+    names.append("frame" if scene.is_free else "estimate")
     return names
 
 
@@ -294,6 +294,8 @@ def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
     frame = (ranks.on_root("frame", lambda: frame_tensors(mesh.points, mesh.tets,
                                                           elastic.mass, U))
              if scene.is_free else None)
+    estimate = (ranks.on_root("estimate", lambda: estimate_operators(
+        scene, mesh, scene.material, fixed, U)) if polynomial is not None else None)
     if not ranks.root:
         return None, None
     names = [] if scene.examples is None else [example_label(p) for p in scene.examples.poses]
@@ -301,7 +303,7 @@ def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
                     omega2=np.asarray(elastic.modes.omega2), cubature=cubature,
                     polynomial=polynomial, examples=examples, local=local,
                     frame=frame, example_names=names, stage_ranks=ranks.count,
-                    auto_stiffness=auto)
+                    auto_stiffness=auto, estimate=estimate)
 
 
 # ------------------------------------------------------------- the elastic stages
