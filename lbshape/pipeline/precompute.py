@@ -206,7 +206,8 @@ def stage_names(scene: Scene) -> list[str]:
         names.append("forces")
     if scene.has_examples or scene.has_local_examples:
         names.append("projections")
-    names.append("frame" if scene.is_free else "estimate")
+    if scene.is_free or "forces" in names:  # the estimate needs the polynomial forces
+        names.append("frame" if scene.is_free else "estimate")
     return names
 
 
