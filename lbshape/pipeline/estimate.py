@@ -19,8 +19,8 @@ import numpy as np
 from lbshape.analysis.error_estimate import (
     DENSE_DOFS,
     MAX_FRAMES,
-    EstimateOperators,
     ErrorEstimate,
+    EstimateOperators,
     FrameForces,
     ResidualErrorEstimator,
     select_frames,

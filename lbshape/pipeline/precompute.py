@@ -103,6 +103,7 @@ from lbshape.fem.mpi import compute_on_root
 from lbshape.geometry.mesh import TetMesh
 from lbshape.io.cache import artifact_lock, load_artifact, save_artifact
 from lbshape.pipeline.auto_stiffness import auto_stiffness_stage
+from lbshape.pipeline.estimate import estimate_operators
 from lbshape.pipeline.meshes import (
     build_mesh,
     example_meshes,
@@ -134,7 +135,6 @@ from lbshape.pipeline.responses import (
     static_load,
     static_load_applies,
 )
-from lbshape.pipeline.estimate import estimate_operators
 from lbshape.pipeline.stages import Ranks, StageCache, StageRecorder
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.alignment import BasisAlignment
