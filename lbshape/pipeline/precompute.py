@@ -296,7 +296,8 @@ def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
                                                           elastic.mass, U))
              if scene.is_free else None)
     estimate = (ranks.on_root("estimate", lambda: estimate_operators(
-        scene, mesh, scene.material, fixed, U)) if polynomial is not None else None)
+        scene, mesh, scene.material, fixed, U))
+        if polynomial is not None and "estimate" in stages.names else None)
     if not ranks.root:
         return None, None
     names = [] if scene.examples is None else [example_label(p) for p in scene.examples.poses]
