@@ -30,13 +30,14 @@ part outside the basis (for local examples also their spring) and the error equa
 linearised at rest. Measured against the full reference on every fixed built-in scene,
 with and without examples, at 1 ms and 60 Hz steps (``results/error_estimate.md``), the raw
 estimate / error ratios lay in [0.39, 1.10] where the error is above 1 % (0.39: teddy-local
-with its local examples; 0.48: the cross without examples), median about 0.9. The factor
-1.5 puts the log-centre of that range (≈ 0.66) at 1, leaving the measured ratios in
-[0.58, 1.65], inside the factor-2 band with some margin on both sides. It was fitted on the
-same runs it is validated on. Held out, on a user-style L-beam (374 vertices, global
-examples, gravity; the tests' ``user_mesh_scene``), the calibrated ratios are 1.59 (1 ms)
-and 2.12 (60 Hz) with examples, 0.61 and 0.60 without (docs/decisions.md): the band is not
-guaranteed off the calibration set.
+with its local examples; 0.48: the cross without examples), median about 0.9, at 25 frame
+intervals; at the :data:`MAX_FRAMES` = 8 used, [0.38, 1.06]. The factor 1.5 puts the
+log-centre of that range (≈ 0.66) at 1, leaving the measured ratios in [0.57, 1.59],
+inside the factor-2 band with some margin on both sides. It was fitted on the same runs it
+is validated on. Held out, on a user-style L-beam (374 vertices, global examples, gravity;
+the tests' ``user_mesh_scene``), the calibrated ratios are 1.13 (1 ms) and 1.80 (60 Hz)
+with examples, 0.59 and 0.59 without (1.58, 2.12, 0.61, 0.61 at 25 intervals;
+docs/decisions.md): the band is not guaranteed off the calibration set.
 
 Everything here is n-sized but runs on the saved frames only, after the run: the
 real-time step is untouched. The full-space elastic force at all frames is one sparse
