@@ -30,13 +30,14 @@ part outside the basis (for local examples also their spring) and the error equa
 linearised at rest. Measured against the full reference on every fixed built-in scene,
 with and without examples, at 1 ms and 60 Hz steps (``results/error_estimate.md``), the raw
 estimate / error ratios lay in [0.39, 1.10] where the error is above 1 % (0.39: teddy-local
-with its local examples; 0.48: the cross without examples), median about 0.9. The factor
-1.5 puts the log-centre of that range (≈ 0.66) at 1, leaving the measured ratios in
-[0.58, 1.65], inside the factor-2 band with some margin on both sides. It was fitted on the
-same runs it is validated on. Held out, on a user-style L-beam (374 vertices, global
-examples, gravity; the tests' ``user_mesh_scene``), the calibrated ratios are 1.59 (1 ms)
-and 2.12 (60 Hz) with examples, 0.61 and 0.60 without (docs/decisions.md): the band is not
-guaranteed off the calibration set.
+with its local examples; 0.48: the cross without examples), median about 0.9, at 25 frame
+intervals; at the :data:`MAX_FRAMES` = 8 used, [0.38, 1.06]. The factor 1.5 puts the
+log-centre of that range (≈ 0.66) at 1, leaving the measured ratios in [0.57, 1.59],
+inside the factor-2 band with some margin on both sides. It was fitted on the same runs it
+is validated on. Held out, on a user-style L-beam (374 vertices, global examples, gravity;
+the tests' ``user_mesh_scene``), the calibrated ratios are 1.13 (1 ms) and 1.80 (60 Hz)
+with examples, 0.59 and 0.59 without (1.58, 2.12, 0.61, 0.61 at 25 intervals;
+docs/decisions.md): the band is not guaranteed off the calibration set.
 
 Everything here is n-sized but runs on the saved frames only, after the run: the
 real-time step is untouched. The full-space elastic force at all frames is one sparse
@@ -60,6 +61,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse as sp
 
 from lbshape.elastic.jit_densities import density_parameters, stress, stress_and_tangent
@@ -70,8 +72,11 @@ from lbshape.errors import LbshapeError
 CALIBRATION = 1.5
 #: relative spread of the frame spacing accepted as uniform
 SPACING_RTOL = 1e-6
-#: most frame intervals the estimate integrates over (the saved frames thinned to this)
-MAX_FRAMES = 25
+#: most frame intervals the estimate integrates over (the saved frames thinned to this;
+#: docs/decisions.md: 8 keeps every built-in case within the rule at a third of 25's frames)
+MAX_FRAMES = 8
+#: objects with at most this many dofs (3n) get dense operators and a dense factor
+DENSE_DOFS = 600
 
 
 @dataclass(frozen=True)
@@ -215,6 +220,59 @@ def shape_gradients(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, n
     return G, np.abs(np.linalg.det(Dm)) / 6.0
 
 
+@dataclass(frozen=True)
+class EstimateOperators:
+    """Everything per object the estimate reads, built once (the precompute's
+    ``estimate`` stage): the force operators of :class:`FrameForces` (B, Bᵀ V, shape
+    gradients and volumes), M and K₀ (3n, 3n) with the fixed dofs' rows and columns zero,
+    M U and K₀ U (3n, r), the free dofs (``keep``, (3n,) bool) and the loads' patterns
+    (3n, loads) in N."""
+
+    forces: FrameForces
+    mass: sp.csr_matrix
+    stiffness: sp.csr_matrix
+    MU: np.ndarray
+    KU: np.ndarray
+    keep: np.ndarray
+    patterns: np.ndarray
+
+    @classmethod
+    def build(cls, forces: FrameForces, U: np.ndarray, mass, stiffness, keep: np.ndarray,
+              patterns: np.ndarray) -> EstimateOperators:
+        """From M and K₀ already masked to ``keep`` and the basis U (3n, r)."""
+        mass, stiffness = sp.csr_matrix(mass), sp.csr_matrix(stiffness)
+        return cls(forces, mass, stiffness, np.asarray(mass @ U), np.asarray(stiffness @ U),
+                   np.asarray(keep, dtype=bool),
+                   np.where(keep[:, None], np.asarray(patterns, dtype=float), 0.0))
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The stored form (numpy arrays only; :meth:`from_arrays`)."""
+        out = {"MU": self.MU, "KU": self.KU, "keep": self.keep, "patterns": self.patterns}
+        for name, matrix in (("M", self.mass), ("K", self.stiffness),
+                             ("B", self.forces._B), ("BtV", self.forces._BtV)):
+            out.update({f"{name}_data": matrix.data, f"{name}_indices": matrix.indices,
+                        f"{name}_indptr": matrix.indptr,
+                        f"{name}_shape": np.asarray(matrix.shape)})
+        out.update({"tets": self.forces._tets, "volumes": self.forces._volumes,
+                    "G": self.forces._G})
+        return out
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, material: Material) -> EstimateOperators:
+        """Inverse of :meth:`arrays` (``material``: the elastic material of the forces)."""
+        def matrix(name: str) -> sp.csr_matrix:
+            return sp.csr_matrix((arrays[f"{name}_data"], arrays[f"{name}_indices"],
+                                  arrays[f"{name}_indptr"]),
+                                 shape=tuple(int(v) for v in arrays[f"{name}_shape"]))
+        forces = FrameForces.__new__(FrameForces)
+        forces._B, forces._BtV = matrix("B"), matrix("BtV")
+        forces._tets, forces._volumes, forces._G = arrays["tets"], arrays["volumes"], arrays["G"]
+        forces._e, forces._n3 = len(arrays["tets"]), int(arrays["B_shape"][1])
+        forces._jit = density_parameters(material)
+        return cls(forces, matrix("M"), matrix("K"), arrays["MU"], arrays["KU"],
+                   np.asarray(arrays["keep"], dtype=bool), arrays["patterns"])
+
+
 class ResidualErrorEstimator:
     """The residual-based error estimate of a reduced run (see the module docstring).
 
@@ -250,14 +308,41 @@ class ResidualErrorEstimator:
         self._loads = [(np.where(self.keep, np.asarray(p, dtype=float), 0.0), profile)
                        for p, profile in loads]
 
+    @classmethod
+    def from_operators(cls, operators: EstimateOperators, basis: np.ndarray, *, alpha: float,
+                       beta: float, loads: Sequence[tuple[np.ndarray, Callable[[float], float]]]
+                       = ()) -> ResidualErrorEstimator:
+        """The estimator on the precompute's operators (no n-sized set-up; the loads'
+        patterns already zero on the fixed dofs)."""
+        self = cls.__new__(cls)
+        self.U = np.asarray(basis, dtype=float)
+        self.keep = operators.keep
+        self.free = np.flatnonzero(self.keep)
+        self._forces, self.M, self.K = operators.forces, operators.mass, operators.stiffness
+        self._MU, self._KU = operators.MU, operators.KU
+        self._gram = self.U.T @ self._MU
+        self.alpha, self.beta = float(alpha), float(beta)
+        self._loads = [(np.asarray(p, dtype=float), profile) for p, profile in loads]
+        return self
+
+    def dense_solver(self, spacing: float) -> Callable[[np.ndarray], np.ndarray]:
+        """Make M and K₀ dense and return the solve with a dense Cholesky factor of
+        :meth:`effective_matrix` at ``spacing`` (s): for small objects (at most
+        :data:`DENSE_DOFS` dofs), where a sparse factor's and sparse products' set-up
+        costs more than the dense work."""
+        matrix = self.effective_matrix(spacing).toarray()
+        self.M, self.K = self.M.toarray(), self.K.toarray()
+        factor = scipy.linalg.cho_factor(matrix, lower=True, check_finite=False)
+        return lambda rhs: scipy.linalg.cho_solve(factor, rhs, check_finite=False)
+
     def effective_matrix(self, spacing: float) -> sp.csr_matrix:
         """``(1 + 2β/Δ) K₀ + (4/Δ² + 2α/Δ) M`` for the frame spacing Δ (s), 1 on the fixed
         dofs' diagonal: the matrix to factor once (symmetric positive definite)."""
         if not spacing > 0:
             raise LbshapeError(f"frame spacing must be > 0 s, got {spacing}")
-        return ((1.0 + 2.0 * self.beta / spacing) * self.K
-                + (4.0 / spacing**2 + 2.0 * self.alpha / spacing) * self.M
-                + sp.diags((~self.keep).astype(float))).tocsr()
+        return sp.csr_matrix((1.0 + 2.0 * self.beta / spacing) * self.K
+                             + (4.0 / spacing**2 + 2.0 * self.alpha / spacing) * self.M
+                             + sp.diags((~self.keep).astype(float)))
 
     def residuals(self, times: np.ndarray, Q: np.ndarray,
                   Qdot: np.ndarray | None = None) -> np.ndarray:
@@ -314,7 +399,8 @@ def newmark_error_norms(R: np.ndarray, M, K, alpha: float, beta: float, spacing:
     ``M ((4/Δ² + 2α/Δ) e + (4/Δ + α) v + a) + β K (2 e/Δ + v)``.
     """
     h, nf, frames = spacing, R.shape[0], R.shape[1]
-    M, K = sp.csr_matrix(M), sp.csr_matrix(K)
+    if sp.issparse(M) or sp.issparse(K):  # dense arrays stay dense (small objects)
+        M, K = sp.csr_matrix(M), sp.csr_matrix(K)
     c_e, c_v = 4.0 / h**2 + 2.0 * alpha / h, 4.0 / h + alpha
     e, v, a = np.zeros(nf), np.zeros(nf), np.zeros(nf)
     E = np.zeros((nf, frames))

@@ -17,8 +17,10 @@ import time
 import numpy as np
 
 from lbshape.analysis.error_estimate import (
+    DENSE_DOFS,
     MAX_FRAMES,
     ErrorEstimate,
+    EstimateOperators,
     FrameForces,
     ResidualErrorEstimator,
     select_frames,
@@ -35,23 +37,37 @@ from lbshape.scene.schema import Scene
 STATS_KEYS = ("error_estimate", "error_estimate_message", "error_estimate_ms")
 
 
+def estimate_operators(scene: Scene, mesh, material, fixed: np.ndarray,
+                       U: np.ndarray) -> dict[str, np.ndarray]:
+    """The ``estimate`` stage of the precompute: everything per object the estimate reads
+    (:class:`~lbshape.analysis.error_estimate.EstimateOperators` as arrays): the
+    full-space force operators, M and K₀ with the fixed dofs' rows and columns zero, M U,
+    K₀ U and the loads' patterns (their size; the profiles are the run's)."""
+    forces = FrameForces(mesh.points, mesh.tets, material)
+    keep = np.ones(3 * mesh.n_vertices, dtype=bool)
+    keep[(3 * np.asarray(fixed, dtype=np.int64)[:, None] + np.arange(3)).ravel()] = False
+    mass, stiffness = forces.operators(material.density, keep)
+    patterns = np.zeros((3 * mesh.n_vertices, 0))
+    if scene.loads:  # the patterns need the mass of every dof (reactions included)
+        patterns = np.stack([load.pattern for load in mesh_load_patterns(
+            scene, mesh, forces.mass(material.density))], axis=1)
+    return EstimateOperators.build(forces, U, mass, stiffness, keep, patterns).arrays()
+
+
 def estimator(scene: Scene, pre: Precomputed) -> ResidualErrorEstimator:
     """The :class:`~lbshape.analysis.error_estimate.ResidualErrorEstimator` of a fixed
-    object's scene (n-sized set-up: the full-space force operators, M and K₀ assembled
-    from the element blocks with the fixed dofs' rows and columns zero)."""
-    mesh = pre.mesh
-    forces = FrameForces(mesh.points, mesh.tets, pre.material)
-    fixed = np.asarray(pre.fixed_vertices, dtype=np.int64)
-    keep = np.ones(3 * mesh.n_vertices, dtype=bool)
-    keep[(3 * fixed[:, None] + np.arange(3)).ravel()] = False
-    mass, stiffness = forces.operators(pre.material.density, keep)
+    object's scene: from the precompute's ``estimate`` stage (:attr:`Precomputed.
+    estimate`), or built here (n-sized set-up) for a precompute without it."""
+    arrays = pre.estimate
+    if arrays is None:
+        arrays = estimate_operators(scene, pre.mesh, pre.material, pre.fixed_vertices, pre.U)
+    operators = EstimateOperators.from_arrays(arrays, pre.material)
     loads = []
-    if scene.loads:  # the patterns need the mass of every dof (reactions included)
-        loads = [(load.pattern, load.profile) for load in
-                 mesh_load_patterns(scene, mesh, forces.mass(pre.material.density))]
-    return ResidualErrorEstimator(
-        forces, pre.U, mass, stiffness, np.flatnonzero(keep),
-        alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads)
+    if scene.loads:
+        loads = [(operators.patterns[:, i], load.profile)
+                 for i, load in enumerate(scene.loads)]
+    return ResidualErrorEstimator.from_operators(
+        operators, pre.U, alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads)
 
 
 def estimate_error(scene: Scene, pre: Precomputed, record: RunRecord,
@@ -75,12 +91,15 @@ def estimate_error(scene: Scene, pre: Precomputed, record: RunRecord,
                              time.perf_counter() - started)
     est = estimator(scene, pre)
     spacing = float(times[1] - times[0])
+    size = est.size(np.asarray(record.states, dtype=float))
     try:
-        with serial_cholesky(est.effective_matrix(spacing),
-                             what="the effective stiffness of the error estimate") as solve:
-            result = est.estimate(times, Q, solve.vector, Qdot=Qdot,
-                                  size=est.size(np.asarray(record.states, dtype=float)))
-    except LbshapeError as exc:
+        if est.U.shape[0] <= DENSE_DOFS:
+            result = est.estimate(times, Q, est.dense_solver(spacing), Qdot=Qdot, size=size)
+        else:
+            with serial_cholesky(est.effective_matrix(spacing),
+                                 what="the effective stiffness of the error estimate") as solve:
+                result = est.estimate(times, Q, solve.vector, Qdot=Qdot, size=size)
+    except (LbshapeError, np.linalg.LinAlgError) as exc:
         return unavailable(f"the estimate failed: {exc}")
     caveat = LOCAL_EXAMPLES_CAVEAT if _local_examples_act(scene, pre) else result.message
     return ErrorEstimate(result.value, caveat, result.norms, time.perf_counter() - started)

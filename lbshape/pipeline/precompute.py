@@ -103,6 +103,7 @@ from lbshape.fem.mpi import compute_on_root
 from lbshape.geometry.mesh import TetMesh
 from lbshape.io.cache import artifact_lock, load_artifact, save_artifact
 from lbshape.pipeline.auto_stiffness import auto_stiffness_stage
+from lbshape.pipeline.estimate import estimate_operators
 from lbshape.pipeline.meshes import (
     build_mesh,
     example_meshes,
@@ -205,8 +206,8 @@ def stage_names(scene: Scene) -> list[str]:
         names.append("forces")
     if scene.has_examples or scene.has_local_examples:
         names.append("projections")
-    if scene.is_free:
-        names.append("frame")
+    if scene.is_free or "forces" in names:  # the estimate needs the polynomial forces
+        names.append("frame" if scene.is_free else "estimate")
     return names
 
 
@@ -294,6 +295,9 @@ def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
     frame = (ranks.on_root("frame", lambda: frame_tensors(mesh.points, mesh.tets,
                                                           elastic.mass, U))
              if scene.is_free else None)
+    estimate = (ranks.on_root("estimate", lambda: estimate_operators(
+        scene, mesh, scene.material, fixed, U))
+        if polynomial is not None and "estimate" in stages.names else None)
     if not ranks.root:
         return None, None
     names = [] if scene.examples is None else [example_label(p) for p in scene.examples.poses]
@@ -301,7 +305,7 @@ def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
                     omega2=np.asarray(elastic.modes.omega2), cubature=cubature,
                     polynomial=polynomial, examples=examples, local=local,
                     frame=frame, example_names=names, stage_ranks=ranks.count,
-                    auto_stiffness=auto)
+                    auto_stiffness=auto, estimate=estimate)
 
 
 # ------------------------------------------------------------- the elastic stages

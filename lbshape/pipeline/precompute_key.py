@@ -72,7 +72,8 @@ ARTIFACT_NAME = "precompute"
 STAGE_VERSIONS = {"mesh": 1, "modes": 1, "derivatives": 2, "basis": 1, "lb": 1,
                   "examples": 1, "target-table": 1, "lb-cubature": 1, "regions": 1,
                   "static-equilibria": 1, "example-stiffness": 1, "example-basis": 1,
-                  "cubature": 1, "forces": 1, "projections": 1, "frame": 1}
+                  "cubature": 1, "forces": 1, "projections": 1, "frame": 1,
+                  "estimate": 1}
 
 
 def load_key(scene: Scene) -> list[dict]:
@@ -139,4 +140,7 @@ def stage_keys(scene: Scene, names: list[str], settings: list) -> dict[str, str]
     key("projections", cubature, mesh, material, shape,
         [] if scene.examples is None else [example_label(p) for p in scene.examples.poses])
     key("frame", cubature, mesh, material)
+    # the error estimate's operators: the final U (out of the cubature stage), the mesh
+    # and its fixed vertices, the material and the loads' patterns
+    key("estimate", cubature, mesh, material, loads)
     return keys

@@ -59,6 +59,9 @@ PIPELINE_VERSION = 21
 FRAME_FIELDS = ("mass", "center", "Y0", "G", "C", "H", "S", "translation")
 #: arrays every artifact holds, and those of scenes with examples
 _REQUIRED = ("points", "tets", "fixed", "U", "omega2", "cub_elements", "cub_weights")
+#: the estimate stage's arrays are stored as ``est_<name>``; ``est_present`` (fixed
+#: objects) is 1 when they are there
+ESTIMATE_PREFIX, ESTIMATE_FLAG = "est_", "est_present"
 _REQUIRED_FRAME = tuple(f"frame_{name}" for name in FRAME_FIELDS)
 _REQUIRED_EXAMPLES = ("eigenvalues", "eigenvectors", "example_coefficients", "projection",
                       "alignment_residuals", "lb_cub_elements", "lb_cub_weights",
@@ -300,6 +303,8 @@ class Precomputed:
         auto_stiffness: the k_ex the precompute set for ``stiffness = "auto"`` and why
             (:class:`~lbshape.shapespace.auto_stiffness.AutoStiffness`), or None (a
             number in the scene, or no examples).
+        estimate: the error estimate's per-object operators (the ``estimate`` stage,
+            :meth:`~lbshape.analysis.error_estimate.EstimateOperators.arrays`), or None.
     """
 
     scene: str
@@ -314,6 +319,7 @@ class Precomputed:
     frame: FrameTensors | None = None
     stages: StageReport = field(default_factory=StageReport)
     auto_stiffness: AutoStiffness | None = None
+    estimate: dict | None = None
 
     @property
     def U(self) -> np.ndarray:
@@ -377,6 +383,9 @@ class Precomputed:
                                             else meta.get("stage_cached", ()))),
             auto_stiffness=(AutoStiffness.from_dict(meta["example_stiffness"])
                             if meta.get("example_stiffness") else None),
+            estimate=({k[len(ESTIMATE_PREFIX):]: v for k, v in arrays.items()
+                       if k.startswith(ESTIMATE_PREFIX)}
+                      if int(np.asarray(arrays.get(ESTIMATE_FLAG, [0]))[0]) else None),
         )
 
 
@@ -401,7 +410,8 @@ def artifact(scene: Scene, *, mesh: TetMesh, fixed: np.ndarray, U: np.ndarray,
              examples: GlobalExamples | None, local: LocalExamples | None,
              frame: FrameTensors | None, example_names: list[str],
              stage_ranks: dict[str, int],
-             auto_stiffness: AutoStiffness | None = None) -> tuple[dict, dict]:
+             auto_stiffness: AutoStiffness | None = None,
+             estimate: dict | None = None) -> tuple[dict, dict]:
     """The stages' results as the artifact's (arrays, meta) (read by
     :meth:`Precomputed.from_arrays`)."""
     arrays = {
@@ -432,6 +442,9 @@ def artifact(scene: Scene, *, mesh: TetMesh, fixed: np.ndarray, U: np.ndarray,
     if frame is not None:
         arrays.update({f"frame_{name}": np.asarray(getattr(frame, name))
                        for name in FRAME_FIELDS})
+    else:  # a fixed object: the estimate stage's operators, or the flag saying none
+        arrays[ESTIMATE_FLAG] = np.array([int(estimate is not None)])
+        arrays.update({ESTIMATE_PREFIX + k: v for k, v in (estimate or {}).items()})
     return arrays, meta
 
 
@@ -443,6 +456,8 @@ def required_arrays(scene: Scene) -> tuple[str, ...]:
             + LocalShapeSpace.required_arrays(len(scene.regions))
     if scene.is_free:
         required = required + _REQUIRED_FRAME
+    else:
+        required = required + (ESTIMATE_FLAG,)
     return required
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 from types import SimpleNamespace
@@ -199,3 +200,33 @@ def test_summary_line_words_for_the_estimate():
     assert estimate_phrase({"error_estimate": 0.0123}) == "error estimate 1.23%"
     assert estimate_phrase({"error_estimate": None, "error_estimate_message": "free body"}) \
         == "no error estimate (free body)"
+
+
+def test_precompute_stores_the_estimate_operators_and_the_run_uses_them(monkeypatch):
+    """The ``estimate`` stage holds everything per object (M, K₀, the force operators, M U,
+    K₀ U, the loads' patterns), so a run builds none of it: the estimate from the stored
+    operators equals the one built from scratch, and a run never assembles K₀."""
+    import lbshape.pipeline.estimate as pipeline_estimate
+    from lbshape.pipeline.precompute import stage_names
+
+    scene = with_step(load_scene("demo"), 1.0 / 60.0, 0.2)
+    assert "estimate" in stage_names(scene)
+    pre = precompute(scene)
+    assert pre.estimate is not None and {"M_data", "K_data", "MU", "patterns"} <= set(
+        pre.estimate)
+    stored = simulate(scene, pre, method="reduced").stats["error_estimate"]
+    built = []
+
+    def counting(*args, **kwargs):
+        built.append(1)
+        return pipeline_estimate.__dict__["_operators_from_scratch"](*args, **kwargs)
+
+    monkeypatch.setattr(pipeline_estimate, "_operators_from_scratch",
+                        pipeline_estimate.estimate_operators, raising=False)
+    monkeypatch.setattr(pipeline_estimate, "estimate_operators", counting)
+    again = simulate(scene, pre, method="reduced").stats["error_estimate"]
+    assert built == [] and again == stored
+    scratch = simulate(scene, dataclasses.replace(pre, estimate=None),
+                       method="reduced").stats["error_estimate"]
+    assert built == [1]
+    assert scratch == pytest.approx(stored, rel=1e-10)
