@@ -71,7 +71,7 @@ ARTIFACT_NAME = "precompute"
 #: and those of the stages after it are then recomputed)
 STAGE_VERSIONS = {"mesh": 1, "modes": 1, "derivatives": 2, "basis": 1, "lb": 1,
                   "examples": 1, "target-table": 1, "lb-cubature": 1, "regions": 1,
-                  "static-equilibria": 1, "example-stiffness": 1, "example-basis": 1,
+                  "static-equilibria": 1, "example-stiffness": 1, "example-basis": 2,
                   "cubature": 1, "forces": 1, "projections": 1, "frame": 1}
 
 

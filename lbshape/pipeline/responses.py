@@ -31,6 +31,11 @@
   responses lose their rigid part (its frame holds the rigid motion, and the full
   reference pulls towards the target placed by its best rigid fit); ``K + k_ex M`` is
   positive definite without supports.
+* **Anchor responses** (:func:`anchor_responses`): local examples move a region's target
+  rigidly with the anchor fit ``Q_R F_R u[anchor]``, a feedback from a ring of anchor
+  vertices that the example responses do not hold; the responses ``(K + k_ex S)⁻¹ M_R Q_R``
+  to the fit's loads and ``(K + k_ex S)⁻¹ F_Rᵀ`` to its read-out are appended after them
+  (``docs/decisions.md``, "Local examples' anchor responses").
 """
 
 from __future__ import annotations
@@ -54,7 +59,7 @@ from lbshape.geometry.mesh import TetMesh
 from lbshape.pipeline.meshes import selected_vertices
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.auto_stiffness import AUTO_RULE
-from lbshape.shapespace.local_regions import rigid_fields
+from lbshape.shapespace.local_regions import anchor_fit, rigid_fields
 from lbshape.shapespace.local_space import RegionSpace
 from lbshape.shapespace.projections import block_basis
 
@@ -224,6 +229,54 @@ def example_responses(stiffness, spring, k_ex: float, fields: np.ndarray, mass,
             blocks.append(block)
             load = mass @ block
     return np.hstack(blocks)
+
+
+def anchor_responses(stiffness, spring, k_ex: float, mesh: TetMesh, density: float,
+                     regions: Sequence[RegionSpace], fixed_vertices: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """The object's static responses to each anchored region's rigid fit: ``(load,
+    read-out)``, each (3n, 6 per anchored region), zero at the fixed DOFs.
+
+    The anchor fit ``g = F_R u[anchor]`` places the region's target ``Q_R g``; the pull
+    ``k_ex M_R Q_R g`` loads the object along ``M_R Q_R`` (load responses ``(K + k_ex
+    S)⁻¹ M_R Q_R``) and reads the state through ``F_R`` (read-out responses ``(K + k_ex
+    S)⁻¹ F_Rᵀ``).
+
+    Args:
+        stiffness: (3n, 3n) K without constraints, N/m.
+        spring: (3n, 3n) S = Σ_R M^(R), kg (:func:`example_target_fields`).
+        k_ex: the example stiffness in 1/s², > 0.
+        mesh: the object's rest mesh.
+        density: ρ in kg/m³ (the regions' masses).
+        regions: the local shape space's regions (unanchored ones give none, no
+            regions none at all).
+        fixed_vertices: (f,) clamped vertices.
+    """
+    n3 = stiffness.shape[0]
+    loads, readouts = [], []
+    for region in regions:
+        if not region.anchor.any():
+            continue
+        sub = region.submesh(mesh)
+        mass_R = mass_matrix(sub, density)
+        Q, F, anchor_rows = anchor_fit(sub.points, mass_R, region.anchor)
+        rows = (3 * region.vertices[:, None] + np.arange(3)).ravel()
+        load, readout = np.zeros((n3, 6)), np.zeros((n3, 6))
+        load[rows] = np.asarray(mass_R @ Q)
+        readout[rows[anchor_rows]] = F.T
+        loads.append(load)
+        readouts.append(readout)
+    if not loads:
+        return np.zeros((n3, 0)), np.zeros((n3, 0))
+    free = np.ones(n3, dtype=bool)
+    free[(3 * np.asarray(fixed_vertices, dtype=np.int64)[:, None] + np.arange(3)).ravel()] = False
+    shifted = sp.csr_matrix(stiffness + k_ex * spring)[free][:, free]
+    G = np.hstack(loads + readouts)
+    X = np.zeros_like(G)
+    with serial_cholesky(shifted, prefix="anchor_", what="the spring-shifted stiffness") \
+            as solve:
+        X[free] = solve(G[free])
+    return X[:, :G.shape[1] // 2], X[:, G.shape[1] // 2:]
 
 
 def response_key(scene: Scene) -> dict:

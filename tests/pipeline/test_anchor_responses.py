@@ -1,0 +1,42 @@
+"""Local examples: the precomputed basis holds the object's responses to each region's
+anchor fit (its loads ``M_R Q_R`` and its read-out ``F_Rᵀ``, shifted by the example
+spring), the feedback through which the reduced run drifted from the full one
+(``docs/decisions.md``, "Local examples' anchor responses")."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.responses import anchor_responses, example_response_stiffness
+from lbshape.pipeline.simulate import full_simulation
+from lbshape.scene.reader import load_scene
+from lbshape.scene.schema import LocalRegion, Selection
+
+
+def test_example_basis_holds_the_anchor_responses_of_local_examples(tmp_path, monkeypatch):
+    monkeypatch.setenv("LBSHAPE_CACHE", str(tmp_path / "cache"))
+    demo = load_scene("demo")
+    scene = dataclasses.replace(demo, name="demo-two-regions", regions=(
+        LocalRegion("low", Selection(region="z < 0.5"), (0,)),
+        LocalRegion("high", Selection(region="z >= 0.5"), (1,))))
+    pre = precompute(scene, save=False)
+    full = full_simulation(scene, pre)
+    n3 = pre.U.shape[0]
+    K = full.elastic.tangent(np.zeros(n3))
+    load, readout = anchor_responses(K, full._local.mass, example_response_stiffness(scene),
+                                     pre.mesh, pre.material.density, pre.local.regions,
+                                     pre.fixed_vertices)
+    anchored = sum(region.anchor.any() for region in pre.local.regions)
+    assert anchored >= 1 and load.shape == readout.shape == (n3, 6 * anchored)
+    mass = mass_matrix(pre.mesh, pre.material.density)
+    for X in (load, readout):
+        outside = X - pre.U @ (pre.U.T @ (mass @ X))
+        share = (np.sqrt(np.einsum("ij,ij->j", outside, mass @ outside))
+                 / np.sqrt(np.einsum("ij,ij->j", X, mass @ X)))
+        assert share.max() < 1e-6, share.max()
+
+
