@@ -69,7 +69,7 @@ def anchor_basis_responses(pre, full, K) -> tuple[np.ndarray, np.ndarray]:
     (:func:`lbshape.pipeline.responses.anchor_responses`)."""
     load, readout = anchor_responses(K, full._local.mass, full._k_ex, pre.mesh,
                                      pre.material.density, pre.local.regions,
-                                     pre.fixed_vertices)
+                                     pre.fixed_vertices, sets=2)
     return load[full.free_dofs], readout[full.free_dofs]
 
 

@@ -128,6 +128,7 @@ from lbshape.pipeline.precomputed import (
 )
 from lbshape.pipeline.responses import (
     anchor_responses,
+    anchor_room,
     example_response_stiffness,
     example_responses,
     example_target_fields,
@@ -391,26 +392,25 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
             if scene.is_free else max(MAX_APPENDED_BASIS - elastic.basis.r, 0))
     if room == 0 and local is None:  # nothing could be appended: no factorisation
         return elastic.basis
-    density = scene.material.density
+    density, mass = scene.material.density, elastic.mass
     if local is not None:
-        fields, spring = example_target_fields(mesh, elastic.mass, density,
-                                               regions=local.space.regions)
+        fields, spring = example_target_fields(mesh, mass, density, regions=local.space.regions)
     else:
         fields, spring = example_target_fields(mesh, elastic.mass, density,
                                                eigenvectors=shape.targets.eigenvectors,
                                                targets=shape.targets.path)
     responses = example_responses(elastic.modes.stiffness, spring,
-                                  example_response_stiffness(scene, auto), fields,
-                                  elastic.mass,
+                                  example_response_stiffness(scene, auto), fields, elastic.mass,
                                   fixed, rigid=(rigid_body_modes(mesh.points, elastic.mass)
                                                 if scene.is_free else None))
     basis = append_directions(elastic.basis, responses, elastic.mass, elastic.modes.stiffness,
                               kind="example_responses", max_columns=room)
-    anchored = np.hstack(anchor_responses(  # beyond the cap: the anchor fit's feedback
+    X = np.hstack(anchor_responses(  # beyond the cap: the anchor fit's feedback
         elastic.modes.stiffness, spring, example_response_stiffness(scene, auto), mesh,
         density, () if local is None or scene.is_free else local.space.regions, fixed))
-    return append_directions(basis, anchored, elastic.mass, elastic.modes.stiffness,
-                             kind="example_responses", min_outside=0.0, rtol=0.0)
+    return append_directions(basis, X, elastic.mass, elastic.modes.stiffness, rtol=0.0,
+                             min_outside=0.0, max_columns=anchor_room(
+                                 scene, mesh.n_tets, basis.r, X.shape[1]))
 
 
 def _derivatives(scene: Scene, mesh: TetMesh, fixed: np.ndarray, modes: LinearModes,

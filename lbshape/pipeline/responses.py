@@ -53,6 +53,7 @@ from lbshape.dynamics.loads import (
     region_torque_pattern,
 )
 from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.elastic.polynomial_forces import resolve_force_model
 from lbshape.errors import LbshapeError
 from lbshape.fem.cholesky import serial_cholesky
 from lbshape.geometry.mesh import TetMesh
@@ -65,6 +66,9 @@ from lbshape.shapespace.projections import block_basis
 
 #: Krylov blocks of the example responses (:func:`example_responses`)
 EXAMPLE_RESPONSE_DEPTH = 2
+#: the anchor responses local examples append (:func:`anchor_responses`): 0 none, 1 the
+#: loads', 2 the read-outs' too
+ANCHOR_RESPONSE_SETS = 2
 
 
 def mesh_load_patterns(scene: Scene, mesh: TetMesh, mass) -> list[TimedLoad]:
@@ -232,10 +236,11 @@ def example_responses(stiffness, spring, k_ex: float, fields: np.ndarray, mass,
 
 
 def anchor_responses(stiffness, spring, k_ex: float, mesh: TetMesh, density: float,
-                     regions: Sequence[RegionSpace], fixed_vertices: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray]:
+                     regions: Sequence[RegionSpace], fixed_vertices: np.ndarray,
+                     sets: int | None = None) -> tuple[np.ndarray, ...]:
     """The object's static responses to each anchored region's rigid fit: ``(load,
-    read-out)``, each (3n, 6 per anchored region), zero at the fixed DOFs.
+    read-out)``, each (3n, 6 per anchored region), zero at the fixed DOFs; ``sets``
+    (default :data:`ANCHOR_RESPONSE_SETS`) 1: the loads' only, 0: none.
 
     The anchor fit ``g = F_R u[anchor]`` places the region's target ``Q_R g``; the pull
     ``k_ex M_R Q_R g`` loads the object along ``M_R Q_R`` (load responses ``(K + k_ex
@@ -251,8 +256,9 @@ def anchor_responses(stiffness, spring, k_ex: float, mesh: TetMesh, density: flo
         regions: the local shape space's regions (unanchored ones give none, no
             regions none at all).
         fixed_vertices: (f,) clamped vertices.
+        sets: 0, 1 or 2, see above.
     """
-    n3 = stiffness.shape[0]
+    n3, sets = stiffness.shape[0], ANCHOR_RESPONSE_SETS if sets is None else sets
     loads, readouts = [], []
     for region in regions:
         if not region.anchor.any():
@@ -266,17 +272,32 @@ def anchor_responses(stiffness, spring, k_ex: float, mesh: TetMesh, density: flo
         readout[rows[anchor_rows]] = F.T
         loads.append(load)
         readouts.append(readout)
-    if not loads:
-        return np.zeros((n3, 0)), np.zeros((n3, 0))
+    if not loads or not sets:
+        return (np.zeros((n3, 0)),) * max(sets, 1)
     free = np.ones(n3, dtype=bool)
     free[(3 * np.asarray(fixed_vertices, dtype=np.int64)[:, None] + np.arange(3)).ravel()] = False
     shifted = sp.csr_matrix(stiffness + k_ex * spring)[free][:, free]
-    G = np.hstack(loads + readouts)
+    G = np.hstack(loads + readouts[:len(readouts) * (sets - 1)])
     X = np.zeros_like(G)
     with serial_cholesky(shifted, prefix="anchor_", what="the spring-shifted stiffness") \
             as solve:
         X[free] = solve(G[free])
-    return X[:, :G.shape[1] // 2], X[:, G.shape[1] // 2:]
+    return tuple(np.hsplit(X, sets))
+
+
+def anchor_room(scene: Scene, n_tets: int, r: int, wanted: int) -> int:
+    """How many of ``wanted`` anchor responses a basis of r columns takes: all while the
+    scene's reduced force stays the exact polynomial one
+    (:func:`lbshape.elastic.polynomial_forces.resolve_force_model`), none under the
+    cubature (its few elements, trained for the smaller basis, miss the new columns)."""
+    def exact(columns: int) -> bool:
+        return resolve_force_model(scene.reduced.forces, scene.material.model, n_tets,
+                                   columns) == "polynomial"
+
+    room = wanted if exact(r) else 0
+    while room > 0 and not exact(r + room):
+        room -= 1
+    return room
 
 
 def response_key(scene: Scene) -> dict:

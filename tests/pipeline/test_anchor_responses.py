@@ -29,7 +29,7 @@ def test_example_basis_holds_the_anchor_responses_of_local_examples(tmp_path, mo
     K = full.elastic.tangent(np.zeros(n3))
     load, readout = anchor_responses(K, full._local.mass, example_response_stiffness(scene),
                                      pre.mesh, pre.material.density, pre.local.regions,
-                                     pre.fixed_vertices)
+                                     pre.fixed_vertices, sets=2)
     anchored = sum(region.anchor.any() for region in pre.local.regions)
     assert anchored >= 1 and load.shape == readout.shape == (n3, 6 * anchored)
     mass = mass_matrix(pre.mesh, pre.material.density)
