@@ -53,9 +53,8 @@ from lbshape.spectral.spectrum import LBSpectrum
 #: coordinates of the dynamics) instead of ``(√ρ U)ᵀ M₃ L``. 18: U of a fixed object
 #: with examples ends with the example responses it misses (``example-basis`` stage).
 #: 20: a free body's U too (its responses without their rigid part). 21: a free body
-#: whose own r reaches the responses' cap still gets a few of them. 22: local examples'
-#: U ends with the anchor fit's responses (``example-basis`` stage).
-PIPELINE_VERSION = 22
+#: whose own r reaches the responses' cap still gets a few of them.
+PIPELINE_VERSION = 21
 #: FrameTensors fields stored as ``frame_<field>`` arrays (free bodies)
 FRAME_FIELDS = ("mass", "center", "Y0", "G", "C", "H", "S", "translation")
 #: arrays every artifact holds, and those of scenes with examples

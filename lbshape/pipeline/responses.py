@@ -34,8 +34,8 @@
 * **Anchor responses** (:func:`anchor_responses`): local examples move a region's target
   rigidly with the anchor fit ``Q_R F_R u[anchor]``, a feedback from a ring of anchor
   vertices that the example responses do not hold; the responses ``(K + k_ex S)⁻¹ M_R Q_R``
-  to the fit's loads and ``(K + k_ex S)⁻¹ F_Rᵀ`` to its read-out are appended after them
-  (``docs/decisions.md``, "Local examples' anchor responses").
+  to the fit's loads and ``(K + k_ex S)⁻¹ F_Rᵀ`` to its read-out can be appended after
+  them (:data:`ANCHOR_RESPONSE_SETS`, off by default: their cost per step).
 """
 
 from __future__ import annotations
@@ -67,8 +67,11 @@ from lbshape.shapespace.projections import block_basis
 #: Krylov blocks of the example responses (:func:`example_responses`)
 EXAMPLE_RESPONSE_DEPTH = 2
 #: the anchor responses local examples append (:func:`anchor_responses`): 0 none, 1 the
-#: loads', 2 the read-outs' too
-ANCHOR_RESPONSE_SETS = 2
+#: loads', 2 the read-outs' too. None by default: within the exact force's budget
+#: (:func:`anchor_room`) teddy-local takes 16 (r 48 → 64) and goes 7.1 → 6.5 % from full
+#: (auto k_ex; 4.40 → 4.19 % at its own) for 0.32 → 2.2 ms per step; cross takes 2
+#: (``docs/decisions.md``, "Local examples' anchor responses: built, off by default")
+ANCHOR_RESPONSE_SETS = 0
 
 
 def mesh_load_patterns(scene: Scene, mesh: TetMesh, mass) -> list[TimedLoad]:

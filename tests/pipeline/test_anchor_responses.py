@@ -1,7 +1,7 @@
 """Local examples: the precomputed basis holds the object's responses to each region's
 anchor fit (its loads ``M_R Q_R`` and its read-out ``F_Rᵀ``, shifted by the example
 spring), the feedback through which the reduced run drifted from the full one
-(``docs/decisions.md``, "Local examples' anchor responses")."""
+(``docs/decisions.md``, "Local examples' anchor responses: built, off by default")."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import dataclasses
 import numpy as np
 
 from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.pipeline import responses
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.responses import anchor_responses, example_response_stiffness
 from lbshape.pipeline.simulate import full_simulation
@@ -19,6 +20,7 @@ from lbshape.scene.schema import LocalRegion, Selection
 
 def test_example_basis_holds_the_anchor_responses_of_local_examples(tmp_path, monkeypatch):
     monkeypatch.setenv("LBSHAPE_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(responses, "ANCHOR_RESPONSE_SETS", 2)  # both sets, all columns
     demo = load_scene("demo")
     scene = dataclasses.replace(demo, name="demo-two-regions", regions=(
         LocalRegion("low", Selection(region="z < 0.5"), (0,)),
