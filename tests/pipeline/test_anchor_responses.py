@@ -12,7 +12,11 @@ import numpy as np
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.pipeline import responses
 from lbshape.pipeline.precompute import precompute
-from lbshape.pipeline.responses import anchor_responses, example_response_stiffness
+from lbshape.pipeline.responses import (
+    anchor_responses,
+    anchor_room,
+    example_response_stiffness,
+)
 from lbshape.pipeline.simulate import full_simulation
 from lbshape.scene.reader import load_scene
 from lbshape.scene.schema import LocalRegion, Selection
@@ -42,3 +46,19 @@ def test_example_basis_holds_the_anchor_responses_of_local_examples(tmp_path, mo
         assert share.max() < 1e-6, share.max()
 
 
+
+
+def test_anchor_room_keeps_the_exact_polynomial_force():
+    """The anchor responses enter only while the reduced force stays the exact polynomial
+    one: all under ``polynomial``, none under ``cubature``, and under ``auto`` as many as
+    its build budget allows (teddy-local's 1896 elements at r = 48: 16)."""
+    scene = load_scene("teddy-local")
+
+    def forces(choice):
+        return dataclasses.replace(scene, reduced=dataclasses.replace(scene.reduced,
+                                                                      forces=choice))
+
+    assert anchor_room(forces("polynomial"), 1896, 48, 48) == 48
+    assert anchor_room(forces("cubature"), 1896, 48, 48) == 0
+    assert anchor_room(forces("auto"), 1896, 48, 48) == 16
+    assert anchor_room(forces("auto"), 1896, 70, 48) == 0
