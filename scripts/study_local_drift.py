@@ -29,9 +29,9 @@ import scipy.sparse.linalg as spla
 
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.responses import anchor_responses
 from lbshape.pipeline.simulate import full_simulation, reduced_simulation
 from lbshape.scene import load_scene
-from lbshape.shapespace.local_regions import anchor_fit
 
 
 def auto_scene(beta: float):
@@ -64,22 +64,13 @@ def engines(scene, pre, steps: int) -> tuple[float, float]:
     return worst[0] / worst[2], worst[1] / worst[2]
 
 
-def anchor_responses(pre, shifted_lu, fd) -> tuple[np.ndarray, np.ndarray]:
-    """(load, read-out) responses of ``K₀ + k_ex S`` on the free DOFs, 6 per region each."""
-    n3 = pre.U.shape[0]
-    load, readout = [], []
-    for region in pre.local.regions:
-        sub = region.submesh(pre.mesh)
-        mass_R = mass_matrix(sub, pre.material.density)
-        Q, F, rows_a = anchor_fit(sub.points, mass_R, region.anchor)
-        rows = (3 * region.vertices[:, None] + np.arange(3)).ravel()
-        P, R = np.zeros((n3, 6)), np.zeros((n3, 6))
-        P[rows] = np.asarray(mass_R @ Q)
-        R[rows[rows_a]] = F.T
-        load.append(P[fd])
-        readout.append(R[fd])
-    solve = lambda G: np.column_stack([shifted_lu.solve(g) for g in G.T])  # noqa: E731
-    return solve(np.hstack(load)), solve(np.hstack(readout))
+def anchor_basis_responses(pre, full, K) -> tuple[np.ndarray, np.ndarray]:
+    """(load, read-out) responses of ``K₀ + k_ex S`` on the free DOFs, 6 per region each
+    (:func:`lbshape.pipeline.responses.anchor_responses`)."""
+    load, readout = anchor_responses(K, full._local.mass, full._k_ex, pre.mesh,
+                                     pre.material.density, pre.local.regions,
+                                     pre.fixed_vertices, sets=2)
+    return load[full.free_dofs], readout[full.free_dofs]
 
 
 def linear_models(scene, pre, steps: int) -> dict[str, float]:
@@ -88,10 +79,11 @@ def linear_models(scene, pre, steps: int) -> dict[str, float]:
     local, fd, k, h = full._local, full.free_dofs, full._k_ex, scene.simulation.dt
     n3 = pre.U.shape[0]
     M = mass_matrix(pre.mesh, pre.material.density).tocsr()[fd][:, fd]
-    K = full.elastic.tangent(np.zeros(n3)).tocsr()[fd][:, fd]
+    K0 = full.elastic.tangent(np.zeros(n3))
+    K = K0.tocsr()[fd][:, fd]
     D = scene.damping.alpha * M + scene.damping.beta * K
     A = (K + k * local.mass.tocsr()[fd][:, fd]).tocsc()
-    load, readout = anchor_responses(pre, spla.splu(A), fd)
+    load, readout = anchor_basis_responses(pre, full, K0)
     U = pre.U[fd]
 
     def appended(B):
@@ -143,9 +135,7 @@ def enlarged_engines(scene, pre, steps: int) -> dict[str, float]:
     fd, n3 = full.free_dofs, pre.U.shape[0]
     mass = mass_matrix(pre.mesh, pre.material.density).tocsr()
     M = mass[fd][:, fd]
-    K = full.elastic.tangent(np.zeros(n3)).tocsr()[fd][:, fd]
-    A = (K + full._k_ex * full._local.mass.tocsr()[fd][:, fd]).tocsc()
-    load, readout = anchor_responses(pre, spla.splu(A), fd)
+    load, readout = anchor_basis_responses(pre, full, full.elastic.tangent(np.zeros(n3)))
     U = pre.U[fd]
     engines_by_name = {}
     for name, B in (("U + anchor loads", load),

@@ -128,6 +128,8 @@ from lbshape.pipeline.precomputed import (
     required_arrays,
 )
 from lbshape.pipeline.responses import (
+    anchor_responses,
+    anchor_room,
     example_response_stiffness,
     example_responses,
     example_target_fields,
@@ -387,29 +389,32 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
                    auto: float | None = None) -> NonlinearBasis:
     """The ``example-basis`` stage: U with the example responses it misses appended
     (:func:`lbshape.pipeline.responses.example_responses`,
-    :func:`lbshape.elastic.basis.append_directions`); ``auto``: the k_ex of
+    :func:`lbshape.elastic.basis.append_directions`), local examples' anchor responses
+    (:func:`lbshape.pipeline.responses.anchor_responses`) on top; ``auto``: the k_ex of
     ``stiffness = "auto"`` (the ``example-stiffness`` stage)."""
-    if scene.is_free:
-        room = max(MAX_APPENDED_FREE_BODY - elastic.basis.r, MIN_APPENDED_FREE_BODY)
-    else:
-        room = MAX_APPENDED_BASIS - elastic.basis.r
-    if room <= 0:  # nothing could be appended: no factorisation
+    room = (max(MAX_APPENDED_FREE_BODY - elastic.basis.r, MIN_APPENDED_FREE_BODY)
+            if scene.is_free else max(MAX_APPENDED_BASIS - elastic.basis.r, 0))
+    if room == 0 and local is None:  # nothing could be appended: no factorisation
         return elastic.basis
-    density = scene.material.density
+    density, mass = scene.material.density, elastic.mass
     if local is not None:
-        fields, spring = example_target_fields(mesh, elastic.mass, density,
-                                               regions=local.space.regions)
+        fields, spring = example_target_fields(mesh, mass, density, regions=local.space.regions)
     else:
         fields, spring = example_target_fields(mesh, elastic.mass, density,
                                                eigenvectors=shape.targets.eigenvectors,
                                                targets=shape.targets.path)
     responses = example_responses(elastic.modes.stiffness, spring,
-                                  example_response_stiffness(scene, auto), fields,
-                                  elastic.mass,
+                                  example_response_stiffness(scene, auto), fields, elastic.mass,
                                   fixed, rigid=(rigid_body_modes(mesh.points, elastic.mass)
                                                 if scene.is_free else None))
-    return append_directions(elastic.basis, responses, elastic.mass, elastic.modes.stiffness,
-                             kind="example_responses", max_columns=room)
+    basis = append_directions(elastic.basis, responses, elastic.mass, elastic.modes.stiffness,
+                              kind="example_responses", max_columns=room)
+    X = np.hstack(anchor_responses(  # beyond the cap: the anchor fit's feedback
+        elastic.modes.stiffness, spring, example_response_stiffness(scene, auto), mesh,
+        density, () if local is None or scene.is_free else local.space.regions, fixed))
+    return append_directions(basis, X, elastic.mass, elastic.modes.stiffness, rtol=0.0,
+                             min_outside=0.0, max_columns=anchor_room(
+                                 scene, mesh.n_tets, basis.r, X.shape[1]))
 
 
 def _derivatives(scene: Scene, mesh: TetMesh, fixed: np.ndarray, modes: LinearModes,

@@ -25,6 +25,7 @@ from lbshape import __version__
 from lbshape.elastic.basis import default_linear_modes
 from lbshape.geometry.shapes import MESHES_DIR, get_shape
 from lbshape.io.cache import cache_key, file_digest
+from lbshape.pipeline import responses
 from lbshape.pipeline.precomputed import PIPELINE_VERSION
 from lbshape.pipeline.responses import (
     EXAMPLE_RESPONSE_DEPTH,
@@ -51,6 +52,7 @@ def scene_cache_key(scene: Scene) -> str:
         "precompute", scene.precompute_key_fields(), response_key(scene), sources,
         {"lbshape": __version__, "dolfinx": dolfinx.__version__, "numpy": np.__version__},
         CUBATURE_TRAINING_POSES, PRECOMPUTE_SEED, PIPELINE_VERSION,
+        responses.ANCHOR_RESPONSE_SETS,
     )
 
 
@@ -71,7 +73,7 @@ ARTIFACT_NAME = "precompute"
 #: and those of the stages after it are then recomputed)
 STAGE_VERSIONS = {"mesh": 1, "modes": 1, "derivatives": 2, "basis": 1, "lb": 1,
                   "examples": 1, "target-table": 1, "lb-cubature": 1, "regions": 1,
-                  "static-equilibria": 1, "example-stiffness": 1, "example-basis": 1,
+                  "static-equilibria": 1, "example-stiffness": 1, "example-basis": 2,
                   "cubature": 1, "forces": 1, "projections": 1, "frame": 1,
                   "estimate": 1}
 
@@ -133,7 +135,8 @@ def stage_keys(scene: Scene, names: list[str], settings: list) -> dict[str, str]
                list(AUTO_RULE))
     k_ex = auto or example_response_stiffness(scene)
     current = key("example-basis", current, modes, derivatives, material, shape, k_ex,
-                  settings, EXAMPLE_RESPONSE_DEPTH) or current
+                  settings, EXAMPLE_RESPONSE_DEPTH, responses.ANCHOR_RESPONSE_SETS,
+                  reduced.forces) or current
     cubature = key("cubature", current, mesh, material, reduced.s,
                    reduced.cubature_tolerance, CUBATURE_TRAINING_POSES, PRECOMPUTE_SEED)
     key("forces", cubature, mesh, material, reduced.forces)

@@ -31,6 +31,11 @@
   responses lose their rigid part (its frame holds the rigid motion, and the full
   reference pulls towards the target placed by its best rigid fit); ``K + k_ex M`` is
   positive definite without supports.
+* **Anchor responses** (:func:`anchor_responses`): local examples move a region's target
+  rigidly with the anchor fit ``Q_R F_R u[anchor]``, a feedback from a ring of anchor
+  vertices that the example responses do not hold; the responses ``(K + k_ex S)⁻¹ M_R Q_R``
+  to the fit's loads and ``(K + k_ex S)⁻¹ F_Rᵀ`` to its read-out can be appended after
+  them (:data:`ANCHOR_RESPONSE_SETS`, off by default: their cost per step).
 """
 
 from __future__ import annotations
@@ -48,18 +53,25 @@ from lbshape.dynamics.loads import (
     region_torque_pattern,
 )
 from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.elastic.polynomial_forces import resolve_force_model
 from lbshape.errors import LbshapeError
 from lbshape.fem.cholesky import serial_cholesky
 from lbshape.geometry.mesh import TetMesh
 from lbshape.pipeline.meshes import selected_vertices
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.auto_stiffness import AUTO_RULE
-from lbshape.shapespace.local_regions import rigid_fields
+from lbshape.shapespace.local_regions import anchor_fit, rigid_fields
 from lbshape.shapespace.local_space import RegionSpace
 from lbshape.shapespace.projections import block_basis
 
 #: Krylov blocks of the example responses (:func:`example_responses`)
 EXAMPLE_RESPONSE_DEPTH = 2
+#: the anchor responses local examples append (:func:`anchor_responses`): 0 none, 1 the
+#: loads', 2 the read-outs' too. None by default: within the exact force's budget
+#: (:func:`anchor_room`) teddy-local takes 16 (r 48 → 64) and goes 7.1 → 6.5 % from full
+#: (auto k_ex; 4.40 → 4.19 % at its own) for 0.32 → 2.2 ms per step; cross takes 2
+#: (``docs/decisions.md``, "Local examples' anchor responses: built, off by default")
+ANCHOR_RESPONSE_SETS = 0
 
 
 def mesh_load_patterns(scene: Scene, mesh: TetMesh, mass) -> list[TimedLoad]:
@@ -224,6 +236,71 @@ def example_responses(stiffness, spring, k_ex: float, fields: np.ndarray, mass,
             blocks.append(block)
             load = mass @ block
     return np.hstack(blocks)
+
+
+def anchor_responses(stiffness, spring, k_ex: float, mesh: TetMesh, density: float,
+                     regions: Sequence[RegionSpace], fixed_vertices: np.ndarray,
+                     sets: int | None = None) -> tuple[np.ndarray, ...]:
+    """The object's static responses to each anchored region's rigid fit: ``(load,
+    read-out)``, each (3n, 6 per anchored region), zero at the fixed DOFs; ``sets``
+    (default :data:`ANCHOR_RESPONSE_SETS`) 1: the loads' only, 0: none.
+
+    The anchor fit ``g = F_R u[anchor]`` places the region's target ``Q_R g``; the pull
+    ``k_ex M_R Q_R g`` loads the object along ``M_R Q_R`` (load responses ``(K + k_ex
+    S)⁻¹ M_R Q_R``) and reads the state through ``F_R`` (read-out responses ``(K + k_ex
+    S)⁻¹ F_Rᵀ``).
+
+    Args:
+        stiffness: (3n, 3n) K without constraints, N/m.
+        spring: (3n, 3n) S = Σ_R M^(R), kg (:func:`example_target_fields`).
+        k_ex: the example stiffness in 1/s², > 0.
+        mesh: the object's rest mesh.
+        density: ρ in kg/m³ (the regions' masses).
+        regions: the local shape space's regions (unanchored ones give none, no
+            regions none at all).
+        fixed_vertices: (f,) clamped vertices.
+        sets: 0, 1 or 2, see above.
+    """
+    n3, sets = stiffness.shape[0], ANCHOR_RESPONSE_SETS if sets is None else sets
+    loads, readouts = [], []
+    for region in regions:
+        if not region.anchor.any():
+            continue
+        sub = region.submesh(mesh)
+        mass_R = mass_matrix(sub, density)
+        Q, F, anchor_rows = anchor_fit(sub.points, mass_R, region.anchor)
+        rows = (3 * region.vertices[:, None] + np.arange(3)).ravel()
+        load, readout = np.zeros((n3, 6)), np.zeros((n3, 6))
+        load[rows] = np.asarray(mass_R @ Q)
+        readout[rows[anchor_rows]] = F.T
+        loads.append(load)
+        readouts.append(readout)
+    if not loads or not sets:
+        return (np.zeros((n3, 0)),) * max(sets, 1)
+    free = np.ones(n3, dtype=bool)
+    free[(3 * np.asarray(fixed_vertices, dtype=np.int64)[:, None] + np.arange(3)).ravel()] = False
+    shifted = sp.csr_matrix(stiffness + k_ex * spring)[free][:, free]
+    G = np.hstack(loads + readouts[:len(readouts) * (sets - 1)])
+    X = np.zeros_like(G)
+    with serial_cholesky(shifted, prefix="anchor_", what="the spring-shifted stiffness") \
+            as solve:
+        X[free] = solve(G[free])
+    return tuple(np.hsplit(X, sets))
+
+
+def anchor_room(scene: Scene, n_tets: int, r: int, wanted: int) -> int:
+    """How many of ``wanted`` anchor responses a basis of r columns takes: all while the
+    scene's reduced force stays the exact polynomial one
+    (:func:`lbshape.elastic.polynomial_forces.resolve_force_model`), none under the
+    cubature (its few elements, trained for the smaller basis, miss the new columns)."""
+    def exact(columns: int) -> bool:
+        return resolve_force_model(scene.reduced.forces, scene.material.model, n_tets,
+                                   columns) == "polynomial"
+
+    room = wanted if exact(r) else 0
+    while room > 0 and not exact(r + room):
+        room -= 1
+    return room
 
 
 def response_key(scene: Scene) -> dict:
