@@ -287,16 +287,14 @@ def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
             log.info("%s", auto.summary())
     if "example-basis" in stages.names:
         basis = ranks.on_root("example-basis", lambda: _example_basis(
-            scene, mesh, fixed, elastic, shape, local,
-            None if auto is None else auto.k_ex))
+            scene, mesh, fixed, elastic, shape, local, None if auto is None else auto.k_ex))
     U, cubature, polynomial = _force_stages(scene, mesh, basis, ranks)
     examples = None
     if "projections" in stages.names:  # every rank takes part (the others wait)
         examples, local = ranks.on_root("projections", lambda: _projections(
             scene, mesh, U, fixed, shape, local)) or (None, None)
-    frame = (ranks.on_root("frame", lambda: frame_tensors(mesh.points, mesh.tets,
-                                                          elastic.mass, U))
-             if scene.is_free else None)
+    frame = (ranks.on_root("frame", lambda: frame_tensors(
+        mesh.points, mesh.tets, elastic.mass, U)) if scene.is_free else None)
     estimate = (ranks.on_root("estimate", lambda: estimate_operators(
         scene, mesh, scene.material, fixed, U))
         if polynomial is not None and "estimate" in stages.names else None)
@@ -400,19 +398,17 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
     if local is not None:
         fields, spring = example_target_fields(mesh, mass, density, regions=local.space.regions)
     else:
-        fields, spring = example_target_fields(mesh, elastic.mass, density,
-                                               eigenvectors=shape.targets.eigenvectors,
-                                               targets=shape.targets.path)
-    responses = example_responses(elastic.modes.stiffness, spring,
-                                  example_response_stiffness(scene, auto), fields, elastic.mass,
-                                  fixed, rigid=(rigid_body_modes(mesh.points, elastic.mass)
-                                                if scene.is_free else None))
-    basis = append_directions(elastic.basis, responses, elastic.mass, elastic.modes.stiffness,
+        fields, spring = example_target_fields(mesh, mass, density, targets=shape.targets.path,
+                                               eigenvectors=shape.targets.eigenvectors)
+    rigid = rigid_body_modes(mesh.points, mass) if scene.is_free else None
+    K0, k_ex = elastic.modes.stiffness, example_response_stiffness(scene, auto)
+    responses = example_responses(K0, spring, k_ex, fields, mass, fixed, rigid=rigid)
+    basis = append_directions(elastic.basis, responses, mass, K0,
                               kind="example_responses", max_columns=room)
     X = np.hstack(anchor_responses(  # beyond the cap: the anchor fit's feedback
-        elastic.modes.stiffness, spring, example_response_stiffness(scene, auto), mesh,
+        K0, spring, k_ex, mesh,
         density, () if local is None or scene.is_free else local.space.regions, fixed))
-    return append_directions(basis, X, elastic.mass, elastic.modes.stiffness, rtol=0.0,
+    return append_directions(basis, X, mass, K0, rtol=0.0,
                              min_outside=0.0, max_columns=anchor_room(
                                  scene, mesh.n_tets, basis.r, X.shape[1]))
 
