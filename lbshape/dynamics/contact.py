@@ -70,10 +70,10 @@ from lbshape.geometry.mesh import boundary_faces
 
 #: ε of the regularised Coulomb friction (m/s): the slip speed below which the friction
 #: force grows linearly with the slip (module docstring). Held by friction a block creeps
-#: at about ε, 0.26 mm in 0.5 s (tests/dynamics/test_friction.py); the kick and the
-#: deformation solve take its rate implicitly, with its tangent. 3e-4 stalled the full
-#: car's Newton at its wall impact (docs/decisions.md)
-SLIP_SPEED = 5e-4
+#: at about ε, 0.5 mm in 0.5 s (tests/dynamics/test_friction.py); the kick and the
+#: deformation solve take its rate implicitly, with its tangent. 1e-4 held the block to
+#: 0.3 mm but stalled the full car's Newton at its wall impact (docs/decisions.md)
+SLIP_SPEED = 1e-3
 #: machine ε (the contact's round-off level)
 _EPS = float(np.finfo(float).eps)
 

@@ -11,7 +11,7 @@ after ``v₀² / (2 μ g)``. The regularised friction (ε = ``SLIP_SPEED``) cree
 must move less than 1 mm in 0.5 s.
 
 Limits (``friction.*`` in tests/golden.toml, measured values there): travel held
-1 mm, slide acceleration 1 % (θ = 30° and tan θ = ½, μ = 0.3), stopping distance
+1 mm, slide acceleration 2 % (θ = 30° and tan θ = ½, μ = 0.3), stopping distance
 (v₀ = 2 m/s, μ = 0.5) 2 %.
 """
 
@@ -249,8 +249,8 @@ def test_line_search_tames_a_saturating_force():
 @pytest.mark.parametrize("method", ["reduced", pytest.param("full", marks=pytest.mark.slow)])
 def test_block_held_by_friction_stays(block, method):
     """A slope of tan θ = ½ and μ = 0.7 > tan θ: the block is held to the golden travel
-    over 0.5 s (the regularisation's creep ε s / √(1 − s²) is 0.26 mm in that time at
-    ε = 5e-4 m/s; ε = 0.01 m/s creeps 5 mm)."""
+    over 0.5 s (the regularisation's creep ε s / √(1 − s²) is 0.5 mm in that time at
+    ε = 1e-3 m/s; ε = 0.01 m/s creeps 5 mm)."""
     theta, mu = math.atan(0.5), 0.7
     s = math.tan(theta) / mu
     creep = SLIP_SPEED * s / math.sqrt(1 - s * s)  # m/s
