@@ -310,10 +310,12 @@ class ReducedSimulation:
 
     def _relinearise(self) -> None:
         """The force and tangent at the current state again (the next step's first Newton
-        update starts from them), after a change of the forces."""
+        update starts from them), after a change of the forces; the potential the change
+        puts in or takes out at this state (a drag grabbing) is work for the energy monitor."""
         self._force_and_tangent(self.x)
         self._f_start[:], self._K_start[:] = self._f, self._K
-        self._held_energy = self._potential(self.x) - self._spring_energy(self.x)
+        held = self._potential(self.x) - self._spring_energy(self.x)
+        self._work, self._held_energy = self._work + abs(held - self._held_energy), held
 
     @property
     def stepper(self) -> ReducedSimulation:

@@ -134,3 +134,27 @@ def test_explicit_limit_is_the_mobility_bound():
     # λ_max(rowsᵀ rows) = 4, plus 1/m = 0.5 and arm²/I = 4 / 8 = 0.5: λ = 5
     assert explicit_stiffness_limit(rows, 0.01, mass=2.0, arm=2.0, inertia=8.0) == \
         pytest.approx(0.25 / (5.0 * 1e-4))
+
+
+def test_a_grab_is_work_for_the_energy_monitor(clamped):
+    """A drag's spring ``½ k |U_i q|²`` is potential and its pull a load (the monitor's
+    split): grabbing or letting go at a displaced state changes that potential at once, and
+    the energy monitor's budget counts the change as work (else a drag on an object with a
+    small budget, the live teddy, is stopped as a blow-up)."""
+    mesh, U = clamped
+    top = np.flatnonzero(mesh.points[:, 2] > mesh.points[:, 2].max() - 1e-9)
+    offset, k = np.array([0.0, 0.05, 0.0]), 5e4
+    sim = ReducedSimulation(_elastic(mesh, U), r=U.shape[1], dt=0.01, alpha=30.0,
+                            integrator="backward-euler", basis=U, rest_points=mesh.points)
+    sim.set_drag(Drag(top[0], mesh.points[top[0]] + offset, k))
+    for _ in range(20):
+        sim.step()
+    for vertex in (top[1], None):  # a second vertex grabbed, then let go
+        before, held, potential = sim._work, sim._held_energy, sim.drag.energy(sim.x)
+        sim.set_drag(None if vertex is None else Drag(vertex, mesh.points[vertex], k))
+        added = 0.0 if sim.drag is None else sim.drag.energy(sim.x)
+        assert abs(added - potential) > 1.0  # J: the bar moved, the grab changes it
+        # the monitor's held potential (tracked by the work of f, exact after the grab)
+        # changes by about the grab's, and that change is work
+        assert sim._held_energy - held == pytest.approx(added - potential, rel=0.2)
+        assert sim._work - before == pytest.approx(abs(sim._held_energy - held), rel=1e-12)
