@@ -104,6 +104,19 @@ def unavailable(message: str) -> ErrorEstimate:
     return ErrorEstimate(None, message, np.zeros(0), 0.0)
 
 
+def csr_arrays(name: str, matrix: sp.csr_matrix) -> dict[str, np.ndarray]:
+    """A CSR matrix as the arrays ``<name>_data``, ``_indices``, ``_indptr``, ``_shape``."""
+    return {f"{name}_data": matrix.data, f"{name}_indices": matrix.indices,
+            f"{name}_indptr": matrix.indptr, f"{name}_shape": np.asarray(matrix.shape)}
+
+
+def csr_from_arrays(arrays: dict, name: str) -> sp.csr_matrix:
+    """Inverse of :func:`csr_arrays`."""
+    return sp.csr_matrix((arrays[f"{name}_data"], arrays[f"{name}_indices"],
+                          arrays[f"{name}_indptr"]),
+                         shape=tuple(int(v) for v in arrays[f"{name}_shape"]))
+
+
 class FrameForces:
     """The full-space elastic force ``f_int(U q)`` (3n,) for many frames at once.
 
@@ -136,6 +149,23 @@ class FrameForces:
         self._jit = density_parameters(material)
         self._e = e
         self._G, self._volumes, self._tets, self._n3 = G, volumes, tets, n3
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The stored form (numpy arrays only; :meth:`from_arrays`)."""
+        out = {"tets": self._tets, "volumes": self._volumes, "G": self._G}
+        for name, matrix in (("B", self._B), ("BtV", self._BtV)):
+            out.update(csr_arrays(name, matrix))
+        return out
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, material: Material) -> FrameForces:
+        """Inverse of :meth:`arrays` (``material``: the elastic material of the forces)."""
+        self = cls.__new__(cls)
+        self._B, self._BtV = csr_from_arrays(arrays, "B"), csr_from_arrays(arrays, "BtV")
+        self._tets, self._volumes, self._G = arrays["tets"], arrays["volumes"], arrays["G"]
+        self._e, self._n3 = len(self._tets), self._B.shape[1]
+        self._jit = density_parameters(material)
+        return self
 
     def rest_stiffness(self) -> sp.csr_matrix:
         """(3n, 3n) the elastic tangent at rest K₀ in N/m: ``Bᵀ V (C ⊗ I) B``, C the
@@ -247,29 +277,15 @@ class EstimateOperators:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The stored form (numpy arrays only; :meth:`from_arrays`)."""
-        out = {"MU": self.MU, "KU": self.KU, "keep": self.keep, "patterns": self.patterns}
-        for name, matrix in (("M", self.mass), ("K", self.stiffness),
-                             ("B", self.forces._B), ("BtV", self.forces._BtV)):
-            out.update({f"{name}_data": matrix.data, f"{name}_indices": matrix.indices,
-                        f"{name}_indptr": matrix.indptr,
-                        f"{name}_shape": np.asarray(matrix.shape)})
-        out.update({"tets": self.forces._tets, "volumes": self.forces._volumes,
-                    "G": self.forces._G})
-        return out
+        return {"MU": self.MU, "KU": self.KU, "keep": self.keep, "patterns": self.patterns,
+                **csr_arrays("M", self.mass), **csr_arrays("K", self.stiffness),
+                **self.forces.arrays()}
 
     @classmethod
     def from_arrays(cls, arrays: dict, material: Material) -> EstimateOperators:
         """Inverse of :meth:`arrays` (``material``: the elastic material of the forces)."""
-        def matrix(name: str) -> sp.csr_matrix:
-            return sp.csr_matrix((arrays[f"{name}_data"], arrays[f"{name}_indices"],
-                                  arrays[f"{name}_indptr"]),
-                                 shape=tuple(int(v) for v in arrays[f"{name}_shape"]))
-        forces = FrameForces.__new__(FrameForces)
-        forces._B, forces._BtV = matrix("B"), matrix("BtV")
-        forces._tets, forces._volumes, forces._G = arrays["tets"], arrays["volumes"], arrays["G"]
-        forces._e, forces._n3 = len(arrays["tets"]), int(arrays["B_shape"][1])
-        forces._jit = density_parameters(material)
-        return cls(forces, matrix("M"), matrix("K"), arrays["MU"], arrays["KU"],
+        return cls(FrameForces.from_arrays(arrays, material), csr_from_arrays(arrays, "M"),
+                   csr_from_arrays(arrays, "K"), arrays["MU"], arrays["KU"],
                    np.asarray(arrays["keep"], dtype=bool), arrays["patterns"])
 
 

@@ -102,6 +102,7 @@ from lbshape.errors import LbshapeError
 from lbshape.fem.mpi import compute_on_root
 from lbshape.geometry.mesh import TetMesh
 from lbshape.io.cache import artifact_lock, load_artifact, save_artifact
+from lbshape.pipeline import responses as response_settings
 from lbshape.pipeline.auto_stiffness import auto_stiffness_stage
 from lbshape.pipeline.estimate import estimate_operators
 from lbshape.pipeline.meshes import (
@@ -392,7 +393,8 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
     ``stiffness = "auto"`` (the ``example-stiffness`` stage)."""
     room = (max(MAX_APPENDED_FREE_BODY - elastic.basis.r, MIN_APPENDED_FREE_BODY)
             if scene.is_free else max(MAX_APPENDED_BASIS - elastic.basis.r, 0))
-    if room == 0 and local is None:  # nothing could be appended: no factorisation
+    anchored = None if local is None or scene.is_free else local.space.regions
+    if room == 0 and not (anchored and response_settings.ANCHOR_RESPONSE_SETS):  # none
         return elastic.basis
     density, mass = scene.material.density, elastic.mass
     if local is not None:
@@ -406,11 +408,9 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
     basis = append_directions(elastic.basis, responses, mass, K0,
                               kind="example_responses", max_columns=room)
     X = np.hstack(anchor_responses(  # beyond the cap: the anchor fit's feedback
-        K0, spring, k_ex, mesh,
-        density, () if local is None or scene.is_free else local.space.regions, fixed))
-    return append_directions(basis, X, mass, K0, rtol=0.0,
-                             min_outside=0.0, max_columns=anchor_room(
-                                 scene, mesh.n_tets, basis.r, X.shape[1]))
+        K0, spring, k_ex, mesh, density, () if anchored is None else anchored, fixed))
+    room = anchor_room(scene, mesh.n_tets, basis.r, X.shape[1])
+    return append_directions(basis, X, mass, K0, rtol=0.0, min_outside=0.0, max_columns=room)
 
 
 def _derivatives(scene: Scene, mesh: TetMesh, fixed: np.ndarray, modes: LinearModes,

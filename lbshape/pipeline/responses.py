@@ -262,6 +262,8 @@ def anchor_responses(stiffness, spring, k_ex: float, mesh: TetMesh, density: flo
         sets: 0, 1 or 2, see above.
     """
     n3, sets = stiffness.shape[0], ANCHOR_RESPONSE_SETS if sets is None else sets
+    if not sets:
+        return (np.zeros((n3, 0)),)
     loads, readouts = [], []
     for region in regions:
         if not region.anchor.any():
@@ -275,8 +277,8 @@ def anchor_responses(stiffness, spring, k_ex: float, mesh: TetMesh, density: flo
         readout[rows[anchor_rows]] = F.T
         loads.append(load)
         readouts.append(readout)
-    if not loads or not sets:
-        return (np.zeros((n3, 0)),) * max(sets, 1)
+    if not loads:
+        return (np.zeros((n3, 0)),) * sets
     free = np.ones(n3, dtype=bool)
     free[(3 * np.asarray(fixed_vertices, dtype=np.int64)[:, None] + np.arange(3)).ravel()] = False
     shifted = sp.csr_matrix(stiffness + k_ex * spring)[free][:, free]

@@ -83,6 +83,17 @@ def test_a_bad_ramp_exits_2_in_one_line(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("error: ") and "examples.ramp" in err[0], err
 
 
+def _step_beside_by_hand(sim, by_hand, k: float, steps: int) -> None:
+    """Step the ramped engine and an unramped one whose k_ex is switched by hand to
+    k s(t₁) before each step; the ramped one's k_ex is k s(t) after each."""
+    driver = by_hand.driver
+    for _ in range(steps):
+        by_hand.set_example_force(driver, k * ramp_factor(by_hand.time + by_hand.dt, RAMP))
+        by_hand.step()
+        sim.step()
+        assert sim.k_ex == pytest.approx(k * ramp_factor(sim.time, RAMP), rel=1e-14)
+
+
 @pytest.mark.slow
 def test_reduced_engine_pulls_with_the_ramped_stiffness():
     scene = _demo(RAMP)
@@ -103,13 +114,9 @@ def test_reduced_engine_pulls_with_the_ramped_stiffness():
     assert sim.k_ex == k  # past the ramp
     # the same as the unramped engine with k_ex switched by hand at each step
     by_hand = reduced_simulation(_demo(0.0), pre)
-    driver = by_hand.driver
     sim.reset()
     assert sim.k_ex == k  # a reset restarts the ramp at the next step
-    for _ in range(12):
-        by_hand.set_example_force(driver, k * ramp_factor(by_hand.time + by_hand.dt, RAMP))
-        by_hand.step()
-        sim.step()
+    _step_beside_by_hand(sim, by_hand, k, 12)
     np.testing.assert_allclose(sim.x, by_hand.x, rtol=1e-10, atol=1e-14)
     plain = reduced_simulation(_demo(0.0), pre)
     plain.run(12)
@@ -129,12 +136,7 @@ def test_free_body_pulls_with_the_ramped_stiffness():
     assert type(reduced_simulation(_with_ramp(scene, 0.0), pre)) is FreeBodySimulation
     k = float(scene.examples.stiffness)
     by_hand = reduced_simulation(_with_ramp(scene, 0.0), pre)
-    driver = by_hand.driver
-    for _ in range(14):
-        by_hand.set_example_force(driver, k * ramp_factor(by_hand.time + by_hand.dt, RAMP))
-        by_hand.step()
-        sim.step()
-        assert sim.k_ex == pytest.approx(k * ramp_factor(sim.time, RAMP), rel=1e-14)
+    _step_beside_by_hand(sim, by_hand, k, 14)
     np.testing.assert_allclose(sim.q, by_hand.q, rtol=1e-10, atol=1e-14)
     np.testing.assert_allclose(sim.rigid.rotation, by_hand.rigid.rotation, rtol=1e-12)
     plain = reduced_simulation(_with_ramp(scene, 0.0), pre)
