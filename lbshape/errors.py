@@ -18,3 +18,8 @@ class SolverError(LbshapeError):
     """A numerical solve that did not converge or diverged (exit code 3)."""
 
     exit_code = 3
+
+
+class NewtonFailure(SolverError):
+    """A Newton iteration that did not reach its residual test within its iterations
+    (exit code 3): a caller may retry the step another way before giving up."""

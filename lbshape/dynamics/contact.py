@@ -70,10 +70,11 @@ from lbshape.geometry.mesh import boundary_faces
 
 #: ε of the regularised Coulomb friction (m/s): the slip speed below which the friction
 #: force grows linearly with the slip (module docstring). Held by friction a block creeps
-#: at about ε, 0.5 mm in 0.5 s (tests/dynamics/test_friction.py); the kick and the
-#: deformation solve take its rate implicitly, with its tangent. 1e-4 held the block to
-#: 0.3 mm but stalled the full car's Newton at its wall impact (docs/decisions.md)
-SLIP_SPEED = 1e-3
+#: at about ε (tests/dynamics/test_friction.py; results/contact.md); the kick and the
+#: deformation solve take its rate implicitly, with its tangent. The full reference
+#: reaches its steps at this ε through a slip continuation where Newton from the
+#: predictor fails (:func:`lbshape.dynamics.full_contact.step_with_slip_continuation`)
+SLIP_SPEED = 5e-4
 #: machine ε (the contact's round-off level)
 _EPS = float(np.finfo(float).eps)
 
@@ -316,7 +317,8 @@ def plane_frictions(planes: Sequence[ContactPlane]) -> np.ndarray:
 
 
 def friction_force(velocity: np.ndarray, normal: np.ndarray, normal_force: np.ndarray,
-                   friction: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   friction: float, slip_speed: float = SLIP_SPEED
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Regularised Coulomb friction of many contact points on one plane (module docstring).
 
     Args:
@@ -324,6 +326,7 @@ def friction_force(velocity: np.ndarray, normal: np.ndarray, normal_force: np.nd
         normal: (3,) the plane's unit normal n.
         normal_force: (h,) the penalty force sizes k d (N).
         friction: μ.
+        slip_speed: the regularisation ε in m/s.
 
     Returns:
         ``(f_t (h, 3) N, C (h, 3, 3) N·s/m, T (h, 3))``: the friction forces, their rate
@@ -331,7 +334,7 @@ def friction_force(velocity: np.ndarray, normal: np.ndarray, normal_force: np.nd
         ``T = v_t / s`` (``s = √(|v_t|² + ε²)``).
     """
     slip = velocity - (velocity @ normal)[:, None] * normal[None, :]
-    s = np.sqrt(np.einsum("ha,ha->h", slip, slip) + SLIP_SPEED**2)
+    s = np.sqrt(np.einsum("ha,ha->h", slip, slip) + slip_speed**2)
     scale = friction * normal_force / s
     direction = slip / s[:, None]
     projection = np.eye(3) - np.outer(normal, normal)

@@ -99,7 +99,7 @@ from lbshape.dynamics.engine import (
 )
 from lbshape.dynamics.example_ramp import check_ramp, ramp_factor
 from lbshape.dynamics.free_dofs import CsrRestriction, submatrix, vertex_indices
-from lbshape.dynamics.full_contact import FullSpaceContact
+from lbshape.dynamics.full_contact import FullSpaceContact, step_with_slip_continuation
 from lbshape.dynamics.full_damping import FullSpaceDamping
 from lbshape.dynamics.full_examples import FullSpaceExampleForce, FullSpaceExamples
 from lbshape.dynamics.integrators import make_stepper
@@ -636,7 +636,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         marks[1] = time.perf_counter()
         if self._corotated_beta:
             self._corotate()
-        info = self.stepper.step()
+        info = step_with_slip_continuation(self.stepper, self.contact)
         marks[2] = time.perf_counter()
         return info.iterations
 

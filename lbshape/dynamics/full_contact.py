@@ -12,13 +12,19 @@ import numpy as np
 import scipy.sparse as sp
 
 from lbshape.dynamics.contact import (
+    SLIP_SPEED,
     ContactPlane,
     friction_force,
     plane_frictions,
     surface_areas,
 )
 from lbshape.dynamics.contact_faces import FACING_FLOOR, face_loads, surface_faces
-from lbshape.errors import LbshapeError
+from lbshape.errors import LbshapeError, NewtonFailure
+
+#: the widened slip speeds (multiples of ε) whose converged steps lead the full
+#: reference's Newton back to ε when a step with friction does not converge from the
+#: scheme's predictor (:func:`step_with_slip_continuation`)
+SLIP_CONTINUATION = (16.0, 4.0)
 
 
 class FullSpaceContact:
@@ -46,6 +52,11 @@ class FullSpaceContact:
         self.friction = plane_frictions(self.planes)
         #: some plane has friction (the force then depends on the velocity)
         self.has_friction = bool(np.any(self.friction > 0))
+        #: the friction's regularisation ε in m/s (widened for a while by the full
+        #: reference's slip continuation, :meth:`FullSpaceSimulator.step`)
+        self.slip_speed = SLIP_SPEED
+        #: steps taken through the slip continuation so far
+        self.continued_steps = 0
 
     def face_shares(self, x: np.ndarray, normal: np.ndarray) -> np.ndarray:
         """(f,) the boundary triangles' areas facing a plane of unit normal ``normal``,
@@ -89,7 +100,7 @@ class FullSpaceContact:
             if mu > 0:
                 w = (np.zeros((loaded.size, 3)) if v is None
                      else v.reshape(-1, 3)[self.vertices[loaded]])
-                friction, rates, direction = friction_force(w, n, F[loaded], mu)
+                friction, rates, direction = friction_force(w, n, F[loaded], mu, self.slip_speed)
                 np.add.at(force, self.vertices[loaded], -friction)
                 slip = np.zeros((s_count, 3))
                 slip[loaded] = direction
@@ -116,3 +127,31 @@ class FullSpaceContact:
         rows.append(np.repeat(a, 3, axis=1).ravel())
         cols.append(np.tile(b, (1, 3)).ravel())
         vals.append(np.ascontiguousarray(blocks).ravel())
+
+
+def step_with_slip_continuation(stepper, contact: FullSpaceContact | None):
+    """``stepper.step()`` (a :class:`~lbshape.dynamics.integrators.Stepper`); where its Newton
+    iteration fails and the contact has friction, the same step again from the increment
+    converged with the slip speed widened (:data:`SLIP_CONTINUATION`, each from the last):
+    regularised friction is steep within ε of the slip speed, where Newton from the
+    predictor may cycle between sticking and slipping vertices. The step taken is the one
+    at ε, to the same residual test; only its starting point differs.
+
+    Raises:
+        SolverError: the step failed (at ε, or on the way down).
+    """
+    try:
+        return stepper.step()
+    except NewtonFailure:
+        if contact is None or not contact.has_friction:
+            raise
+    slip_speed, guess = contact.slip_speed, None
+    try:
+        for factor in SLIP_CONTINUATION:
+            contact.slip_speed = factor * slip_speed
+            guess = stepper.trial_increment(guess)
+    finally:
+        contact.slip_speed = slip_speed
+    info = stepper.step(guess)
+    contact.continued_steps += 1
+    return info

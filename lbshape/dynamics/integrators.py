@@ -77,7 +77,7 @@ import scipy.sparse.linalg as spla
 from lbshape.dynamics.kernels import norm as _norm
 from lbshape.dynamics.linear_solvers import woodbury_solve
 from lbshape.dynamics.sanity import ENERGY_FACTOR
-from lbshape.errors import LbshapeError, SolverError
+from lbshape.errors import LbshapeError, NewtonFailure, SolverError
 
 log = logging.getLogger(__name__)
 
@@ -360,17 +360,46 @@ class ImplicitStepper:
         return kinetic if self._potential is None else kinetic + float(self._potential(x))
 
     # ------------------------------------------------------------------ steps
-    def step(self) -> StepInfo:
+    def step(self, guess: np.ndarray | None = None) -> StepInfo:
         """Advance one time step; return its :class:`StepInfo`.
+
+        Args:
+            guess: (N,) the Newton iteration's first increment ``x₁ − x`` (default: the
+                scheme's predictor), e.g. a :meth:`trial_increment` of nearby forces.
 
         Raises:
             SolverError: non-finite values, Newton failure or energy blow-up; the
                 state stays at the end of the previous step.
         """
-        index = self._steps + 1
-        t1 = self._t + self.dt
+        index, t1 = self._steps + 1, self._t + self.dt
         fext = self._load(t1, index)
-        dx = self._predict()
+        dx = self._predict() if guess is None else self._vector(guess, "guess")
+        state, dx, iteration, residuals = self._converge(dx, fext, index, t1)
+        x1, f, _, v1, a1, _, _ = state
+        energy = self.total_energy(x1, v1)
+        work = self._work + abs(0.5 * float((self._fext + fext) @ dx))
+        self._check_energy(energy, work, index, t1)
+        if self.check_state is not None:
+            self.check_state(x1, index, t1)
+        self._x, self._v, self._a, self._f, self._fext = x1, v1, a1, f, fext
+        self._t, self._steps, self._work = t1, index, work
+        self._energy = energy
+        return StepInfo(index, t1, iteration, residuals[-1], tuple(residuals), energy)
+
+    def trial_increment(self, guess: np.ndarray | None = None) -> np.ndarray:
+        """(N,) the converged increment ``x₁ − x`` of the next step, without taking it (the
+        state stays; a start for :meth:`step` after the forces change a little).
+
+        Raises:
+            SolverError: as :meth:`step`'s Newton iteration.
+        """
+        index, t1 = self._steps + 1, self._t + self.dt
+        dx = self._predict() if guess is None else self._vector(guess, "guess")
+        return self._converge(dx, self._load(t1, index), index, t1)[1]
+
+    def _converge(self, dx: np.ndarray, fext: np.ndarray, index: int, t1: float):
+        """Newton from the increment dx to the residual test: ``(state, dx, iterations,
+        relative residuals)``, state as :meth:`_residual` returns it."""
         base_scale = max(
             _norm(fext), _norm(self._f), _norm(self.mass @ self._a)
         )
@@ -388,7 +417,7 @@ class ImplicitStepper:
             if norm <= max(self.rtol * scale, self.atol) or norm <= self._noise(dx, f, fext):
                 break
             if iteration == self.max_iterations:
-                raise SolverError(
+                raise NewtonFailure(
                     f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
                     f"residual {relative:.3e} after {iteration} iterations (rtol {self.rtol:g})"
                 )
@@ -412,15 +441,7 @@ class ImplicitStepper:
                 state = self._residual(trial, fext, index, t1)
             dx = trial
             self._fresh_tangent = state[-1] > self.tangent_contraction * norm
-        energy = self.total_energy(x1, v1)
-        work = self._work + abs(0.5 * float((self._fext + fext) @ dx))
-        self._check_energy(energy, work, index, t1)
-        if self.check_state is not None:
-            self.check_state(x1, index, t1)
-        self._x, self._v, self._a, self._f, self._fext = x1, v1, a1, f, fext
-        self._t, self._steps, self._work = t1, index, work
-        self._energy = energy
-        return StepInfo(index, t1, iteration, residuals[-1], tuple(residuals), energy)
+        return state, dx, iteration, residuals
 
     def run(self, steps: int) -> list[StepInfo]:
         """Take ``steps`` steps; return their infos (raises like :meth:`step`)."""
