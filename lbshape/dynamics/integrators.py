@@ -213,6 +213,10 @@ class ImplicitStepper:
             ``tangent_contraction`` (a modified Newton with the same residual test; a
             slower update re-evaluates the tangent at the next one).
         tangent_contraction: the contraction a kept tangent must achieve (0 < c < 1).
+        tangent_each_step: with ``force``: the tangent is evaluated afresh at each step's
+            first update and kept within the step only (a non-smooth force: friction,
+            contact, a free body's fitted pull); a reused-factor ``linear_solver`` keeps
+            its factor, which preconditions the fresh tangents.
     """
 
     #: the scheme's coefficients (one of :data:`SCHEMES`)
@@ -244,6 +248,7 @@ class ImplicitStepper:
         check_state: Callable[[np.ndarray, int, float], None] | None = None,
         force: Callable[[np.ndarray], np.ndarray] | None = None,
         tangent_contraction: float = 0.1,
+        tangent_each_step: bool = False,
     ):
         self._sparse = sp.issparse(mass)
         self.mass = _square_matrix(mass, "mass")
@@ -265,6 +270,7 @@ class ImplicitStepper:
         self.check_state = check_state
         self._force = force
         self.tangent_contraction = float(tangent_contraction)
+        self.tangent_each_step = bool(tangent_each_step)
         self._kept = None  # (K, low-rank part) kept for updates (``force`` given)
         self._fresh_tangent = True  # the next update evaluates the tangent
         self.tangent_evaluations = 0
@@ -369,6 +375,7 @@ class ImplicitStepper:
         """
         index = self._steps + 1
         t1 = self._t + self.dt
+        self._fresh_tangent = self._fresh_tangent or self.tangent_each_step
         fext = self._load(t1, index)
         dx = self._predict()
         base_scale = max(
@@ -383,6 +390,8 @@ class ImplicitStepper:
                 raise SolverError(f"non-finite residual at step {index} (t = {t1:.6g} s)")
             if iteration == 0:
                 scale = max(base_scale, norm, float(_norm(f)))
+                if hasattr(self._linear_solver, "newton_tolerance"):  # an inexact solve's goal
+                    self._linear_solver.newton_tolerance = max(self.rtol * scale, self.atol)
             relative = norm / scale if scale > 0 else 0.0
             residuals.append(relative)
             if norm <= max(self.rtol * scale, self.atol) or norm <= self._noise(dx, f, fext):
@@ -522,7 +531,7 @@ class ImplicitStepper:
         if K is not None:
             return self._solve_newton(K, R, index, t)
         if self._kept is None or self._fresh_tangent:
-            if hasattr(self._linear_solver, "reset"):
+            if hasattr(self._linear_solver, "reset") and not self.tangent_each_step:
                 self._linear_solver.reset()  # a reused factor: of this tangent's matrix
             _, tangent = self._evaluate(x1, index, t)
             self.tangent_evaluations += 1
