@@ -528,7 +528,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         if self._corotated_beta and stepper is not None:
             # β Pᵀ R K₀ Rᵀ P v₁(x), v₁ the scheme's end-of-step velocity, linear in x
             v1, _ = stepper.kinematics(x - stepper.x)
-            damping = self._corotated_beta * self._damping_now
+            damping = self._scaled_damping()
             rate = stepper.scheme.cv / stepper.dt
             f = f + self._deformation_damping(x, damping, v1, rate)
             if self._damping_data is not None and self._compiled.on_pattern(K):
@@ -558,10 +558,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         stepper = getattr(self, "stepper", None)
         if self._corotated_beta and stepper is not None:
             v1, _ = stepper.kinematics(x - stepper.x)
-            kept = getattr(self, "_damping_rigid", None)
-            f = f + self._deformation_damping(x, self._corotated_beta * self._damping_now, v1,
-                                              stepper.scheme.cv / stepper.dt)
-            self._damping_rigid = kept  # the kept tangent's low-rank part stays
+            f = f + self._deformation_damping(x, self._scaled_damping(), v1,
+                                              stepper.scheme.cv / stepper.dt, tangent=False)
         if self._drag is not None:
             f = f.copy()
             f[self._drag_dofs] += self._drag.stiffness * x[self._drag_dofs]
