@@ -383,7 +383,7 @@ class ImplicitStepper:
         )
         residuals: list[float] = []
         scale = 0.0
-        state = self._residual(dx, fext, index, t1)
+        state = self._residual(dx, fext, index, t1, first=True)
         for iteration in range(self.max_iterations + 1):
             x1, f, K, v1, a1, R, norm = state
             if not np.isfinite(norm):
@@ -401,7 +401,8 @@ class ImplicitStepper:
                     f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
                     f"residual {relative:.3e} after {iteration} iterations (rtol {self.rtol:g})"
                 )
-            stale = K is None and self._kept is not None and not self._fresh_tangent
+            stale = (K is None and self._kept is not None and not self._fresh_tangent
+                     and not (iteration == 0 and self.tangent_each_step))  # not just taken
             delta = self._update(x1, K, R, index, t1)
             state = self._residual(dx - delta, fext, index, t1)
             if stale and not state[-1] < norm:  # the kept tangent's update is refused
@@ -435,11 +436,17 @@ class ImplicitStepper:
         """Take ``steps`` steps; return their infos (raises like :meth:`step`)."""
         return [self.step() for _ in range(int(steps))]
 
-    def _residual(self, dx: np.ndarray, fext: np.ndarray, index: int, t1: float):
+    def _residual(self, dx: np.ndarray, fext: np.ndarray, index: int, t1: float, *,
+                  first: bool = False):
         """``(x₁, f, K, v₁, a₁, R, ‖R‖)`` of the increment ``dx`` (the step's residual
-        ``R = M a₁ + D v₁ + f(x₁) − f_ext``)."""
+        ``R = M a₁ + D v₁ + f(x₁) − f_ext``); the step's ``first`` residual with
+        ``tangent_each_step`` evaluates the tangent with the force and keeps it."""
         x1 = self._x + dx
-        if self._force is not None:  # the tangent where an update needs it (_update)
+        if first and self._force is not None and self.tangent_each_step:
+            f, tangent = self._evaluate(x1, index, t1)
+            self._keep(tangent)
+            K = None
+        elif self._force is not None:  # the tangent where an update needs it (_update)
             f, K = np.asarray(self._force(x1), dtype=float).reshape(-1), None
             if f.shape != (self.n,) or not np.isfinite(f).all():
                 raise SolverError(f"non-finite force at step {index} (t = {t1:.6g} s)")
@@ -533,11 +540,14 @@ class ImplicitStepper:
         if self._kept is None or self._fresh_tangent:
             if hasattr(self._linear_solver, "reset") and not self.tangent_each_step:
                 self._linear_solver.reset()  # a reused factor: of this tangent's matrix
-            _, tangent = self._evaluate(x1, index, t)
-            self.tangent_evaluations += 1
-            low_rank = self._low_rank_tangent() if self._low_rank_tangent is not None else None
-            self._kept = (tangent, low_rank)
+            self._keep(self._evaluate(x1, index, t)[1])
         return self._solve_newton(self._kept[0], R, index, t, self._kept[1])
+
+    def _keep(self, tangent: Matrix) -> None:
+        """Keep a tangent just evaluated, with its low-rank part, for the updates."""
+        self.tangent_evaluations += 1
+        low_rank = self._low_rank_tangent() if self._low_rank_tangent is not None else None
+        self._kept, self._fresh_tangent = (tangent, low_rank), False
 
     def _solve_newton(self, K: Matrix, R: np.ndarray, index: int, t: float,
                       low_rank=False) -> np.ndarray:
