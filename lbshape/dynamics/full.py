@@ -253,9 +253,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
                 raise LbshapeError("give global or local examples, not both")
             self._local, self._k_ex = local_examples[0], float(local_examples[1])
             self._spring_ff = submatrix(self._local.mass, self.free_dofs)
-            self._kM_ff = self._k_ex * self._spring_ff
 
-        self._kM_full = getattr(self, "_kM_ff", None)  # k_ex M at the full k_ex
         x0 = self._initial(initial_displacement, "initial_displacement")
         v0 = self._initial(initial_velocity, "initial_velocity")
         self._v_start = v0  # the friction's velocity while the stepper is set up
@@ -613,8 +611,9 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         x = self.stepper.x
         before = self._example_energy(x)
         self._k_ex = k_ex
-        # a new matrix each step of the ramp (added as a varying one), the kept one after
-        self._kM_ff = self._kM_full if factor == 1.0 else k_ex * self._spring_ff
+        solver = getattr(self.stepper, "_linear_solver", None)  # per-step tangents: a
+        if factor == 1.0 and self.stepper.tangent_each_step and hasattr(solver, "reset"):
+            solver.reset()  # reused factor of the full spring's matrix from here
         self._pull_rigid = None  # the fitted pull's tangent part, of the last evaluation
         self.stepper.credit_work(self._example_energy(x) - before)
 

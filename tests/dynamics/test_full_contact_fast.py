@@ -138,3 +138,25 @@ def test_free_body_takes_its_tangent_once_per_step_and_keeps_its_factor(box):
     assert steps <= stepper.tangent_evaluations <= solver.solves
     assert solver.factorisations <= stepper.tangent_evaluations / 2  # not one per tangent
     assert solver.newton_tolerance > 0.0
+
+
+def test_the_reused_factor_is_taken_afresh_when_the_example_ramp_ends(box):
+    """With per-step tangents the factor of the first step (k_ex ≈ 0) preconditions the
+    ramped spring ever worse: it is factorised again once the ramp reaches k_ex."""
+    mesh = box
+    spectrum = lb_spectrum(mesh, 3)
+    phi = spectrum.eigenvectors
+    c = np.zeros((1, phi.shape[1], 3))
+    c[0, 2, 1] = 0.01 / np.abs(phi).max()
+    arm = mesh.points - mesh.points.mean(axis=0)
+    sim = FullSpaceSimulator(
+        mesh, material(), dt=0.002, beta=2e-3, example_ramp=0.006,
+        examples=FullSpaceExamples(spectrum.eigenvalues, phi, c, 1e4),
+        initial_velocity=np.cross([0.0, 1.0, 0.5], arm))
+    solver = sim.stepper._linear_solver
+    counts = []
+    record = sim.run(6, on_step=lambda *_: counts.append(solver.factorisations))
+    assert record.stable, record.message
+    ramp_end = 3  # steps 1–3 ramp (t ≤ 0.006 s), the third reaches k_ex
+    assert counts[ramp_end - 2] == counts[0]  # kept while the ramp rises
+    assert counts[ramp_end - 1] == counts[ramp_end - 2] + 1  # afresh at its end
