@@ -68,7 +68,7 @@ forces (:mod:`lbshape.dynamics.fictitious`), the contact
 evaluation; the contact at the start of a step is the last evaluation of the previous
 step — same configuration, same numbers — and is reused), the Newmark residual
 (:func:`~lbshape.dynamics.free_body_kernels.deformation_residual`, the scheme's
-coefficients from :data:`~lbshape.dynamics.integrators.SCHEMES`) and the LU solve of
+coefficients from :data:`~lbshape.dynamics.schemes.SCHEMES`) and the LU solve of
 the Newton system (:func:`~lbshape.dynamics.kernels.lu_solve`; non-symmetric: the Euler
 and Coriolis terms are skew). Each step's wall time is split into :data:`PHASES`
 (:attr:`FreeBodySimulation.phase_seconds`).
@@ -115,13 +115,13 @@ from lbshape.dynamics.free_body_kernels import (
 )
 from lbshape.dynamics.free_body_loads import FreeLoad, LoadStack
 from lbshape.dynamics.free_body_record import FreeBodyRecord, FreeBodyRecorder, world_displacements
-from lbshape.dynamics.integrators import Scheme, get_scheme
 from lbshape.dynamics.kernels import axpy, lu_solve, predict
 from lbshape.dynamics.kernels import norm as _norm
 from lbshape.dynamics.loads import TimeProfile
 from lbshape.dynamics.reduced import PHASES as FIXED_PHASES
 from lbshape.dynamics.reduced import REALTIME_NEWTON
 from lbshape.dynamics.rigid_frame import RigidState, rotation_error
+from lbshape.dynamics.schemes import Scheme, get_scheme
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
 
@@ -271,7 +271,7 @@ class FreeBodySimulation(FreeBodyContact):
         self._clock = time.perf_counter
 
     def _set_scheme(self, scheme: Scheme) -> None:
-        """The scheme's coefficients (:class:`~lbshape.dynamics.integrators.Scheme`) in the
+        """The scheme's coefficients (:class:`~lbshape.dynamics.schemes.Scheme`) in the
         Newton solve, and the factors of the Newton matrix and the round-off level."""
         dt = self.dt
         self._solve.scheme[:] = scheme.array

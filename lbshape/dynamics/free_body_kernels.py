@@ -145,7 +145,7 @@ class DeformationSolve(NamedTuple):
     #: the buffer every field below views
     data: np.ndarray
     #: (5,) the scheme's ``[c_a, k_v, k_a, c_v, j_v]``
-    #: (:class:`~lbshape.dynamics.integrators.Scheme`)
+    #: (:class:`~lbshape.dynamics.schemes.Scheme`)
     scheme: np.ndarray
     #: (5,) its step rates ``[c_a/h², k_v/h, k_a, c_v/h, j_v]``
     rates: np.ndarray

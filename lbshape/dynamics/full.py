@@ -158,10 +158,12 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             (:class:`~lbshape.elastic.assembly.CompiledElasticity`), one sparse
             factorisation reused across Newton iterations and steps
             (:class:`~lbshape.dynamics.linear_solvers.ReusedFactorSolver`) and the compiled
-            block evaluation of the example target; without friction or a fitted pull a
-            modified Newton (the residual test on :meth:`_force` alone, the tangent and its
-            factor kept while each update lowers ‖R‖ ten-fold: the stepper's ``force``
-            option); ``"lu-each-iteration"``: the former
+            block evaluation of the example target; a modified Newton (the residual test on
+            :meth:`_force` alone, the tangent kept while each update lowers ‖R‖ ten-fold:
+            the stepper's ``force`` option), across steps with its factor where the force is
+            smooth, else evaluated afresh at each step's first update (contact, friction, a
+            fitted pull); updates solved to a tenth of the Newton tolerance (an inexact
+            Newton); ``"lu-each-iteration"``: the former
             path (numpy assembly, a SuperLU factorisation per Newton iteration), for
             comparison runs. Same answers to round-off and the Newton tolerance.
         omega_max: the highest vibration frequency (rad/s) of the object's modes the
@@ -251,9 +253,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
                 raise LbshapeError("give global or local examples, not both")
             self._local, self._k_ex = local_examples[0], float(local_examples[1])
             self._spring_ff = submatrix(self._local.mass, self.free_dofs)
-            self._kM_ff = self._k_ex * self._spring_ff
 
-        self._kM_full = getattr(self, "_kM_ff", None)  # k_ex M at the full k_ex
         x0 = self._initial(initial_displacement, "initial_displacement")
         v0 = self._initial(initial_velocity, "initial_velocity")
         self._v_start = v0  # the friction's velocity while the stepper is set up
@@ -303,11 +303,12 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             linear_solver=(make_linear_solver(self._linear_solver, symmetric=not friction)
                            if self._fast else None),
             check_state=self._check_inversion if self._inversion else None,
-            # a modified Newton where the updates are full ones and smooth (no contact: a
-            # kept tangent across a changing contact set settled a sagging bar 2.7 mm
-            # lower; no friction, no fitted pull: a kept tangent slowed the car's Newton)
-            force=(self._force if self._fast and self.contact is None
-                   and not (friction or fitted_pull) else None),
+            # a modified Newton across steps where the updates are full ones and smooth (no
+            # contact: a kept tangent across a changing contact set settled a sagging bar
+            # 2.7 mm lower; no friction, no fitted pull: it slowed the car's Newton), else
+            # the tangent afresh at each step's first update, kept within the step
+            force=self._force if self._fast else None,
+            tangent_each_step=self.contact is not None or friction or fitted_pull,
         )
 
     def _check_inversion(self, x: np.ndarray, index: int, t: float) -> None:
@@ -504,28 +505,28 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             f, K = self.elastic.force_and_tangent(self.full_displacement(x).reshape(-1))
             f, K = f[self.free_dofs], self._restrict(K)
 
-            def add(K, matrix, constant=False):
-                return K + matrix
+            def add(K, matrix, constant=False, scale=1.0):
+                return K + scale * matrix
         if self.contact is not None:
             velocity, rate = self._contact_velocity(x)
-            fc, Kc, _ = self.contact.evaluate(self.full_displacement(x).reshape(-1), velocity,
-                                              rate)
-            if Kc is not None:
+            fc, parts, _ = self.contact.evaluate_parts(self.full_displacement(x).reshape(-1),
+                                                       velocity, rate)
+            if parts:
                 f = f + fc[self.free_dofs]
-                K = add(K, Kc[self.free_dofs][:, self.free_dofs]).tocsr()
+                K = self.contact.add_into(K, parts, self.free_dofs, self._compiled, add)
         if self._k_ex and self._target_body is not None:  # free body, global examples
             gap = self._free_gap(x, tangent=True)
             f = f + self._k_ex * (self._spring_ff @ gap)
             # minus the rigid part W Wᵀ (_tangent_correction)
-            K = add(K, self._kM_ff, constant=self._kM_ff is self._kM_full)
+            K = add(K, self._spring_ff, constant=True, scale=self._k_ex)  # k_ex S
         elif self._k_ex:
             f = f + self._k_ex * (self._spring_ff @ x)
-            K = add(K, self._kM_ff, constant=self._kM_ff is self._kM_full)
+            K = add(K, self._spring_ff, constant=True, scale=self._k_ex)  # k_ex S
         stepper = getattr(self, "stepper", None)  # None while the stepper is set up
         if self._corotated_beta and stepper is not None:
             # β Pᵀ R K₀ Rᵀ P v₁(x), v₁ the scheme's end-of-step velocity, linear in x
             v1, _ = stepper.kinematics(x - stepper.x)
-            damping = self._corotated_beta * self._damping_now
+            damping = self._scaled_damping()
             rate = stepper.scheme.cv / stepper.dt
             f = f + self._deformation_damping(x, damping, v1, rate)
             if self._damping_data is not None and self._compiled.on_pattern(K):
@@ -545,8 +546,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         f = self._compiled.force(u)
         if self.contact is not None:
             velocity, rate = self._contact_velocity(x)
-            fc, Kc, _ = self.contact.evaluate(u, velocity, rate)
-            if Kc is not None:
+            fc, parts, _ = self.contact.evaluate_parts(u, velocity, rate)
+            if parts:
                 f = f + fc[self.free_dofs]
         if self._k_ex and self._target_body is not None:  # free body, global examples
             f = f + self._k_ex * (self._spring_ff @ self._free_gap(x))
@@ -555,10 +556,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         stepper = getattr(self, "stepper", None)
         if self._corotated_beta and stepper is not None:
             v1, _ = stepper.kinematics(x - stepper.x)
-            kept = getattr(self, "_damping_rigid", None)
-            f = f + self._deformation_damping(x, self._corotated_beta * self._damping_now, v1,
-                                              stepper.scheme.cv / stepper.dt)
-            self._damping_rigid = kept  # the kept tangent's low-rank part stays
+            f = f + self._deformation_damping(x, self._scaled_damping(), v1,
+                                              stepper.scheme.cv / stepper.dt, tangent=False)
         if self._drag is not None:
             f = f.copy()
             f[self._drag_dofs] += self._drag.stiffness * x[self._drag_dofs]
@@ -583,7 +582,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         elastic = self.elastic if self._compiled is None else self._compiled
         energy = elastic.energy(self.full_displacement(x).reshape(-1))
         if self.contact is not None:
-            energy += self.contact.evaluate(self.full_displacement(x).reshape(-1))[2]
+            energy += self.contact.evaluate_parts(self.full_displacement(x).reshape(-1))[2]
         return energy + self._example_energy(x) + self._drag_energy(x)
 
     def _drag_energy(self, x: np.ndarray) -> float:
@@ -612,8 +611,9 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         x = self.stepper.x
         before = self._example_energy(x)
         self._k_ex = k_ex
-        # a new matrix each step of the ramp (added as a varying one), the kept one after
-        self._kM_ff = self._kM_full if factor == 1.0 else k_ex * self._spring_ff
+        solver = getattr(self.stepper, "_linear_solver", None)  # per-step tangents: a
+        if factor == 1.0 and self.stepper.tangent_each_step and hasattr(solver, "reset"):
+            solver.reset()  # reused factor of the full spring's matrix from here
         self._pull_rigid = None  # the fitted pull's tangent part, of the last evaluation
         self.stepper.credit_work(self._example_energy(x) - before)
 

@@ -78,10 +78,49 @@ class FullSpaceContact:
         per pair (T the slip direction): not symmetric. The change of the triangles'
         facing shares with u is left out.
         """
+        force, parts, energy = self.evaluate_parts(u, v, rate)
+        if not parts:
+            return force, None, 0.0
+        return force, self.matrix(parts), energy
+
+    def matrix(self, parts) -> sp.csr_matrix:
+        """The tangent (3n, 3n) CSR of :meth:`evaluate_parts`' ``parts``."""
+        rows, cols, vals = [], [], []
+        for faces, pair, loaded, rates in parts:
+            corners = self.vertices[self.faces[faces]]
+            if loaded is not None:
+                self._add_blocks(rows, cols, vals, self.vertices[loaded],
+                                 self.vertices[loaded], rates)
+            self._add_blocks(rows, cols, vals, np.repeat(corners, 3, axis=1).ravel(),
+                             np.tile(corners, (1, 3)).ravel(), pair.reshape(-1, 3, 3))
+        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
+                                                     np.concatenate(cols))),
+                             shape=(3 * self.n, 3 * self.n))
+
+    def add_into(self, K: sp.csr_matrix, parts, free_dofs: np.ndarray, compiled=None, add=None):
+        """K (free dofs) plus the tangent ``parts`` of :meth:`evaluate_parts`: in place on
+        K's data through positions kept per ``compiled`` pattern
+        (:class:`~lbshape.elastic.assembly.CompiledElasticity`) when K is on it, else
+        ``add(K, tangent restricted to the free dofs)``."""
+        if compiled is not None and compiled.on_pattern(K):
+            kept = getattr(self, "_positions", None)
+            if kept is None or kept[0] is not compiled:
+                kept = (compiled, self.pattern_positions(compiled.positions))
+                self._positions = kept
+            if kept[1] is not None:
+                self.add_tangent(K.data, kept[1], parts)
+                return K
+        return add(K, self.matrix(parts)[free_dofs][:, free_dofs]).tocsr()
+
+    def evaluate_parts(self, u: np.ndarray, v: np.ndarray | None = None, rate: float = 0.0):
+        """``(f (3n,), parts, energy J)`` of :meth:`evaluate`, the tangent as its blocks: per
+        plane touched ``(faces (m,), pair (m, 3, 3, 3, 3), loaded (h,) or None, rates
+        (h, 3, 3))``, ``pair[t, j, l]`` the 3 × 3 block of the triangle's corners (j, l) and
+        ``rates`` the friction's vertex blocks (``loaded`` surface rows; None: no friction)."""
         x = self.rest + u.reshape(-1, 3)[self.vertices]
         s_count = x.shape[0]
         force = np.zeros((self.n, 3))
-        rows, cols, vals = [], [], []
+        parts = []
         energy = 0.0
         for plane, n, mu in zip(self.planes, self.normals, self.friction, strict=True):
             depth = -((x - np.asarray(plane.point)) @ n)
@@ -95,28 +134,55 @@ class FullSpaceContact:
             np.add.at(force, self.vertices[loaded], -F[loaded, None] * n[None, :])
             touched = np.flatnonzero(np.any(blocks != 0.0, axis=1))
             M = blocks[touched].reshape(-1, 3, 3)  # (m, 3, 3) the triangles' pairs
-            corners = self.faces[touched]
             pair = M[:, :, :, None, None] * np.outer(n, n)[None, None, None]
-            if mu > 0:
-                w = (np.zeros((loaded.size, 3)) if v is None
-                     else v.reshape(-1, 3)[self.vertices[loaded]])
-                friction, rates, direction = friction_force(w, n, F[loaded], mu, self.slip_speed)
-                np.add.at(force, self.vertices[loaded], -friction)
-                slip = np.zeros((s_count, 3))
-                slip[loaded] = direction
-                pair = pair - mu * (M[:, :, :, None, None] * slip[corners][:, :, None, :, None]
-                                    * n[None, None, None, None, :])
-                self._add_blocks(rows, cols, vals, self.vertices[loaded], self.vertices[loaded],
-                                 rate * rates)
-            self._add_blocks(rows, cols, vals,
-                             np.repeat(self.vertices[corners], 3, axis=1).ravel(),
-                             np.tile(self.vertices[corners], (1, 3)).ravel(),
-                             pair.reshape(-1, 3, 3))
-        if not rows:
-            return force.ravel(), None, 0.0
-        K = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(3 * self.n, 3 * self.n))
-        return force.ravel(), K, energy
+            if not mu > 0:
+                parts.append((touched, pair, None, None))
+                continue
+            w = (np.zeros((loaded.size, 3)) if v is None
+                 else v.reshape(-1, 3)[self.vertices[loaded]])
+            friction, rates, direction = friction_force(w, n, F[loaded], mu, self.slip_speed)
+            np.add.at(force, self.vertices[loaded], -friction)
+            slip = np.zeros((s_count, 3))
+            slip[loaded] = direction
+            pair = pair - mu * (M[:, :, :, None, None]
+                                * slip[self.faces[touched]][:, :, None, :, None]
+                                * n[None, None, None, None, :])
+            parts.append((touched, pair, loaded, rate * rates))
+        return force.ravel(), parts, energy
+
+    def add_tangent(self, data: np.ndarray, positions, parts) -> None:
+        """Add the tangent ``parts`` of :meth:`evaluate_parts` into a CSR data array in
+        place, through ``positions = (face (f, 81), vertex (s, 9))`` from
+        :meth:`pattern_positions` (−1: an entry of a fixed dof, left out)."""
+        face_positions, vertex_positions = positions
+        where, values = [], []
+        for faces, pair, loaded, rates in parts:
+            where.append(face_positions[faces].ravel())  # pair's (m, j, l, a, b) order
+            values.append(pair.ravel())
+            if loaded is not None:
+                where.append(vertex_positions[loaded].ravel())
+                values.append(rates.ravel())
+        where, values = np.concatenate(where), np.concatenate(values)
+        kept = where >= 0
+        if not kept.all():
+            where, values = where[kept], values[kept]
+        data += np.bincount(where, weights=values, minlength=data.size)
+
+    def pattern_positions(self, locate):
+        """``(face (f, 81), vertex (s, 9))`` positions of the tangent blocks' entries in a
+        CSR data array, rows ``3 v_j + a`` by columns ``3 v_l + b`` in (j, l, a, b) order,
+        from ``locate(rows, cols) -> positions`` over full dofs (−1: a fixed dof), or None
+        when ``locate`` returns None (an entry outside the pattern)."""
+        dofs = 3 * self.vertices[self.faces][:, :, None] + np.arange(3)  # (f, 3, 3): j, a
+        shape = (dofs.shape[0], 3, 3, 3, 3)
+        rows = np.broadcast_to(dofs[:, :, None, :, None], shape)
+        cols = np.broadcast_to(dofs[:, None, :, None, :], shape)
+        face = locate(rows.reshape(-1), cols.reshape(-1))
+        own = 3 * self.vertices[:, None] + np.arange(3)
+        vertex = locate(np.repeat(own, 3, axis=1).ravel(), np.tile(own, (1, 3)).ravel())
+        if face is None or vertex is None:
+            return None
+        return face.reshape(-1, 81), vertex.reshape(-1, 9)
 
     @staticmethod
     def _add_blocks(rows: list, cols: list, vals: list, left: np.ndarray, right: np.ndarray,

@@ -16,8 +16,17 @@ class FullSpaceDamping:
     """The co-rotated damping of :class:`~lbshape.dynamics.full.FullSpaceSimulator` (which
     holds the arrays the methods read: ``mesh``, ``_mass_ff``, ``stepper`` …)."""
 
+    def _scaled_damping(self) -> sp.csr_matrix:
+        """``D = β Q K₀ Qᵀ`` of the current frame (kept while the frame is)."""
+        kept = getattr(self, "_damping_kept", None)
+        if kept is None or kept[0] is not self._damping_now:
+            kept = (self._damping_now, self._corotated_beta * self._damping_now)
+            self._damping_kept = kept
+        return kept[1]
+
     def _deformation_damping(self, x: np.ndarray, damping: sp.csr_matrix,
-                             velocity: np.ndarray, rate: float) -> np.ndarray:
+                             velocity: np.ndarray, rate: float, *,
+                             tangent: bool = True) -> np.ndarray:
         """(3n,) N: a free body's stiffness damping of its deformation only,
         ``Pᵀ D P v`` with ``P = I − Ψ Ψᵀ M`` and Ψ (3n, 6) the M-orthonormal rigid
         motions of the current shape ``X + x``.
@@ -38,12 +47,16 @@ class FullSpaceDamping:
             damping: (3n, 3n) D in N·s/m.
             velocity: (3n,) the end-of-step velocity v₁(x) in m/s.
             rate: ∂v₁/∂x of the scheme in 1/s.
+            tangent: keep the rank-12 part (False: the force alone; the kept part stays).
         """
         n = self.n_vertices
-        rigid, mass_rigid = _rigid_modes(self.mesh.points + x.reshape(n, 3), self._mass_ff)
-        damped_rigid = np.asarray(damping @ rigid)
-        core = np.block([[rigid.T @ damped_rigid, -np.eye(6)], [-np.eye(6), np.zeros((6, 6))]])
-        self._damping_rigid = (np.hstack([mass_rigid, damped_rigid]), rate * core)
+        rigid, mass_rigid = _rigid_modes(self.mesh.points + x.reshape(n, 3), self._mass_ff,
+                                         getattr(self, "_scalar_mass", None))
+        if tangent:
+            damped_rigid = np.asarray(damping @ rigid)
+            core = np.block([[rigid.T @ damped_rigid, -np.eye(6)],
+                             [-np.eye(6), np.zeros((6, 6))]])
+            self._damping_rigid = (np.hstack([mass_rigid, damped_rigid]), rate * core)
         force = damping @ (velocity - rigid @ (mass_rigid.T @ velocity))
         return force - mass_rigid @ (rigid.T @ force)
 
@@ -93,19 +106,32 @@ class FullSpaceDamping:
 
 
 
-def _rigid_modes(points: np.ndarray, mass: sp.spmatrix) -> tuple[np.ndarray, np.ndarray]:
+def _rigid_modes(points: np.ndarray, mass: sp.spmatrix,
+                 scalar_mass: sp.spmatrix | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(Ψ, M Ψ)``: :func:`~lbshape.elastic.modes.rigid_body_modes` of ``points`` and its
     product with the mass, from one sparse product (``M Ψ = (M F) L⁻ᵀ`` with the fields F
-    and the Cholesky factor L of their Gram matrix)."""
+    and the Cholesky factor L of their Gram matrix). With ``scalar_mass`` M₁ (n, n), M =
+    M₁ ⊗ I₃ on every dof: ``M F`` from ``M₁ [1 r]`` (the fields are 1 and e_c × r)."""
     n = points.shape[0]
     r = points - points.mean(axis=0)
+    F = _fields(np.ones(n), r)
+    if scalar_mass is not None and mass.shape[0] == 3 * n:
+        scaled = np.asarray(scalar_mass @ np.column_stack([np.ones(n), r]))
+        MF = _fields(scaled[:, 0], scaled[:, 1:])
+    else:
+        MF = np.asarray(mass @ F)
+    gram = F.T @ MF
+    lower = np.linalg.cholesky(0.5 * (gram + gram.T))
+    inverse = scipy.linalg.solve_triangular(lower, np.eye(6), lower=True)  # L⁻¹ (6 × 6)
+    return F @ inverse.T, MF @ inverse.T
+
+
+def _fields(one: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(3n, 6) the translations ``one e_c`` and rotations ``e_c × r`` per vertex."""
+    n = r.shape[0]
     fields = np.zeros((n, 3, 6))
-    fields[:, [0, 1, 2], [0, 1, 2]] = 1.0
+    fields[:, [0, 1, 2], [0, 1, 2]] = one[:, None]
     fields[:, 1, 3], fields[:, 2, 3] = -r[:, 2], r[:, 1]  # e_c × r
     fields[:, 0, 4], fields[:, 2, 4] = r[:, 2], -r[:, 0]
     fields[:, 0, 5], fields[:, 1, 5] = -r[:, 1], r[:, 0]
-    F = fields.reshape(3 * n, 6)
-    MF = np.asarray(mass @ F)
-    gram = F.T @ MF
-    lower = np.linalg.cholesky(0.5 * (gram + gram.T))
-    return np.linalg.solve(lower, F.T).T, np.linalg.solve(lower, MF.T).T
+    return fields.reshape(3 * n, 6)

@@ -103,7 +103,6 @@ class FullSpaceExampleForce:
         # the fast path: modified Newton, the Hessians reused across iterations and steps
         solver = ReusedHessianTargetSolver if self._fast else TargetSolver
         self._target_solver = solver(models, flat, tolerance=tolerance)
-        self._kM_ff = self._k_ex * self._mass_ff
 
     def _example_energy(self, x: np.ndarray) -> float:
         """The example spring's energy (J) at free-dof displacements x (its part of the

@@ -13,14 +13,14 @@ reference (scipy sparse 3n×3n matrices). The caller supplies:
 * ``external(t) -> (N,)``: the applied load at time t (s);
 * Rayleigh coefficients: ``D = α M + β K₀``.
 
-**Damping choice.** ``K₀`` is the tangent at rest (``x = 0``), or the matrix the
-caller passes as ``damping_stiffness`` (e.g. the elastic tangent without the
-example term). A constant ``D`` keeps the damping force linear in ``v``, so the
-Newton matrix below is exact, linear mode i is damped with the textbook ratio
-``ζ_i = α/(2ω_i) + βω_i/2``, and damping never turns into an energy source when
-the current tangent becomes indefinite under large deformation.
+**Damping choice.** ``K₀`` is the tangent at rest (``x = 0``), or the matrix the caller
+passes as ``damping_stiffness`` (e.g. the elastic tangent without the example term). A
+constant ``D`` keeps the damping force linear in ``v``, so the Newton matrix below is exact,
+linear mode i is damped with the textbook ratio ``ζ_i = α/(2ω_i) + βω_i/2``, and damping
+never turns into an energy source when the current tangent becomes indefinite under large
+deformation.
 
-**Schemes.** :data:`SCHEMES` holds each scheme's coefficients once (:class:`Scheme`);
+**Schemes.** :data:`~lbshape.dynamics.schemes.SCHEMES` holds each scheme's coefficients once;
 every engine reads them from there (this stepper, :mod:`lbshape.dynamics.reduced`,
 :mod:`lbshape.dynamics.free_body`). With the displacement increment
 ``Δx = x_{n+1} − x_n`` unknown:
@@ -32,34 +32,32 @@ every engine reads them from there (this stepper, :mod:`lbshape.dynamics.reduced
 * ``backward-euler`` (first order, L-stable, dissipates):
   ``v_{n+1} = Δx/Δt``, ``a_{n+1} = (v_{n+1} − v_n)/Δt``.
 
-Both solve ``R(Δx) = M a_{n+1} + D v_{n+1} + f(x_{n+1}) − f_ext(t_{n+1}) = 0`` by
-Newton's method with the matrix ``c_a M + c_v D + K(x_{n+1})`` (``c_a = 4/Δt²,
-c_v = 2/Δt`` for Newmark, ``1/Δt², 1/Δt`` for backward Euler), starting from the
-constant-acceleration (Newmark) or constant-velocity (backward Euler) predictor.
-Convergence: ``‖R‖ ≤ max(rtol · scale, atol, noise)``, ``scale`` being the
-largest of ``‖R‖`` at the predictor, ``‖f_ext‖``, ``‖f(x_n)‖``, ``‖f(predictor)‖``
-and ``‖M a_n‖`` (the size of the forces in balance in this step), and ``noise`` the
-round-off level of evaluating R: ``64 ε`` times the sum of the magnitudes of its
-terms (the inertial term ``c_a M Δx ≈ (4/Δt) M v`` grows like 1/Δt, so with small
-steps a tight ``rtol`` could otherwise never be met).
+Both solve ``R(Δx) = M a_{n+1} + D v_{n+1} + f(x_{n+1}) − f_ext(t_{n+1}) = 0`` by Newton's
+method with the matrix ``c_a M + c_v D + K(x_{n+1})`` (``c_a = 4/Δt², c_v = 2/Δt`` for
+Newmark, ``1/Δt², 1/Δt`` for backward Euler), starting from the constant-acceleration
+(Newmark) or constant-velocity (backward Euler) predictor. Convergence: ``‖R‖ ≤ max(rtol ·
+scale, atol, noise)``, ``scale`` being the largest of ``‖R‖`` at the predictor, ``‖f_ext‖``,
+``‖f(x_n)‖``, ``‖f(predictor)‖`` and ``‖M a_n‖`` (the size of the forces in balance in this
+step), and ``noise`` the round-off level of evaluating R: ``64 ε`` times the sum of the
+magnitudes of its terms (the inertial term ``c_a M Δx ≈ (4/Δt) M v`` grows like 1/Δt, so
+with small steps a tight ``rtol`` could otherwise never be met).
 
-**Divergence.** A non-finite force, tangent, residual or Newton update, a Newton
-iteration that does not converge, or an energy blow-up raises
-:class:`~lbshape.errors.SolverError` naming the step and time; the stepper keeps
-its last good state so the caller can save what was computed. Energy blow-up: the
-total energy ``½ vᵀMv + potential(x)`` exceeds ``energy_factor`` times the energy
-made available to the system so far, ``budget = E₀ + W_ext + energy_budget``:
-``E₀`` the initial energy (without a supplied potential, ``½|f(x₀)·x₀|`` stands in
-for the initial potential energy), ``W_ext`` the accumulated absolute work of the
-external load (trapezoidal rule) plus what the caller credits between steps
-(:meth:`ImplicitStepper.credit_work`: a supplied potential it changes at a fixed
-state). A conservative or dissipative system stays below ``budget`` (Newmark
-conserves the energy of linear systems exactly); a non-conservative force that feeds
-energy in (example forces chasing a moving target, follower forces, fictitious
-forces) eventually exceeds it. With a zero budget (starting at rest and unloaded) the
-monitor is inactive; pass ``energy_budget`` to arm it. ``check_state`` lets the caller
-refuse a converged state that is wrong for another reason (an inverted element of a
-material that forbids inversion) before it is accepted.
+**Divergence.** A non-finite force, tangent, residual or Newton update, a Newton iteration
+that does not converge, or an energy blow-up raises :class:`~lbshape.errors.SolverError`
+naming the step and time; the stepper keeps its last good state so the caller can save what
+was computed. Energy blow-up: the total energy ``½ vᵀMv + potential(x)`` exceeds
+``energy_factor`` times the energy made available to the system so far, ``budget = E₀ +
+W_ext + energy_budget``: ``E₀`` the initial energy (without a supplied potential,
+``½|f(x₀)·x₀|`` stands in for the initial potential energy), ``W_ext`` the accumulated
+absolute work of the external load (trapezoidal rule) plus what the caller credits between
+steps (:meth:`ImplicitStepper.credit_work`: a supplied potential it changes at a fixed
+state). A conservative or dissipative system stays below ``budget`` (Newmark conserves the
+energy of linear systems exactly); a non-conservative force that feeds energy in (example
+forces chasing a moving target, follower forces, fictitious forces) eventually exceeds it.
+With a zero budget (starting at rest and unloaded) the monitor is inactive; pass
+``energy_budget`` to arm it. ``check_state`` lets the caller refuse a converged state that
+is wrong for another reason (an inverted element of a material that forbids inversion)
+before it is accepted.
 """
 
 from __future__ import annotations
@@ -77,6 +75,7 @@ import scipy.sparse.linalg as spla
 from lbshape.dynamics.kernels import norm as _norm
 from lbshape.dynamics.linear_solvers import woodbury_solve
 from lbshape.dynamics.sanity import ENERGY_FACTOR
+from lbshape.dynamics.schemes import SCHEMES, Scheme, get_scheme
 from lbshape.errors import LbshapeError, NewtonFailure, SolverError
 
 log = logging.getLogger(__name__)
@@ -84,65 +83,6 @@ log = logging.getLogger(__name__)
 Matrix = np.ndarray | sp.spmatrix
 ForceAndTangent = Callable[[np.ndarray], tuple[np.ndarray, Matrix]]
 
-
-@dataclass(frozen=True)
-class Scheme:
-    """The coefficients of one implicit scheme: the one table every engine reads.
-
-    With ``h = Δt`` and the step's displacement increment ``Δx = x₁ − x₀``:
-
-    * predictor (the first guess of Δx): ``Δx = h v₀ + ½ k_a h² a₀``;
-    * end-of-step kinematics: ``a₁ = c_a/h² Δx − k_v/h v₀ − k_a a₀``,
-      ``v₁ = c_v/h Δx − j_v v₀``;
-    * hence the Newton matrix ``dR/dΔx = c_a/h² M + c_v/h D + K``.
-
-    A second-order scheme (``k_a ≠ 0``; Newmark, where ``k_v = c_a``) is also written
-    ``a₁ = c_a/h² (Δx − h v₀) − k_a a₀``; the first-order one (``k_a = 0``; backward
-    Euler, ``c_a = k_v = c_v = 1``, ``j_v = 0``) as the difference quotients
-    ``v₁ = Δx/h``, ``a₁ = (v₁ − v₀)/h``. The same numbers to round-off; which form an
-    engine evaluates is its own (the forms round differently).
-
-    Attributes:
-        name: the scene's name of the scheme (:data:`INTEGRATORS`).
-        ca, kv, ka, cv, jv: ``c_a``, ``k_v``, ``k_a``, ``c_v``, ``j_v`` above.
-    """
-
-    name: str
-    ca: float
-    kv: float
-    ka: float
-    cv: float
-    jv: float
-
-    @property
-    def array(self) -> np.ndarray:
-        """(5,) ``[c_a, k_v, k_a, c_v, j_v]`` (for compiled kernels)."""
-        return np.array([self.ca, self.kv, self.ka, self.cv, self.jv])
-
-    def step_rates(self, dt: float) -> tuple[float, float, float, float, float]:
-        """``(c_a/h², k_v/h, k_a, c_v/h, j_v)`` for the step ``h = dt`` (s): the factors of
-        Δx, v₀ and a₀ in a₁ and v₁."""
-        h = float(dt)
-        return (self.ca / h**2, self.kv / h, self.ka, self.cv / h, self.jv)
-
-
-#: the schemes by scene name: Newmark average acceleration (β = ¼, γ = ½) and backward
-#: Euler
-SCHEMES: dict[str, Scheme] = {
-    "newmark": Scheme("newmark", ca=4.0, kv=4.0, ka=1.0, cv=2.0, jv=1.0),
-    "backward-euler": Scheme("backward-euler", ca=1.0, kv=1.0, ka=0.0, cv=1.0, jv=0.0),
-}
-#: time integrators by scene name
-INTEGRATORS: tuple[str, ...] = tuple(SCHEMES)
-
-
-def get_scheme(integrator: str) -> Scheme:
-    """The :class:`Scheme` named ``integrator``; :class:`LbshapeError` for an unknown name."""
-    try:
-        return SCHEMES[integrator]
-    except KeyError:
-        raise LbshapeError(
-            f"integrator must be one of {INTEGRATORS}, got {integrator!r}") from None
 
 
 @dataclass(frozen=True)
@@ -213,6 +153,10 @@ class ImplicitStepper:
             ``tangent_contraction`` (a modified Newton with the same residual test; a
             slower update re-evaluates the tangent at the next one).
         tangent_contraction: the contraction a kept tangent must achieve (0 < c < 1).
+        tangent_each_step: with ``force``: the tangent is evaluated afresh at each step's
+            first update and kept within the step only (a non-smooth force: friction,
+            contact, a free body's fitted pull); a reused-factor ``linear_solver`` keeps
+            its factor, which preconditions the fresh tangents.
     """
 
     #: the scheme's coefficients (one of :data:`SCHEMES`)
@@ -244,6 +188,7 @@ class ImplicitStepper:
         check_state: Callable[[np.ndarray, int, float], None] | None = None,
         force: Callable[[np.ndarray], np.ndarray] | None = None,
         tangent_contraction: float = 0.1,
+        tangent_each_step: bool = False,
     ):
         self._sparse = sp.issparse(mass)
         self.mass = _square_matrix(mass, "mass")
@@ -265,6 +210,7 @@ class ImplicitStepper:
         self.check_state = check_state
         self._force = force
         self.tangent_contraction = float(tangent_contraction)
+        self.tangent_each_step = bool(tangent_each_step)
         self._kept = None  # (K, low-rank part) kept for updates (``force`` given)
         self._fresh_tangent = True  # the next update evaluates the tangent
         self.tangent_evaluations = 0
@@ -400,18 +346,21 @@ class ImplicitStepper:
     def _converge(self, dx: np.ndarray, fext: np.ndarray, index: int, t1: float):
         """Newton from the increment dx to the residual test: ``(state, dx, iterations,
         relative residuals)``, state as :meth:`_residual` returns it."""
+        self._fresh_tangent = self._fresh_tangent or self.tangent_each_step
         base_scale = max(
             _norm(fext), _norm(self._f), _norm(self.mass @ self._a)
         )
         residuals: list[float] = []
         scale = 0.0
-        state = self._residual(dx, fext, index, t1)
+        state = self._residual(dx, fext, index, t1, first=True)
         for iteration in range(self.max_iterations + 1):
             x1, f, K, v1, a1, R, norm = state
             if not np.isfinite(norm):
                 raise SolverError(f"non-finite residual at step {index} (t = {t1:.6g} s)")
             if iteration == 0:
                 scale = max(base_scale, norm, float(_norm(f)))
+                if hasattr(self._linear_solver, "newton_tolerance"):  # an inexact solve's goal
+                    self._linear_solver.newton_tolerance = max(self.rtol * scale, self.atol)
             relative = norm / scale if scale > 0 else 0.0
             residuals.append(relative)
             if norm <= max(self.rtol * scale, self.atol) or norm <= self._noise(dx, f, fext):
@@ -421,7 +370,8 @@ class ImplicitStepper:
                     f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
                     f"residual {relative:.3e} after {iteration} iterations (rtol {self.rtol:g})"
                 )
-            stale = K is None and self._kept is not None and not self._fresh_tangent
+            stale = (K is None and self._kept is not None and not self._fresh_tangent
+                     and not (iteration == 0 and self.tangent_each_step))  # not just taken
             delta = self._update(x1, K, R, index, t1)
             state = self._residual(dx - delta, fext, index, t1)
             if stale and not state[-1] < norm:  # the kept tangent's update is refused
@@ -447,11 +397,17 @@ class ImplicitStepper:
         """Take ``steps`` steps; return their infos (raises like :meth:`step`)."""
         return [self.step() for _ in range(int(steps))]
 
-    def _residual(self, dx: np.ndarray, fext: np.ndarray, index: int, t1: float):
+    def _residual(self, dx: np.ndarray, fext: np.ndarray, index: int, t1: float, *,
+                  first: bool = False):
         """``(x₁, f, K, v₁, a₁, R, ‖R‖)`` of the increment ``dx`` (the step's residual
-        ``R = M a₁ + D v₁ + f(x₁) − f_ext``)."""
+        ``R = M a₁ + D v₁ + f(x₁) − f_ext``); the step's ``first`` residual with
+        ``tangent_each_step`` evaluates the tangent with the force and keeps it."""
         x1 = self._x + dx
-        if self._force is not None:  # the tangent where an update needs it (_update)
+        if first and self._force is not None and self.tangent_each_step:
+            f, tangent = self._evaluate(x1, index, t1)
+            self._keep(tangent)
+            K = None
+        elif self._force is not None:  # the tangent where an update needs it (_update)
             f, K = np.asarray(self._force(x1), dtype=float).reshape(-1), None
             if f.shape != (self.n,) or not np.isfinite(f).all():
                 raise SolverError(f"non-finite force at step {index} (t = {t1:.6g} s)")
@@ -543,13 +499,16 @@ class ImplicitStepper:
         if K is not None:
             return self._solve_newton(K, R, index, t)
         if self._kept is None or self._fresh_tangent:
-            if hasattr(self._linear_solver, "reset"):
+            if hasattr(self._linear_solver, "reset") and not self.tangent_each_step:
                 self._linear_solver.reset()  # a reused factor: of this tangent's matrix
-            _, tangent = self._evaluate(x1, index, t)
-            self.tangent_evaluations += 1
-            low_rank = self._low_rank_tangent() if self._low_rank_tangent is not None else None
-            self._kept = (tangent, low_rank)
+            self._keep(self._evaluate(x1, index, t)[1])
         return self._solve_newton(self._kept[0], R, index, t, self._kept[1])
+
+    def _keep(self, tangent: Matrix) -> None:
+        """Keep a tangent just evaluated, with its low-rank part, for the updates."""
+        self.tangent_evaluations += 1
+        low_rank = self._low_rank_tangent() if self._low_rank_tangent is not None else None
+        self._kept, self._fresh_tangent = (tangent, low_rank), False
 
     def _solve_newton(self, K: Matrix, R: np.ndarray, index: int, t: float,
                       low_rank=False) -> np.ndarray:

@@ -6,7 +6,7 @@ allocate nothing per step. What both use is here, compiled when numba is present
 (:mod:`lbshape._jit`):
 
 * :func:`axpy` (``out += s x``) and :func:`predict` (the scheme's predictor
-  ``Δx = h v + ½ k_a h² a``, k_a from :class:`~lbshape.dynamics.integrators.Scheme`);
+  ``Δx = h v + ½ k_a h² a``, k_a from :class:`~lbshape.dynamics.schemes.Scheme`);
 * :func:`cholesky_in_place` / :func:`cholesky_solve_in_place` (symmetric positive
   definite systems: the fixed object's Newton matrix, the free body's 6 × 6 rigid
   kick), :func:`lu_solve` (the free body's non-symmetric Newton matrix) and
@@ -59,7 +59,7 @@ def _axpy_kernel(scale, x, out):
 def predict(v, a, h, dx, c):
     """The scheme's predictor Δx = h v + ½ k_a h² a into ``dx`` (k_a = ``c[2]``: Newmark
     1, backward Euler 0; ``c`` the step rates of
-    :meth:`~lbshape.dynamics.integrators.Scheme.step_rates`)."""
+    :meth:`~lbshape.dynamics.schemes.Scheme.step_rates`)."""
     half = 0.5 * h * h * c[2]
     for i in range(dx.shape[0]):
         dx[i] = h * v[i] + half * a[i]

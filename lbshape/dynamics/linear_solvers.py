@@ -10,10 +10,14 @@ preconditioner of the current one:
 
 * :class:`ReusedFactorSolver` solves each system by right-preconditioned GMRES with the
   last factorisation (and the Woodbury identity for ``W S Wᵀ``) to a relative residual of
-  :data:`LINEAR_RTOL`, and factorises the current J afresh when GMRES needs more than
+  :data:`LINEAR_RTOL`, or, given the Newton tolerance τ of the step
+  (:attr:`ReusedFactorSolver.newton_tolerance`, set by the stepper), to the residual
+  ``NEWTON_FRACTION · τ`` where that is larger (an inexact Newton: an update's linear
+  residual stays a tenth of what the Newton test accepts, so the iteration converges as
+  the exact one does), and factorises the current J afresh when GMRES needs more than
   ``max_inner`` iterations (the next call refactorises first when it needed more than
   ``refactor_after``). The Newton iteration around it is unchanged: the same residual
-  test, updates equal to the exact ones to ``LINEAR_RTOL``.
+  test.
 * factorisations: sparse Cholesky (CHOLMOD through PETSc, :class:`CholmodFactor`) when
   J is symmetric, numeric refactorisation reusing the symbolic one while the pattern
   stays; where Cholesky fails (an indefinite matrix: buckling) or J is not symmetric
@@ -36,6 +40,8 @@ from lbshape.errors import LbshapeError, SolverError
 
 #: relative residual ``‖R − A δ‖ / ‖R‖`` of a Newton update solved with a reused factor
 LINEAR_RTOL = 1e-11
+#: the fraction of the Newton tolerance an update's linear residual may reach
+NEWTON_FRACTION = 0.1
 #: linear solver names of :func:`make_linear_solver`
 LINEAR_SOLVERS = ("reuse", "lu-each-iteration")
 
@@ -171,6 +177,8 @@ class ReusedFactorSolver:
             call factorises its J first.
 
     Attributes:
+        newton_tolerance: the Newton residual tolerance τ (force units) of the current
+            step, set by the stepper; 0 (default): every solve to ``rtol``.
         frame: (3, 3) the rotation of a free body's current rigid frame, or None (set by
             the caller each step; the dofs are then whole vertices, node-major). A factor
             of ``J₀`` taken in frame R₀ preconditions ``Q J₀ Qᵀ``, ``Q = diag(R R₀ᵀ, …)``:
@@ -194,6 +202,7 @@ class ReusedFactorSolver:
         self._woodbury = None  # (W, S, J₀⁻¹W, (I + S Wᵀ J₀⁻¹ W)⁻¹ S) of the factor
         self._norm = 0.0  # ‖J‖∞ of the factorised matrix (the round-off level)
         self.frame: np.ndarray | None = None
+        self.newton_tolerance = 0.0
         self._factor_frame: np.ndarray | None = None  # the frame the factor was taken in
         self.factorisations = 0
         self.solves = 0
@@ -312,7 +321,7 @@ class ReusedFactorSolver:
         # the tolerance, or the round-off level of evaluating J x where that is larger
         # (an ill-conditioned J: no solve, direct or not, gets its residual lower)
         noise = 64.0 * np.finfo(float).eps * (self._norm * math.sqrt(float(x @ x)) + norm_r)
-        target = max(self.rtol * norm_r, noise)
+        target = max(self.rtol * norm_r, NEWTON_FRACTION * self.newton_tolerance, noise)
         r = R - operator(x)
         beta = math.sqrt(float(r @ r))
         if beta <= target:

@@ -20,7 +20,7 @@ it writes is preallocated, the weights and the tabulated target are written in p
 force and tangent come from the compiled element kernel
 (:meth:`~lbshape.elastic.reduced_forces.ReducedForceModel.force_and_tangent_into`), and
 one compiled kernel forms the Newmark (or backward Euler) residual and Newton matrix
-— the scheme's coefficients from :data:`~lbshape.dynamics.integrators.SCHEMES` — and
+— the scheme's coefficients from :data:`~lbshape.dynamics.schemes.SCHEMES` — and
 solves it by Cholesky (:mod:`lbshape.dynamics.kernels`). **Newton runs until the
 relative residual, measured at the state the step accepts, is below** ``rtol``
 (:data:`REALTIME_RTOL` for real time). Its first update solves the step with the
@@ -70,7 +70,6 @@ from lbshape.dynamics.engine import (
     snapshot,
 )
 from lbshape.dynamics.example_ramp import check_ramp, ramp_factor
-from lbshape.dynamics.integrators import get_scheme
 from lbshape.dynamics.kernels import (
     all_finite,
     axpy,
@@ -90,6 +89,7 @@ from lbshape.dynamics.sanity import (
     step_warnings,
     stop_message,
 )
+from lbshape.dynamics.schemes import get_scheme
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
 
@@ -640,7 +640,7 @@ def _linear_force(f0, K0, dx, out):
 @njit
 def _kinematics(dx, x, v, a, c, x1, v1, a1):
     """x₁ = x + Δx and the end-of-step a₁, v₁ from the step rates ``c`` =
-    ``[c_a/h², k_v/h, k_a, c_v/h, j_v, k_ex]`` (:class:`~lbshape.dynamics.integrators.Scheme`)."""
+    ``[c_a/h², k_v/h, k_a, c_v/h, j_v, k_ex]`` (:class:`~lbshape.dynamics.schemes.Scheme`)."""
     for i in range(dx.shape[0]):
         x1[i] = x[i] + dx[i]
         a1[i] = c[0] * dx[i] - c[1] * v[i] - c[2] * a[i]

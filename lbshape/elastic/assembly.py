@@ -99,6 +99,23 @@ class CompiledElasticity:
             return None
         return position, coo.data
 
+    def positions(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray | None:
+        """Positions in the tangent's CSR data array of the entries (rows, cols) given as
+        full dofs (−1 where either is a fixed dof), or None when a pair of free dofs lies
+        outside the pattern."""
+        local = np.full(self.n_dofs, -1, dtype=np.int64)
+        local[self.free_dofs] = np.arange(self.free_dofs.size)
+        r, c = local[np.asarray(rows)], local[np.asarray(cols)]
+        free = (r >= 0) & (c >= 0)
+        wanted = r[free] * self._shape[0] + c[free]
+        found = np.searchsorted(self._keys, wanted)
+        found[found >= self._keys.size] = 0
+        if not np.array_equal(self._keys[found], wanted):
+            return None
+        out = np.full(r.shape, -1, dtype=np.int64)
+        out[free] = found
+        return out
+
     def pattern_values(self, matrix: sp.spmatrix) -> np.ndarray | None:
         """``matrix`` (nf, nf) as a data array on the tangent's pattern (zeros elsewhere;
         duplicates summed), or None when it has an entry outside the pattern."""
@@ -128,10 +145,10 @@ class CompiledElasticity:
                 and np.array_equal(K.indices, self.indices))
 
     def add_into(self, K: sp.csr_matrix, matrix: sp.spmatrix, *,
-                 constant: bool = False) -> sp.csr_matrix:
-        """``K + matrix``: in place on K's data when K is on this pattern and holds
+                 constant: bool = False, scale: float = 1.0) -> sp.csr_matrix:
+        """``K + scale · matrix``: in place on K's data when K is on this pattern and holds
         ``matrix``'s entries, else a new sparse sum. ``constant``: ``matrix`` does not
-        change between calls (its positions are kept)."""
+        change between calls (its positions are kept; ``scale`` may)."""
         if self.on_pattern(K):
             if constant:  # kept as a whole data array: one contiguous addition
                 kept = self._constant.get(id(matrix))
@@ -139,14 +156,14 @@ class CompiledElasticity:
                     kept = (matrix, self.pattern_values(matrix))
                     self._constant[id(matrix)] = kept
                 if kept[1] is not None:
-                    K.data += kept[1]
+                    K.data += kept[1] if scale == 1.0 else scale * kept[1]
                     return K
             else:
                 found = self.pattern_data(matrix)
                 if found is not None:
-                    K.data[found[0]] += found[1]
+                    K.data[found[0]] += found[1] if scale == 1.0 else scale * found[1]
                     return K
-        return (K + matrix).tocsr()
+        return (K + (matrix if scale == 1.0 else scale * matrix)).tocsr()
 
     def energy(self, u: np.ndarray) -> float:
         """Total strain energy (J) at the full node-major displacement u (3n,) m (every

@@ -29,8 +29,8 @@ from typing import Any
 import numpy as np
 
 from lbshape.dynamics.contact import ContactPlane
-from lbshape.dynamics.integrators import INTEGRATORS
 from lbshape.dynamics.loads import PROFILES, TimeProfile
+from lbshape.dynamics.schemes import INTEGRATORS
 from lbshape.elastic.materials import MODELS, Material
 from lbshape.elastic.polynomial_forces import FORCE_CHOICES, check_force_choice
 from lbshape.errors import LbshapeError

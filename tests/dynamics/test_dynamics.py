@@ -11,12 +11,12 @@ from conftest import observed_rates
 from scipy.integrate import solve_ivp
 
 from lbshape.dynamics.integrators import (
-    INTEGRATORS,
     BackwardEulerStepper,
     NewmarkStepper,
     make_stepper,
 )
 from lbshape.dynamics.sanity import ENERGY_FACTOR
+from lbshape.dynamics.schemes import INTEGRATORS
 from lbshape.errors import LbshapeError, SolverError
 
 

@@ -30,8 +30,9 @@ from lbshape.dynamics.free_body_kernels import (
     rigid_kick,
     scratch,
 )
-from lbshape.dynamics.integrators import INTEGRATORS, SCHEMES, get_scheme, make_stepper
+from lbshape.dynamics.integrators import make_stepper
 from lbshape.dynamics.kernels import predict
+from lbshape.dynamics.schemes import INTEGRATORS, SCHEMES, get_scheme
 from lbshape.errors import LbshapeError
 
 R = 5
