@@ -345,7 +345,22 @@ class ImplicitStepper:
 
     def _converge(self, dx: np.ndarray, fext: np.ndarray, index: int, t1: float):
         """Newton from the increment dx to the residual test: ``(state, dx, iterations,
-        relative residuals)``, state as :meth:`_residual` returns it."""
+        relative residuals)``, state as :meth:`_residual` returns it. A modified Newton
+        (``force`` given) that does not converge retakes the step by Newton's method
+        proper (force and tangent at every iterate, full updates), to the same test."""
+        try:
+            return self._newton(dx, fext, index, t1)
+        except NewtonFailure:
+            if self._force is None:
+                raise
+        force, self._force = self._force, None  # force and tangent at every iterate
+        try:
+            return self._newton(dx, fext, index, t1)
+        finally:
+            self._force, self._kept, self._fresh_tangent = force, None, True
+
+    def _newton(self, dx: np.ndarray, fext: np.ndarray, index: int, t1: float):
+        """One Newton iteration of :meth:`_converge` (raises :class:`NewtonFailure`)."""
         self._fresh_tangent = self._fresh_tangent or self.tangent_each_step
         base_scale = max(
             _norm(fext), _norm(self._f), _norm(self.mass @ self._a)
