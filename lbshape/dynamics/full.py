@@ -611,9 +611,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         x = self.stepper.x
         before = self._example_energy(x)
         self._k_ex = k_ex
-        solver = getattr(self.stepper, "_linear_solver", None)  # per-step tangents: a
-        if factor == 1.0 and self.stepper.tangent_each_step and hasattr(solver, "reset"):
-            solver.reset()  # reused factor of the full spring's matrix from here
+        if factor == 1.0 and self.stepper.tangent_each_step:  # per-step tangents: a
+            self.stepper.forget_factor()  # reused factor of the full spring's matrix
         self._pull_rigid = None  # the fitted pull's tangent part, of the last evaluation
         self.stepper.credit_work(self._example_energy(x) - before)
 

@@ -57,6 +57,7 @@ class FullSpaceContact:
         self.slip_speed = SLIP_SPEED
         #: steps taken through the slip continuation so far
         self.continued_steps = 0
+        self._positions = None  # (pattern, positions) of add_into's in-place additions
 
     def face_shares(self, x: np.ndarray, normal: np.ndarray) -> np.ndarray:
         """(f,) the boundary triangles' areas facing a plane of unit normal ``normal``,
@@ -103,7 +104,7 @@ class FullSpaceContact:
         (:class:`~lbshape.elastic.assembly.CompiledElasticity`) when K is on it, else
         ``add(K, tangent restricted to the free dofs)``."""
         if compiled is not None and compiled.on_pattern(K):
-            kept = getattr(self, "_positions", None)
+            kept = self._positions
             if kept is None or kept[0] is not compiled:
                 kept = (compiled, self.pattern_positions(compiled.positions))
                 self._positions = kept
@@ -196,11 +197,11 @@ class FullSpaceContact:
 
 
 def step_with_slip_continuation(stepper, contact: FullSpaceContact | None):
-    """``stepper.step()`` (a :class:`~lbshape.dynamics.integrators.Stepper`); where its Newton
-    iteration fails and the contact has friction, the same step again from the increment
-    converged with the slip speed widened (:data:`SLIP_CONTINUATION`, each from the last):
-    regularised friction is steep within ε of the slip speed, where Newton from the
-    predictor may cycle between sticking and slipping vertices. The step taken is the one
+    """``stepper.step()`` (an :class:`~lbshape.dynamics.integrators.ImplicitStepper`);
+    where its Newton iteration fails and the contact has friction, the same step again from
+    the increment converged with the slip speed widened (:data:`SLIP_CONTINUATION`, each
+    from the last): regularised friction is steep within ε of the slip speed, where Newton
+    from the predictor may cycle between sticking and slipping vertices. The step taken is the one
     at ε, to the same residual test; only its starting point differs.
 
     Raises:

@@ -479,6 +479,12 @@ class ImplicitStepper:
             raise SolverError(f"non-finite {what} or tangent at step {index} (t = {t:.6g} s)")
         return f, K
 
+    def forget_factor(self) -> None:
+        """The next solve factorises its Newton matrix afresh (a reused-factor linear
+        solver; others keep none)."""
+        if hasattr(self._linear_solver, "reset"):
+            self._linear_solver.reset()
+
     def forget_tangent(self) -> None:
         """The next update evaluates the tangent (``force`` given; the forces changed)."""
         self._kept, self._fresh_tangent = None, True
@@ -504,8 +510,7 @@ class ImplicitStepper:
                            arrays["indptr"].copy()), shape=(self.n, self.n))
         low_rank = (arrays["W"].copy(), arrays["S"].copy()) if "W" in arrays else None
         self._kept, self._fresh_tangent = (K, low_rank), bool(arrays["fresh"])
-        if hasattr(self._linear_solver, "reset"):
-            self._linear_solver.reset()
+        self.forget_factor()
 
     def _update(self, x1: np.ndarray, K: Matrix | None, R: np.ndarray, index: int,
                 t: float) -> np.ndarray:
@@ -514,8 +519,8 @@ class ImplicitStepper:
         if K is not None:
             return self._solve_newton(K, R, index, t)
         if self._kept is None or self._fresh_tangent:
-            if hasattr(self._linear_solver, "reset") and not self.tangent_each_step:
-                self._linear_solver.reset()  # a reused factor: of this tangent's matrix
+            if not self.tangent_each_step:
+                self.forget_factor()  # a reused factor: of this tangent's matrix
             self._keep(self._evaluate(x1, index, t)[1])
         return self._solve_newton(self._kept[0], R, index, t, self._kept[1])
 

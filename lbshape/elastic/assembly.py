@@ -91,13 +91,18 @@ class CompiledElasticity:
         lies outside the pattern."""
         coo = sp.coo_matrix(matrix)
         coo.sum_duplicates()  # unique positions
-        nf = self._shape[0]
-        wanted = coo.row.astype(np.int64) * nf + coo.col
+        if coo.shape != self._shape:
+            return None
+        position = self._find(coo.row.astype(np.int64), coo.col)
+        return None if position is None else (position, coo.data)
+
+    def _find(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray | None:
+        """Positions in the CSR data array of the free-dof entries (rows, cols), or None
+        when one lies outside the pattern."""
+        wanted = rows * self._shape[0] + cols
         position = np.searchsorted(self._keys, wanted)
         position[position >= self._keys.size] = 0
-        if coo.shape != self._shape or not np.array_equal(self._keys[position], wanted):
-            return None
-        return position, coo.data
+        return position if np.array_equal(self._keys[position], wanted) else None
 
     def positions(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray | None:
         """Positions in the tangent's CSR data array of the entries (rows, cols) given as
@@ -107,10 +112,8 @@ class CompiledElasticity:
         local[self.free_dofs] = np.arange(self.free_dofs.size)
         r, c = local[np.asarray(rows)], local[np.asarray(cols)]
         free = (r >= 0) & (c >= 0)
-        wanted = r[free] * self._shape[0] + c[free]
-        found = np.searchsorted(self._keys, wanted)
-        found[found >= self._keys.size] = 0
-        if not np.array_equal(self._keys[found], wanted):
+        found = self._find(r[free], c[free])
+        if found is None:
             return None
         out = np.full(r.shape, -1, dtype=np.int64)
         out[free] = found
