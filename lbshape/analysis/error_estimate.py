@@ -67,14 +67,22 @@ import scipy.sparse as sp
 from lbshape.elastic.jit_densities import density_parameters, stress, stress_and_tangent
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
+from lbshape.fem.cholesky import StoredLDL
 
 #: the estimate's calibration factor on the raw ratio (module docstring, "Calibration")
 CALIBRATION = 1.5
 #: relative spread of the frame spacing accepted as uniform
 SPACING_RTOL = 1e-6
-#: most frame intervals the estimate integrates over (the saved frames thinned to this;
-#: docs/decisions.md: 8 keeps every built-in case within the rule at a third of 25's frames)
+#: most frame intervals the estimate integrates over where the frames do not fall on
+#: :data:`FACTOR_SPACING` (the saved frames thinned to this; docs/decisions.md: 8 keeps every
+#: built-in case within the rule at a third of 25's frames)
 MAX_FRAMES = 8
+#: the frame spacing (s) the precompute's stored factor of the effective stiffness is made
+#: for: frames whose step divides it (1 ms, 1/60, 1/40, 1/20 s, …) are thinned to it, so
+#: that a run never factorises (docs/decisions.md)
+FACTOR_SPACING = 0.05
+#: fewest intervals of :data:`FACTOR_SPACING` a run must span to be thinned to it
+MIN_INTERVALS = 4
 #: objects with at most this many dofs (3n) get dense operators and a dense factor
 DENSE_DOFS = 600
 
@@ -255,8 +263,10 @@ class EstimateOperators:
     """Everything per object the estimate reads, built once (the precompute's
     ``estimate`` stage): the force operators of :class:`FrameForces` (B, Bᵀ V, shape
     gradients and volumes), M and K₀ (3n, 3n) with the fixed dofs' rows and columns zero,
-    M U and K₀ U (3n, r), the free dofs (``keep``, (3n,) bool) and the loads' patterns
-    (3n, loads) in N."""
+    M U and K₀ U (3n, r), the free dofs (``keep``, (3n,) bool), the loads' patterns
+    (3n, loads) in N, and the factor of :func:`effective_matrix` at
+    :data:`FACTOR_SPACING` for the damping it was made with (``factor_damping``: (α in
+    1/s, β in s); a run with other damping factorises its own)."""
 
     forces: FrameForces
     mass: sp.csr_matrix
@@ -265,28 +275,45 @@ class EstimateOperators:
     KU: np.ndarray
     keep: np.ndarray
     patterns: np.ndarray
+    factor: StoredLDL | None = None
+    factor_damping: tuple[float, float] | None = None
 
     @classmethod
     def build(cls, forces: FrameForces, U: np.ndarray, mass, stiffness, keep: np.ndarray,
-              patterns: np.ndarray) -> EstimateOperators:
-        """From M and K₀ already masked to ``keep`` and the basis U (3n, r)."""
+              patterns: np.ndarray, damping: tuple[float, float] | None = None
+              ) -> EstimateOperators:
+        """From M and K₀ already masked to ``keep`` and the basis U (3n, r); with
+        ``damping`` (α, β), the factor of the effective matrix at :data:`FACTOR_SPACING`."""
         mass, stiffness = sp.csr_matrix(mass), sp.csr_matrix(stiffness)
+        keep = np.asarray(keep, dtype=bool)
+        factor = None
+        if damping is not None:
+            damping = (float(damping[0]), float(damping[1]))
+            factor = StoredLDL.factor(
+                effective_matrix(mass, stiffness, keep, FACTOR_SPACING, *damping),
+                what="the effective stiffness of the error estimate")
         return cls(forces, mass, stiffness, np.asarray(mass @ U), np.asarray(stiffness @ U),
-                   np.asarray(keep, dtype=bool),
-                   np.where(keep[:, None], np.asarray(patterns, dtype=float), 0.0))
+                   keep, np.where(keep[:, None], np.asarray(patterns, dtype=float), 0.0),
+                   factor, damping)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The stored form (numpy arrays only; :meth:`from_arrays`)."""
-        return {"MU": self.MU, "KU": self.KU, "keep": self.keep, "patterns": self.patterns,
-                **csr_arrays("M", self.mass), **csr_arrays("K", self.stiffness),
-                **self.forces.arrays()}
+        out = {"MU": self.MU, "KU": self.KU, "keep": self.keep, "patterns": self.patterns,
+               **csr_arrays("M", self.mass), **csr_arrays("K", self.stiffness),
+               **self.forces.arrays()}
+        if self.factor is not None:
+            out.update(self.factor.arrays("factor_"),
+                       factor_damping=np.asarray(self.factor_damping, dtype=float))
+        return out
 
     @classmethod
     def from_arrays(cls, arrays: dict, material: Material) -> EstimateOperators:
         """Inverse of :meth:`arrays` (``material``: the elastic material of the forces)."""
+        factor = StoredLDL.from_arrays(arrays, "factor_")
+        damping = None if factor is None else tuple(float(v) for v in arrays["factor_damping"])
         return cls(FrameForces.from_arrays(arrays, material), csr_from_arrays(arrays, "M"),
                    csr_from_arrays(arrays, "K"), arrays["MU"], arrays["KU"],
-                   np.asarray(arrays["keep"], dtype=bool), arrays["patterns"])
+                   np.asarray(arrays["keep"], dtype=bool), arrays["patterns"], factor, damping)
 
 
 class ResidualErrorEstimator:
@@ -323,6 +350,7 @@ class ResidualErrorEstimator:
         self.alpha, self.beta = float(alpha), float(beta)
         self._loads = [(np.where(self.keep, np.asarray(p, dtype=float), 0.0), profile)
                        for p, profile in loads]
+        self._stored = None  # no stored factor (:meth:`from_operators` may have one)
 
     @classmethod
     def from_operators(cls, operators: EstimateOperators, basis: np.ndarray, *, alpha: float,
@@ -339,7 +367,17 @@ class ResidualErrorEstimator:
         self._gram = self.U.T @ self._MU
         self.alpha, self.beta = float(alpha), float(beta)
         self._loads = [(np.asarray(p, dtype=float), profile) for p, profile in loads]
+        self._stored = operators.factor if operators.factor_damping == (
+            self.alpha, self.beta) else None
         return self
+
+    def stored_solver(self, spacing: float) -> Callable[[np.ndarray], np.ndarray] | None:
+        """The solve with the precompute's factor of :meth:`effective_matrix` at
+        ``spacing`` (s), or None: it holds none, or one for another spacing or damping."""
+        stored = self._stored
+        if stored is None or abs(spacing - FACTOR_SPACING) > SPACING_RTOL * FACTOR_SPACING:
+            return None
+        return stored.solve
 
     def dense_solver(self, spacing: float) -> Callable[[np.ndarray], np.ndarray]:
         """Make M and K₀ dense and return the solve with a dense Cholesky factor of
@@ -354,11 +392,7 @@ class ResidualErrorEstimator:
     def effective_matrix(self, spacing: float) -> sp.csr_matrix:
         """``(1 + 2β/Δ) K₀ + (4/Δ² + 2α/Δ) M`` for the frame spacing Δ (s), 1 on the fixed
         dofs' diagonal: the matrix to factor once (symmetric positive definite)."""
-        if not spacing > 0:
-            raise LbshapeError(f"frame spacing must be > 0 s, got {spacing}")
-        return sp.csr_matrix((1.0 + 2.0 * self.beta / spacing) * self.K
-                             + (4.0 / spacing**2 + 2.0 * self.alpha / spacing) * self.M
-                             + sp.diags((~self.keep).astype(float)))
+        return effective_matrix(self.M, self.K, self.keep, spacing, self.alpha, self.beta)
 
     def residuals(self, times: np.ndarray, Q: np.ndarray,
                   Qdot: np.ndarray | None = None) -> np.ndarray:
@@ -404,6 +438,18 @@ class ResidualErrorEstimator:
         return float(np.sqrt(max(0.0, np.max(np.einsum("fr,rs,fs->f", Q, self._gram, Q)))))
 
 
+def effective_matrix(M, K, keep: np.ndarray, spacing: float, alpha: float, beta: float
+                     ) -> sp.csr_matrix:
+    """``(1 + 2β/Δ) K₀ + (4/Δ² + 2α/Δ) M`` (3n, 3n) for the frame spacing Δ (s), M and K₀
+    with the rows and columns of the dofs not in ``keep`` (3n,) zero and 1 on their
+    diagonal: the average-acceleration Newmark matrix of the error equation (SPD)."""
+    if not spacing > 0:
+        raise LbshapeError(f"frame spacing must be > 0 s, got {spacing}")
+    return sp.csr_matrix((1.0 + 2.0 * beta / spacing) * sp.csr_matrix(K)
+                         + (4.0 / spacing**2 + 2.0 * alpha / spacing) * sp.csr_matrix(M)
+                         + sp.diags((~np.asarray(keep, dtype=bool)).astype(float)))
+
+
 def newmark_error_norms(R: np.ndarray, M, K, alpha: float, beta: float, spacing: float,
                         solve: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
     """(f,) ‖e_k‖_M of ``M ë + (α M + β K) ė + K e = ρ(t)`` from ``e = ė = ë = 0`` at the first
@@ -429,17 +475,21 @@ def newmark_error_norms(R: np.ndarray, M, K, alpha: float, beta: float, spacing:
     return np.sqrt(np.maximum(np.einsum("if,if->f", E, np.asarray(M @ E)), 0.0))
 
 
-def select_frames(times: np.ndarray, Q: np.ndarray, max_frames: int = MAX_FRAMES
+def select_frames(times: np.ndarray, Q: np.ndarray, max_frames: int = MAX_FRAMES,
+                  spacing: float = FACTOR_SPACING
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The frames the estimate uses: the leading uniformly spaced ones (a last, shorter
-    interval is dropped), thinned to every k-th so that at most ``max_frames`` + 1 remain,
-    with their reduced velocities taken by central differences over every uniform frame
+    interval is dropped), thinned to every k-th: to ``spacing`` where the frame step
+    divides it and the run spans at least :data:`MIN_INTERVALS` such intervals (the
+    stored factor's spacing: no factorisation), else so that at most ``max_frames`` + 1
+    remain. Their reduced velocities are central differences over every uniform frame
     before the thinning (the β K₀ U q̇ term of the residual needs them accurate).
 
     Args:
         times: (f,) frame times in s.
         Q: (f, r) reduced coordinates.
-        max_frames: most intervals kept.
+        max_frames: most intervals kept off ``spacing``.
+        spacing: the preferred frame spacing in s.
 
     Returns:
         (times (k,), Q (k, r), Qdot (k, r)).
@@ -452,4 +502,10 @@ def select_frames(times: np.ndarray, Q: np.ndarray, max_frames: int = MAX_FRAMES
         times, Q = times[:count], Q[:count]
     Qdot = np.gradient(Q, times, axis=0) if len(times) > 1 else np.zeros_like(Q)
     every = max(1, math.ceil((len(times) - 1) / max(1, int(max_frames))))
+    if len(times) > 1:
+        step = float(times[1] - times[0])
+        k = max(1, round(spacing / step))
+        if (abs(k * step - spacing) <= SPACING_RTOL * spacing
+                and (len(times) - 1) // k >= MIN_INTERVALS):
+            every = k
     return times[::every], Q[::every], Qdot[::every]

@@ -24,6 +24,10 @@ result) read back by an unpickler that admits only the classes of lbshape, numpy
 scipy.sparse and plain containers; a foreign, truncated or differently keyed file is
 reported stale and recomputed, never run.
 
+Many arrays read together can be packed into three (:func:`pack_arrays`, the floats, the
+integers and their layout): an ``.npz`` member costs a fixed time to read, which dominates
+for many small arrays.
+
 The root is ``$LBSHAPE_CACHE`` if set, else ``~/.cache/lbshape``.
 """
 
@@ -281,3 +285,49 @@ def load_stage(name: str, key: str, *, root: Path | None = None):
         log.warning("cache: %s is stale or unreadable (%s); recomputing", path.name, exc)
         return False, None
     return True, value
+
+
+#: the names of :func:`pack_arrays`'s three arrays
+PACKED = ("floats", "integers", "layout")
+
+
+def pack_arrays(arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Named float, integer and bool arrays as three: ``floats`` (every float array,
+    float64, raveled and concatenated), ``integers`` (every integer and bool array, int32
+    where every value fits, else int64) and ``layout`` (a JSON string: each name's kind,
+    dtype, shape and offset). :func:`unpack_arrays` is the inverse.
+
+    Raises:
+        LbshapeError: an array of another kind (strings, objects, complex).
+    """
+    layout, floats, integers = [], [], []
+    offsets = {"f": 0, "i": 0}
+    for name, value in arrays.items():
+        value = np.asarray(value)
+        kind = "f" if value.dtype.kind == "f" else "i" if value.dtype.kind in "iub" else None
+        if kind is None:
+            raise LbshapeError(f"cannot pack array {name!r} of dtype {value.dtype}")
+        layout.append([name, kind, value.dtype.str, list(value.shape), offsets[kind]])
+        offsets[kind] += value.size
+        (floats if kind == "f" else integers).append(value.ravel())
+    ints = np.concatenate(integers).astype(np.int64) if integers else np.zeros(0, np.int64)
+    if ints.size == 0 or (ints.min() >= np.iinfo(np.int32).min
+                          and ints.max() <= np.iinfo(np.int32).max):
+        ints = ints.astype(np.int32)
+    return {"floats": np.concatenate(floats).astype(float) if floats else np.zeros(0),
+            "integers": ints, "layout": np.array(json.dumps(layout))}
+
+
+def unpack_arrays(packed: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Inverse of :func:`pack_arrays`: the named arrays with their shapes and dtypes,
+    except that integer arrays keep the packed width (int32 or int64); float and integer
+    arrays are views of the packed ones."""
+    sources = {"f": np.asarray(packed["floats"]), "i": np.asarray(packed["integers"])}
+    out = {}
+    for name, kind, dtype, shape, offset in json.loads(str(packed["layout"])):
+        size = int(np.prod(shape, dtype=np.int64))
+        values = sources[kind][offset:offset + size].reshape(shape)
+        if kind == "f" or np.dtype(dtype).kind == "b":  # integers keep the packed width
+            values = values.astype(dtype, copy=False)
+        out[name] = values
+    return out

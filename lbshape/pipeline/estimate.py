@@ -1,7 +1,9 @@
 """The error estimate of a reduced run (:mod:`lbshape.analysis.error_estimate`) wired to a
 scene and its precompute: the full-space force, mass and rest stiffness of the object,
-its loads, and one sparse Cholesky factor of the effective stiffness at the frame spacing
-(:func:`lbshape.fem.cholesky.serial_cholesky`). Runs after the run on its saved frames.
+its loads, and one sparse factor of the effective stiffness at the frame spacing: the
+precompute's stored one at :data:`~lbshape.analysis.error_estimate.FACTOR_SPACING` for the
+scene's damping, else one made here (:func:`lbshape.fem.cholesky.serial_cholesky`). Runs
+after the run on its saved frames.
 
 Free bodies: the estimate does not model the rigid motion nor impacts; a free body
 reports ``None`` with the reason (the time of its first contact with a plane when it
@@ -42,7 +44,8 @@ def estimate_operators(scene: Scene, mesh, material, fixed: np.ndarray,
     """The ``estimate`` stage of the precompute: everything per object the estimate reads
     (:class:`~lbshape.analysis.error_estimate.EstimateOperators` as arrays): the
     full-space force operators, M and K₀ with the fixed dofs' rows and columns zero, M U,
-    K₀ U and the loads' patterns (their size; the profiles are the run's)."""
+    K₀ U, the loads' patterns (their size; the profiles are the run's) and the factor of
+    the effective stiffness at the stored frame spacing for the scene's damping."""
     forces = FrameForces(mesh.points, mesh.tets, material)
     keep = np.ones(3 * mesh.n_vertices, dtype=bool)
     keep[(3 * np.asarray(fixed, dtype=np.int64)[:, None] + np.arange(3)).ravel()] = False
@@ -51,7 +54,8 @@ def estimate_operators(scene: Scene, mesh, material, fixed: np.ndarray,
     if scene.loads:  # the patterns need the mass of every dof (reactions included)
         patterns = np.stack([load.pattern for load in mesh_load_patterns(
             scene, mesh, forces.mass(material.density))], axis=1)
-    return EstimateOperators.build(forces, U, mass, stiffness, keep, patterns).arrays()
+    return EstimateOperators.build(forces, U, mass, stiffness, keep, patterns,
+                                   damping=(scene.damping.alpha, scene.damping.beta)).arrays()
 
 
 def estimator(scene: Scene, pre: Precomputed) -> ResidualErrorEstimator:
@@ -93,7 +97,10 @@ def estimate_error(scene: Scene, pre: Precomputed, record: RunRecord,
     spacing = float(times[1] - times[0])
     size = est.size(np.asarray(record.states, dtype=float))
     try:
-        if est.U.shape[0] <= DENSE_DOFS:
+        stored = est.stored_solver(spacing)
+        if stored is not None:
+            result = est.estimate(times, Q, stored, Qdot=Qdot, size=size)
+        elif est.U.shape[0] <= DENSE_DOFS:
             result = est.estimate(times, Q, est.dense_solver(spacing), Qdot=Qdot, size=size)
         else:
             with serial_cholesky(est.effective_matrix(spacing),

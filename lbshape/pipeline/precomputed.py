@@ -38,6 +38,7 @@ from lbshape.elastic.cubature import Cubature
 from lbshape.elastic.materials import Material
 from lbshape.elastic.polynomial_forces import PolynomialForceModel
 from lbshape.geometry.mesh import TetMesh
+from lbshape.io.cache import PACKED, pack_arrays, unpack_arrays
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.auto_stiffness import AutoStiffness
 from lbshape.shapespace.basis_choice import METHODS
@@ -53,14 +54,16 @@ from lbshape.spectral.spectrum import LBSpectrum
 #: coordinates of the dynamics) instead of ``(√ρ U)ᵀ M₃ L``. 18: U of a fixed object
 #: with examples ends with the example responses it misses (``example-basis`` stage).
 #: 20: a free body's U too (its responses without their rigid part). 21: a free body
-#: whose own r reaches the responses' cap still gets a few of them.
-PIPELINE_VERSION = 21
+#: whose own r reaches the responses' cap still gets a few of them. 22: a fixed object's
+#: ``estimate`` stage holds the LDLᵀ factor of the estimate's effective stiffness, packed.
+PIPELINE_VERSION = 22
 #: FrameTensors fields stored as ``frame_<field>`` arrays (free bodies)
 FRAME_FIELDS = ("mass", "center", "Y0", "G", "C", "H", "S", "translation")
 #: arrays every artifact holds, and those of scenes with examples
 _REQUIRED = ("points", "tets", "fixed", "U", "omega2", "cub_elements", "cub_weights")
-#: the estimate stage's arrays are stored as ``est_<name>``; ``est_present`` (fixed
-#: objects) is 1 when they are there
+#: the estimate stage's arrays are stored packed (:func:`~lbshape.io.cache.pack_arrays`) as
+#: ``est_floats``, ``est_integers``, ``est_layout``; ``est_present`` (fixed objects) is 1
+#: when they are there
 ESTIMATE_PREFIX, ESTIMATE_FLAG = "est_", "est_present"
 _REQUIRED_FRAME = tuple(f"frame_{name}" for name in FRAME_FIELDS)
 _REQUIRED_EXAMPLES = ("eigenvalues", "eigenvectors", "example_coefficients", "projection",
@@ -383,8 +386,7 @@ class Precomputed:
                                             else meta.get("stage_cached", ()))),
             auto_stiffness=(AutoStiffness.from_dict(meta["example_stiffness"])
                             if meta.get("example_stiffness") else None),
-            estimate=({k[len(ESTIMATE_PREFIX):]: v for k, v in arrays.items()
-                       if k.startswith(ESTIMATE_PREFIX)}
+            estimate=(unpack_arrays({name: arrays[ESTIMATE_PREFIX + name] for name in PACKED})
                       if int(np.asarray(arrays.get(ESTIMATE_FLAG, [0]))[0]) else None),
         )
 
@@ -444,7 +446,8 @@ def artifact(scene: Scene, *, mesh: TetMesh, fixed: np.ndarray, U: np.ndarray,
                        for name in FRAME_FIELDS})
     else:  # a fixed object: the estimate stage's operators, or the flag saying none
         arrays[ESTIMATE_FLAG] = np.array([int(estimate is not None)])
-        arrays.update({ESTIMATE_PREFIX + k: v for k, v in (estimate or {}).items()})
+        if estimate is not None:  # packed: many small members cost more to read than one
+            arrays.update({ESTIMATE_PREFIX + k: v for k, v in pack_arrays(estimate).items()})
     return arrays, meta
 
 

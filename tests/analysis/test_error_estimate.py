@@ -13,6 +13,8 @@ import scipy.linalg
 import scipy.sparse.linalg as spla
 
 from lbshape.analysis.error_estimate import (
+    FACTOR_SPACING,
+    MIN_INTERVALS,
     FrameForces,
     ResidualErrorEstimator,
     select_frames,
@@ -80,12 +82,20 @@ def test_estimate_is_zero_when_the_basis_spans_the_free_space():
 
 
 def test_select_frames_keeps_uniform_frames_and_thins_them():
+    """The leading uniform frames; thinned to the stored factor's spacing where the frame
+    step divides it (5 ms → every 10th), else to at most ``max_frames`` intervals."""
     times = np.array([0.0, 0.1, 0.2, 0.3, 0.35])
     kept, Q, Qdot = select_frames(times, np.arange(10.0).reshape(5, 2), max_frames=50)
     np.testing.assert_allclose(kept, [0.0, 0.1, 0.2, 0.3])
     assert Q.shape == Qdot.shape == (4, 2)
     kept, _, _ = select_frames(np.arange(101) * 0.005, np.zeros((101, 1)), max_frames=50)
+    assert FACTOR_SPACING == 0.05 and len(kept) == 11 and kept[1] == pytest.approx(0.05)
+    kept, _, _ = select_frames(np.arange(101) * 0.005, np.zeros((101, 1)), max_frames=50,
+                               spacing=0.0123)
     assert len(kept) == 51 and kept[1] == pytest.approx(0.01)
+    short = np.arange(16) * 0.01  # 3 intervals of 50 ms: fewer than MIN_INTERVALS
+    kept, _, _ = select_frames(short, np.zeros((16, 1)), max_frames=5)
+    assert MIN_INTERVALS == 4 and len(kept) == 6 and kept[1] == pytest.approx(0.03)
 
 
 def test_thinned_frames_keep_the_velocities_of_every_frame():
@@ -93,7 +103,7 @@ def test_thinned_frames_keep_the_velocities_of_every_frame():
     central differences over the saved frames (within 1 % of 40 cos(40 t)), not over the
     thinned ones (25 ms apart: 16 % low at t = 0.1 s)."""
     times = np.arange(101) * 0.005
-    kept, Q, Qdot = select_frames(times, np.sin(40.0 * times)[:, None], max_frames=20)
+    kept, Q, Qdot = select_frames(times, np.sin(40.0 * times)[:, None], spacing=0.025)
     assert kept[1] == pytest.approx(0.025)
     inner = slice(1, -1)
     np.testing.assert_allclose(Qdot[inner, 0], 40.0 * np.cos(40.0 * kept[inner]),
@@ -230,3 +240,43 @@ def test_precompute_stores_the_estimate_operators_and_the_run_uses_them(monkeypa
                        method="reduced").stats["error_estimate"]
     assert built == [1]
     assert scratch == pytest.approx(stored, rel=1e-10)
+
+
+def test_a_run_on_the_stored_spacing_uses_the_stored_factor_and_never_factorises(monkeypatch):
+    """The ``estimate`` stage stores the LDLᵀ factor of the effective stiffness at
+    FACTOR_SPACING for the scene's damping. A 60 Hz run (every 3rd frame is 50 ms apart)
+    solves with it and factorises nothing; its estimate equals the one with a factor made
+    at run time (to round-off). Other damping, or another spacing, has no stored solver."""
+    import lbshape.pipeline.estimate as pipeline_estimate
+    from lbshape.pipeline.estimate import estimator
+
+    scene = with_step(load_scene("demo"), 1.0 / 60.0, 0.3)
+    pre = precompute(scene)
+    est = estimator(scene, pre)
+    solver = est.stored_solver(FACTOR_SPACING)
+    assert solver is not None and est.stored_solver(1.0 / 15.0) is None
+    other = dataclasses.replace(scene, damping=dataclasses.replace(
+        scene.damping, alpha=2.0 * scene.damping.alpha + 0.1))
+    assert estimator(other, pre).stored_solver(FACTOR_SPACING) is None
+    rhs = np.random.default_rng(3).standard_normal(est.U.shape[0])
+    matrix = est.effective_matrix(FACTOR_SPACING)
+    assert np.linalg.norm(matrix @ solver(rhs) - rhs) <= 1e-12 * np.linalg.norm(rhs)
+
+    factored, records = [], []
+    original = pipeline_estimate.estimate_error
+    monkeypatch.setattr(pipeline_estimate, "serial_cholesky",
+                        lambda *a, **k: factored.append("sparse"))
+    monkeypatch.setattr(ResidualErrorEstimator, "dense_solver",
+                        lambda *a, **k: factored.append("dense"))
+    monkeypatch.setattr(pipeline_estimate, "estimate_error",
+                        lambda sc, pr, record, *a, **k: records.append(record)
+                        or original(sc, pr, record, *a, **k))
+    run = simulate(scene, pre, method="reduced")
+    assert factored == [] and len(records) == 1 and run.stats["error_estimate"] > 0
+    monkeypatch.undo()
+    times, Q, Qdot = select_frames(records[0].times, records[0].states)
+    assert times[1] - times[0] == pytest.approx(FACTOR_SPACING)
+    fresh = estimator(scene, pre)
+    at_run_time = fresh.estimate(times, Q, fresh.dense_solver(FACTOR_SPACING), Qdot=Qdot,
+                                 size=fresh.size(records[0].states))
+    assert run.stats["error_estimate"] == pytest.approx(at_run_time.value, rel=1e-10)

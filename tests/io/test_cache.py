@@ -3,8 +3,17 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from lbshape.io.cache import artifact_path, cache_key, load_artifact, save_artifact
+from lbshape.errors import LbshapeError
+from lbshape.io.cache import (
+    artifact_path,
+    cache_key,
+    load_artifact,
+    pack_arrays,
+    save_artifact,
+    unpack_arrays,
+)
 
 
 def test_key_depends_on_every_part():
@@ -42,3 +51,28 @@ def test_non_finite_arrays_are_rejected(tmp_path):
     save_artifact("x", key, {"U": np.array([1.0, np.nan])}, root=tmp_path)
     assert load_artifact("x", key, root=tmp_path) is None
     assert artifact_path("x", key, tmp_path).exists()
+
+
+def test_packed_arrays_round_trip_with_their_shapes_and_kinds(tmp_path):
+    """pack_arrays → save → load → unpack_arrays gives every array back (values, shapes,
+    float and bool dtypes); integers shrink to int32 only where every value fits."""
+    rng = np.random.default_rng(0)
+    arrays = {"a": rng.standard_normal((3, 4)), "idx": np.arange(7, dtype=np.int64),
+              "keep": np.array([True, False, True]), "scalar": np.array(2.5),
+              "empty": np.zeros((0, 3))}
+    packed = pack_arrays(arrays)
+    assert set(packed) == {"floats", "integers", "layout"}
+    assert packed["integers"].dtype == np.int32
+    save_artifact("packed", "k", arrays=packed, root=tmp_path)
+    loaded, _ = load_artifact("packed", "k", root=tmp_path)
+    back = unpack_arrays(loaded)
+    assert set(back) == set(arrays)
+    for name, value in arrays.items():
+        np.testing.assert_array_equal(back[name], value)
+        assert back[name].shape == value.shape
+    assert back["keep"].dtype == bool and back["a"].dtype == float
+    wide = pack_arrays({"big": np.array([0, 2**40])})
+    assert wide["integers"].dtype == np.int64
+    assert unpack_arrays(wide)["big"][1] == 2**40
+    with pytest.raises(LbshapeError, match="'name'"):
+        pack_arrays({"name": np.array(["text"])})
