@@ -32,11 +32,18 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from lbshape.analysis.error_estimate import CALIBRATION, DENSE_DOFS, MAX_FRAMES  # noqa: E402
+from lbshape.analysis.error_estimate import (  # noqa: E402
+    CALIBRATION,
+    DENSE_DOFS,
+    FACTOR_SPACING,
+    MAX_FRAMES,
+    select_frames,
+)
 from lbshape.analysis.norms import trajectory_error  # noqa: E402
 from lbshape.elastic.element_kernels import mass_matrix  # noqa: E402
 from lbshape.io.cache import artifact_path, unpack_arrays  # noqa: E402
 from lbshape.io.machine import load_text, machine_description, machine_text  # noqa: E402
+from lbshape.pipeline.estimate import estimator  # noqa: E402
 from lbshape.pipeline.precompute import precompute  # noqa: E402
 from lbshape.pipeline.precompute_key import ARTIFACT_NAME, scene_cache_key  # noqa: E402
 from lbshape.pipeline.precomputed import ESTIMATE_FLAG, ESTIMATE_PREFIX  # noqa: E402
@@ -130,6 +137,11 @@ def measure(name: str, step: str, examples: bool, args) -> dict:
     estimate_s = stats["error_estimate_ms"] / 1e3
     run_s = wall - estimate_s
     load_s = operators_load_s(scene) if estimate is not None else None
+    factor = None
+    if estimate is not None:
+        times, _, _ = select_frames(out.times, np.zeros((len(out.times), 1)))
+        stored = estimator(scene, pre).stored_solver(float(times[1] - times[0]))
+        factor = "run" if stored is None else "stored"
     with tempfile.TemporaryDirectory() as folder:  # the same run writing its output folder
         started = time.perf_counter()
         written = simulate(scene, pre, method="reduced", out=Path(folder) / "run")
@@ -150,7 +162,7 @@ def measure(name: str, step: str, examples: bool, args) -> dict:
         "ratio": (estimate / error) if (estimate is not None and error) else None,
         "raw_ratio": (estimate / CALIBRATION / error) if (estimate is not None and error)
         else None,
-        "verdict": passes(estimate, error, message),
+        "verdict": passes(estimate, error, message), "factor": factor,
         "reduced_run_ms": 1e3 * run_s, "estimate_ms": 1e3 * estimate_s,
         "share": estimate_s / run_s if run_s > 0 else None,
         "run_with_outputs_ms": 1e3 * written_s,
@@ -195,9 +207,11 @@ def write(rows: list[dict], args, argv, started: str) -> tuple[Path, Path]:
         "Each reduced run reports `error_estimate` (stats.json, the summary line of "
         "`lbshape simulate`): the residual of the full equations of motion at the reduced "
         "frames, outside the basis, propagated by the linearised error equation with one "
-        "Cholesky factor of the effective stiffness over every k-th saved frame (at most "
-        f"{MAX_FRAMES} intervals; a dense factor up to {DENSE_DOFS} dofs), times the "
-        "calibration factor "
+        "factor of the effective stiffness over every k-th saved frame (thinned to "
+        f"{1e3 * FACTOR_SPACING:g} ms where the frame step divides it: the precompute stores "
+        "the LDLᵀ factor for that spacing and the scene's damping, column `factor` = stored; "
+        f"else to at most {MAX_FRAMES} intervals with a Cholesky factor made in the run, "
+        f"dense up to {DENSE_DOFS} dofs: `factor` = run), times the calibration factor "
         f"{CALIBRATION:g} (`lbshape/analysis/error_estimate.py`; `raw` = estimate / "
         f"{CALIBRATION:g}). "
         "`error` is the measured `max_t ‖u − u_full‖_M / max_t ‖u_full‖_M` of the same run "
@@ -205,17 +219,18 @@ def write(rows: list[dict], args, argv, started: str) -> tuple[Path, Path]:
         f"factor {FACTOR:g} of the error, or within {100 * ABSOLUTE:g} percentage point where "
         "the error is below 1 %; a free body may report no estimate (None, with the reason) "
         "after its first contact. Cost: the estimate's wall time inside `simulate` (what a "
-        "user waits for beyond the reduced run: reading the stored operators, the effective "
-        "matrix and its factor at the frame spacing, the residuals and the solves at the "
+        "user waits for beyond the reduced run: the estimator on the stored operators, a "
+        "factor where the stored one does not fit, the residuals and the solves at the "
         "frames) as a share of the reduced run (engine set-up + steps, no output files), "
         "timed on a second call after a warm-up one, and as a share of the same `simulate` "
         "call writing its output folder (stats, states, ParaView frames: what `lbshape "
         "simulate` does). Everything per object (the force operators, M and K₀ with the "
-        "fixed dofs masked, M U, K₀ U, the loads' patterns) is built once by the "
+        "fixed dofs masked, M U, K₀ U, the loads' patterns, the factor) is built once by the "
         "precompute's own cached `estimate` stage; its time is the column `estimate stage "
         "ms` (paid once per object and precompute, not per run; the first call in a process "
         "includes compiling the stress kernel). Reading those arrays with the cached "
-        "precompute (every `lbshape simulate` call loads it) is `load ms` (best of 3), and "
+        "precompute (every `lbshape simulate` call loads it; three packed arrays) is `load ms` "
+        "(best of 3), and "
         "`share with load` = (estimate + load) / reduced run. The machine was shared, "
         "so the shares are noisy.",
         "",
@@ -223,10 +238,10 @@ def write(rows: list[dict], args, argv, started: str) -> tuple[Path, Path]:
         f"load average at the end {load_text(machine)}. Each scene's own duration, capped at "
         f"{MAX_DURATION:g} s of simulated time.", "",
         "| scene | step | examples | steps | error | estimate | ratio | raw ratio | verdict "
-        "| reduced run ms "
+        "| factor | reduced run ms "
         "| estimate ms | share | load ms | share with load | run with outputs ms "
         "| share with outputs | estimate stage ms |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         ratio = "—" if row["ratio"] is None else f"{row['ratio']:.2f}"
@@ -238,7 +253,8 @@ def write(rows: list[dict], args, argv, started: str) -> tuple[Path, Path]:
         lines.append(
             f"| {row['scene']} | {row['step']} | {'yes' if row['examples'] else 'no'} | "
             f"{row['steps']} | {percent(row['error'])} | {estimate} | {ratio} | {raw} | "
-            f"{row['verdict']} | {row['reduced_run_ms']:.0f} | {row['estimate_ms']:.0f} | "
+            f"{row['verdict']} | {row['factor'] or '—'} | {row['reduced_run_ms']:.0f} | "
+            f"{row['estimate_ms']:.0f} | "
             f"{share} | {fmt(row['operators_load_ms'], '.1f')} | "
             f"{fmt(row['share_with_load'], '.0%')} | "
             f"{row['run_with_outputs_ms']:.0f} | {share_out} | "
