@@ -99,6 +99,45 @@ def boundary_faces(tets: np.ndarray) -> np.ndarray:
     return faces[counts[inverse.ravel()] == 1]
 
 
+def locate_points(points: np.ndarray, tets: np.ndarray, queries: np.ndarray, *,
+                  candidates: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The element of a tetrahedral mesh that holds each query point, and its barycentric
+    coordinates there: a P1 field's value at the point is their weighted sum over the
+    element's vertices (a transfer between two meshes of one shape).
+
+    The element is sought among the ``candidates`` elements with the nearest centroids. A
+    point outside all of them (a curved boundary's vertex beyond the other mesh's chord)
+    gets the least-outside one, its coordinates clipped to ≥ 0 and rescaled to sum 1.
+
+    Args:
+        points: (n, 3) the mesh's vertices (m).
+        tets: (e, 4) its elements.
+        queries: (q, 3) points (m).
+        candidates: elements tried per point.
+
+    Returns:
+        (elements (q,), coordinates (q, 4), outside (q,)): the element index, the
+        barycentric coordinates, and how far outside it each point lay (the most negative
+        coordinate's magnitude, 0 inside).
+    """
+    from scipy.spatial import cKDTree
+
+    points, tets = np.asarray(points, dtype=float), np.asarray(tets, dtype=np.int64)
+    queries = np.asarray(queries, dtype=float).reshape(-1, 3)
+    _, near = cKDTree(points[tets].mean(axis=1)).query(queries, k=min(candidates, len(tets)))
+    near = near.reshape(len(queries), -1)  # (q, c)
+    corners = points[tets[near]]  # (q, c, 4, 3)
+    edges = np.swapaxes(corners[:, :, 1:] - corners[:, :, :1], -1, -2)  # columns x_i − x_0
+    local = np.linalg.solve(edges, (queries[:, None] - corners[:, :, 0])[..., None])[..., 0]
+    coordinates = np.concatenate([1.0 - local.sum(axis=-1, keepdims=True), local], axis=-1)
+    best = coordinates.min(axis=-1).argmax(axis=1)  # the least-outside candidate
+    rows = np.arange(len(queries))
+    chosen = coordinates[rows, best]
+    outside = np.maximum(-chosen.min(axis=1), 0.0)
+    chosen = np.clip(chosen, 0.0, None)
+    return near[rows, best], chosen / chosen.sum(axis=1, keepdims=True), outside
+
+
 def check_mesh(mesh: TetMesh, *, require_connected: bool = True, source: str = "mesh") -> TetMesh:
     """Validate a mesh and return a cleaned copy (see the module docstring for the policy).
 

@@ -5,8 +5,9 @@
 * :func:`with_reduced` — other ``[reduced]`` m, r, s (and force model);
 * :func:`with_step` — another time step over a given duration;
 * :func:`scaled_scene` — a built-in scene's TOML with another object size, written to a file;
-* :func:`with_throw`, :func:`with_contact_stiffness` — a free body thrown faster or slower,
-  its contact planes stiffer or softer (the reference's noise floor);
+* :func:`with_throw`, :func:`with_contact_stiffness`, :func:`with_mesh_size` — a free body
+  thrown faster or slower, its contact planes stiffer or softer, its mesh finer (the
+  reference's noise floor);
 * :func:`impact_scene` — a designed impact: the body thrown at one plane of a given normal.
 """
 
@@ -20,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from lbshape.errors import LbshapeError
+from lbshape.geometry.shapes import get_shape
 from lbshape.io.toml_writer import dumps
 from lbshape.scene.reader import builtin_scene_names, load_scene
 from lbshape.scene.schema import Scene
@@ -106,6 +108,30 @@ def with_contact_stiffness(scene: Scene, factor: float) -> Scene:
     return dataclasses.replace(scene, planes=tuple(
         dataclasses.replace(plane, stiffness=factor * plane.stiffness)
         for plane in scene.planes))
+
+
+def with_mesh_size(scene: Scene, factor: float) -> Scene:
+    """The scene with its object's built-in shape meshed at ``factor`` (> 0) times its size
+    (the scene's, else the shape's default); example poses of the same shape at the same
+    size follow (same topology as the object, as in the scene), others keep theirs.
+
+    Raises:
+        LbshapeError: the object is not a built-in shape, or the factor is not > 0.
+    """
+    if not (math.isfinite(factor) and factor > 0):
+        raise LbshapeError(f"a mesh size factor must be > 0, got {factor}")
+    source = scene.object
+    if source.shape is None:
+        raise LbshapeError(f"scene {scene.name!r}: its object is not a built-in shape, so "
+                           f"it has no mesh size to refine")
+    size = source.size if source.size is not None else get_shape(source.shape).default_size
+    refined = dataclasses.replace(source, size=factor * size)
+    examples = scene.examples
+    if examples is not None:
+        examples = dataclasses.replace(examples, poses=tuple(
+            dataclasses.replace(pose, source=refined) if pose.source == source else pose
+            for pose in examples.poses))
+    return dataclasses.replace(scene, object=refined, examples=examples)
 
 
 def impact_scene(scene: Scene, points: np.ndarray, normal, speed: float, gap: float,

@@ -9,9 +9,11 @@ bar-s-cylinder), with and without its examples:
   diagonal (:func:`~lbshape.analysis.free_body_eval.surface_distance`): a symmetric
   object settling in an equivalent pose scores 0;
 * **the reference's noise floor** — the full reference re-run with the throw ±1 %, the
-  contact stiffness ±10 % and half the step (:data:`PERTURBATIONS`); the largest change
-  of its trajectory (the same norm as the error) is the floor printed beside every
-  whole-trajectory error, with the ratio error / floor;
+  contact stiffness ±10 % and half the step (:data:`PERTURBATIONS`), and here also on the
+  object meshed at half its size (:func:`refinement_change`: its displacements
+  interpolated onto this mesh's vertices); the largest change of its trajectory (the same
+  norm as the error) is the floor printed beside every whole-trajectory error, with the
+  ratio error / floor;
 * **designed impacts** (:func:`designed_impact`) — the bar thrown at a plane so that a
   face, an edge or a corner hits (:data:`IMPACT_NORMALS`) at two speeds
   (:data:`IMPACT_SPEEDS`), with and without examples; the reduced body restarts from the
@@ -54,6 +56,7 @@ from lbshape.dynamics.engine import EngineState
 from lbshape.dynamics.free_body_kernels import BodyState
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
+from lbshape.geometry.mesh import locate_points
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
 from lbshape.io.machine import load_text, machine_description, threads_text
 from lbshape.pipeline.precompute import precompute
@@ -63,6 +66,7 @@ from lbshape.scene.reader import load_scene
 from lbshape.scene.variants import (
     impact_scene,
     with_contact_stiffness,
+    with_mesh_size,
     with_step,
     with_throw,
     without_examples,
@@ -81,6 +85,9 @@ PERTURBATIONS: tuple[tuple[str, str, float], ...] = (
     ("contact stiffness +10%", "stiffness", 1.10), ("contact stiffness -10%", "stiffness", 0.90),
     ("half step", "step", 0.5),
 )
+#: the noise floor's mesh refinement: the object's mesh size times this, and its label
+REFINEMENT = 0.5
+REFINEMENT_LABEL = "mesh h/2"
 #: the designed impacts' body and plane normals (body frame = world at rest; the bar's
 #: long axis is z, its square section in x, y)
 IMPACT_BODY = "bar-s-cuboid"
@@ -160,8 +167,10 @@ class NoiseFloor:
         return max(values) if values else None
 
 
-def noise_floor(scene, pre, full, mass, *, steps: int) -> NoiseFloor:
-    """The reference's noise floor of ``full`` (the scene's full run over ``steps``)."""
+def noise_floor(scene, pre, full, mass, *, steps: int, refine: bool = False) -> NoiseFloor:
+    """The reference's noise floor of ``full`` (the scene's full run over ``steps``): the
+    :data:`PERTURBATIONS`, and with ``refine`` the mesh refinement
+    (:func:`refinement_change`) where the object is a built-in shape."""
     triangles = pre.mesh.boundary_faces()
     rest = pre.mesh.points
     diagonal = _diagonal(rest)
@@ -180,7 +189,35 @@ def noise_floor(scene, pre, full, mass, *, steps: int) -> NoiseFloor:
                                     diagonal).chamfer
         changes.append((label, change))
         poses.append((label, pose))
+    if refine and scene.object.shape is not None:
+        change, pose = refinement_change(scene, pre, full, mass, steps=steps)
+        changes.append((REFINEMENT_LABEL, change))
+        poses.append((REFINEMENT_LABEL, pose))
     return NoiseFloor(tuple(changes), tuple(poses))
+
+
+def refinement_change(scene, pre, full, mass, *, steps: int
+                      ) -> tuple[float | None, float | None]:
+    """How far the full reference moves when the object is meshed at :data:`REFINEMENT`
+    times its size (:func:`~lbshape.scene.variants.with_mesh_size`): the refined run's
+    displacements are interpolated onto this mesh's rest vertices (P1, in the refined rest
+    mesh: :func:`~lbshape.geometry.mesh.locate_points`) and compared with ``full`` in the
+    error's norm, and its final surface by the Chamfer distance over the diagonal.
+    (None, None) if either run stopped."""
+    variant = with_mesh_size(scene, REFINEMENT)
+    log.info("noise floor %s: full, %s", scene.name, REFINEMENT_LABEL)
+    fine = precompute(variant)
+    output = simulate(variant, fine, method="full", steps=steps)
+    if not (output.stats["stable"] and full.stats["stable"]):
+        return None, None
+    rest = pre.mesh.points
+    cells, weights, _ = locate_points(fine.mesh.points, fine.mesh.tets, rest)
+    corners = fine.mesh.tets[cells]  # (n, 4) refined vertices around each of ours
+    moved = np.einsum("nk,fnkd->fnd", weights, np.asarray(output.displacements)[:, corners])
+    change = run_difference(dataclasses.replace(output, displacements=moved), full, mass)
+    pose = surface_distance(rest + moved[-1], rest + full.displacements[-1],
+                            pre.mesh.boundary_faces(), _diagonal(rest)).chamfer
+    return change, pose
 
 
 def _diagonal(rest: np.ndarray) -> float:
@@ -409,7 +446,7 @@ def evaluate_scene(scene, pre, *, steps: int | None = None,
         log.info("free bodies %s (examples %s): full and reduced", scene.name, examples)
         full = simulate(variant, pre, method="full", steps=steps)
         reduced = simulate(variant, pre, method="reduced", steps=steps)
-        floor = (noise_floor(variant, pre, full, mass, steps=steps) if perturb
+        floor = (noise_floor(variant, pre, full, mass, steps=steps, refine=True) if perturb
                  else NoiseFloor((), ()))
         keys = whole_run(variant, pre, reduced, full, mass, floor.floor)
         out.append(WholeRun(scene.name, examples and len(variants) == 2,
@@ -457,6 +494,8 @@ def _commit() -> str:
 def whole_lines(runs: Sequence[WholeRun]) -> list[str]:
     """The whole-trajectory table with the noise floor beside each error."""
     labels = [label for label, _, _ in PERTURBATIONS]
+    if any(label == REFINEMENT_LABEL for run in runs for label, _ in run.floor.changes):
+        labels.append(REFINEMENT_LABEL)
     lines = [
         "| model | examples | error (whole trajectory) | noise floor | error / floor | "
         "error before first contact | first contact (s) | rest pose Chamfer | "
@@ -507,6 +546,9 @@ def write_free_bodies(runs: Sequence[WholeRun], impacts: Sequence[ImpactComparis
     """Write ``free_bodies.md`` and ``free_bodies.json`` to ``out_dir``."""
     machine = machine_description()
     perturbations = ", ".join(label for label, _, _ in PERTURBATIONS)
+    perturbations += (f" and the object meshed at {REFINEMENT:g} × its size ({REFINEMENT_LABEL}: "
+                      "the refined run's displacements interpolated onto this mesh's rest "
+                      "vertices, P1 in the refined rest mesh)")
     text = "\n".join([
         "# Free bodies: before contact, per impact, at rest, and the reference's noise floor",
         "",
@@ -557,8 +599,6 @@ def write_free_bodies(runs: Sequence[WholeRun], impacts: Sequence[ImpactComparis
         f"- Machine: {machine['cpu']}, {machine['cores']} cores, Python {machine['python']},"
         f" numpy {machine['numpy']}; threads: {threads_text(machine)}.",
         f"- Load average (1, 5, 15 min) when written: {load_text(machine)} (no timings here).",
-        "- Not measured: the reference under one mesh refinement (a refined mesh has other "
-        "vertices, so its trajectory needs a transfer to be compared).",
         "",
     ])
     out_dir = Path(out_dir)

@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 
 from lbshape.errors import LbshapeError
-from lbshape.geometry.mesh import TetMesh, boundary_faces, check_mesh, gmsh_session, load_mesh
+from lbshape.geometry.mesh import (
+    TetMesh,
+    boundary_faces,
+    check_mesh,
+    gmsh_session,
+    load_mesh,
+    locate_points,
+)
 from lbshape.geometry.primitives import structured_box
 
 
@@ -132,3 +139,25 @@ def test_index_out_of_range():
     tets[0, 0] = 100
     with pytest.raises(LbshapeError, match="out of range"):
         check_mesh(TetMesh(box.points, tets))
+
+
+def test_locate_points_interpolates_a_linear_field_exactly_across_meshes():
+    """Points of a coarse box located in a finer box's elements: the barycentric weights
+    reproduce each point and any linear field (P1 holds it exactly); a point beyond the
+    mesh is clipped onto its nearest element and reported outside."""
+    fine = structured_box(size=(0.3, 0.1, 0.1), divisions=(6, 3, 3))
+    coarse = structured_box(size=(0.3, 0.1, 0.1), divisions=(2, 1, 1))
+    rng = np.random.default_rng(0)
+    inside = rng.uniform((0.0, 0.0, 0.0), (0.3, 0.1, 0.1), size=(50, 3))
+    queries = np.vstack([coarse.points, inside])
+    cells, weights, outside = locate_points(fine.points, fine.tets, queries)
+    assert np.all(weights >= 0.0) and np.allclose(weights.sum(axis=1), 1.0)
+    assert outside.max() < 1e-9
+    corners = fine.points[fine.tets[cells]]  # (q, 4, 3)
+    np.testing.assert_allclose(np.einsum("qk,qkd->qd", weights, corners), queries, atol=1e-12)
+    field = fine.points @ np.array([[1.0, 2.0, 0.0], [0.0, -1.0, 3.0], [0.5, 0.0, 1.0]]) + 0.2
+    values = np.einsum("qk,qkd->qd", weights, field[fine.tets[cells]])
+    np.testing.assert_allclose(values, queries @ np.array(
+        [[1.0, 2.0, 0.0], [0.0, -1.0, 3.0], [0.5, 0.0, 1.0]]) + 0.2, atol=1e-12)
+    _, weights, outside = locate_points(fine.points, fine.tets, np.array([[0.35, 0.05, 0.05]]))
+    assert outside[0] > 0.1 and np.all(weights >= 0.0)
