@@ -6,8 +6,10 @@
    (:func:`landing_end`) and its creep speed against the regularised law; with μ = 0.3
    its acceleration (quadratic fit over 0.2-0.6 s) against g (sin θ − μ cos θ).
    Reduced and full.
-2. The full reference of bar-s-cuboid (no examples) on its mesh and two refinements: the
-   centre of mass's vertical velocity after its first floor contact.
+2. The full reference of bar-s-cuboid (no examples) on its mesh and four refinements, each
+   h/√2: the centre of mass's vertical velocity after its first floor contact, the
+   changes between successive meshes, their ratio, the observed order in h and the
+   Richardson estimate of the limit.
 
     PYTHONPATH=$PWD OMP_NUM_THREADS=1 python scripts/bench_contact.py [--out results/contact.md]
 """
@@ -167,13 +169,42 @@ def main() -> None:
              "(m/s²) | g (sin θ − μ cos θ) | deviation |",
              "|---|---|---|---|---|---|---|---|---|"]
     lines += incline_rows()
-    lines += ["", "## bar-s-cuboid full reference (no examples): first bounce under refinement",
-              "", "| mesh size (m) | vertices | v_z after the first contact (m/s) |",
-              "|---|---|---|"]
-    for size in (None, 0.055, 0.048):
-        n, v = bounce(size)
-        lines.append(f"| {'scene (0.0665)' if size is None else size} | {n} | {v:.4f} |")
+    lines += bounce_lines()
     Path(args.out).write_text("\n".join(lines) + "\n")
+
+
+#: the refinements of the bounce study: the scene's h = 0.0665 m over √2, 2, 2√2, 4
+BOUNCE_SIZES = (0.0665, 0.047, 0.033, 0.0235, 0.0166)
+
+
+def bounce_lines() -> list[str]:
+    """The bounce under refinement: v_z per mesh, the change from the previous mesh, the
+    ratio of successive changes (constant for a converging sequence), the observed order
+    p = log(ratio) / log(√2), and the Richardson limit from the last three meshes."""
+    lines = ["", "## bar-s-cuboid full reference (no examples): first bounce under refinement",
+             "", "Each mesh h/√2 of the previous one. Change: v_z minus the previous mesh's; "
+             "ratio: the previous change over this one (a sequence converging at order p in "
+             "h has ratio √2^p); limit: Richardson's from the last three meshes, "
+             "v + change / (ratio − 1).", "",
+             "| mesh size (m) | vertices | v_z after the first contact (m/s) | change | "
+             "ratio of changes | order p | off the limit |", "|---|---|---|---|---|---|---|"]
+    results = [bounce(size) for size in BOUNCE_SIZES]
+    velocities = [v for _, v in results]
+    changes = [None] + [b - a for a, b in zip(velocities, velocities[1:], strict=False)]
+    ratios = [None, None] + [changes[i - 1] / changes[i] for i in range(2, len(changes))]
+    last = ratios[-1]
+    limit = velocities[-1] + changes[-1] / (last - 1.0) if last and last > 1.0 else None
+    for size, (n, v), change, ratio in zip(BOUNCE_SIZES, results, changes, ratios,
+                                           strict=True):
+        order = (f"{math.log(ratio) / math.log(math.sqrt(2.0)):.2f}"
+                 if ratio and ratio > 0 else "—")
+        off = "—" if limit is None else f"{100 * abs(v - limit) / abs(limit):.1f} %"
+        lines.append(f"| {size:g} | {n} | {v:.4f} | "
+                     f"{'—' if change is None else f'{change:+.4f}'} | "
+                     f"{'—' if ratio is None else f'{ratio:.2f}'} | {order} | {off} |")
+    lines += ["", "Richardson limit: " + ("— (the changes do not shrink)" if limit is None
+                                          else f"{limit:.4f} m/s") + "."]
+    return lines
 
 
 if __name__ == "__main__":
