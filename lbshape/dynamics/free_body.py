@@ -61,8 +61,8 @@ loads_into`), the rigid update (:func:`~lbshape.dynamics.free_body_kernels.rigid
 with :func:`~lbshape.dynamics.rigid_frame.rotate_into`), the frame tensors and fictitious
 forces (:mod:`lbshape.dynamics.fictitious`), the contact
 (:meth:`~lbshape.dynamics.contact.PlaneContact.evaluate_into`, once per Newton
-evaluation; the contact at the start of a step is the last evaluation of the previous
-step — same configuration, same numbers — and is reused), the Newmark residual
+evaluation; the contact at the start of a step reuses the last evaluation of the previous
+step, same configuration — with friction not a fresh one's numbers), the Newmark residual
 (:func:`~lbshape.dynamics.free_body_kernels.deformation_residual`, the scheme's
 coefficients from :data:`~lbshape.dynamics.schemes.SCHEMES`) and the LU solve of
 the Newton system (:func:`~lbshape.dynamics.kernels.lu_solve`; non-symmetric: the Euler
