@@ -22,8 +22,9 @@ q̇₁ (the scheme's kinematics of Δq), with its tangent (``∂q̇₁/∂q₁ =
 converge from the predictor in a step with friction, the step is retaken with the contact
 at t₀ evaluated afresh (not reused from the previous step's last evaluation: with
 friction the two differ; on the car at 60 Hz the fresh one alone lets the wall step
-converge, docs/decisions.md), converged with the slip speed widened (:data:`~lbshape.dynamics.contact.SLIP_CONTINUATION` times ε, each from the last
-one's increment), then at ε from there: the same residual test, another start.
+converge, docs/decisions.md), converged with the slip speed widened
+(:data:`~lbshape.dynamics.contact.SLIP_CONTINUATION` times ε, each from the last one's
+increment), then at ε from there: the same residual test, another start.
 """
 
 from __future__ import annotations

@@ -138,6 +138,31 @@ def locate_points(points: np.ndarray, tets: np.ndarray, queries: np.ndarray, *,
     return near[rows, best], chosen / chosen.sum(axis=1, keepdims=True), outside
 
 
+#: the farthest a point may lie outside the mesh for :func:`interpolate_at`, in barycentric
+#: units of its nearest element (a curved boundary's vertex beyond the other mesh's chord:
+#: the car at half its mesh size, 0.05)
+MAX_OUTSIDE = 0.5
+
+
+def interpolate_at(points: np.ndarray, tets: np.ndarray, values: np.ndarray,
+                   queries: np.ndarray) -> np.ndarray:
+    """Vertex values of a tetrahedral mesh interpolated (P1) at other points: ``values``
+    (..., n, d) → (..., q, d), through :func:`locate_points` (a transfer between two
+    meshes of one shape).
+
+    Raises:
+        LbshapeError: a query point lies outside the mesh by more than
+            :data:`MAX_OUTSIDE` (the two meshes are not of one shape).
+    """
+    cells, weights, outside = locate_points(points, tets, queries)
+    if outside.size and outside.max() > MAX_OUTSIDE:
+        raise LbshapeError(f"{int((outside > MAX_OUTSIDE).sum())} points lie outside the mesh "
+                           f"(up to {outside.max():.2g} of an element): not a mesh of the "
+                           f"same shape")
+    corners = np.asarray(tets)[cells]  # (q, 4)
+    return np.einsum("qk,...qkd->...qd", weights, np.asarray(values)[..., corners, :])
+
+
 def check_mesh(mesh: TetMesh, *, require_connected: bool = True, source: str = "mesh") -> TetMesh:
     """Validate a mesh and return a cleaned copy (see the module docstring for the policy).
 

@@ -56,7 +56,7 @@ from lbshape.dynamics.engine import EngineState
 from lbshape.dynamics.free_body_kernels import BodyState
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
-from lbshape.geometry.mesh import locate_points
+from lbshape.geometry.mesh import interpolate_at
 from lbshape.io.atomic import write_json_atomic, write_text_atomic
 from lbshape.io.machine import load_text, machine_description, threads_text
 from lbshape.pipeline.precompute import precompute
@@ -189,7 +189,10 @@ def noise_floor(scene, pre, full, mass, *, steps: int, refine: bool = False) -> 
                                     diagonal).chamfer
         changes.append((label, change))
         poses.append((label, pose))
-    if refine and scene.object.shape is not None:
+    if refine and scene.object.shape is None:
+        log.info("noise floor %s: no %s (the object is not a built-in shape)", scene.name,
+                 REFINEMENT_LABEL)
+    elif refine:
         change, pose = refinement_change(scene, pre, full, mass, steps=steps)
         changes.append((REFINEMENT_LABEL, change))
         poses.append((REFINEMENT_LABEL, pose))
@@ -201,7 +204,7 @@ def refinement_change(scene, pre, full, mass, *, steps: int
     """How far the full reference moves when the object is meshed at :data:`REFINEMENT`
     times its size (:func:`~lbshape.scene.variants.with_mesh_size`): the refined run's
     displacements are interpolated onto this mesh's rest vertices (P1, in the refined rest
-    mesh: :func:`~lbshape.geometry.mesh.locate_points`) and compared with ``full`` in the
+    mesh: :func:`~lbshape.geometry.mesh.interpolate_at`) and compared with ``full`` in the
     error's norm, and its final surface by the Chamfer distance over the diagonal.
     (None, None) if either run stopped."""
     variant = with_mesh_size(scene, REFINEMENT)
@@ -211,9 +214,7 @@ def refinement_change(scene, pre, full, mass, *, steps: int
     if not (output.stats["stable"] and full.stats["stable"]):
         return None, None
     rest = pre.mesh.points
-    cells, weights, _ = locate_points(fine.mesh.points, fine.mesh.tets, rest)
-    corners = fine.mesh.tets[cells]  # (n, 4) refined vertices around each of ours
-    moved = np.einsum("nk,fnkd->fnd", weights, np.asarray(output.displacements)[:, corners])
+    moved = interpolate_at(fine.mesh.points, fine.mesh.tets, output.displacements, rest)
     change = run_difference(dataclasses.replace(output, displacements=moved), full, mass)
     pose = surface_distance(rest + moved[-1], rest + full.displacements[-1],
                             pre.mesh.boundary_faces(), _diagonal(rest)).chamfer

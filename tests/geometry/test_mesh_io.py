@@ -11,6 +11,7 @@ from lbshape.geometry.mesh import (
     boundary_faces,
     check_mesh,
     gmsh_session,
+    interpolate_at,
     load_mesh,
     locate_points,
 )
@@ -155,9 +156,13 @@ def test_locate_points_interpolates_a_linear_field_exactly_across_meshes():
     assert outside.max() < 1e-9
     corners = fine.points[fine.tets[cells]]  # (q, 4, 3)
     np.testing.assert_allclose(np.einsum("qk,qkd->qd", weights, corners), queries, atol=1e-12)
-    field = fine.points @ np.array([[1.0, 2.0, 0.0], [0.0, -1.0, 3.0], [0.5, 0.0, 1.0]]) + 0.2
-    values = np.einsum("qk,qkd->qd", weights, field[fine.tets[cells]])
-    np.testing.assert_allclose(values, queries @ np.array(
-        [[1.0, 2.0, 0.0], [0.0, -1.0, 3.0], [0.5, 0.0, 1.0]]) + 0.2, atol=1e-12)
-    _, weights, outside = locate_points(fine.points, fine.tets, np.array([[0.35, 0.05, 0.05]]))
-    assert outside[0] > 0.1 and np.all(weights >= 0.0)
+    A = np.array([[1.0, 2.0, 0.0], [0.0, -1.0, 3.0], [0.5, 0.0, 1.0]])
+    frames = np.stack([fine.points @ A + 0.2, 2.0 * fine.points])  # (2, n, 3)
+    values = interpolate_at(fine.points, fine.tets, frames, queries)
+    np.testing.assert_allclose(values[0], queries @ A + 0.2, atol=1e-12)
+    np.testing.assert_allclose(values[1], 2.0 * queries, atol=1e-12)
+    far = np.array([[0.35, 0.05, 0.05]])  # 0.05 m beyond the box's end
+    _, weights, outside = locate_points(fine.points, fine.tets, far)
+    assert outside[0] > 0.5 and np.all(weights >= 0.0)
+    with pytest.raises(LbshapeError, match="1 points lie outside"):
+        interpolate_at(fine.points, fine.tets, frames, far)
