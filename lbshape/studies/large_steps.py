@@ -227,13 +227,16 @@ def large_steps_plot(rows: Sequence[LargeStepRow], path: str | Path) -> Path:
         ax.plot(hz, [np.nan if r.full_message else r.full_final for r in mine], "o-",
                 color="black", label="full (a gap: it stopped)")
         ax.plot(hz, [np.nan if r.reduced_final is None else r.reduced_final for r in mine],
-                "s--", color="tab:blue", label="reduced")
+                "s--", color="tab:blue", label="reduced (a gap: it stopped)")
         top = max(r.full_final for r in mine) * 1.6
         label = "1 update, unchecked"
         for x, r in zip(hz, mine, strict=True):
-            if r.full_message:  # the full run stopped: named at the bottom of its gap
-                ax.annotate("full stopped", (x, 0.0), textcoords="offset points",
-                            xytext=(0, 4), ha="center", fontsize=7, color="black")
+            stopped = [name for name, gone in (("full", r.full_message),
+                                               ("reduced", r.reduced_final is None)) if gone]
+            if stopped:  # named at the bottom of the gap
+                ax.annotate(" and ".join(stopped) + " stopped", (x, 0.0),
+                            textcoords="offset points", xytext=(0, 4), ha="center",
+                            fontsize=7, color="black")
             if r.unchecked_message:  # stopped: a cross at the top
                 ax.plot([x], [top], "x", color="tab:red", markersize=9)
                 ax.annotate("stopped", (x, top), textcoords="offset points",
