@@ -71,14 +71,10 @@ from lbshape.geometry.mesh import boundary_faces
 #: ε of the regularised Coulomb friction (m/s): the slip speed below which the friction
 #: force grows linearly with the slip (module docstring). Held by friction a block creeps
 #: at about ε (tests/dynamics/test_friction.py; results/contact.md); the kick and the
-#: deformation solve take its rate implicitly, with its tangent. Both methods reach their
-#: steps at this ε through a slip continuation where Newton from the predictor fails
-#: (:func:`lbshape.dynamics.full_contact.step_with_slip_continuation`,
-#: :meth:`lbshape.dynamics.free_body_contact.FreeBodyContact._slip_continuation`)
+#: deformation solve take its rate implicitly, with its tangent. The full reference
+#: reaches its steps at this ε through a slip continuation where Newton from the
+#: predictor fails (:func:`lbshape.dynamics.full_contact.step_with_slip_continuation`)
 SLIP_SPEED = 5e-4
-#: the widened slip speeds (multiples of ε) whose converged steps lead Newton back to ε
-#: when a step with friction does not converge from the scheme's predictor
-SLIP_CONTINUATION = (16.0, 4.0)
 #: machine ε (the contact's round-off level)
 _EPS = float(np.finfo(float).eps)
 
@@ -162,8 +158,6 @@ class PlaneContact:
         self.friction = plane_frictions(planes)
         #: some plane has friction (the contact then depends on the velocities)
         self.has_friction = bool(np.any(self.friction > 0))
-        #: ε of the friction law in m/s (:data:`SLIP_SPEED`; a slip continuation widens it)
-        self.slip_speed = SLIP_SPEED
         self._k_max = float(self.stiffness.max())
         self._mu_max = float(self.friction.max())
         self.body_points = np.ascontiguousarray(body_points, dtype=float)
@@ -264,8 +258,8 @@ class PlaneContact:
                          self._rest3 if omega is None else omega,
                          self._rest_q if qd is None else qd, float(rate), self._motion)
             _friction_kernel(rotation, self._motion, self._arms, self.basis, self._loads,
-                             self._planes, self.slip_speed, self._reach, rigid,
-                             self._work.data, self._out.data)
+                             self._planes, SLIP_SPEED, self._reach, rigid, self._work.data,
+                             self._out.data)
         elif self.has_friction:
             self.damping_rigid[:] = 0.0
             self.coupling[:] = 0.0

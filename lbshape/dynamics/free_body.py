@@ -36,37 +36,42 @@ reaches a plane):
    ½ Δt (C₀ + C₁)`` of the rigid motion and the deformation together (why:
    ``docs/decisions.md``, free bodies).
 
-**Friction** (a plane's μ > 0) and the slip continuation: :mod:`lbshape.dynamics.
-free_body_contact`, where the contact's part of the step lives. Without loads and
-contact p and L are conserved to round-off (they change only by impulses) and R stays on
-SO(3) (Cayley map). Failures — Newton, a non-finite state, energy above
-:data:`~lbshape.dynamics.sanity.ENERGY_FACTOR` × the initial energy plus the work of loads
-and contact, an inverted cubature element (Neo-Hookean), a rotation step too large for the
-spin, a vertex pushed through a plane by more than the body's radius — raise
-:class:`~lbshape.errors.SolverError` naming the step; :meth:`FreeBodySimulation.run` turns
-it into ``stable = False`` with the message. The energy monitor tracks the elastic energy
-by the trapezoidal work of the elastic force, ``E(q₁) ≈ E(q₀) + ½ (f(q₀) + f(q₁))·(q₁ −
-q₀)`` (reset to the exact energy whenever that is computed), and computes the exact one
-when the estimated total reaches :data:`EXACT_ENERGY_FRACTION` of the limit, so the exact
-criterion decides every failure while a normal step stays free of that evaluation.
+**Friction** (a plane's μ > 0): see :mod:`lbshape.dynamics.free_body_contact`, where the
+contact's part of the step lives.
+
+Without loads and contact p and L are conserved to round-off (they change only by
+impulses) and R stays on SO(3) (Cayley map). Failures — Newton, a non-finite state,
+energy above :data:`~lbshape.dynamics.sanity.ENERGY_FACTOR` × the initial energy plus the
+work of loads and contact, an inverted cubature element (Neo-Hookean), a rotation step too
+large for the spin, a vertex pushed through a plane by more than the body's radius — raise
+:class:`~lbshape.errors.SolverError` naming the step; :meth:`FreeBodySimulation.run`
+turns it into ``stable = False`` with the message. The energy monitor tracks the
+elastic energy by the trapezoidal work of the elastic force, ``E(q₁) ≈ E(q₀) +
+½ (f(q₀) + f(q₁))·(q₁ − q₀)`` (reset to the exact energy whenever that is computed),
+and computes the exact elastic energy when the estimated total reaches
+:data:`EXACT_ENERGY_FRACTION` of the limit, so the exact criterion decides every
+failure while a normal step stays free of the allocating energy evaluation.
 
 **The step path** is compiled and allocation-free, as in :mod:`lbshape.dynamics.reduced`:
 state and work arrays are preallocated in a few named structures
 (:mod:`lbshape.dynamics.free_body_kernels`: the state at t₀ and the state being
 computed, :class:`~lbshape.dynamics.free_body_kernels.BodyState`, swap when a step is
 accepted), the weights and target are written in place, the elastic force and tangent
-come from :meth:`~lbshape.elastic.reduced_forces.ReducedForceModel.force_and_tangent_into`,
-and numba kernels do the rest: the loads (:func:`~lbshape.dynamics.free_body_kernels.
-loads_into`), the rigid update (:func:`~lbshape.dynamics.free_body_kernels.rigid_update`,
-with :func:`~lbshape.dynamics.rigid_frame.rotate_into`), the frame tensors and fictitious
+come from
+:meth:`~lbshape.elastic.reduced_forces.ReducedForceModel.force_and_tangent_into`, and
+numba kernels do the rest: the loads
+(:func:`~lbshape.dynamics.free_body_kernels.loads_into`), the rigid update
+(:func:`~lbshape.dynamics.free_body_kernels.rigid_update`, with
+:func:`~lbshape.dynamics.rigid_frame.rotate_into`), the frame tensors and fictitious
 forces (:mod:`lbshape.dynamics.fictitious`), the contact
 (:meth:`~lbshape.dynamics.contact.PlaneContact.evaluate_into`, once per Newton
-evaluation; the contact at the start of a step reuses the last evaluation of the previous
-step, same configuration — with friction not a fresh one's numbers), the Newmark residual
+evaluation; the contact at the start of a step is the last evaluation of the previous
+step — same configuration, same numbers — and is reused), the Newmark residual
 (:func:`~lbshape.dynamics.free_body_kernels.deformation_residual`, the scheme's
 coefficients from :data:`~lbshape.dynamics.schemes.SCHEMES`) and the LU solve of
 the Newton system (:func:`~lbshape.dynamics.kernels.lu_solve`; non-symmetric: the Euler
-and Coriolis terms are skew). Wall time per part: :data:`PHASES`, :attr:`phase_seconds`.
+and Coriolis terms are skew). Each step's wall time is split into :data:`PHASES`
+(:attr:`FreeBodySimulation.phase_seconds`).
 """
 
 from __future__ import annotations
@@ -117,7 +122,7 @@ from lbshape.dynamics.reduced import PHASES as FIXED_PHASES
 from lbshape.dynamics.reduced import REALTIME_NEWTON
 from lbshape.dynamics.rigid_frame import RigidState, rotation_error
 from lbshape.dynamics.schemes import Scheme, get_scheme
-from lbshape.errors import LbshapeError, NewtonFailure, SolverError
+from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.example_driver import ExampleDriver
 
 log = logging.getLogger(__name__)
@@ -239,7 +244,6 @@ class FreeBodySimulation(FreeBodyContact):
         self._contact_calls = -1  # contact calls when the last evaluation was committed
         self.sweeps = 0  # rigid kick + deformation solve passes of the last step (1: no sweep)
         self.total_sweeps = 0  # the same, summed over every step taken
-        self.continued_steps = 0  # steps taken through a slip continuation
         self._initial_state(q, qd, velocity, omega_world)
         self._initial = self.state
 
@@ -248,7 +252,6 @@ class FreeBodySimulation(FreeBodyContact):
         few arrays outside them."""
         #: the state at :attr:`time` and the state the step computes (swapped on accept)
         self._now, self._next = BodyState.allocate(r), BodyState.allocate(r)
-        self._guess: np.ndarray | None = None  # Newton's start Δq instead of the predictor
         self._kick_arrays = RigidKick.allocate()
         self._solve = DeformationSolve.allocate(r)
         self._scratch = Scratch.allocate(r)
@@ -362,7 +365,7 @@ class FreeBodySimulation(FreeBodyContact):
                 "rate6": self._rate6}
 
     _SCALARS = ("time", "steps_taken", "work", "energy0", "_elastic_energy",
-                "_contact_calls", "sweeps", "total_sweeps", "continued_steps")
+                "_contact_calls", "sweeps", "total_sweeps")
 
     @property
     def state(self) -> EngineState:
@@ -545,8 +548,6 @@ class FreeBodySimulation(FreeBodyContact):
         dt, state, solve = self.dt, self._now, self._solve
         newton_base(solve.damping, self._ca_dt2, self._cv_dt, solve.base)
         predict(state.qd, state.qa, dt, self._dqt, solve.rates)
-        if self._guess is not None:  # a slip continuation's converged increment
-            self._dqt[:] = self._guess
         np.add(state.q, self._dqt, out=self._next.q)
         b_norm, qa_norm, qd_norm = _norm(solve.b), _norm(state.qa), _norm(state.qd)
         scale = max(b_norm, qa_norm)
@@ -568,7 +569,7 @@ class FreeBodySimulation(FreeBodyContact):
             if norm <= self.newton.rtol * scale or norm <= noise:
                 break
             if iteration == self.newton.max_iterations:
-                raise NewtonFailure(
+                raise SolverError(
                     f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
                     f"residual {norm / scale:.3e} after {iteration} iterations")
             if not lu_solve(solve.base, solve.K, solve.residual, solve.J, solve.delta):
@@ -641,9 +642,12 @@ class FreeBodySimulation(FreeBodyContact):
 
     # ------------------------------------------------------------------ step
     def step(self, index: int | None = None) -> int:
-        """Advance one step; return the Newton iterations (its parts' wall time, :data:`PHASES`,
-        s, left in ``_marks`` for :meth:`run`). Raises SolverError (module docstring),
-        leaving the state unchanged."""
+        """Advance one step; return the Newton iterations. The wall time of its parts
+        (:data:`PHASES`, s) is left in ``_marks`` for :meth:`run`.
+
+        Raises:
+            SolverError: see the module docstring; the state is left unchanged.
+        """
         clock, marks = self._clock, self._marks
         marks[0] = clock()
         index = self.steps_taken + 1 if index is None else index
@@ -656,10 +660,7 @@ class FreeBodySimulation(FreeBodyContact):
         active, contact_t0 = self._start_of_step()
         times = self._seconds
         times[:] = 0.0  # [internal force, contact, rigid, generalized load, solve] seconds
-        try:
-            iterations = self._sweeps(index, t1, active, times)
-        except NewtonFailure as failure:
-            iterations = self._slip_continuation(index, t1, times, failure)
+        iterations = self._sweeps(index, t1, active, times)
         self._commit(index, t1)
         finished = clock()
         marks[3] = marks[2] + times[3]  # example force (generalized load)

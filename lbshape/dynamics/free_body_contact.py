@@ -17,24 +17,14 @@ sweeps, converging by ~0.8 per sweep; with it 4–5). In the deformation
 solve it is evaluated at the pose (c₁, R₁), the kicked rigid velocities and the trial
 q̇₁ (the scheme's kinematics of Δq), with its tangent (``∂q̇₁/∂q₁ = c_v/Δt``). With
 μ = 0 on every plane nothing of this runs and the step is the frictionless one.
-
-**Slip continuation** (:meth:`FreeBodyContact._slip_continuation`): where Newton does not
-converge from the predictor in a step with friction, the step is retaken with the contact
-at t₀ evaluated afresh (not reused from the previous step's last evaluation: with
-friction the two differ; on the car at 60 Hz the fresh one alone lets the wall step
-converge, docs/decisions.md), converged with the slip speed widened
-(:data:`~lbshape.dynamics.contact.SLIP_CONTINUATION` times ε, each from the last one's
-increment), then at ε from there: the same residual test, another start.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from lbshape.dynamics.contact import SLIP_CONTINUATION
 from lbshape.dynamics.free_body_kernels import contact_theta_into
 from lbshape.dynamics.kernels import lu_solve
-from lbshape.errors import NewtonFailure
 
 #: contact sweeps of a step stop when the end momenta move by less than this share of
 #: the momenta and the step's impulse. On the car (no examples, 800 steps) 1e-6, 1e-4 and
@@ -80,31 +70,6 @@ class FreeBodyContact:
             kick.K6[:] = contact.stiffness_rigid
             kick.C6[:] = contact.damping_rigid
         return active, self._clock() - started
-
-    def _slip_continuation(self, index: int, t1: float, times: np.ndarray,
-                           failure: NewtonFailure) -> int:
-        """The step's sweeps again after a :class:`~lbshape.errors.NewtonFailure` (the
-        state at t₀ is untouched): converged at each widened slip speed in turn, each
-        starting from the last one's increment, then at ε; returns the last Newton
-        iterations. Without friction ``failure`` is raised again.
-
-        Raises:
-            NewtonFailure: without friction, or the step fails on the way down or at ε.
-        """
-        contact = self.contact
-        if contact is None or not contact.has_friction:
-            raise failure
-        slip = contact.slip_speed
-        try:
-            for factor in (*SLIP_CONTINUATION, 1.0):
-                contact.slip_speed = factor * slip
-                active, _ = self._start_of_step()  # the contact at t₀ with this ε
-                iterations = self._sweeps(index, t1, active, times)
-                self._guess = self._dq.copy()
-        finally:
-            contact.slip_speed, self._guess = slip, None
-        self.continued_steps += 1
-        return iterations
 
     def _sweep_again(self, sweeps: int) -> bool:
         """Whether the step needs another contact sweep: the contact acts at the end of the

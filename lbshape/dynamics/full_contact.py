@@ -12,7 +12,6 @@ import numpy as np
 import scipy.sparse as sp
 
 from lbshape.dynamics.contact import (
-    SLIP_CONTINUATION,
     SLIP_SPEED,
     ContactPlane,
     friction_force,
@@ -21,6 +20,11 @@ from lbshape.dynamics.contact import (
 )
 from lbshape.dynamics.contact_faces import FACING_FLOOR, face_loads, surface_faces
 from lbshape.errors import LbshapeError, NewtonFailure
+
+#: the widened slip speeds (multiples of ε) whose converged steps lead the full
+#: reference's Newton back to ε when a step with friction does not converge from the
+#: scheme's predictor (:func:`step_with_slip_continuation`)
+SLIP_CONTINUATION = (16.0, 4.0)
 
 
 class FullSpaceContact:

@@ -422,28 +422,15 @@ def test_full_car_reaches_its_wall_step_through_the_slip_continuation(
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("continuation", [True, False])
-def test_reduced_car_at_60_hz_reaches_its_wall_through_the_slip_continuation(
-        monkeypatch, continuation):
+def test_reduced_car_at_60_hz_stops_at_its_wall_naming_the_step_size():
     """The reduced car without examples at 60 Hz steps: at the wall (step 10, t = 0.167 s)
-    Newton stalls on the friction (a relative residual of 1e-3 after 20 iterations). The
-    step retaken through the slip continuation (the contact at t₀ evaluated afresh,
-    converged at 16 ε and 4 ε, then at ε from there) meets the same test; without the
-    retake the run stops at that step."""
-    from lbshape.dynamics.free_body_contact import FreeBodyContact
+    Newton stalls and the run stops, advising a smaller dt. Retaken through a slip
+    continuation the step converges, but the run is then 73 % off the 1 ms full reference
+    by 0.32 s (docs/decisions.md): the stop is the honest answer."""
     from lbshape.pipeline.simulate import reduced_simulation
     from lbshape.scene.variants import with_step, without_examples
 
-    def fail(self, index, t1, times, failure):
-        raise failure
-
     scene = without_examples(with_step(load_scene("car"), 1.0 / 60.0, 0.25))
-    if not continuation:
-        monkeypatch.setattr(FreeBodyContact, "_slip_continuation", fail)
-    sim = reduced_simulation(scene, precompute(scene))
-    record = sim.run(scene.simulation.steps)
-    if not continuation:
-        assert not record.stable and "step 10 " in record.message, record.message
-        return
-    assert record.stable, record.message
-    assert sim.continued_steps >= 1 and sim.contact.slip_speed == pytest.approx(5e-4)
+    record = reduced_simulation(scene, precompute(scene)).run(scene.simulation.steps)
+    assert not record.stable
+    assert "step 10 " in record.message and "lower dt" in record.message, record.message
