@@ -39,8 +39,9 @@ FORCE_MODELS: tuple[str, ...] = ("polynomial", "cubature")
 #: what a scene may ask for (``auto``: :func:`resolve_force_model`)
 FORCE_CHOICES: tuple[str, ...] = ("auto",) + FORCE_MODELS
 #: largest build cost (multiply-adds, ≈ 7 t P²) for which ``auto`` picks the polynomials
-#: (a few seconds at the BLAS rate of one core)
-POLYNOMIAL_BUILD_FLOPS = 6e10
+#: (about 25 s at the BLAS rate of one core; room for teddy-local's anchored read-out
+#: responses, r 72 on 1,896 elements, ``docs/decisions.md``, 2026-11-28)
+POLYNOMIAL_BUILD_FLOPS = 1.2e11
 
 
 def polynomial_build_flops(n_tets: int, r: int) -> float:

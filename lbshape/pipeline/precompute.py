@@ -25,15 +25,15 @@ Stages (only those the scene needs; paper pre-computation steps 1–6), in order
    :data:`STATIC_EQUILIBRIA_MAX_VERTICES` vertices;
 10. ``example-stiffness``: ``stiffness = "auto"`` only: k_ex from the examples' own
     stiffness (their shapes' ω² on the object) and the loads' generalized force
-    (:func:`~lbshape.shapespace.auto_stiffness.auto_example_stiffness`; stored in the
-    artifact, :attr:`~lbshape.pipeline.precomputed.Precomputed.auto_stiffness`) — scenes
-    with examples and ``stiffness = "auto"``;
+    (:func:`~lbshape.shapespace.auto_stiffness.auto_example_stiffness`), local examples'
+    raised to their regions' static equilibrium (:mod:`~lbshape.shapespace.local_equilibrium`;
+    stored: :attr:`~lbshape.pipeline.precomputed.Precomputed.auto_stiffness`);
 11. ``example-basis``: the object's responses to the example pull (Krylov blocks of the
     spring-shifted stiffness on the examples' targets,
     :func:`~lbshape.pipeline.responses.example_responses`) that U misses, appended to it
     up to :data:`MAX_APPENDED_BASIS` columns (a free body: without their rigid part, up to
     :data:`MAX_APPENDED_FREE_BODY`, and at least :data:`MIN_APPENDED_FREE_BODY` beyond its
-    own r)               — scenes with examples (k_ex > 0);
+    own r); a strong local pull's anchored read-outs beyond — scenes with examples (k_ex > 0);
 12. ``cubature``: optimized cubature for the reduced elastic force on the final U (the
     force model of non-StVK materials and large meshes, and the energy of the ``modal``
     route);
@@ -102,7 +102,6 @@ from lbshape.errors import LbshapeError
 from lbshape.fem.mpi import compute_on_root
 from lbshape.geometry.mesh import TetMesh
 from lbshape.io.cache import artifact_lock, load_artifact, save_artifact
-from lbshape.pipeline import responses as response_settings
 from lbshape.pipeline.auto_stiffness import auto_stiffness_stage
 from lbshape.pipeline.estimate import estimate_operators
 from lbshape.pipeline.meshes import (
@@ -129,14 +128,15 @@ from lbshape.pipeline.precomputed import (
     required_arrays,
 )
 from lbshape.pipeline.responses import (
-    anchor_responses,
     anchor_room,
+    anchored_readout_responses,
     example_response_stiffness,
     example_responses,
     example_target_fields,
     response_loads,
     static_load,
     static_load_applies,
+    strong_anchor_pull,
 )
 from lbshape.pipeline.stages import Ranks, StageCache, StageRecorder
 from lbshape.scene.schema import Scene
@@ -164,16 +164,13 @@ from lbshape.spectral.spectrum import LBSpectrum, lb_spectrum
 log = logging.getLogger(__name__)
 
 #: target routes in the LB basis faded to zero at the fixed vertices (when safe). Off: the
-#: full-space reference interpolates in the free basis (measured in docs/decisions.md,
-#: "The clamped LB basis"); the clamped basis stays available to the routes and
-#: benchmarks (``boundary=``).
+#: full reference interpolates in the free basis (docs/decisions.md, "The clamped LB
+#: basis"); the clamped basis stays available (``boundary=``).
 CLAMPED_TARGETS = False
 #: the static equilibria and the example responses grow the basis up to this many
-#: columns (the equilibria first, for a scene whose own r leaves room): at r = 48 the quartic
-#: product of one exact polynomial force and tangent costs 0.27 ms (``dsymv``, measured
-#: in isolation on an Intel Xeon of 2.5 GHz), so a step of about two Newton updates stays
-#: inside 1 ms (teddy-local 0.68 ms, cross 0.82 ms per step there); at r = 60 it is 0.64 ms
-#: per call
+#: columns (the equilibria first): at r = 48 one exact polynomial force and tangent costs
+#: 0.27 ms (``dsymv``, alone on an Intel Xeon of 2.5 GHz), so a step of about two Newton
+#: updates stays inside 1 ms (teddy-local 0.68, cross 0.82 ms); at r = 60 0.64 ms a call
 MAX_APPENDED_BASIS = 48
 #: a free body's example responses grow its basis up to this many columns: its step also
 #: pays for the contact (r² per touching vertex, with friction) and the frame; the car's
@@ -276,14 +273,14 @@ def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
     if "static-equilibria" in stages.names:
         elastic = elastic._replace(basis=ranks.on_root("static-equilibria", lambda: (
             _static_equilibria(scene, mesh, fixed, elastic))))
-    basis = elastic.basis
-    auto = None
+    basis, auto = elastic.basis, None
     if "example-stiffness" in stages.names:
         auto = ranks.on_root("example-stiffness", lambda: auto_stiffness_stage(
             scene, mesh, elastic.mass, elastic.basis.U, float(elastic.modes.omega2[0]),
             eigenvectors=None if shape is None else shape.targets.eigenvectors,
             coefficients=() if shape is None else shape.coefficients,
-            regions=() if local is None else local.space.regions))
+            space=None if local is None else local.space, stiffness=elastic.modes.stiffness,
+            fixed_vertices=fixed))
         if ranks.root:
             log.info("%s", auto.summary())
     if "example-basis" in stages.names:
@@ -387,28 +384,31 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
                    shape: _GlobalShape | None, local: LocalExamples | None,
                    auto: float | None = None) -> NonlinearBasis:
     """The ``example-basis`` stage: U with the example responses it misses appended
-    (:func:`lbshape.pipeline.responses.example_responses`,
-    :func:`lbshape.elastic.basis.append_directions`), local examples' anchor responses
-    (:func:`lbshape.pipeline.responses.anchor_responses`) on top; ``auto``: the k_ex of
-    ``stiffness = "auto"`` (the ``example-stiffness`` stage)."""
+    (:func:`~lbshape.pipeline.responses.example_responses`; unshifted under a
+    :func:`~lbshape.pipeline.responses.strong_anchor_pull`, whose shifted ones are nearly
+    its targets), then that pull's :func:`~lbshape.pipeline.responses.anchored_readout_responses`;
+    ``auto``: the k_ex of ``stiffness = "auto"``."""
     room = (max(MAX_APPENDED_FREE_BODY - elastic.basis.r, MIN_APPENDED_FREE_BODY)
             if scene.is_free else max(MAX_APPENDED_BASIS - elastic.basis.r, 0))
-    anchored = None if local is None or scene.is_free else local.space.regions
-    if room == 0 and not (anchored and response_settings.ANCHOR_RESPONSE_SETS):  # none
+    anchored = () if local is None or scene.is_free else local.space.regions
+    K0, k_ex = elastic.modes.stiffness, example_response_stiffness(scene, auto)
+    strong = strong_anchor_pull(k_ex, mesh, scene.material, anchored)
+    if room == 0 and not strong:  # none
         return elastic.basis
     density, mass = scene.material.density, elastic.mass
-    if local is not None:
-        fields, spring = example_target_fields(mesh, mass, density, regions=local.space.regions)
-    else:
-        fields, spring = example_target_fields(mesh, mass, density, targets=shape.targets.path,
-                                               eigenvectors=shape.targets.eigenvectors)
+    fields, spring = (example_target_fields(mesh, mass, density, regions=local.space.regions)
+                      if local is not None else example_target_fields(
+                          mesh, mass, density, targets=shape.targets.path,
+                          eigenvectors=shape.targets.eigenvectors))
     rigid = rigid_body_modes(mesh.points, mass) if scene.is_free else None
-    K0, k_ex = elastic.modes.stiffness, example_response_stiffness(scene, auto)
-    responses = example_responses(K0, spring, k_ex, fields, mass, fixed, rigid=rigid)
+    responses = example_responses(K0, spring, 0.0 if strong else k_ex, fields, mass, fixed,
+                                  rigid=rigid)
     basis = append_directions(elastic.basis, responses, mass, K0,
                               kind="example_responses", max_columns=room)
-    X = np.hstack(anchor_responses(  # beyond the cap: the anchor fit's feedback
-        K0, spring, k_ex, mesh, density, () if anchored is None else anchored, fixed))
+    if not strong:
+        return basis
+    X = anchored_readout_responses(  # beyond the cap: the anchor fit's feedback
+        K0, spring, k_ex, mesh, density, anchored, fixed)
     room = anchor_room(scene, mesh.n_tets, basis.r, X.shape[1])
     return append_directions(basis, X, mass, K0, rtol=0.0, min_outside=0.0, max_columns=room)
 
@@ -431,11 +431,11 @@ def _polynomial_forces(scene: Scene, mesh: TetMesh, U: np.ndarray,
     to ``polynomial`` for this mesh (element chunks split across the ranks), else None."""
     chosen = resolve_force_model(scene.reduced.forces, scene.material.model,
                                  mesh.n_tets, U.shape[1])
-    if chosen != "polynomial":
-        log.info("reduced forces: the cubature (the polynomial build is too large for "
-                 "%d tetrahedra at r = %d)", mesh.n_tets, U.shape[1])
-        return None
-    return PolynomialForceModel(mesh.points, mesh.tets, scene.material, U, comm=comm)
+    if chosen == "polynomial":
+        return PolynomialForceModel(mesh.points, mesh.tets, scene.material, U, comm=comm)
+    log.info("reduced forces: the cubature (the polynomial build is too large for "
+             "%d tetrahedra at r = %d)", mesh.n_tets, U.shape[1])
+    return None
 
 
 def _check_sizes(scene: Scene, mesh: TetMesh, fixed: np.ndarray) -> None:

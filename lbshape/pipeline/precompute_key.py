@@ -23,9 +23,9 @@ import numpy as np
 
 from lbshape import __version__
 from lbshape.elastic.basis import default_linear_modes
+from lbshape.elastic.polynomial_forces import POLYNOMIAL_BUILD_FLOPS
 from lbshape.geometry.shapes import MESHES_DIR, get_shape
 from lbshape.io.cache import cache_key, file_digest
-from lbshape.pipeline import responses
 from lbshape.pipeline.precomputed import PIPELINE_VERSION
 from lbshape.pipeline.responses import (
     EXAMPLE_RESPONSE_DEPTH,
@@ -52,7 +52,6 @@ def scene_cache_key(scene: Scene) -> str:
         "precompute", scene.precompute_key_fields(), response_key(scene), sources,
         {"lbshape": __version__, "dolfinx": dolfinx.__version__, "numpy": np.__version__},
         CUBATURE_TRAINING_POSES, PRECOMPUTE_SEED, PIPELINE_VERSION,
-        responses.ANCHOR_RESPONSE_SETS,
     )
 
 
@@ -73,7 +72,7 @@ ARTIFACT_NAME = "precompute"
 #: and those of the stages after it are then recomputed)
 STAGE_VERSIONS = {"mesh": 1, "modes": 1, "derivatives": 2, "basis": 1, "lb": 1,
                   "examples": 1, "target-table": 1, "lb-cubature": 1, "regions": 1,
-                  "static-equilibria": 1, "example-stiffness": 1, "example-basis": 2,
+                  "static-equilibria": 1, "example-stiffness": 2, "example-basis": 3,
                   "cubature": 1, "forces": 1, "projections": 1, "frame": 1,
                   "estimate": 2}
 
@@ -135,7 +134,7 @@ def stage_keys(scene: Scene, names: list[str], settings: list) -> dict[str, str]
                list(AUTO_RULE))
     k_ex = auto or example_response_stiffness(scene)
     current = key("example-basis", current, modes, derivatives, material, shape, k_ex,
-                  settings, EXAMPLE_RESPONSE_DEPTH, responses.ANCHOR_RESPONSE_SETS,
+                  settings, EXAMPLE_RESPONSE_DEPTH, POLYNOMIAL_BUILD_FLOPS,
                   reduced.forces) or current
     cubature = key("cubature", current, mesh, material, reduced.s,
                    reduced.cubature_tolerance, CUBATURE_TRAINING_POSES, PRECOMPUTE_SEED)

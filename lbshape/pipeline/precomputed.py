@@ -56,7 +56,9 @@ from lbshape.spectral.spectrum import LBSpectrum
 #: 20: a free body's U too (its responses without their rigid part). 21: a free body
 #: whose own r reaches the responses' cap still gets a few of them. 22: a fixed object's
 #: ``estimate`` stage holds the LDLᵀ factor of the estimate's effective stiffness, packed.
-PIPELINE_VERSION = 22
+#: 23: local examples with a strong pull hold the anchored read-out responses; the exact
+#: force's build budget doubled.
+PIPELINE_VERSION = 23
 #: FrameTensors fields stored as ``frame_<field>`` arrays (free bodies)
 FRAME_FIELDS = ("mass", "center", "Y0", "G", "C", "H", "S", "translation")
 #: arrays every artifact holds, and those of scenes with examples

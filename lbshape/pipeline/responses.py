@@ -31,11 +31,13 @@
   responses lose their rigid part (its frame holds the rigid motion, and the full
   reference pulls towards the target placed by its best rigid fit); ``K + k_ex M`` is
   positive definite without supports.
-* **Anchor responses** (:func:`anchor_responses`): local examples move a region's target
-  rigidly with the anchor fit ``Q_R F_R u[anchor]``, a feedback from a ring of anchor
-  vertices that the example responses do not hold; the responses ``(K + k_ex S)⁻¹ M_R Q_R``
-  to the fit's loads and ``(K + k_ex S)⁻¹ F_Rᵀ`` to its read-out can be appended after
-  them (:data:`ANCHOR_RESPONSE_SETS`, off by default: their cost per step).
+* **Anchor responses** (:func:`anchor_responses`, :func:`anchored_readout_responses`):
+  local examples move a region's target rigidly with the anchor fit ``Q_R F_R u[anchor]``,
+  a feedback from a ring of anchor vertices that the example responses do not hold. When
+  the pull is stiffer than the softest region's example (:func:`strong_anchor_pull`) the
+  ``example-basis`` stage appends the fit's read-out responses carried through the
+  anchored operator's adjoint, as many as the exact force's budget allows
+  (:func:`anchor_room`).
 """
 
 from __future__ import annotations
@@ -59,19 +61,13 @@ from lbshape.fem.cholesky import serial_cholesky
 from lbshape.geometry.mesh import TetMesh
 from lbshape.pipeline.meshes import selected_vertices
 from lbshape.scene.schema import Scene
-from lbshape.shapespace.auto_stiffness import AUTO_RULE
+from lbshape.shapespace.auto_stiffness import AUTO_RULE, example_field_stiffness
 from lbshape.shapespace.local_regions import anchor_fit, rigid_fields
 from lbshape.shapespace.local_space import RegionSpace
 from lbshape.shapespace.projections import block_basis
 
 #: Krylov blocks of the example responses (:func:`example_responses`)
 EXAMPLE_RESPONSE_DEPTH = 2
-#: the anchor responses local examples append (:func:`anchor_responses`): 0 none, 1 the
-#: loads', 2 the read-outs' too. None by default: within the exact force's budget
-#: (:func:`anchor_room`) teddy-local takes 16 (r 48 → 64) and goes 7.1 → 6.5 % from full
-#: (auto k_ex; 4.40 → 4.19 % at its own) for 0.32 → 2.2 ms per step; cross takes 2
-#: (``docs/decisions.md``, "Local examples' anchor responses: built, off by default")
-ANCHOR_RESPONSE_SETS = 0
 
 
 def mesh_load_patterns(scene: Scene, mesh: TetMesh, mass) -> list[TimedLoad]:
@@ -222,8 +218,7 @@ def example_responses(stiffness, spring, k_ex: float, fields: np.ndarray, mass,
         return X if rigid is None else X - rigid @ (rigid.T @ (mass @ X))
 
     n3 = stiffness.shape[0]
-    free = np.ones(n3, dtype=bool)
-    free[(3 * np.asarray(fixed_vertices)[:, None] + np.arange(3)).ravel()] = False
+    free = free_dofs_mask(n3, fixed_vertices)
     shifted = sp.csr_matrix(stiffness + k_ex * spring)[free][:, free]
     blocks = []
     with serial_cholesky(shifted, prefix="responses_", what="the spring-shifted stiffness") \
@@ -240,10 +235,10 @@ def example_responses(stiffness, spring, k_ex: float, fields: np.ndarray, mass,
 
 def anchor_responses(stiffness, spring, k_ex: float, mesh: TetMesh, density: float,
                      regions: Sequence[RegionSpace], fixed_vertices: np.ndarray,
-                     sets: int | None = None) -> tuple[np.ndarray, ...]:
+                     sets: int = 2) -> tuple[np.ndarray, ...]:
     """The object's static responses to each anchored region's rigid fit: ``(load,
-    read-out)``, each (3n, 6 per anchored region), zero at the fixed DOFs; ``sets``
-    (default :data:`ANCHOR_RESPONSE_SETS`) 1: the loads' only, 0: none.
+    read-out)``, each (3n, 6 per anchored region), zero at the fixed DOFs; ``sets`` 1:
+    the loads' only, 0: none.
 
     The anchor fit ``g = F_R u[anchor]`` places the region's target ``Q_R g``; the pull
     ``k_ex M_R Q_R g`` loads the object along ``M_R Q_R`` (load responses ``(K + k_ex
@@ -261,10 +256,79 @@ def anchor_responses(stiffness, spring, k_ex: float, mesh: TetMesh, density: flo
         fixed_vertices: (f,) clamped vertices.
         sets: 0, 1 or 2, see above.
     """
-    n3, sets = stiffness.shape[0], ANCHOR_RESPONSE_SETS if sets is None else sets
+    n3 = stiffness.shape[0]
     if not sets:
         return (np.zeros((n3, 0)),)
-    loads, readouts = [], []
+    loads, readouts = anchor_fit_fields(mesh, density, regions)
+    if not loads.shape[1]:
+        return (loads,) * sets
+    G = np.hstack([loads, readouts][:sets])
+    X = np.zeros_like(G)
+    free = free_dofs_mask(n3, fixed_vertices)
+    with serial_cholesky(sp.csr_matrix(stiffness + k_ex * spring)[free][:, free],
+                         prefix="anchor_", what="the spring-shifted stiffness") as solve:
+        X[free] = solve(G[free])
+    return tuple(np.hsplit(X, sets))
+
+
+def anchored_readout_responses(stiffness, spring, k_ex: float, mesh: TetMesh,
+                               density: float, regions: Sequence[RegionSpace],
+                               fixed_vertices: np.ndarray) -> np.ndarray:
+    """(3n, 6 per anchored region): the read-out responses of :func:`anchor_responses`
+    carried through the adjoint of the anchored operator, ``Aᵀ⁻¹ B⁻¹ F_Rᵀ``, zero at the
+    fixed DOFs.
+
+    With the weights held the local pull is ``pull(0) + G u``, ``G = L Rᵀ`` (L: the fit's
+    loads ``M_R Q_R``, R: its read-outs ``F_Rᵀ``, 6 columns per region), so the example
+    force's stiffness is the non-symmetric ``A = B − k_ex L Rᵀ``, ``B = K + k_ex S``.
+    With ``P = B⁻¹ R`` and ``C = Lᵀ P`` (Woodbury), ``Aᵀ⁻¹ Z = B⁻¹ Z + k_ex P (I − k_ex
+    C)⁻¹ Lᵀ B⁻¹ Z``, taken at ``Z = P``. Measured on teddy-local at k_ex = 2500 1/s²
+    (``docs/decisions.md``, "Local examples: k_ex raised to the regions' static
+    equilibrium"): the 24 appended to its 48 columns take the reduced run from 12.8 %
+    to 4.1 % from full; ``P`` itself 5.4 %, the block ``[P, B⁻¹P]`` 5.6 %.
+
+    Args: as :func:`anchor_responses`.
+    """
+    n3 = stiffness.shape[0]
+    loads, readouts = anchor_fit_fields(mesh, density, regions)
+    if not loads.shape[1]:
+        return loads
+    free = free_dofs_mask(n3, fixed_vertices)
+    L, R = loads[free], readouts[free]
+    X = np.zeros_like(readouts)
+    with serial_cholesky(sp.csr_matrix(stiffness + k_ex * spring)[free][:, free],
+                         prefix="anchor_", what="the spring-shifted stiffness") as solve:
+        P = solve(R)
+        BP = solve(P)
+    C = L.T @ P
+    X[free] = BP + k_ex * P @ np.linalg.solve(np.eye(C.shape[0]) - k_ex * C, L.T @ BP)
+    return X
+
+
+def strong_anchor_pull(k_ex: float, mesh: TetMesh, material,
+                       regions: Sequence[RegionSpace]) -> bool:
+    """Whether the example pull is at least as stiff as the softest of the anchored
+    regions' examples, ``k_ex ≥ min ω_e²`` (1/s², ω_e² of
+    :func:`lbshape.shapespace.auto_stiffness.example_field_stiffness`): then the pull, not
+    the region's elasticity, sets its shape, and the anchor fit's feedback drives the
+    reduced run away from the full one (teddy-local at k_ex = 958 / 2500: 7.1 / 12.8 %
+    without the anchored read-outs); below it (the built-in scenes' own k_ex: teddy-local
+    100 against 475, cross 1000 against 1138) the basis stays as it is."""
+    anchored = [region for region in regions if region.anchor.any()]
+    if not anchored or not k_ex > 0.0 or not math.isfinite(k_ex):
+        return False
+    softest = min(example_field_stiffness(sub, material, field)[0]
+                  for region in anchored for sub, field in region.example_fields(mesh))
+    return k_ex >= softest
+
+
+def anchor_fit_fields(mesh: TetMesh, density: float, regions: Sequence[RegionSpace]
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """``(L, R)``, each (3n, 6 per anchored region): the anchor fits' loads ``M_R Q_R``
+    (kg) on each region's rows and read-outs ``F_Rᵀ`` on its anchor rows
+    (:func:`lbshape.shapespace.local_regions.anchor_fit`; ``ρ = density`` kg/m³)."""
+    n3 = 3 * mesh.n_vertices
+    loads, readouts = [np.zeros((n3, 0))], [np.zeros((n3, 0))]
     for region in regions:
         if not region.anchor.any():
             continue
@@ -277,17 +341,14 @@ def anchor_responses(stiffness, spring, k_ex: float, mesh: TetMesh, density: flo
         readout[rows[anchor_rows]] = F.T
         loads.append(load)
         readouts.append(readout)
-    if not loads:
-        return (np.zeros((n3, 0)),) * sets
+    return np.hstack(loads), np.hstack(readouts)
+
+
+def free_dofs_mask(n3: int, fixed_vertices: np.ndarray) -> np.ndarray:
+    """(3n,) bool: the DOFs of the vertices not in ``fixed_vertices``."""
     free = np.ones(n3, dtype=bool)
     free[(3 * np.asarray(fixed_vertices, dtype=np.int64)[:, None] + np.arange(3)).ravel()] = False
-    shifted = sp.csr_matrix(stiffness + k_ex * spring)[free][:, free]
-    G = np.hstack(loads + readouts[:len(readouts) * (sets - 1)])
-    X = np.zeros_like(G)
-    with serial_cholesky(shifted, prefix="anchor_", what="the spring-shifted stiffness") \
-            as solve:
-        X[free] = solve(G[free])
-    return tuple(np.hsplit(X, sets))
+    return free
 
 
 def anchor_room(scene: Scene, n_tets: int, r: int, wanted: int) -> int:

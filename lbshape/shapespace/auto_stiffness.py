@@ -50,6 +50,16 @@ smaller example needs a stronger pull to stand out against the same loads; ω_e�
 the example's amplitude only through the energy's nonlinearity. The constants were
 calibrated once on the built-in fixed scenes and a clamped object without loads
 (``docs/decisions.md``, 2026-11-28), never per scene.
+
+**Local examples: every region near an example.** ``a = k_ex / (k_ex + ω_e²)`` is the
+share of the displacement; whether a region ends closer to an example than to rest is
+judged on its LB descriptor, which weighs the fine detail the pull reaches last
+(teddy-local's right leg, ω_e² = 479, stays nearer rest up to k_ex ≈ 1800). For local
+examples the precompute therefore raises the rule's k_ex until the object's linear static
+equilibrium under its loads and the pull has every region within
+:data:`~lbshape.shapespace.local_equilibrium.CLOSEST_RATIO` of an example
+(:func:`lbshape.shapespace.local_equilibrium.equilibrium_stiffness`; the rule's value
+stands when it already does, as on the cross).
 """
 
 from __future__ import annotations
@@ -64,6 +74,7 @@ from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
+from lbshape.shapespace.local_equilibrium import CLOSEST_RATIO
 
 __all__ = ["AUTO_RULE", "LOAD_FACTOR", "SHAPE_FACTOR", "TARGET_SHARE", "AutoStiffness",
            "auto_example_stiffness", "example_field_stiffness"]
@@ -81,7 +92,8 @@ LOAD_FACTOR = 2.0
 RIGID_TOLERANCE = 1e-9
 #: what the rule's result depends on besides the scene (part of the precompute's cache
 #: key: a new constant recomputes the precomputes of "auto" scenes)
-AUTO_RULE = ("energy-rayleigh-min-2-region-loads", SHAPE_FACTOR, LOAD_FACTOR)
+AUTO_RULE = ("energy-rayleigh-min-2-region-loads", SHAPE_FACTOR, LOAD_FACTOR,
+             "local-static-closest", CLOSEST_RATIO)
 
 
 @dataclass(frozen=True)
@@ -96,8 +108,14 @@ class AutoStiffness:
         load_force: ‖Uᵀ f‖ of the loads at full strength, N/√kg (0 without loads).
         example_loads: (k,) the loads' ‖Uᵀ f‖ each example stands out against (a local
             example: the loads on its region), N/√kg.
-        governing: ``"shape"`` (an example's own stiffness set k_ex) or ``"loads"``.
-        example: the index of the example that set k_ex.
+        governing: ``"shape"`` (an example's own stiffness set k_ex), ``"loads"``, or
+            ``"regions"`` (local examples: raised until every region's static
+            equilibrium is near an example, ``raised_from`` the rule's value).
+        example: the index of the example that set k_ex (before any raise).
+        raised_from: the rule's k_ex before the regions' raise, 1/s² (0: not raised).
+        closeness: per region (local examples), the static equilibrium's distance to its
+            nearest example over its distance to rest at k_ex
+            (:func:`lbshape.shapespace.local_equilibrium.region_closeness`).
     """
 
     k_ex: float
@@ -108,11 +126,18 @@ class AutoStiffness:
     governing: str
     example: int
     example_loads: tuple[float, ...] = ()
+    raised_from: float = 0.0
+    closeness: tuple[tuple[str, float], ...] = ()
 
     def summary(self) -> str:
         """The one line precompute and simulate print."""
         ratio = self.k_ex / self.omega1_sq if self.omega1_sq > 0 else float("nan")
-        if self.governing == "shape":
+        if self.governing == "regions":
+            worst = max(self.closeness, key=lambda item: item[1])
+            why = (f"raised from {self.raised_from:.4g} until every region's static "
+                   f"equilibrium is nearer an example; {worst[0]} at "
+                   f"{worst[1]:.2f} of its distance to rest")
+        elif self.governing == "shape":
             why = (f"{SHAPE_FACTOR:g}×ω² of example {self.example}'s shape, "
                    f"ω² = {self.example_omega2[self.example]:.4g} 1/s²")
         else:
@@ -126,6 +151,7 @@ class AutoStiffness:
         data["example_omega2"] = list(self.example_omega2)
         data["example_norms"] = list(self.example_norms)
         data["example_loads"] = list(self.example_loads)
+        data["closeness"] = [list(item) for item in self.closeness]
         return data
 
     @classmethod
@@ -135,7 +161,10 @@ class AutoStiffness:
                    example_norms=tuple(float(v) for v in data["example_norms"]),
                    load_force=float(data["load_force"]), governing=str(data["governing"]),
                    example=int(data["example"]),
-                   example_loads=tuple(float(v) for v in data.get("example_loads", ())))
+                   example_loads=tuple(float(v) for v in data.get("example_loads", ())),
+                   raised_from=float(data.get("raised_from", 0.0)),
+                   closeness=tuple((str(name), float(v))
+                                   for name, v in data.get("closeness", ())))
 
 
 def example_field_stiffness(mesh: TetMesh, material: Material,

@@ -38,6 +38,7 @@ class FullSpaceLocalForce:
 
     def __init__(self, mesh: TetMesh, material: Material, space: LocalShapeSpace, *,
                  free_rigid: bool = True, tolerance: float = 1e-6):
+        self.regions = tuple(space.regions)
         self.names = tuple(reg.name for reg in space.regions)
         self.free_rigid = bool(free_rigid)
         n, rho = mesh.n_vertices, float(material.density)
@@ -70,6 +71,19 @@ class FullSpaceLocalForce:
                                   (mass_Q, F), rows.reshape(-1)[anchor_rows]))
         self.mass = sp.csr_matrix(sum(blocks))
         self.weights: dict[str, np.ndarray] = {}
+
+    def anchor_coupling(self) -> sp.csr_matrix:
+        """(3n, 3n) kg: the pull's part linear in the state, ``Σ_R E_R M_R Q_R F_R
+        E_anchor``: with the weights held, ``pull(u) = pull(0) + G u`` (the anchor fit
+        moves each region's target with its anchor ring; none without ``free_rigid``)."""
+        n3 = self.mass.shape[0]
+        blocks = [sp.coo_matrix((n3, n3))]
+        for rows, *_, (mass_Q, F), anchor_rows in self._regions:
+            if self.free_rigid:
+                i, j = np.meshgrid(rows, anchor_rows, indexing="ij")
+                blocks.append(sp.coo_matrix(((mass_Q @ F).ravel(), (i.ravel(), j.ravel())),
+                                            shape=(n3, n3)))
+        return sp.csr_matrix(sum(blocks))
 
     def pull(self, u: np.ndarray) -> np.ndarray:
         """(3n,) the pull (kg·m) for the displacement u (3n,) or (n, 3)."""

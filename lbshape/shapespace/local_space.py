@@ -164,6 +164,12 @@ class RegionSpace:
         rests = example_rest_shapes(sub.points, self.eigenvectors, self.example_coefficients)
         return rests, sub.tets[energy_elements(sub.points, sub.tets, rests)]
 
+    def example_fields(self, mesh: TetMesh) -> list[tuple[TetMesh, np.ndarray]]:
+        """Each example's ``(region mesh, (n_R, 3) displacement Φ_R c_k in m)``: the
+        example on the region's own mesh (the zero displacement outside is no jump)."""
+        sub = self.submesh(mesh)
+        return [(sub, self.displacement(c)) for c in self.example_coefficients]
+
     def displacement(self, coefficients: np.ndarray) -> np.ndarray:
         """(n_R, 3) region displacement ``Φ_R c`` of coefficients (3m,) or (m, 3)."""
         return self.eigenvectors @ np.asarray(coefficients, dtype=float).reshape(self.m, 3)
