@@ -120,7 +120,8 @@ def measure(name: str, max_time: float) -> dict:
         "k_over_omega1_sq": chosen.k_ex / chosen.omega1_sq, "governing": chosen.governing,
         "summary": chosen.summary(), "visible_change": stats.get("visible_change"),
         "closest_example": stats.get("closest_example"),
-        "error_vs_full": error, "basis_residual": held,
+        "error_vs_full": error, "basis_residual": held, "r": int(stats["r"]),
+        "forces": stats["forces"], "step_ms": reduced.step_median_ms,
         "stable": bool(stats["stable"] and full.stats["stable"]),
         "seconds": time.perf_counter() - started,
     }
@@ -166,10 +167,14 @@ def markdown(rows: list[dict], *, command: str, commit: str, date: str,
         "examples) and the full-space reference, the scene's steps but at most the time "
         "shown. Target: visible change ≥ 5 % of the bounding-box diagonal, closest to an "
         "example (every region), reduced within 5 % of full. \"Basis misses\": the part of the "
-        "full run outside the reduced basis (the same measure as reduced vs full).", "",
+        "full run outside the reduced basis (the same measure as reduced vs full). The "
+        "reduced step time is the median over the run's steps after warm-up, with the load "
+        "average above (not a benchmark of its own: `results/table2.md` times the scenes' own "
+        "settings).", "",
         "| scene | steps × dt | k_ex auto (1/s²) | × ω₁² | set by | scene's own k_ex | "
-        "visible change | closest | reduced vs full | basis misses | target |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "visible change | closest | reduced vs full | basis misses | r, forces | "
+        "reduced ms / step | target |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         closest = row["closest_example"]
@@ -184,7 +189,8 @@ def markdown(rows: list[dict], *, command: str, commit: str, date: str,
         lines.append(
             f"| {row['scene']} | {row['steps']} × {row['dt']:g} s | {row['k_ex_auto']:.4g} | "
             f"{row['k_over_omega1_sq']:.0f} | {row['governing']} | {given} | {visible} | "
-            f"{closest} | {error} | {held} | {'met' if passes(row) else 'missed'} |")
+            f"{closest} | {error} | {held} | {row['r']}, {row['forces']} | "
+            f"{row['step_ms']:.2f} | {'met' if passes(row) else 'missed'} |")
     return "\n".join(lines) + "\n"
 
 

@@ -282,10 +282,10 @@ def anchored_readout_responses(stiffness, spring, k_ex: float, mesh: TetMesh,
     loads ``M_R Q_R``, R: its read-outs ``F_Rᵀ``, 6 columns per region), so the example
     force's stiffness is the non-symmetric ``A = B − k_ex L Rᵀ``, ``B = K + k_ex S``.
     With ``P = B⁻¹ R`` and ``C = Lᵀ P`` (Woodbury), ``Aᵀ⁻¹ Z = B⁻¹ Z + k_ex P (I − k_ex
-    C)⁻¹ Lᵀ B⁻¹ Z``, taken at ``Z = P``. Measured on teddy-local at k_ex = 2500 1/s²
-    (``docs/decisions.md``, "Local examples: k_ex raised to the regions' static
-    equilibrium"): the 24 appended to its 48 columns take the reduced run from 12.8 %
-    to 4.1 % from full; ``P`` itself 5.4 %, the block ``[P, B⁻¹P]`` 5.6 %.
+    C)⁻¹ Lᵀ B⁻¹ Z``, taken at ``Z = P``. Measured on teddy-local (``docs/decisions.md``,
+    "Local examples: k_ex raised to the regions' static equilibrium"): its 48 columns
+    alone are 12.8 % from full at k_ex = 2000 1/s², with these 24 appended 3.7 %, with
+    ``P`` itself in their place 5.4 % (the block ``[P, B⁻¹P]``: 5.6 % at 2500).
 
     Args: as :func:`anchor_responses`.
     """
@@ -311,7 +311,7 @@ def strong_anchor_pull(k_ex: float, mesh: TetMesh, material,
     regions' examples, ``k_ex ≥ min ω_e²`` (1/s², ω_e² of
     :func:`lbshape.shapespace.auto_stiffness.example_field_stiffness`): then the pull, not
     the region's elasticity, sets its shape, and the anchor fit's feedback drives the
-    reduced run away from the full one (teddy-local at k_ex = 958 / 2500: 7.1 / 12.8 %
+    reduced run away from the full one (teddy-local at k_ex = 958 / 2000: 7.1 / 12.8 %
     without the anchored read-outs); below it (the built-in scenes' own k_ex: teddy-local
     100 against 475, cross 1000 against 1138) the basis stays as it is."""
     anchored = [region for region in regions if region.anchor.any()]
