@@ -136,7 +136,7 @@ from lbshape.pipeline.responses import (
     response_loads,
     static_load,
     static_load_applies,
-    strong_anchor_pull,
+    strongly_pulled_regions,
 )
 from lbshape.pipeline.stages import Ranks, StageCache, StageRecorder
 from lbshape.scene.schema import Scene
@@ -385,14 +385,14 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
                    auto: float | None = None) -> NonlinearBasis:
     """The ``example-basis`` stage: U with the example responses it misses appended
     (:func:`~lbshape.pipeline.responses.example_responses`; unshifted under a
-    :func:`~lbshape.pipeline.responses.strong_anchor_pull`, whose shifted ones are nearly
-    its targets), then that pull's :func:`~lbshape.pipeline.responses.anchored_readout_responses`;
+    :func:`~lbshape.pipeline.responses.strongly_pulled_regions`, whose shifted ones are
+    nearly its targets), then their :func:`~lbshape.pipeline.responses.anchored_readout_responses`;
     ``auto``: the k_ex of ``stiffness = "auto"``."""
     room = (max(MAX_APPENDED_FREE_BODY - elastic.basis.r, MIN_APPENDED_FREE_BODY)
             if scene.is_free else max(MAX_APPENDED_BASIS - elastic.basis.r, 0))
     anchored = () if local is None or scene.is_free else local.space.regions
     K0, k_ex = elastic.modes.stiffness, example_response_stiffness(scene, auto)
-    strong = strong_anchor_pull(k_ex, mesh, scene.material, anchored)
+    strong = strongly_pulled_regions(k_ex, mesh, scene.material, anchored)
     if room == 0 and not strong:  # none
         return elastic.basis
     density, mass = scene.material.density, elastic.mass
@@ -408,7 +408,7 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
     if not strong:
         return basis
     X = anchored_readout_responses(  # beyond the cap: the anchor fit's feedback
-        K0, spring, k_ex, mesh, density, anchored, fixed)
+        K0, spring, k_ex, mesh, density, anchored, fixed, pulled=strong)
     room = anchor_room(scene, mesh.n_tets, basis.r, X.shape[1])
     return append_directions(basis, X, mass, K0, rtol=0.0, min_outside=0.0, max_columns=room)
 

@@ -33,8 +33,8 @@
   positive definite without supports.
 * **Anchor responses** (:func:`anchor_responses`, :func:`anchored_readout_responses`):
   local examples move a region's target rigidly with the anchor fit ``Q_R F_R u[anchor]``,
-  a feedback from a ring of anchor vertices that the example responses do not hold. When
-  the pull is stiffer than the softest region's example (:func:`strong_anchor_pull`) the
+  a feedback from a ring of anchor vertices that the example responses do not hold. For
+  each region the pull is stiffer than (:func:`strongly_pulled_regions`) the
   ``example-basis`` stage appends the fit's read-out responses carried through the
   anchored operator's adjoint, as many as the exact force's budget allows
   (:func:`anchor_room`).
@@ -273,10 +273,11 @@ def anchor_responses(stiffness, spring, k_ex: float, mesh: TetMesh, density: flo
 
 def anchored_readout_responses(stiffness, spring, k_ex: float, mesh: TetMesh,
                                density: float, regions: Sequence[RegionSpace],
-                               fixed_vertices: np.ndarray) -> np.ndarray:
-    """(3n, 6 per anchored region): the read-out responses of :func:`anchor_responses`
-    carried through the adjoint of the anchored operator, ``Aᵀ⁻¹ B⁻¹ F_Rᵀ``, zero at the
-    fixed DOFs.
+                               fixed_vertices: np.ndarray,
+                               pulled: Sequence[str] | None = None) -> np.ndarray:
+    """(3n, 6 per anchored region in ``pulled``, default all): the read-out responses of
+    :func:`anchor_responses` carried through the adjoint of the anchored operator (of
+    every anchored region), ``Aᵀ⁻¹ B⁻¹ F_Rᵀ``, zero at the fixed DOFs.
 
     With the weights held the local pull is ``pull(0) + G u``, ``G = L Rᵀ`` (L: the fit's
     loads ``M_R Q_R``, R: its read-outs ``F_Rᵀ``, 6 columns per region), so the example
@@ -287,39 +288,41 @@ def anchored_readout_responses(stiffness, spring, k_ex: float, mesh: TetMesh,
     alone are 12.8 % from full at k_ex = 2000 1/s², with these 24 appended 3.7 %, with
     ``P`` itself in their place 5.4 % (the block ``[P, B⁻¹P]``: 5.6 % at 2500).
 
-    Args: as :func:`anchor_responses`.
+    Args: as :func:`anchor_responses`; ``pulled``: the regions' names whose read-outs
+    are wanted (:func:`strongly_pulled_regions`).
     """
     n3 = stiffness.shape[0]
     loads, readouts = anchor_fit_fields(mesh, density, regions)
-    if not loads.shape[1]:
-        return loads
+    names = [region.name for region in regions if region.anchor.any()]
+    chosen = np.repeat([pulled is None or name in pulled for name in names], 6)
+    if not chosen.any():
+        return np.zeros((n3, 0))
     free = free_dofs_mask(n3, fixed_vertices)
     L, R = loads[free], readouts[free]
-    X = np.zeros_like(readouts)
+    X = np.zeros((n3, int(chosen.sum())))
     with serial_cholesky(sp.csr_matrix(stiffness + k_ex * spring)[free][:, free],
                          prefix="anchor_", what="the spring-shifted stiffness") as solve:
         P = solve(R)
-        BP = solve(P)
+        BP = solve(P[:, chosen])
     C = L.T @ P
     X[free] = BP + k_ex * P @ np.linalg.solve(np.eye(C.shape[0]) - k_ex * C, L.T @ BP)
     return X
 
 
-def strong_anchor_pull(k_ex: float, mesh: TetMesh, material,
-                       regions: Sequence[RegionSpace]) -> bool:
-    """Whether the example pull is at least as stiff as the softest of the anchored
-    regions' examples, ``k_ex ≥ min ω_e²`` (1/s², ω_e² of
-    :func:`lbshape.shapespace.auto_stiffness.example_field_stiffness`): then the pull, not
-    the region's elasticity, sets its shape, and the anchor fit's feedback drives the
-    reduced run away from the full one (teddy-local at k_ex = 958 / 2000: 7.1 / 12.8 %
-    without the anchored read-outs); below it (the built-in scenes' own k_ex: teddy-local
-    100 against 475, cross 1000 against 1138) the basis stays as it is."""
-    anchored = [region for region in regions if region.anchor.any()]
-    if not anchored or not k_ex > 0.0 or not math.isfinite(k_ex):
-        return False
-    softest = min(example_field_stiffness(sub, material, field)[0]
-                  for region in anchored for sub, field in region.example_fields(mesh))
-    return k_ex >= softest
+def strongly_pulled_regions(k_ex: float, mesh: TetMesh, material,
+                            regions: Sequence[RegionSpace]) -> tuple[str, ...]:
+    """The anchored regions the example pull is at least as stiff as: ``k_ex ≥ ω_e²``
+    (1/s², ω_e² of :func:`lbshape.shapespace.auto_stiffness.example_field_stiffness`) of
+    the region's softest example. There the pull, not the region's elasticity, sets its
+    shape, and the anchor fit's feedback drives the reduced run away from the full one
+    (teddy-local at k_ex = 958 / 2000: 7.1 / 12.8 % without the anchored read-outs); the
+    built-in scenes' own k_ex pull none (teddy-local 100 against 475, cross 1000 against
+    1138), the cross's auto 2275 its middle only (its arms' ω_e² 4,602 and 59,056)."""
+    if not k_ex > 0.0 or not math.isfinite(k_ex):
+        return ()
+    return tuple(region.name for region in regions if region.anchor.any() and k_ex >= min(
+        example_field_stiffness(sub, material, field)[0]
+        for sub, field in region.example_fields(mesh)))
 
 
 def anchor_fit_fields(mesh: TetMesh, density: float, regions: Sequence[RegionSpace]

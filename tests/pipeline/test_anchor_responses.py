@@ -21,7 +21,7 @@ from lbshape.pipeline.responses import (
     anchor_room,
     anchored_readout_responses,
     free_dofs_mask,
-    strong_anchor_pull,
+    strongly_pulled_regions,
 )
 from lbshape.pipeline.simulate import full_simulation
 from lbshape.scene.reader import load_scene
@@ -54,8 +54,11 @@ def test_a_strong_pull_puts_the_anchored_read_outs_in_the_basis(tmp_path, monkey
     pre = precompute(strong, save=False)
     full = full_simulation(strong, pre)
     K = full.elastic.tangent(np.zeros(pre.U.shape[0]))
-    assert strong_anchor_pull(30000.0, pre.mesh, pre.material, pre.local.regions)
-    assert not strong_anchor_pull(1.0, pre.mesh, pre.material, pre.local.regions)
+    def pulled(k):
+        return strongly_pulled_regions(k, pre.mesh, pre.material, pre.local.regions)
+
+    assert pulled(30000.0) == ("low", "high") and pulled(1.0) == ()
+    assert pulled(25000.0) == ("low",)  # the softer half only (ω_e² 21,470 / 29,659)
     X = anchored_readout_responses(K, full._local.mass, 30000.0, pre.mesh,
                                    pre.material.density, pre.local.regions,
                                    pre.fixed_vertices)
@@ -64,6 +67,10 @@ def test_a_strong_pull_puts_the_anchored_read_outs_in_the_basis(tmp_path, monkey
     mass = mass_matrix(pre.mesh, pre.material.density)
     assert _outside_share(pre.U, X, mass) < 1e-6
     assert _outside_share(precompute(weak, save=False).U, X, mass) > 1e-2
+    low = anchored_readout_responses(K, full._local.mass, 30000.0, pre.mesh,
+                                     pre.material.density, pre.local.regions,
+                                     pre.fixed_vertices, pulled=("low",))
+    assert low.shape[1] == 6 and np.abs(low - X[:, :6]).max() <= 1e-10 * np.abs(X).max()
 
 
 @pytest.mark.slow
