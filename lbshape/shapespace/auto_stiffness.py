@@ -74,7 +74,7 @@ from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
-from lbshape.shapespace.local_equilibrium import CLOSEST_RATIO
+from lbshape.shapespace.local_equilibrium import CLOSEST_RATIO, MAX_RAISE
 
 __all__ = ["AUTO_RULE", "LOAD_FACTOR", "SHAPE_FACTOR", "TARGET_SHARE", "AutoStiffness",
            "auto_example_stiffness", "example_field_stiffness"]
@@ -93,7 +93,7 @@ RIGID_TOLERANCE = 1e-9
 #: what the rule's result depends on besides the scene (part of the precompute's cache
 #: key: a new constant recomputes the precomputes of "auto" scenes)
 AUTO_RULE = ("energy-rayleigh-min-2-region-loads", SHAPE_FACTOR, LOAD_FACTOR,
-             "local-static-closest", CLOSEST_RATIO)
+             "local-static-closest", CLOSEST_RATIO, MAX_RAISE)
 
 
 @dataclass(frozen=True)
@@ -133,10 +133,13 @@ class AutoStiffness:
         """The one line precompute and simulate print."""
         ratio = self.k_ex / self.omega1_sq if self.omega1_sq > 0 else float("nan")
         if self.governing == "regions":
-            worst = max(self.closeness, key=lambda item: item[1])
+            name, near = max(self.closeness, key=lambda item: item[1])
             why = (f"raised from {self.raised_from:.4g} until every region's static "
-                   f"equilibrium is nearer an example; {worst[0]} at "
-                   f"{worst[1]:.2f} of its distance to rest")
+                   f"equilibrium is nearer an example; {name} at {near:.2f} of its "
+                   "distance to rest" if near <= CLOSEST_RATIO else
+                   f"raised from {self.raised_from:.4g} to the limit, {MAX_RAISE:g}×; "
+                   f"{name}'s static equilibrium stays at {near:.2f} of its distance to "
+                   "rest from an example: give a number to pull harder")
         elif self.governing == "shape":
             why = (f"{SHAPE_FACTOR:g}×ω² of example {self.example}'s shape, "
                    f"ω² = {self.example_omega2[self.example]:.4g} 1/s²")

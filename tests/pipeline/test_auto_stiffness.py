@@ -26,7 +26,7 @@ from lbshape.shapespace.auto_stiffness import (
     AutoStiffness,
     auto_example_stiffness,
 )
-from lbshape.shapespace.local_equilibrium import CLOSEST_RATIO
+from lbshape.shapespace.local_equilibrium import CLOSEST_RATIO, MAX_RAISE
 
 BEND = {"pose": "arc", "parameters": {"angle": 0.8, "axis": "x", "direction": "z",
                                       "anchor": "min"}}
@@ -144,13 +144,16 @@ def test_a_local_example_stands_out_against_the_loads_on_its_region():
     near, far = auto.example_loads
     assert near == 0.0 and far > 0.0
     # the far example would need the loads' pull; the near one sets the rule's k_ex by
-    # its shape, which the precompute then raises until the loaded far half's static
-    # equilibrium is near its example too
-    rule = auto.raised_from or auto.k_ex
+    # its shape. The precompute then raises it for the loaded far half's static
+    # equilibrium, which the load keeps nearer rest: the raise stops at its limit and
+    # the summary says so
+    rule = auto.raised_from
     assert LOAD_FACTOR * far / auto.example_norms[1] > rule
     assert auto.example == 0
     assert rule == pytest.approx(SHAPE_FACTOR * auto.example_omega2[0])
-    assert max(ratio for _, ratio in auto.closeness) <= CLOSEST_RATIO
+    assert auto.k_ex == pytest.approx(MAX_RAISE * rule)
+    assert dict(auto.closeness)["far"] > CLOSEST_RATIO
+    assert "to the limit" in auto.summary() and "give a number" in auto.summary()
 
 
 @pytest.mark.slow
