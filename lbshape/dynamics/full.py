@@ -116,7 +116,7 @@ from lbshape.elastic.assembly import CompiledElasticity
 from lbshape.elastic.element_kernels import FullSpaceElasticity, mass_matrix
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError, SolverError
-from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.mesh import TetMesh, free_dof_mask
 from lbshape.shapespace.local_full_force import FullSpaceLocalForce
 
 log = logging.getLogger(__name__)
@@ -228,8 +228,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         self.material = material
         self.n_vertices = n
         fixed = vertex_indices(fixed_vertices, n)
-        free_mask = np.ones(3 * n, dtype=bool)
-        free_mask[(3 * fixed[:, None] + np.arange(3)).ravel()] = False
+        free_mask = free_dof_mask(n, fixed)
         if not free_mask.any():
             raise LbshapeError("every vertex is fixed: nothing to simulate")
         self.fixed_vertices = fixed

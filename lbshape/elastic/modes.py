@@ -60,7 +60,7 @@ from lbshape.fem.eigenproblem import (
 )
 from lbshape.fem.mpi import compute_on_root
 from lbshape.fem.petsc_gather import gather_csr, gather_rows
-from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.mesh import TetMesh, free_dof_mask
 
 log = logging.getLogger(__name__)
 
@@ -216,8 +216,7 @@ def elastic_matrices(
     owned_rows = dof_to_input_order(p1_dof_vertices(V)[:n_owned], 3)
     K_csr, M_csr = (gather_csr(A, owned_rows, comm=comm, size=3 * n) for A in (K, M))
 
-    free_mask = np.ones(3 * n, dtype=bool)
-    free_mask[(3 * fixed[:, None] + np.arange(3)).ravel()] = False
+    free_mask = free_dof_mask(n, fixed)
     free_dofs = np.flatnonzero(free_mask)
     local_free = free_mask[owned_rows]
     local_rows = owned_rows[local_free]

@@ -36,7 +36,7 @@ from lbshape.elastic.element_kernels import FullSpaceElasticity
 from lbshape.elastic.materials import Material
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.fem.cholesky import serial_cholesky
-from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.mesh import TetMesh, free_dof_mask
 
 log = logging.getLogger(__name__)
 
@@ -78,8 +78,7 @@ def static_equilibria(mesh: TetMesh, material: Material, fixed_vertices: np.ndar
         raise LbshapeError(f"the load must be {n3} finite forces, got shape {load.shape}")
     if not levels or any(not 0 < b <= 1 for b in levels) or sorted(set(levels)) != levels:
         raise LbshapeError(f"load levels must increase within (0, 1], got {levels}")
-    free = np.ones(n3, dtype=bool)
-    free[(3 * np.asarray(fixed_vertices)[:, None] + np.arange(3)).ravel()] = False
+    free = free_dof_mask(n3 // 3, fixed_vertices)
     elasticity = FullSpaceElasticity(mesh, material)
     scale = float(np.linalg.norm(load[free]))
     u, reached, found = np.zeros(n3), 0.0, []

@@ -77,6 +77,15 @@ class TetMesh:
         return boundary_faces(self.tets)
 
 
+def free_dof_mask(n_vertices: int, fixed_vertices) -> np.ndarray:
+    """(3n,) bool, node-major: the displacement DOFs of the vertices not in
+    ``fixed_vertices`` ((f,) vertex indices)."""
+    free = np.ones(3 * int(n_vertices), dtype=bool)
+    free[(3 * np.asarray(fixed_vertices, dtype=np.int64).reshape(-1, 1) + np.arange(3))
+         .ravel()] = False
+    return free
+
+
 def signed_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """Signed volumes (t,) of tetrahedra ``tets`` (t, 4) on ``points`` (n, 3)."""
     p = points[tets]

@@ -18,8 +18,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from lbshape.errors import LbshapeError
-from lbshape.geometry.mesh import TetMesh
-from lbshape.pipeline.responses import free_dofs_mask, static_load
+from lbshape.geometry.mesh import TetMesh, free_dof_mask
+from lbshape.pipeline.responses import static_load
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.auto_stiffness import AutoStiffness, auto_example_stiffness
 from lbshape.shapespace.local_equilibrium import equilibrium_stiffness
@@ -58,7 +58,7 @@ def auto_stiffness_stage(scene: Scene, mesh: TetMesh, mass, U: np.ndarray, omega
         return chosen
     force = FullSpaceLocalForce(mesh, scene.material, space)
     k_ex, closeness = equilibrium_stiffness(
-        force, stiffness, free_dofs_mask(3 * mesh.n_vertices, fixed_vertices), chosen.k_ex,
+        force, stiffness, free_dof_mask(mesh.n_vertices, fixed_vertices), chosen.k_ex,
         static_load(scene, mesh, mass) if scene.loads else None, mesh,
         scene.material.density)
     raised = k_ex > chosen.k_ex

@@ -31,6 +31,7 @@ from lbshape.analysis.error_estimate import (
 from lbshape.dynamics.record import RunRecord
 from lbshape.errors import LbshapeError
 from lbshape.fem.cholesky import serial_cholesky
+from lbshape.geometry.mesh import free_dof_mask
 from lbshape.pipeline.precomputed import Precomputed
 from lbshape.pipeline.responses import mesh_load_patterns
 from lbshape.scene.schema import Scene
@@ -47,8 +48,7 @@ def estimate_operators(scene: Scene, mesh, material, fixed: np.ndarray,
     K₀ U, the loads' patterns (their size; the profiles are the run's) and the factor of
     the effective stiffness at the stored frame spacing for the scene's damping."""
     forces = FrameForces(mesh.points, mesh.tets, material)
-    keep = np.ones(3 * mesh.n_vertices, dtype=bool)
-    keep[(3 * np.asarray(fixed, dtype=np.int64)[:, None] + np.arange(3)).ravel()] = False
+    keep = free_dof_mask(mesh.n_vertices, fixed)
     mass, stiffness = forces.operators(material.density, keep)
     patterns = np.zeros((3 * mesh.n_vertices, 0))
     if scene.loads:  # the patterns need the mass of every dof (reactions included)

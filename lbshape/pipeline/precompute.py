@@ -392,8 +392,8 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
             if scene.is_free else max(MAX_APPENDED_BASIS - elastic.basis.r, 0))
     anchored = () if local is None or scene.is_free else local.space.regions
     K0, k_ex = elastic.modes.stiffness, example_response_stiffness(scene, auto)
-    strong = strongly_pulled_regions(k_ex, mesh, scene.material, anchored)
-    if room == 0 and not strong:  # none
+    pulled = strongly_pulled_regions(k_ex, mesh, scene.material, anchored)
+    if room == 0 and not pulled:  # none
         return elastic.basis
     density, mass = scene.material.density, elastic.mass
     fields, spring = (example_target_fields(mesh, mass, density, regions=local.space.regions)
@@ -401,14 +401,14 @@ def _example_basis(scene: Scene, mesh: TetMesh, fixed: np.ndarray, elastic: Elas
                           mesh, mass, density, targets=shape.targets.path,
                           eigenvectors=shape.targets.eigenvectors))
     rigid = rigid_body_modes(mesh.points, mass) if scene.is_free else None
-    responses = example_responses(K0, spring, 0.0 if strong else k_ex, fields, mass, fixed,
+    responses = example_responses(K0, spring, 0.0 if pulled else k_ex, fields, mass, fixed,
                                   rigid=rigid)
     basis = append_directions(elastic.basis, responses, mass, K0,
                               kind="example_responses", max_columns=room)
-    if not strong:
+    if not pulled:
         return basis
     X = anchored_readout_responses(  # beyond the cap: the anchor fit's feedback
-        K0, spring, k_ex, mesh, density, anchored, fixed, pulled=strong)
+        K0, spring, k_ex, mesh, density, anchored, fixed, pulled=pulled)
     room = anchor_room(scene, mesh.n_tets, basis.r, X.shape[1])
     return append_directions(basis, X, mass, K0, rtol=0.0, min_outside=0.0, max_columns=room)
 

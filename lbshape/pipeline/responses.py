@@ -58,7 +58,7 @@ from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.polynomial_forces import resolve_force_model
 from lbshape.errors import LbshapeError
 from lbshape.fem.cholesky import serial_cholesky
-from lbshape.geometry.mesh import TetMesh
+from lbshape.geometry.mesh import TetMesh, free_dof_mask
 from lbshape.pipeline.meshes import selected_vertices
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.auto_stiffness import AUTO_RULE, example_field_stiffness
@@ -218,7 +218,7 @@ def example_responses(stiffness, spring, k_ex: float, fields: np.ndarray, mass,
         return X if rigid is None else X - rigid @ (rigid.T @ (mass @ X))
 
     n3 = stiffness.shape[0]
-    free = free_dofs_mask(n3, fixed_vertices)
+    free = free_dof_mask(n3 // 3, fixed_vertices)
     shifted = sp.csr_matrix(stiffness + k_ex * spring)[free][:, free]
     blocks = []
     with serial_cholesky(shifted, prefix="responses_", what="the spring-shifted stiffness") \
@@ -264,7 +264,7 @@ def anchor_responses(stiffness, spring, k_ex: float, mesh: TetMesh, density: flo
         return (loads,) * sets
     G = np.hstack([loads, readouts][:sets])
     X = np.zeros_like(G)
-    free = free_dofs_mask(n3, fixed_vertices)
+    free = free_dof_mask(n3 // 3, fixed_vertices)
     with serial_cholesky(sp.csr_matrix(stiffness + k_ex * spring)[free][:, free],
                          prefix="anchor_", what="the spring-shifted stiffness") as solve:
         X[free] = solve(G[free])
@@ -297,7 +297,7 @@ def anchored_readout_responses(stiffness, spring, k_ex: float, mesh: TetMesh,
     chosen = np.repeat([pulled is None or name in pulled for name in names], 6)
     if not chosen.any():
         return np.zeros((n3, 0))
-    free = free_dofs_mask(n3, fixed_vertices)
+    free = free_dof_mask(n3 // 3, fixed_vertices)
     L, R = loads[free], readouts[free]
     X = np.zeros((n3, int(chosen.sum())))
     with serial_cholesky(sp.csr_matrix(stiffness + k_ex * spring)[free][:, free],
@@ -345,13 +345,6 @@ def anchor_fit_fields(mesh: TetMesh, density: float, regions: Sequence[RegionSpa
         loads.append(load)
         readouts.append(readout)
     return np.hstack(loads), np.hstack(readouts)
-
-
-def free_dofs_mask(n3: int, fixed_vertices: np.ndarray) -> np.ndarray:
-    """(3n,) bool: the DOFs of the vertices not in ``fixed_vertices``."""
-    free = np.ones(n3, dtype=bool)
-    free[(3 * np.asarray(fixed_vertices, dtype=np.int64)[:, None] + np.arange(3)).ravel()] = False
-    return free
 
 
 def anchor_room(scene: Scene, n_tets: int, r: int, wanted: int) -> int:

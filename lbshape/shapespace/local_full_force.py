@@ -71,19 +71,23 @@ class FullSpaceLocalForce:
                                   (mass_Q, F), rows.reshape(-1)[anchor_rows]))
         self.mass = sp.csr_matrix(sum(blocks))
         self.weights: dict[str, np.ndarray] = {}
+        self._coupling: sp.csr_matrix | None = None
 
     def anchor_coupling(self) -> sp.csr_matrix:
         """(3n, 3n) kg: the pull's part linear in the state, ``Σ_R E_R M_R Q_R F_R
         E_anchor``: with the weights held, ``pull(u) = pull(0) + G u`` (the anchor fit
-        moves each region's target with its anchor ring; none without ``free_rigid``)."""
-        n3 = self.mass.shape[0]
-        blocks = [sp.coo_matrix((n3, n3))]
-        for rows, *_, (mass_Q, F), anchor_rows in self._regions:
-            if self.free_rigid:
-                i, j = np.meshgrid(rows, anchor_rows, indexing="ij")
-                blocks.append(sp.coo_matrix(((mass_Q @ F).ravel(), (i.ravel(), j.ravel())),
-                                            shape=(n3, n3)))
-        return sp.csr_matrix(sum(blocks))
+        moves each region's target with its anchor ring; none without ``free_rigid``).
+        Built once."""
+        if self._coupling is None:
+            n3 = self.mass.shape[0]
+            blocks = [sp.coo_matrix((n3, n3))]
+            for rows, *_, (mass_Q, F), anchor_rows in self._regions:
+                if self.free_rigid:
+                    i, j = np.meshgrid(rows, anchor_rows, indexing="ij")
+                    blocks.append(sp.coo_matrix(((mass_Q @ F).ravel(), (i.ravel(), j.ravel())),
+                                                shape=(n3, n3)))
+            self._coupling = sp.csr_matrix(sum(blocks))
+        return self._coupling
 
     def pull(self, u: np.ndarray) -> np.ndarray:
         """(3n,) the pull (kg·m) for the displacement u (3n,) or (n, 3)."""

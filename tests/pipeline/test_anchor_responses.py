@@ -14,13 +14,13 @@ import scipy.sparse.linalg as spla
 
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.polynomial_forces import POLYNOMIAL_BUILD_FLOPS, polynomial_build_flops
+from lbshape.geometry.mesh import free_dof_mask
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.responses import (
     anchor_fit_fields,
     anchor_responses,
     anchor_room,
     anchored_readout_responses,
-    free_dofs_mask,
     strongly_pulled_regions,
 )
 from lbshape.pipeline.simulate import full_simulation
@@ -86,7 +86,7 @@ def test_the_adjoint_read_outs_solve_the_anchored_operator():
     S, G = full._local.mass, full._local.anchor_coupling()
     L, R = anchor_fit_fields(pre.mesh, pre.material.density, pre.local.regions)
     assert abs(G - sp.csr_matrix(L @ R.T)).max() < 1e-12 * abs(G).max()
-    free = free_dofs_mask(n3, pre.fixed_vertices)
+    free = free_dof_mask(pre.mesh.n_vertices, pre.fixed_vertices)
     (readout,) = anchor_responses(K, S, k, pre.mesh, pre.material.density,
                                   pre.local.regions, pre.fixed_vertices, sets=2)[1:]
     A = (K + k * (S - G)).tocsr()[free][:, free]

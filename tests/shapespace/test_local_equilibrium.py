@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.geometry.mesh import free_dof_mask
 from lbshape.pipeline.precompute import precompute
-from lbshape.pipeline.responses import free_dofs_mask, static_load
+from lbshape.pipeline.responses import static_load
 from lbshape.pipeline.simulate import full_simulation
 from lbshape.scene.reader import load_scene
 from lbshape.scene.variants import with_stiffness
@@ -30,7 +31,7 @@ def teddy():
     K = full_simulation(scene, pre).elastic.tangent(np.zeros(n3)).tocsr()
     load = static_load(scene, pre.mesh, mass_matrix(pre.mesh, pre.material.density))
     force = FullSpaceLocalForce(pre.mesh, pre.material, pre.local)
-    return scene, pre, K, free_dofs_mask(n3, pre.fixed_vertices), load, force
+    return scene, pre, K, free_dof_mask(pre.mesh.n_vertices, pre.fixed_vertices), load, force
 
 
 @pytest.mark.slow
