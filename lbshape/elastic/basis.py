@@ -88,7 +88,7 @@ APPEND_RTOL = 1e-2
 #: error against the full reference (``docs/decisions.md``, "Static equilibria")
 EQUILIBRIUM_MIN_OUTSIDE = 1e-3
 #: what :func:`append_directions` appends (each has its count ``n_<kind>``)
-APPENDED_KINDS = ("static_equilibria", "example_responses")
+APPENDED_KINDS = ("static_equilibria", "example_responses", "impact_columns")
 #: accepted ``max |UᵀMU − I|``
 ORTHONORMALITY_TOL = 1e-8
 
@@ -113,6 +113,9 @@ class NonlinearBasis:
             (:func:`append_directions`, :mod:`lbshape.elastic.static_equilibrium`).
         n_example_responses: example response directions appended after those
             (:func:`append_directions`).
+        n_impact_columns: a free body's impact columns, the last columns
+            (:mod:`lbshape.pipeline.impact_columns`): their energy is taken linear
+            (:class:`lbshape.elastic.linear_columns.LinearColumnsForceModel`).
     """
 
     U: np.ndarray
@@ -124,6 +127,7 @@ class NonlinearBasis:
     n_responses: int = 0
     n_static_equilibria: int = 0
     n_example_responses: int = 0
+    n_impact_columns: int = 0
 
 
 def default_linear_modes(r: int) -> int:

@@ -34,16 +34,19 @@ Stages (only those the scene needs; paper pre-computation steps 1–6), in order
     up to :data:`MAX_APPENDED_BASIS` columns (a free body: without their rigid part, up to
     :data:`MAX_APPENDED_FREE_BODY`, and at least :data:`MIN_APPENDED_FREE_BODY` beyond its
     own r); a strong local pull's anchored read-outs beyond — scenes with examples (k_ex > 0);
-12. ``cubature``: optimized cubature for the reduced elastic force on the final U (the
-    force model of non-StVK materials and large meshes, and the energy of the ``modal``
-    route);
-13. ``forces``: the exact reduced StVK force as polynomials in q (K, C̃, D̃ of
+12. ``impact-basis``: impact columns from short full-space throws at the object's hull
+    features, appended last, their energy linear (:mod:`lbshape.pipeline.impact_columns`)
+    — free bodies with ``reduced.impact_columns`` > 0;
+13. ``cubature``: optimized cubature for the reduced elastic force on the final U
+    without its impact columns (the force model of non-StVK materials and large meshes,
+    and the energy of the ``modal`` route);
+14. ``forces``: the exact reduced StVK force as polynomials in q (K, C̃, D̃ of
     :class:`~lbshape.elastic.polynomial_forces.PolynomialForceModel`) — StVK scenes
-    whose ``reduced.forces`` resolves to ``polynomial``;
-14. ``projections``: the maps ``T = Uᵀ M L`` of LB coefficients to the final reduced
+    whose ``reduced.forces`` resolves to ``polynomial`` (without the impact columns);
+15. ``projections``: the maps ``T = Uᵀ M L`` of LB coefficients to the final reduced
     coordinates (:func:`~lbshape.shapespace.projections.reduced_projection`; also for
     the clamped LB basis, faded to zero at the fixed vertices) — scenes with examples;
-15. ``frame``: the rigid frame's reduced inertia and fictitious-force tensors
+16. ``frame``: the rigid frame's reduced inertia and fictitious-force tensors
     (:mod:`lbshape.dynamics.fictitious`)                      — free bodies.
 
 Scenes with ``[[regions]]`` (local examples) replace stages 6–8 by
@@ -104,10 +107,11 @@ from lbshape.geometry.mesh import TetMesh
 from lbshape.io.cache import artifact_lock, load_artifact, save_artifact
 from lbshape.pipeline.auto_stiffness import auto_stiffness_stage
 from lbshape.pipeline.estimate import estimate_operators
+from lbshape.pipeline.example_parts import ExampleParts
+from lbshape.pipeline.impact_columns import impact_basis, leading_columns
 from lbshape.pipeline.meshes import (
     build_mesh,
     example_meshes,
-    posed_part,
     selected_vertices,
 )
 from lbshape.pipeline.precompute_key import (
@@ -151,7 +155,6 @@ from lbshape.shapespace.example_shapes import (
 from lbshape.shapespace.example_targets import tabulate_examples
 from lbshape.shapespace.frames import body_frame
 from lbshape.shapespace.local_build import RegionSpec, build_local_space
-from lbshape.shapespace.local_regions import region_cells, submesh
 from lbshape.shapespace.projections import (
     block_basis,
     embed_example,
@@ -201,6 +204,8 @@ def stage_names(scene: Scene) -> list[str]:
         names.append("example-stiffness")
     if example_response_stiffness(scene) > 0:
         names.append("example-basis")
+    if scene.reduced.impact_columns:
+        names.append("impact-basis")
     names.append("cubature")
     if scene.material.model == "stvk" and scene.reduced.forces != "cubature":
         names.append("forces")
@@ -286,6 +291,10 @@ def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
     if "example-basis" in stages.names:
         basis = ranks.on_root("example-basis", lambda: _example_basis(
             scene, mesh, fixed, elastic, shape, local, None if auto is None else auto.k_ex))
+    coupling = None
+    if "impact-basis" in stages.names:
+        basis, coupling = ranks.on_root("impact-basis", lambda: impact_basis(
+            scene, mesh, elastic.mass, elastic.modes.stiffness, basis)) or (None, None)
     U, cubature, polynomial = _force_stages(scene, mesh, basis, ranks)
     examples = None
     if "projections" in stages.names:  # every rank takes part (the others wait)
@@ -303,7 +312,8 @@ def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
                     omega2=np.asarray(elastic.modes.omega2), cubature=cubature,
                     polynomial=polynomial, examples=examples, local=local,
                     frame=frame, example_names=names, stage_ranks=ranks.count,
-                    auto_stiffness=auto, estimate=estimate)
+                    auto_stiffness=auto, estimate=estimate,
+                    impact=None if coupling is None else (coupling, leading_columns(basis)))
 
 
 # ------------------------------------------------------------- the elastic stages
@@ -340,15 +350,18 @@ def _basis_stages(scene: Scene, mesh: TetMesh, fixed: np.ndarray,
 
 def _force_stages(scene: Scene, mesh: TetMesh, basis: NonlinearBasis | None, ranks: Ranks
                   ) -> tuple[np.ndarray, Cubature, PolynomialForceModel | None]:
-    """The ``cubature`` and ``forces`` stages on the final basis: (U on every rank, the
-    cubature, the polynomial force model or None)."""
+    """The ``cubature`` and ``forces`` stages on the final basis, its impact columns left
+    out (their energy is linear): (U on every rank, the cubature, the polynomial force
+    model or None)."""
     reduced, comm = scene.reduced, ranks.comm
+
+    leading = compute_on_root(comm, lambda: leading_columns(basis))
 
     def cubature_stage():  # every rank: the element passes are split across the ranks
         U, omega2 = compute_on_root(comm, lambda: (basis.U, np.asarray(basis.omega2)))
-        return U, train_cubature(
-            mesh, scene.material, U, rng=np.random.default_rng(PRECOMPUTE_SEED),
-            scales=inverse_frequency_scales(omega2),
+        return U, train_cubature(  # the impact columns' energy is linear: not trained
+            mesh, scene.material, U[:, :leading], rng=np.random.default_rng(PRECOMPUTE_SEED),
+            scales=inverse_frequency_scales(omega2[:leading]),
             max_elements=reduced.s, tol=reduced.cubature_tolerance,
             n_train=CUBATURE_TRAINING_POSES, n_holdout=CUBATURE_TRAINING_POSES // 2,
             comm=comm)
@@ -357,7 +370,7 @@ def _force_stages(scene: Scene, mesh: TetMesh, basis: NonlinearBasis | None, ran
     polynomial = None
     if "forces" in ranks.stages.names:
         polynomial = ranks.distributed("forces", lambda: _polynomial_forces(
-            scene, mesh, U, comm))
+            scene, mesh, np.ascontiguousarray(U[:, :leading]), comm))
     return U, cubature, polynomial
 
 
@@ -642,7 +655,7 @@ def _local_examples(scene: Scene, mesh: TetMesh, fixed: np.ndarray,
     the other ranks."""
     m = scene.reduced.m
     spectrum = ranks.distributed("lb", lambda: lb_spectrum(mesh, m, comm=ranks.comm))
-    parts = _ExampleParts(scene, mesh)
+    parts = ExampleParts(scene, mesh)
     specs = [RegionSpec(reg.name, reg.selection.group, reg.selection.region, reg.examples)
              for reg in scene.regions]
     local = ranks.on_root("regions", lambda: build_local_space(
@@ -652,49 +665,3 @@ def _local_examples(scene: Scene, mesh: TetMesh, fixed: np.ndarray,
     if local is None:
         return None
     return LocalExamples(local, spectrum)
-
-
-class _ExampleParts:
-    """The examples' meshes, built once each, and their parts selected by a region."""
-
-    def __init__(self, scene: Scene, mesh: TetMesh):
-        self.poses = scene.examples.poses
-        self.mesh = mesh
-        self._meshes: dict[int, tuple[TetMesh, TetMesh]] = {}  # example -> (rest, posed)
-        self._build = functools.cache(build_mesh)  # examples often pose one mesh
-
-    def meshes(self, k: int) -> tuple[TetMesh, TetMesh]:
-        """Example k's (rest, posed) meshes."""
-        if k not in self._meshes:
-            try:
-                self._meshes[k] = example_meshes(self.poses[k], self.mesh, build=self._build)
-            except LbshapeError as exc:
-                raise LbshapeError(
-                    f"example {k} ({example_label(self.poses[k])}): {exc}") from None
-        return self._meshes[k]
-
-    def example_part(self, k: int, spec: RegionSpec) -> tuple[TetMesh, np.ndarray]:
-        """The region's part of example k's rest mesh and its posed positions."""
-        rest, posed = self.meshes(k)
-        what = f"region '{spec.name}' on example {k} ({example_label(self.poses[k])})"
-        cells = region_cells(rest, group=spec.group, region=spec.region, what=what)
-        part, vertices = submesh(rest, cells, what=what)
-        return part, posed_part(self.poses[k], part, vertices, posed)
-
-    def object_pose(self, k: int, part: TetMesh, vertices: np.ndarray) -> np.ndarray:
-        """Example k's pose on the object's own region (representation measurement):
-        an analytic pose applied to the region, a posed copy of the object's positions,
-        or the region at rest for an example at rest.
-
-        Raises:
-            LbshapeError: an example whose pose lives on its own mesh only (a posed file
-                with its own rest, or an example posed part by part).
-        """
-        pose = self.poses[k]
-        if pose.parts or (pose.is_posed_file and pose.rest is not None):
-            raise LbshapeError("an example posed on its own mesh (a posed file with its "
-                               "rest, or part by part) has no pose on the object's mesh")
-        if pose.pose is None and not pose.is_posed_file:
-            return part.points
-        _, posed = self.meshes(k)
-        return posed_part(pose, part, vertices, posed)

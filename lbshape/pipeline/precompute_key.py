@@ -24,8 +24,14 @@ import numpy as np
 from lbshape import __version__
 from lbshape.elastic.basis import default_linear_modes
 from lbshape.elastic.polynomial_forces import POLYNOMIAL_BUILD_FLOPS
+from lbshape.geometry.hull_directions import GROUP_ANGLE_DEG, MAX_FACES
 from lbshape.geometry.shapes import MESHES_DIR, get_shape
 from lbshape.io.cache import cache_key, file_digest
+from lbshape.pipeline.impact_columns import (
+    MIN_THROW_SPEED,
+    THROW_CLEAR_STEPS,
+    THROW_MAX_STEPS,
+)
 from lbshape.pipeline.precomputed import PIPELINE_VERSION
 from lbshape.pipeline.responses import (
     EXAMPLE_RESPONSE_DEPTH,
@@ -73,8 +79,8 @@ ARTIFACT_NAME = "precompute"
 STAGE_VERSIONS = {"mesh": 1, "modes": 1, "derivatives": 2, "basis": 1, "lb": 1,
                   "examples": 1, "target-table": 1, "lb-cubature": 1, "regions": 1,
                   "static-equilibria": 1, "example-stiffness": 2, "example-basis": 3,
-                  "cubature": 1, "forces": 1, "projections": 1, "frame": 1,
-                  "estimate": 2}
+                  "impact-basis": 1, "cubature": 1, "forces": 1, "projections": 1,
+                  "frame": 1, "estimate": 2}
 
 
 def load_key(scene: Scene) -> list[dict]:
@@ -89,6 +95,18 @@ def example_label(pose: ExamplePose) -> str:
     if pose.parts:
         return f"{source}:parts({', '.join(part.pose for part in pose.parts)})"
     return f"{source}:{pose.pose}" if pose.pose else str(source)
+
+
+def impact_throw_key(scene: Scene) -> dict:
+    """What the ``impact-basis`` stage's throws read of the scene besides the mesh and
+    material: the planes, gravity and initial motion (the throw speed), the step,
+    integrator and damping, and the throws' constants."""
+    runtime = scene.runtime_fields()
+    return {name: runtime[name] for name in ("planes", "initial", "dt", "integrator",
+                                             "damping")} | {
+        "gravity": [list(load.vector) for load in scene.loads if load.type == "gravity"],
+        "constants": [THROW_MAX_STEPS, THROW_CLEAR_STEPS, MIN_THROW_SPEED,
+                      GROUP_ANGLE_DEG, MAX_FACES]}
 
 
 def stage_keys(scene: Scene, names: list[str], settings: list) -> dict[str, str]:
@@ -136,6 +154,8 @@ def stage_keys(scene: Scene, names: list[str], settings: list) -> dict[str, str]
     current = key("example-basis", current, modes, derivatives, material, shape, k_ex,
                   settings, EXAMPLE_RESPONSE_DEPTH, POLYNOMIAL_BUILD_FLOPS,
                   reduced.forces) or current
+    current = key("impact-basis", current, mesh, material, reduced.impact_columns,
+                  impact_throw_key(scene)) or current
     cubature = key("cubature", current, mesh, material, reduced.s,
                    reduced.cubature_tolerance, CUBATURE_TRAINING_POSES, PRECOMPUTE_SEED)
     key("forces", cubature, mesh, material, reduced.forces)

@@ -99,6 +99,10 @@ class ElasticSpace:
             :attr:`force_coefficients`) or ``"cubature"``.
         force_coefficients: the :class:`ForceCoefficients` of the polynomial force
             model, or None.
+        impact_coupling: (r, r) ``Uᵀ K₀ U`` (1/s²) of a basis ending with impact
+            columns (:mod:`lbshape.pipeline.impact_columns`), else None.
+        leading: the columns of the nonlinear force model (r, or r minus the impact
+            columns, whose energy is linear).
     """
 
     U: np.ndarray
@@ -108,6 +112,8 @@ class ElasticSpace:
     cubature_errors: dict
     force_model: str = "cubature"
     force_coefficients: ForceCoefficients | None = None
+    impact_coupling: np.ndarray | None = None
+    leading: int | None = None
 
     @property
     def r(self) -> int:
@@ -364,7 +370,11 @@ class Precomputed:
             force_coefficients=(ForceCoefficients(np.asarray(arrays["poly_K"]),
                                                   np.asarray(arrays["poly_cubic"]),
                                                   np.asarray(arrays["poly_quartic"]))
-                                if polynomial else None))
+                                if polynomial else None),
+            impact_coupling=(np.asarray(arrays["impact_coupling"])
+                             if "impact_coupling" in arrays else None),
+            leading=(int(np.asarray(arrays["impact_leading"])[0])
+                     if "impact_leading" in arrays else None))
         shape = (ShapeBasis(arrays["eigenvalues"], arrays["eigenvectors"],
                             tuple(meta.get("example_names", ())), mesh, fixed)
                  if "eigenvalues" in arrays else None)
@@ -415,9 +425,11 @@ def artifact(scene: Scene, *, mesh: TetMesh, fixed: np.ndarray, U: np.ndarray,
              frame: FrameTensors | None, example_names: list[str],
              stage_ranks: dict[str, int],
              auto_stiffness: AutoStiffness | None = None,
-             estimate: dict | None = None) -> tuple[dict, dict]:
+             estimate: dict | None = None,
+             impact: tuple[np.ndarray, int] | None = None) -> tuple[dict, dict]:
     """The stages' results as the artifact's (arrays, meta) (read by
-    :meth:`Precomputed.from_arrays`)."""
+    :meth:`Precomputed.from_arrays`); ``impact``: a basis ending with impact columns,
+    (``Uᵀ K₀ U`` (r, r), the columns before them)."""
     arrays = {
         **_group_arrays(mesh),
         "points": mesh.points, "tets": mesh.tets, "fixed": fixed, "U": U,
@@ -427,6 +439,8 @@ def artifact(scene: Scene, *, mesh: TetMesh, fixed: np.ndarray, U: np.ndarray,
             "poly_K": polynomial.K, "poly_cubic": polynomial.pair_cubic,
             "poly_quartic": polynomial.pair_quartic}),
     }
+    if impact is not None:  # (Uᵀ K₀ U, the nonlinear force's columns)
+        arrays.update({"impact_coupling": impact[0], "impact_leading": np.array([impact[1]])})
     meta = {"scene": scene.name, "cubature_errors": {
         "train": cubature.train_error, "holdout": cubature.holdout_error,
         "tolerance": cubature.tol, "reached_tolerance": bool(cubature.reached_tol)},
@@ -461,6 +475,8 @@ def required_arrays(scene: Scene) -> tuple[str, ...]:
             + LocalShapeSpace.required_arrays(len(scene.regions))
     if scene.is_free:
         required = required + _REQUIRED_FRAME
+    if scene.reduced.impact_columns:
+        required = required + ("impact_coupling", "impact_leading")
     else:
         required = required + (ESTIMATE_FLAG,)
     return required

@@ -50,6 +50,7 @@ from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord
 from lbshape.dynamics.reduced import REALTIME_NEWTON, ReducedSimulation
 from lbshape.elastic.element_kernels import mass_matrix
+from lbshape.elastic.linear_columns import LinearColumnsForceModel
 from lbshape.elastic.polynomial_forces import PolynomialForceModel
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError, SolverError
@@ -232,15 +233,24 @@ def reduced_force_model(pre: Precomputed, *, exact_forces: bool = False):
     (:class:`~lbshape.elastic.polynomial_forces.PolynomialForceModel`) when it has them,
     else the cubature (:class:`~lbshape.elastic.reduced_forces.ReducedForceModel`);
     ``exact_forces``: the element sum over every element with weight 1 (slow; equal to the
-    polynomials for StVK)."""
+    polynomials for StVK). A basis ending with impact columns: either on the columns before
+    them, the columns' energy linear (:class:`~lbshape.elastic.linear_columns.
+    LinearColumnsForceModel`)."""
     if exact_forces:
         every = np.arange(pre.mesh.n_tets, dtype=np.int64)
         return ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U, every,
                                  np.ones(pre.mesh.n_tets))
-    if pre.elastic.force_model == "polynomial":
-        return PolynomialForceModel.from_arrays(*pre.elastic.force_coefficients)
-    return ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U,
-                             pre.elastic.cubature_elements, pre.elastic.cubature_weights)
+    elastic = pre.elastic
+    leading = pre.r if elastic.impact_coupling is None else elastic.leading
+    if elastic.force_model == "polynomial":
+        model = PolynomialForceModel.from_arrays(*elastic.force_coefficients)
+    else:
+        model = ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material,
+                                  np.ascontiguousarray(pre.U[:, :leading]),
+                                  elastic.cubature_elements, elastic.cubature_weights)
+    if elastic.impact_coupling is None:
+        return model
+    return LinearColumnsForceModel(model, elastic.impact_coupling, leading)
 
 
 def force_elements(pre: Precomputed) -> int:

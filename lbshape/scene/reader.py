@@ -162,6 +162,11 @@ def scene_from_dict(
     if fixed is not None and rubbing:
         raise ctx.error(f"'planes[{rubbing[0]}].friction' acts on free bodies only; this "
                         "object has '[fixed]' (set friction = 0)")
+    if reduced.impact_columns and (fixed is not None or not planes):
+        raise ctx.error("'reduced.impact_columns' acts on free bodies with contact planes "
+                        "only; this object " + ("has '[fixed]'" if fixed is not None
+                                                else "has no '[[planes]]'")
+                        + " (set impact_columns = 0)")
     return Scene(
         name=scene_name, description=description, object=obj, material=material,
         damping=damping, reduced=reduced, examples=examples, fixed=fixed, loads=loads,
@@ -206,7 +211,7 @@ def _damping(top: _Table) -> Damping:
 
 def _reduced(top: _Table) -> Reduced:
     red = top.subtable("reduced", ("m", "r", "s", "linear_modes", "cubature_tolerance",
-                                   "interpolation", "forces"))
+                                   "interpolation", "forces", "impact_columns"))
     r = red.integer("r", Reduced.r, low=1)
     return Reduced(
         m=red.integer("m", Reduced.m, low=1),
@@ -217,6 +222,7 @@ def _reduced(top: _Table) -> Reduced:
                                       low=0.0, high=1.0, open_low=True, open_high=True),
         interpolation=red.choice("interpolation", Reduced.interpolation, ROUTE_CHOICES),
         forces=red.choice("forces", Reduced.forces, FORCE_CHOICES),
+        impact_columns=red.integer("impact_columns", Reduced.impact_columns, low=0),
     )
 
 

@@ -288,6 +288,8 @@ class Reduced:
             energy over every element as a polynomial in q), ``"cubature"`` (s trained
             elements), or ``"auto"`` (polynomial for StVK unless its build is too large
             for the mesh, :func:`lbshape.elastic.polynomial_forces.resolve_force_model`).
+        impact_columns: a free body's impact columns appended to its basis (0: none;
+            free bodies with contact planes only; :mod:`lbshape.pipeline.impact_columns`).
     """
 
     m: int = 10
@@ -297,6 +299,7 @@ class Reduced:
     cubature_tolerance: float = 0.01
     interpolation: str = "auto"
     forces: str = "auto"
+    impact_columns: int = 0
 
 
 @dataclass(frozen=True)
@@ -525,7 +528,9 @@ class Scene:
             "reduced": {"m": self.reduced.m, "r": self.reduced.r, "s": self.reduced.s,
                         "linear_modes": self.reduced.linear_modes,
                         "cubature_tolerance": self.reduced.cubature_tolerance,
-                        "forces": self.reduced.forces},
+                        "forces": self.reduced.forces,
+                        **({"impact_columns": self.reduced.impact_columns}
+                           if self.reduced.impact_columns else {})},
             "examples": None if self.examples is None
             else [pose.key() for pose in self.examples.poses],
             "fixed": None if self.fixed is None else self.fixed.key(),

@@ -9,8 +9,8 @@ from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import TetMesh
 from lbshape.geometry.poses import arc, pose_parts, twist
 from lbshape.geometry.primitives import structured_box
+from lbshape.pipeline.example_parts import ExampleParts
 from lbshape.pipeline.meshes import build_mesh, example_meshes, posed_part, selected_vertices
-from lbshape.pipeline.precompute import _ExampleParts
 from lbshape.scene import load_scene
 from lbshape.scene.schema import MeshSource
 from lbshape.shapespace.local_regions import region_cells, submesh
@@ -147,7 +147,7 @@ def test_a_scene_poses_an_example_part_by_part(tmp_path):
     object_part, object_vertices = submesh(object_mesh,
                                            region_cells(object_mesh, region="z > 0.3"))
     with pytest.raises(LbshapeError, match="no pose on the object's mesh"):
-        _ExampleParts(scene, object_mesh).object_pose(0, object_part, object_vertices)
+        ExampleParts(scene, object_mesh).object_pose(0, object_part, object_vertices)
 
 
 def _demo_bar() -> TetMesh:

@@ -1,0 +1,179 @@
+"""Impact columns: a free body's basis given the shapes of its impacts (``impact-basis``).
+
+The reduced free body restarted from the full reference's state just before an impact
+misses the impact because its basis does not hold the local crush: appending the
+principal components of the impact's own full-space deformations took the Figure 4 bar's
+edge hit from 24 % to 0.1 % in restitution (``docs/decisions.md``, "Impact columns").
+This stage makes such columns without knowing the scene's impacts:
+
+1. **Throws** (:func:`throw`): the body, at rest shape and without spin, thrown at a
+   plane along each of its hull directions (:func:`lbshape.geometry.hull_directions.
+   hull_directions`: a plane flat on each side, on each crease between two sides and on
+   each corner), at :func:`throw_speed`, with the scene's first plane's stiffness, no
+   friction and no loads; the full-space reference
+   (:class:`~lbshape.dynamics.full.FullSpaceSimulator`) runs from touching until
+   :data:`THROW_CLEAR_STEPS` steps after its last contact (at most
+   :data:`THROW_MAX_STEPS`).
+2. **Columns** (:func:`impact_basis`): each throw's body-frame deformations during contact
+   (:func:`~lbshape.analysis.free_body.body_deformations`), their rigid motions and span U
+   removed M-orthogonally, give its leading principal components (``ceil(k / throws)``
+   each); :func:`~lbshape.elastic.basis.append_directions` appends the k principal
+   directions of them all (``reduced.impact_columns`` = k).
+3. **Energy**: the columns' energy is taken linear
+   (:class:`~lbshape.elastic.linear_columns.LinearColumnsForceModel`); the stage returns
+   the coupling ``Uᵀ K₀ U`` with the basis.
+
+Cost: one short full-space run per direction (26 on a cuboid; the 332-vertex bar's 26
+throws take about 10 s).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from lbshape.analysis.free_body import body_deformations
+from lbshape.analysis.free_body_eval import penetration
+from lbshape.dynamics.contact import ContactPlane
+from lbshape.dynamics.full import FullSpaceSimulator, rigid_velocity
+from lbshape.dynamics.full_contact import FullSpaceContact
+from lbshape.elastic.basis import NonlinearBasis, append_directions
+from lbshape.elastic.modes import rigid_body_modes
+from lbshape.errors import LbshapeError, SolverError
+from lbshape.geometry.hull_directions import hull_directions
+from lbshape.geometry.mesh import TetMesh
+from lbshape.scene.schema import Scene
+
+log = logging.getLogger(__name__)
+
+#: a throw runs at most this many steps
+THROW_MAX_STEPS = 80
+#: a throw ends this many steps after its last step in contact
+THROW_CLEAR_STEPS = 4
+#: the slowest throw (m/s): a body that starts at rest above a plane it never falls onto
+MIN_THROW_SPEED = 0.5
+
+
+class ImpactBasis(NamedTuple):
+    """The ``impact-basis`` stage's result."""
+
+    basis: NonlinearBasis  #: U (3n, r) with ``n_impact_columns`` columns last
+    coupling: np.ndarray  #: (r, r) ``Uᵀ K₀ U`` (1/s², U M-orthonormal)
+
+
+def throw_speed(scene: Scene, points: np.ndarray) -> float:
+    """The fastest speed (m/s) the body reaches at one of its planes: its initial speed,
+    its spin at its radius and the fall under the scene's gravity to the plane,
+    ``√(|v₀|² + (|ω₀| R)² + 2 max(0, −g·n) d)`` (d the gap from the body's lowest point
+    along the normal n), at least :data:`MIN_THROW_SPEED`."""
+    points = np.asarray(points, dtype=float)
+    radius = float(np.linalg.norm(points - points.mean(axis=0), axis=1).max())
+    gravity = sum((np.asarray(load.vector, dtype=float) for load in scene.loads
+                   if load.type == "gravity"), np.zeros(3))
+    moving = (float(np.sum(np.square(scene.initial.velocity)))
+              + (float(np.linalg.norm(scene.initial.angular_velocity)) * radius) ** 2)
+    speed = 0.0
+    for plane in scene.planes:
+        normal = np.asarray(plane.normal, dtype=float) / np.linalg.norm(plane.normal)
+        gap = max(float(((points - np.asarray(plane.point)) @ normal).min()), 0.0)
+        fall = max(-float(gravity @ normal), 0.0)
+        speed = max(speed, math.sqrt(moving + 2.0 * fall * gap))
+    return max(speed, MIN_THROW_SPEED)
+
+
+def throw(scene: Scene, mesh: TetMesh, direction: np.ndarray, speed: float) -> np.ndarray:
+    """(k, n, 3) world displacements (m) of the steps of one throw in contact: the body
+    along −``direction`` at ``speed`` (m/s) onto a plane of that normal touching it, the
+    scene's first plane's stiffness, no friction, no loads, the scene's dt, integrator
+    and damping.
+
+    Raises:
+        LbshapeError: the full-space run stopped (named with the direction).
+    """
+    direction = np.asarray(direction, dtype=float)
+    support = float((mesh.points @ direction).min())
+    plane = ContactPlane(tuple(support * direction), tuple(direction),
+                         float(scene.planes[0].stiffness), 0.0)
+    sim = FullSpaceSimulator(
+        mesh, scene.material, dt=scene.simulation.dt,
+        integrator=scene.simulation.integrator, alpha=scene.damping.alpha,
+        beta=scene.damping.beta, contact=FullSpaceContact([plane], mesh.points, mesh.tets),
+        initial_velocity=rigid_velocity(mesh, scene.material.density, -speed * direction,
+                                        (0.0, 0.0, 0.0)))
+    frames, clear = [], 0
+    try:
+        for _ in range(THROW_MAX_STEPS):
+            sim.step()
+            u = sim.displacement()
+            if penetration((mesh.points + u)[None], [plane])[0] > 0.0:
+                frames.append(u)
+                clear = 0
+            elif frames:
+                clear += 1
+                if clear >= THROW_CLEAR_STEPS:
+                    break
+    except SolverError as exc:
+        raise LbshapeError(f"impact columns: the throw along {np.round(direction, 3)} "
+                           f"stopped: {exc}") from None
+    return np.asarray(frames).reshape(-1, mesh.n_vertices, 3)
+
+
+def _leading_components(deformations: np.ndarray, outside, mass, count: int) -> np.ndarray:
+    """(3n, ≤ count) the leading M-principal components of the (k, 3n) ``deformations``
+    after ``outside`` (their part outside the rigid motions and span U)."""
+    X = outside(deformations.reshape(len(deformations), -1).T)
+    gram = X.T @ (mass @ X)
+    values, vectors = np.linalg.eigh(0.5 * (gram + gram.T))
+    order = np.argsort(values)[::-1][:count]
+    order = order[values[order] > 1e-12 * max(float(values.max(initial=0.0)), 1e-300)]
+    return X @ vectors[:, order]
+
+
+def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness,
+                 basis: NonlinearBasis) -> ImpactBasis:
+    """The ``impact-basis`` stage: ``basis`` with ``scene.reduced.impact_columns`` impact
+    columns appended (module docstring) and the coupling ``Uᵀ K₀ U``.
+
+    Args:
+        scene: a free body with contact planes and ``reduced.impact_columns`` > 0.
+        mesh: its rest mesh.
+        mass, stiffness: (3n, 3n) M (kg) and the rest stiffness K₀ (N/m).
+        basis: the basis so far (M-orthonormal).
+    """
+    count = int(scene.reduced.impact_columns)
+    directions = hull_directions(mesh.points).all
+    speed = throw_speed(scene, mesh.points)
+    rigid = rigid_body_modes(mesh.points, mass)
+    U = basis.U
+
+    def outside(X):
+        for _ in range(2):
+            X = X - rigid @ (rigid.T @ (mass @ X))
+            X = X - U @ (U.T @ (mass @ X))
+        return X
+
+    scalar_mass = mass[0::3, 0::3]
+    each = math.ceil(count / len(directions))
+    columns = []
+    for index, direction in enumerate(directions):
+        u = throw(scene, mesh, direction, speed)
+        if len(u):
+            columns.append(_leading_components(
+                body_deformations(scalar_mass, mesh.points, u), outside, mass, each))
+        log.info("impact columns: throw %d of %d at %.3g m/s, %d steps in contact",
+                 index + 1, len(directions), speed, len(u))
+    if not columns:
+        raise LbshapeError("impact columns: no throw reached its plane")
+    grown = append_directions(basis, np.hstack(columns), mass, stiffness,
+                              kind="impact_columns", max_columns=count, rtol=0.0,
+                              min_outside=0.0)
+    U = grown.U
+    return ImpactBasis(grown, U.T @ (stiffness @ U))
+
+
+def leading_columns(basis: NonlinearBasis) -> int:
+    """The columns before the impact columns (those of the nonlinear force model)."""
+    return int(basis.r - basis.n_impact_columns)

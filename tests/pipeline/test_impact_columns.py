@@ -1,0 +1,95 @@
+"""Impact columns (``reduced.impact_columns``, :mod:`lbshape.pipeline.impact_columns`): the
+key is read and refused where nothing models it, the stage appends columns from throws
+at the hull's features with a linear energy, and the reduced free body then holds a
+designed edge hit that its plain basis misses."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from conftest import golden
+
+from lbshape.elastic.linear_columns import LinearColumnsForceModel
+from lbshape.errors import LbshapeError
+from lbshape.pipeline.impact_columns import MIN_THROW_SPEED, throw_speed
+from lbshape.pipeline.precompute import precompute, stage_names
+from lbshape.pipeline.precompute_key import scene_cache_key
+from lbshape.pipeline.simulate import reduced_force_model
+from lbshape.scene.reader import load_scene, scene_from_dict
+from lbshape.studies.free_bodies import designed_impact
+
+COLUMNS = 26
+
+
+def _with_columns(scene, count: int = COLUMNS):
+    return dataclasses.replace(scene, reduced=dataclasses.replace(scene.reduced,
+                                                                  impact_columns=count))
+
+
+def _document(**extra) -> dict:
+    return {"object": {"shape": "demo-bar"}, "reduced": {"impact_columns": 4}, **extra}
+
+
+@pytest.mark.parametrize("extra, message", [
+    ({"fixed": {"region": "z > 0.999"},
+      "planes": [{"point": [0, 0, -1], "normal": [0, 0, 1], "stiffness": 1e6}]},
+     "has '\\[fixed\\]'"),
+    ({}, "has no '\\[\\[planes\\]\\]'"),
+])
+def test_the_key_is_refused_where_no_method_models_it(extra, message):
+    with pytest.raises(LbshapeError, match=f"impact_columns.*{message}"):
+        scene_from_dict(_document(**extra), name="x")
+    with pytest.raises(LbshapeError, match="impact_columns"):
+        scene_from_dict({"object": {"shape": "demo-bar"},
+                         "reduced": {"impact_columns": -1}}, name="x")
+
+
+def test_the_stage_and_its_key_come_with_the_columns_only():
+    scene = load_scene("bar-s-cuboid")
+    assert "impact-basis" not in stage_names(scene)
+    assert "impact_columns" not in scene.precompute_key_fields()["reduced"]
+    names = stage_names(_with_columns(scene))
+    assert names.index("example-basis") < names.index("impact-basis") < names.index("cubature")
+    assert scene_cache_key(_with_columns(scene)) != scene_cache_key(scene)
+    assert scene_cache_key(_with_columns(scene, 12)) != scene_cache_key(_with_columns(scene))
+
+
+def test_the_throw_speed_is_the_speed_at_the_floor():
+    scene = load_scene("bar-s-cuboid")
+    points = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.1, 0.0, 0.5]])
+    floor = dataclasses.replace(scene.planes[0], point=(0.0, 0.0, -0.5))
+    still = dataclasses.replace(scene, planes=(floor,), initial=dataclasses.replace(
+        scene.initial, angular_velocity=(0.0, 0.0, 0.0)))
+    assert throw_speed(still, points) == pytest.approx(np.sqrt(2 * 9.81 * 0.5))
+    weightless = dataclasses.replace(still, loads=())
+    assert throw_speed(weightless, points) == MIN_THROW_SPEED
+
+
+@pytest.fixture(scope="module")
+def bars():
+    scene = load_scene("bar-s-cuboid")
+    return scene, precompute(scene), precompute(_with_columns(scene))
+
+
+@pytest.mark.slow
+def test_the_columns_are_appended_last_with_a_linear_energy(bars):
+    _, plain, with_columns = bars
+    assert with_columns.r == plain.r + COLUMNS
+    assert with_columns.elastic.leading == plain.r
+    np.testing.assert_allclose(with_columns.U[:, :plain.r], plain.U, atol=1e-10)
+    model = reduced_force_model(with_columns)
+    assert isinstance(model, LinearColumnsForceModel) and model.leading == plain.r
+    coupling = with_columns.elastic.impact_coupling
+    np.testing.assert_allclose(coupling[:plain.r, :plain.r], plain.elastic.force_coefficients.K,
+                               rtol=1e-9, atol=1e-9 * np.abs(coupling).max())
+
+
+@pytest.mark.slow
+def test_the_columns_hold_a_designed_edge_hit_the_plain_basis_misses(bars):
+    scene, plain, with_columns = bars
+    errors = [designed_impact(scene, pre, "edge", 1.5, examples=False).stats()[
+        "restitution_error"] for pre in (plain, with_columns)]
+    assert errors[0] > golden("impact_columns.edge_hit_plain").limit
+    assert errors[1] < golden("impact_columns.edge_hit_with_columns").limit
