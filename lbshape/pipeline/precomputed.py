@@ -475,10 +475,10 @@ def required_arrays(scene: Scene) -> tuple[str, ...]:
             + LocalShapeSpace.required_arrays(len(scene.regions))
     if scene.is_free:
         required = required + _REQUIRED_FRAME
-    if scene.reduced.impact_columns:
-        required = required + ("impact_coupling", "impact_leading")
     else:
         required = required + (ESTIMATE_FLAG,)
+    if scene.reduced.impact_columns:
+        required = required + ("impact_coupling", "impact_leading")
     return required
 
 
