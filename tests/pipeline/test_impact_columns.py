@@ -16,6 +16,7 @@ from lbshape.errors import LbshapeError
 from lbshape.pipeline.impact_columns import MIN_THROW_SPEED, throw_speed
 from lbshape.pipeline.precompute import precompute, stage_names
 from lbshape.pipeline.precompute_key import scene_cache_key
+from lbshape.pipeline.precomputed import ESTIMATE_FLAG, required_arrays
 from lbshape.pipeline.simulate import reduced_force_model
 from lbshape.scene.reader import load_scene, scene_from_dict
 from lbshape.studies.free_bodies import designed_impact
@@ -54,6 +55,15 @@ def test_the_stage_and_its_key_come_with_the_columns_only():
     assert names.index("example-basis") < names.index("impact-basis") < names.index("cubature")
     assert scene_cache_key(_with_columns(scene)) != scene_cache_key(scene)
     assert scene_cache_key(_with_columns(scene, 12)) != scene_cache_key(_with_columns(scene))
+
+
+def test_a_cached_artifact_must_hold_the_columns_arrays_only_with_columns():
+    free, fixed = load_scene("bar-s-cuboid"), load_scene("bar-cuboid")
+    assert ESTIMATE_FLAG in required_arrays(fixed)
+    for scene in (free, _with_columns(free)):
+        assert ESTIMATE_FLAG not in required_arrays(scene)
+        assert ("impact_coupling" in required_arrays(scene)) == bool(
+            scene.reduced.impact_columns)
 
 
 def test_the_throw_speed_is_the_speed_at_the_floor():
