@@ -114,8 +114,8 @@ class NonlinearBasis:
         n_example_responses: example response directions appended after those
             (:func:`append_directions`).
         n_impact_columns: a free body's impact columns, the last columns
-            (:mod:`lbshape.pipeline.impact_columns`): their energy is taken linear
-            (:class:`lbshape.elastic.linear_columns.LinearColumnsForceModel`).
+            (:mod:`lbshape.pipeline.impact_columns`; their force model:
+            :class:`lbshape.elastic.column_forces.ColumnForceModel`).
     """
 
     U: np.ndarray

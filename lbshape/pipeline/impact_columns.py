@@ -19,9 +19,11 @@ This stage makes such columns without knowing the scene's impacts:
    removed M-orthogonally, give its leading principal components (``ceil(k / throws)``
    each); :func:`~lbshape.elastic.basis.append_directions` appends the k principal
    directions of them all (``reduced.impact_columns`` = k).
-3. **Energy**: the columns' energy is taken linear
-   (:class:`~lbshape.elastic.linear_columns.LinearColumnsForceModel`); the stage returns
-   the coupling ``Uᵀ K₀ U`` with the basis.
+3. **Energy** (:class:`~lbshape.elastic.column_forces.ColumnForceModel`): the columns'
+   own energy exact (the StVK polynomial on them, where ``reduced.forces`` resolves to
+   polynomials for k columns; else quadratic), their coupling to the other coordinates
+   linear; the stage returns the coupling ``Uᵀ K₀ U`` and the columns' polynomial with
+   the basis.
 
 Cost: one short full-space run per direction (26 on a cuboid; the 332-vertex bar's 26
 throws take about 10 s).
@@ -42,6 +44,7 @@ from lbshape.dynamics.full import FullSpaceSimulator, rigid_velocity
 from lbshape.dynamics.full_contact import FullSpaceContact
 from lbshape.elastic.basis import NonlinearBasis, append_directions
 from lbshape.elastic.modes import rigid_body_modes
+from lbshape.elastic.polynomial_forces import PolynomialForceModel, resolve_force_model
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.geometry.hull_directions import hull_directions
 from lbshape.geometry.mesh import TetMesh
@@ -62,6 +65,8 @@ class ImpactBasis(NamedTuple):
 
     basis: NonlinearBasis  #: U (3n, r) with ``n_impact_columns`` columns last
     coupling: np.ndarray  #: (r, r) ``Uᵀ K₀ U`` (1/s², U M-orthonormal)
+    #: the columns' own exact energy E_V (the StVK polynomial on them), or None (linear)
+    columns: PolynomialForceModel | None
 
 
 def throw_speed(scene: Scene, points: np.ndarray) -> float:
@@ -135,7 +140,8 @@ def _leading_components(deformations: np.ndarray, outside, mass, count: int) -> 
 def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness,
                  basis: NonlinearBasis) -> ImpactBasis:
     """The ``impact-basis`` stage: ``basis`` with ``scene.reduced.impact_columns`` impact
-    columns appended (module docstring) and the coupling ``Uᵀ K₀ U``.
+    columns appended (module docstring), the coupling ``Uᵀ K₀ U`` and the columns' own
+    polynomial energy (None where it is not built).
 
     Args:
         scene: a free body with contact planes and ``reduced.impact_columns`` > 0.
@@ -171,7 +177,11 @@ def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness,
                               kind="impact_columns", max_columns=count, rtol=0.0,
                               min_outside=0.0)
     U = grown.U
-    return ImpactBasis(grown, U.T @ (stiffness @ U))
+    V = np.ascontiguousarray(U[:, leading_columns(grown):])
+    exact = resolve_force_model(scene.reduced.forces, scene.material.model, mesh.n_tets,
+                                V.shape[1]) == "polynomial"
+    return ImpactBasis(grown, U.T @ (stiffness @ U), PolynomialForceModel(
+        mesh.points, mesh.tets, scene.material, V) if exact else None)
 
 
 def leading_columns(basis: NonlinearBasis) -> int:

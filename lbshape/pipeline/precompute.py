@@ -291,10 +291,11 @@ def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
     if "example-basis" in stages.names:
         basis = ranks.on_root("example-basis", lambda: _example_basis(
             scene, mesh, fixed, elastic, shape, local, None if auto is None else auto.k_ex))
-    coupling = None
+    impact = None
     if "impact-basis" in stages.names:
-        basis, coupling = ranks.on_root("impact-basis", lambda: impact_basis(
-            scene, mesh, elastic.mass, elastic.modes.stiffness, basis)) or (None, None)
+        impact = ranks.on_root("impact-basis", lambda: impact_basis(
+            scene, mesh, elastic.mass, elastic.modes.stiffness, basis))
+        basis = None if impact is None else impact.basis
     U, cubature, polynomial = _force_stages(scene, mesh, basis, ranks)
     examples = None
     if "projections" in stages.names:  # every rank takes part (the others wait)
@@ -313,7 +314,7 @@ def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
                     polynomial=polynomial, examples=examples, local=local,
                     frame=frame, example_names=names, stage_ranks=ranks.count,
                     auto_stiffness=auto, estimate=estimate,
-                    impact=None if coupling is None else (coupling, leading_columns(basis)))
+                    impact=impact)
 
 
 # ------------------------------------------------------------- the elastic stages

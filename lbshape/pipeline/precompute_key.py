@@ -79,7 +79,7 @@ ARTIFACT_NAME = "precompute"
 STAGE_VERSIONS = {"mesh": 1, "modes": 1, "derivatives": 2, "basis": 1, "lb": 1,
                   "examples": 1, "target-table": 1, "lb-cubature": 1, "regions": 1,
                   "static-equilibria": 1, "example-stiffness": 2, "example-basis": 3,
-                  "impact-basis": 1, "cubature": 1, "forces": 1, "projections": 1,
+                  "impact-basis": 2, "cubature": 1, "forces": 1, "projections": 1,
                   "frame": 1, "estimate": 2}
 
 

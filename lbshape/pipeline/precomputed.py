@@ -39,6 +39,7 @@ from lbshape.elastic.materials import Material
 from lbshape.elastic.polynomial_forces import PolynomialForceModel
 from lbshape.geometry.mesh import TetMesh
 from lbshape.io.cache import PACKED, pack_arrays, unpack_arrays
+from lbshape.pipeline.impact_columns import ImpactBasis, leading_columns
 from lbshape.scene.schema import Scene
 from lbshape.shapespace.auto_stiffness import AutoStiffness
 from lbshape.shapespace.basis_choice import METHODS
@@ -101,8 +102,10 @@ class ElasticSpace:
             model, or None.
         impact_coupling: (r, r) ``Uᵀ K₀ U`` (1/s²) of a basis ending with impact
             columns (:mod:`lbshape.pipeline.impact_columns`), else None.
-        leading: the columns of the nonlinear force model (r, or r minus the impact
-            columns, whose energy is linear).
+        leading: the columns before the impact columns (those of the force model
+            above), or None without them.
+        impact_forces: the impact columns' own polynomial energy (the
+            :class:`ForceCoefficients` on them), or None (their energy quadratic).
     """
 
     U: np.ndarray
@@ -114,6 +117,7 @@ class ElasticSpace:
     force_coefficients: ForceCoefficients | None = None
     impact_coupling: np.ndarray | None = None
     leading: int | None = None
+    impact_forces: ForceCoefficients | None = None
 
     @property
     def r(self) -> int:
@@ -374,7 +378,10 @@ class Precomputed:
             impact_coupling=(np.asarray(arrays["impact_coupling"])
                              if "impact_coupling" in arrays else None),
             leading=(int(np.asarray(arrays["impact_leading"])[0])
-                     if "impact_leading" in arrays else None))
+                     if "impact_leading" in arrays else None),
+            impact_forces=(ForceCoefficients(*(np.asarray(arrays[f"impact_poly_{name}"])
+                                               for name in ("K", "cubic", "quartic")))
+                           if "impact_poly_K" in arrays else None))
         shape = (ShapeBasis(arrays["eigenvalues"], arrays["eigenvectors"],
                             tuple(meta.get("example_names", ())), mesh, fixed)
                  if "eigenvalues" in arrays else None)
@@ -426,10 +433,9 @@ def artifact(scene: Scene, *, mesh: TetMesh, fixed: np.ndarray, U: np.ndarray,
              stage_ranks: dict[str, int],
              auto_stiffness: AutoStiffness | None = None,
              estimate: dict | None = None,
-             impact: tuple[np.ndarray, int] | None = None) -> tuple[dict, dict]:
+             impact: ImpactBasis | None = None) -> tuple[dict, dict]:
     """The stages' results as the artifact's (arrays, meta) (read by
-    :meth:`Precomputed.from_arrays`); ``impact``: a basis ending with impact columns,
-    (``Uᵀ K₀ U`` (r, r), the columns before them)."""
+    :meth:`Precomputed.from_arrays`); ``impact``: the ``impact-basis`` stage's result."""
     arrays = {
         **_group_arrays(mesh),
         "points": mesh.points, "tets": mesh.tets, "fixed": fixed, "U": U,
@@ -439,8 +445,13 @@ def artifact(scene: Scene, *, mesh: TetMesh, fixed: np.ndarray, U: np.ndarray,
             "poly_K": polynomial.K, "poly_cubic": polynomial.pair_cubic,
             "poly_quartic": polynomial.pair_quartic}),
     }
-    if impact is not None:  # (Uᵀ K₀ U, the nonlinear force's columns)
-        arrays.update({"impact_coupling": impact[0], "impact_leading": np.array([impact[1]])})
+    if impact is not None:
+        arrays.update({"impact_coupling": impact.coupling,
+                       "impact_leading": np.array([leading_columns(impact.basis)])})
+        if impact.columns is not None:
+            arrays.update({"impact_poly_K": impact.columns.K,
+                           "impact_poly_cubic": impact.columns.pair_cubic,
+                           "impact_poly_quartic": impact.columns.pair_quartic})
     meta = {"scene": scene.name, "cubature_errors": {
         "train": cubature.train_error, "holdout": cubature.holdout_error,
         "tolerance": cubature.tol, "reached_tolerance": bool(cubature.reached_tol)},

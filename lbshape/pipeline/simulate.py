@@ -49,8 +49,8 @@ from lbshape.dynamics.full import (
 from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord
 from lbshape.dynamics.reduced import REALTIME_NEWTON, ReducedSimulation
+from lbshape.elastic.column_forces import ColumnForceModel
 from lbshape.elastic.element_kernels import mass_matrix
-from lbshape.elastic.linear_columns import LinearColumnsForceModel
 from lbshape.elastic.polynomial_forces import PolynomialForceModel
 from lbshape.elastic.reduced_forces import ReducedForceModel
 from lbshape.errors import LbshapeError, SolverError
@@ -234,8 +234,8 @@ def reduced_force_model(pre: Precomputed, *, exact_forces: bool = False):
     else the cubature (:class:`~lbshape.elastic.reduced_forces.ReducedForceModel`);
     ``exact_forces``: the element sum over every element with weight 1 (slow; equal to the
     polynomials for StVK). A basis ending with impact columns: either on the columns before
-    them, the columns' energy linear (:class:`~lbshape.elastic.linear_columns.
-    LinearColumnsForceModel`)."""
+    them, with the columns' own energy and a linear coupling
+    (:class:`~lbshape.elastic.column_forces.ColumnForceModel`)."""
     if exact_forces:
         every = np.arange(pre.mesh.n_tets, dtype=np.int64)
         return ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U, every,
@@ -250,7 +250,9 @@ def reduced_force_model(pre: Precomputed, *, exact_forces: bool = False):
                                   elastic.cubature_elements, elastic.cubature_weights)
     if elastic.impact_coupling is None:
         return model
-    return LinearColumnsForceModel(model, elastic.impact_coupling, leading)
+    columns = (None if elastic.impact_forces is None
+               else PolynomialForceModel.from_arrays(*elastic.impact_forces))
+    return ColumnForceModel(model, elastic.impact_coupling, leading, columns)
 
 
 def force_elements(pre: Precomputed) -> int:

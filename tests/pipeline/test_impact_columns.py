@@ -1,7 +1,7 @@
 """Impact columns (``reduced.impact_columns``, :mod:`lbshape.pipeline.impact_columns`): the
 key is read and refused where nothing models it, the stage appends columns from throws
-at the hull's features with a linear energy, and the reduced free body then holds a
-designed edge hit that its plain basis misses."""
+at the hull's features with their own energy and a linear coupling, and the reduced free
+body then holds a designed edge hit that its plain basis misses."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import golden
 
-from lbshape.elastic.linear_columns import LinearColumnsForceModel
+from lbshape.elastic.column_forces import ColumnForceModel
 from lbshape.errors import LbshapeError
 from lbshape.pipeline.impact_columns import MIN_THROW_SPEED, throw_speed
 from lbshape.pipeline.precompute import precompute, stage_names
@@ -84,13 +84,14 @@ def bars():
 
 
 @pytest.mark.slow
-def test_the_columns_are_appended_last_with_a_linear_energy(bars):
+def test_the_columns_are_appended_last_with_their_own_energy(bars):
     _, plain, with_columns = bars
     assert with_columns.r == plain.r + COLUMNS
     assert with_columns.elastic.leading == plain.r
     np.testing.assert_allclose(with_columns.U[:, :plain.r], plain.U, atol=1e-10)
     model = reduced_force_model(with_columns)
-    assert isinstance(model, LinearColumnsForceModel) and model.leading == plain.r
+    assert isinstance(model, ColumnForceModel) and model.leading == plain.r
+    assert model.columns.r == COLUMNS
     coupling = with_columns.elastic.impact_coupling
     np.testing.assert_allclose(coupling[:plain.r, :plain.r], plain.elastic.force_coefficients.K,
                                rtol=1e-9, atol=1e-9 * np.abs(coupling).max())
