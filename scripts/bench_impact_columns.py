@@ -129,7 +129,8 @@ def markdown(payload: dict) -> str:
         "",
         f"`reduced.impact_columns` off (the scenes as built in) and {count} "
         "(`lbshape.pipeline.impact_columns`: throws at the convex hull's sides, creases and "
-        "corners, the columns' energy linear), side by side in one process.",
+        "corners; the columns' own energy exact, their coupling linear), side by side in one "
+        "process.",
         "",
         f"Command: `{payload['command']}`  ",
         f"Commit: `{payload['commit']}`, {payload['date']}  ",

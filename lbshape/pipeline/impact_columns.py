@@ -61,7 +61,8 @@ MIN_THROW_SPEED = 0.5
 
 
 class ImpactBasis(NamedTuple):
-    """The ``impact-basis`` stage's result."""
+    """The ``impact-basis`` stage's result (stored in the artifact by
+    :func:`lbshape.pipeline.precomputed.artifact`)."""
 
     basis: NonlinearBasis  #: U (3n, r) with ``n_impact_columns`` columns last
     coupling: np.ndarray  #: (r, r) ``Uᵀ K₀ U`` (1/s², U M-orthonormal)

@@ -58,8 +58,9 @@ from lbshape.spectral.spectrum import LBSpectrum
 #: whose own r reaches the responses' cap still gets a few of them. 22: a fixed object's
 #: ``estimate`` stage holds the LDLᵀ factor of the estimate's effective stiffness, packed.
 #: 23: local examples with a strong pull hold the anchored read-out responses; the exact
-#: force's build budget doubled.
-PIPELINE_VERSION = 23
+#: force's build budget doubled. 24: a free body's impact columns (``impact-basis``) with
+#: their coupling and their own polynomial energy.
+PIPELINE_VERSION = 24
 #: FrameTensors fields stored as ``frame_<field>`` arrays (free bodies)
 FRAME_FIELDS = ("mass", "center", "Y0", "G", "C", "H", "S", "translation")
 #: arrays every artifact holds, and those of scenes with examples
