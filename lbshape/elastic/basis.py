@@ -197,7 +197,7 @@ def nonlinear_basis(
             if kept.shape[1]:
                 U, singular = _modes_first(Phi, linear_scale, order, X_der, kept, mass, r, p)
     else:
-        components, singular = _principal(np.hstack([X_lin, X_der]), mass)
+        components, singular = principal_components(np.hstack([X_lin, X_der]), mass)
         _check_rank(r, _rank(singular), k, p)
         U = components[:, :r]
     U = _reorthonormalise(U, mass)
@@ -250,7 +250,7 @@ def append_directions(basis: NonlinearBasis, X: np.ndarray, mass, stiffness, *,
     X = X[:, norms > 0] / norms[norms > 0]
     for _ in range(2):  # twice is enough
         X = X - U @ (U.T @ (mass @ X))
-    components, singular = _principal(X, mass)
+    components, singular = principal_components(X, mass)
     if singular.size == 0 or singular[0] <= min_outside or max_columns == 0:
         return basis
     keep = int(np.count_nonzero(singular[: components.shape[1]] >= rtol * singular[0]))
@@ -272,7 +272,7 @@ def _modes_first(Phi, linear_scale, order, X_der, kept, mass, r: int, p: int):
     head = np.hstack([Phi, kept])
     X_der = X_der - head @ (head.T @ (mass @ X_der))
     X_der = X_der - head @ (head.T @ (mass @ X_der))  # twice is enough
-    components, sv = _principal(X_der, mass)
+    components, sv = principal_components(X_der, mass)
     singular = np.concatenate([linear_scale[order], sv])
     if r <= k:
         return Phi[:, order[:r]], singular
@@ -305,7 +305,7 @@ def _responses_beyond(X: np.ndarray, Phi: np.ndarray, mass) -> np.ndarray:
     X = X[:, norms > 0] / norms[norms > 0]
     X = X - Phi @ (Phi.T @ (mass @ X))
     X = X - Phi @ (Phi.T @ (mass @ X))
-    components, singular = _principal(X, mass)
+    components, singular = principal_components(X, mass)
     keep = int(np.count_nonzero(singular[: components.shape[1]] > RESPONSE_RTOL))
     return components[:, :keep]
 
@@ -329,7 +329,7 @@ def _check_inputs(modes: LinearModes, derivatives: ModalDerivatives, mass):
     return Phi, Psi, omega2
 
 
-def _principal(X: np.ndarray, mass) -> tuple[np.ndarray, np.ndarray]:
+def principal_components(X: np.ndarray, mass) -> tuple[np.ndarray, np.ndarray]:
     """M-orthonormal principal components (3n, c) and singular values (m,) of X (3n, m).
 
     Only components with singular value > RANK_RTOL × the largest are returned.

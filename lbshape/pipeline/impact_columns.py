@@ -42,7 +42,7 @@ from lbshape.analysis.free_body_eval import penetration
 from lbshape.dynamics.contact import ContactPlane
 from lbshape.dynamics.full import FullSpaceSimulator, rigid_velocity
 from lbshape.dynamics.full_contact import FullSpaceContact
-from lbshape.elastic.basis import NonlinearBasis, append_directions
+from lbshape.elastic.basis import NonlinearBasis, append_directions, principal_components
 from lbshape.elastic.modes import rigid_body_modes
 from lbshape.elastic.polynomial_forces import PolynomialForceModel, resolve_force_model
 from lbshape.errors import LbshapeError, SolverError
@@ -66,7 +66,7 @@ class ImpactBasis(NamedTuple):
 
     basis: NonlinearBasis  #: U (3n, r) with ``n_impact_columns`` columns last
     coupling: np.ndarray  #: (r, r) ``Uᵀ K₀ U`` (1/s², U M-orthonormal)
-    #: the columns' own exact energy E_V (the StVK polynomial on them), or None (linear)
+    #: the columns' own exact energy E_V (the StVK polynomial on them), or None (quadratic)
     columns: PolynomialForceModel | None
 
 
@@ -127,17 +127,6 @@ def throw(scene: Scene, mesh: TetMesh, direction: np.ndarray, speed: float) -> n
     return np.asarray(frames).reshape(-1, mesh.n_vertices, 3)
 
 
-def _leading_components(deformations: np.ndarray, outside, mass, count: int) -> np.ndarray:
-    """(3n, ≤ count) the leading M-principal components of the (k, 3n) ``deformations``
-    after ``outside`` (their part outside the rigid motions and span U)."""
-    X = outside(deformations.reshape(len(deformations), -1).T)
-    gram = X.T @ (mass @ X)
-    values, vectors = np.linalg.eigh(0.5 * (gram + gram.T))
-    order = np.argsort(values)[::-1][:count]
-    order = order[values[order] > 1e-12 * max(float(values.max(initial=0.0)), 1e-300)]
-    return X @ vectors[:, order]
-
-
 def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness,
                  basis: NonlinearBasis) -> ImpactBasis:
     """The ``impact-basis`` stage: ``basis`` with ``scene.reduced.impact_columns`` impact
@@ -167,9 +156,11 @@ def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness,
     columns = []
     for index, direction in enumerate(directions):
         u = throw(scene, mesh, direction, speed)
-        if len(u):
-            columns.append(_leading_components(
-                body_deformations(scalar_mass, mesh.points, u), outside, mass, each))
+        if len(u):  # the leading principal components of its deformations outside U
+            deformations = body_deformations(scalar_mass, mesh.points, u)
+            components, _ = principal_components(
+                outside(deformations.reshape(len(u), -1).T), mass)
+            columns.append(components[:, :each])
         log.info("impact columns: throw %d of %d at %.3g m/s, %d steps in contact",
                  index + 1, len(directions), speed, len(u))
     if not columns:
@@ -177,6 +168,10 @@ def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness,
     grown = append_directions(basis, np.hstack(columns), mass, stiffness,
                               kind="impact_columns", max_columns=count, rtol=0.0,
                               min_outside=0.0)
+    if grown.n_impact_columns < count:
+        raise LbshapeError(f"reduced.impact_columns = {count}: the {len(directions)} throws "
+                           f"give {grown.n_impact_columns} independent columns; set "
+                           f"impact_columns <= {grown.n_impact_columns}")
     U = grown.U
     V = np.ascontiguousarray(U[:, leading_columns(grown):])
     exact = resolve_force_model(scene.reduced.forces, scene.material.model, mesh.n_tets,

@@ -35,7 +35,8 @@ Stages (only those the scene needs; paper pre-computation steps 1–6), in order
     :data:`MAX_APPENDED_FREE_BODY`, and at least :data:`MIN_APPENDED_FREE_BODY` beyond its
     own r); a strong local pull's anchored read-outs beyond — scenes with examples (k_ex > 0);
 12. ``impact-basis``: impact columns from short full-space throws at the object's hull
-    features, appended last, their energy linear (:mod:`lbshape.pipeline.impact_columns`)
+    features, appended last, with their own polynomial energy and a linear coupling
+    (:mod:`lbshape.pipeline.impact_columns`)
     — free bodies with ``reduced.impact_columns`` > 0;
 13. ``cubature``: optimized cubature for the reduced elastic force on the final U
     without its impact columns (the force model of non-StVK materials and large meshes,
@@ -352,15 +353,15 @@ def _basis_stages(scene: Scene, mesh: TetMesh, fixed: np.ndarray,
 def _force_stages(scene: Scene, mesh: TetMesh, basis: NonlinearBasis | None, ranks: Ranks
                   ) -> tuple[np.ndarray, Cubature, PolynomialForceModel | None]:
     """The ``cubature`` and ``forces`` stages on the final basis, its impact columns left
-    out (their energy is linear): (U on every rank, the cubature, the polynomial force
-    model or None)."""
+    out (they have their own energy, ``impact-basis``): (U on every rank, the cubature,
+    the polynomial force model or None)."""
     reduced, comm = scene.reduced, ranks.comm
 
     leading = compute_on_root(comm, lambda: leading_columns(basis))
 
     def cubature_stage():  # every rank: the element passes are split across the ranks
         U, omega2 = compute_on_root(comm, lambda: (basis.U, np.asarray(basis.omega2)))
-        return U, train_cubature(  # the impact columns' energy is linear: not trained
+        return U, train_cubature(  # the impact columns have their own energy: not trained
             mesh, scene.material, U[:, :leading], rng=np.random.default_rng(PRECOMPUTE_SEED),
             scales=inverse_frequency_scales(omega2[:leading]),
             max_elements=reduced.s, tol=reduced.cubature_tolerance,

@@ -11,9 +11,12 @@ import numpy as np
 import pytest
 from conftest import golden
 
+from lbshape.elastic.basis import NonlinearBasis
 from lbshape.elastic.column_forces import ColumnForceModel
+from lbshape.elastic.element_kernels import mass_matrix, tangent_stiffness
 from lbshape.errors import LbshapeError
-from lbshape.pipeline.impact_columns import MIN_THROW_SPEED, throw_speed
+from lbshape.pipeline import impact_columns
+from lbshape.pipeline.impact_columns import MIN_THROW_SPEED, impact_basis, throw_speed
 from lbshape.pipeline.precompute import precompute, stage_names
 from lbshape.pipeline.precompute_key import scene_cache_key
 from lbshape.pipeline.precomputed import ESTIMATE_FLAG, required_arrays
@@ -104,3 +107,20 @@ def test_the_columns_hold_a_designed_edge_hit_the_plain_basis_misses(bars):
         "restitution_error"] for pre in (plain, with_columns)]
     assert errors[0] > golden("impact_columns.edge_hit_plain").limit
     assert errors[1] < golden("impact_columns.edge_hit_with_columns").limit
+
+
+@pytest.mark.slow
+def test_more_columns_than_the_throws_give_is_a_one_line_error(bars, monkeypatch):
+    scene, plain, _ = bars
+    mesh = plain.mesh
+    rng = np.random.default_rng(5)
+    # one snapshot per throw: 26 throws give at most 26 columns
+    monkeypatch.setattr(impact_columns, "throw", lambda *args: 1e-3 * rng.standard_normal(
+        (1, mesh.n_vertices, 3)))
+    mass = mass_matrix(mesh, plain.material.density)
+    stiffness = tangent_stiffness(mesh, plain.material, np.zeros(3 * mesh.n_vertices))
+    basis = NonlinearBasis(plain.U, np.ones(plain.r), plain.r, np.ones(plain.r), plain.r, 0)
+    grown = impact_basis(_with_columns(scene), mesh, mass, stiffness, basis)
+    assert grown.basis.n_impact_columns == COLUMNS
+    with pytest.raises(LbshapeError, match="impact_columns = 40: the 26 throws give 26"):
+        impact_basis(_with_columns(scene, 40), mesh, mass, stiffness, basis)
