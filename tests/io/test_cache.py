@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import zipfile
+
 import numpy as np
 import pytest
 
@@ -11,6 +13,7 @@ from lbshape.io.cache import (
     cache_key,
     load_artifact,
     pack_arrays,
+    read_npz,
     save_artifact,
     unpack_arrays,
 )
@@ -76,3 +79,38 @@ def test_packed_arrays_round_trip_with_their_shapes_and_kinds(tmp_path):
     assert unpack_arrays(wide)["big"][1] == 2**40
     with pytest.raises(LbshapeError, match="'name'"):
         pack_arrays({"name": np.array(["text"])})
+
+
+def test_read_npz_equals_numpy_load_and_refuses_what_it_cannot_read(tmp_path):
+    """read_npz gives every member as numpy.load does (values, dtypes, shapes, Fortran
+    order, 0-d strings, empty arrays), writable and aligned; a compressed, object-holding
+    or truncated file is refused."""
+    rng = np.random.default_rng(1)
+    arrays = {"a": rng.standard_normal((5, 7)), "f": np.asfortranarray(rng.random((4, 3))),
+              "i": np.arange(11, dtype=np.int32), "b": np.array([True, False]),
+              "meta": np.array('{"key": "x"}'), "empty": np.zeros((0, 3)),
+              "c": rng.random(3).astype(np.float32)}
+    path = tmp_path / "a.npz"
+    np.savez(path, **arrays)
+    read = read_npz(path)
+    with np.load(path) as reference:
+        assert set(read) == set(reference.files)
+        for name in reference.files:
+            np.testing.assert_array_equal(read[name], reference[name])
+            assert read[name].dtype == reference[name].dtype
+            assert read[name].shape == reference[name].shape
+            assert read[name].flags.writeable and read[name].flags.aligned
+    assert read["f"].flags.f_contiguous
+    read["a"][0, 0] = 1e9  # a copy: the file is unchanged
+    assert np.load(path)["a"][0, 0] != 1e9
+
+    np.savez_compressed(tmp_path / "z.npz", a=np.ones(3))
+    with pytest.raises(ValueError, match="compressed"):
+        read_npz(tmp_path / "z.npz")
+    np.savez(tmp_path / "o.npz", o=np.array([{"x": 1}], dtype=object))
+    with pytest.raises(ValueError, match="objects"):
+        read_npz(tmp_path / "o.npz")
+    data = path.read_bytes()
+    (tmp_path / "t.npz").write_bytes(data[: len(data) - 40])
+    with pytest.raises((ValueError, zipfile.BadZipFile)):
+        read_npz(tmp_path / "t.npz")
