@@ -233,8 +233,9 @@ def write(rows: list[dict], args, argv, started: str) -> tuple[Path, Path]:
         "precompute's own cached `estimate` stage; its time is the column `estimate stage "
         "ms` (paid once per object and precompute, not per run; the first call in a process "
         "includes compiling the stress kernel). Reading those arrays with the cached "
-        "precompute (every `lbshape simulate` call loads it; three packed arrays) is `load ms` "
-        "(best of 3), and "
+        "precompute (every `lbshape simulate` call loads it; three packed arrays, read "
+        "as the artifact is, by one file read, written alone into a file of their own) is "
+        "`load ms` (best of 3), and "
         "`share with load` = (estimate + load) / reduced run. The machine was shared, "
         "so the shares are noisy.",
         "",
