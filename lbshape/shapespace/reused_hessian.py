@@ -14,9 +14,10 @@ gradient passes the observed rate ρ still needs (``log(stop/step) / log ρ``, c
 :data:`FULL_PASS_SCALE`; no timings, so that a run is reproducible).
 
 Converged to the same point: the iteration stops when the step falls below
-``refinement × tolerance × max_k ‖z_k‖`` (``refinement`` = 1e-2 by default: a linearly
+``refinement × tolerance × max_k ‖z_k‖`` (``refinement`` = 0.1 by default: a linearly
 convergent iteration's remaining error is about the last step times ρ/(1 − ρ), ρ ≤
-:data:`REFRESH_RATIO`); it falls back to the full Newton method of the base class when
+:data:`REFRESH_RATIO`, a tenth of the base solver's tolerance; the full reference's
+trajectories stay within 1e-8 of the base solver's, ``docs/decisions.md``); it falls back to the full Newton method of the base class when
 it has not converged after ``max_passes`` gradient passes.
 
 The time stepping calls it once per step from the previous target with new weights: the
@@ -66,7 +67,7 @@ class ReusedHessianTargetSolver(TargetSolver):
     """
 
     def __init__(self, models: Sequence[EnergyModel], offsets: np.ndarray, *,
-                 tolerance: float = 1e-6, refinement: float = 1e-2, max_passes: int = 40):
+                 tolerance: float = 1e-6, refinement: float = 0.1, max_passes: int = 40):
         super().__init__(models, offsets, tolerance=tolerance)
         self.refinement = float(refinement)
         self.max_passes = int(max_passes)
