@@ -545,7 +545,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         f = self._compiled.force(u)
         if self.contact is not None:
             velocity, rate = self._contact_velocity(x)
-            fc, parts, _ = self.contact.evaluate_parts(u, velocity, rate)
+            fc, parts, _ = self.contact.evaluate_parts(u, velocity, rate, tangent=False)
             if parts:
                 f = f + fc[self.free_dofs]
         if self._k_ex and self._target_body is not None:  # free body, global examples
@@ -581,7 +581,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         elastic = self.elastic if self._compiled is None else self._compiled
         energy = elastic.energy(self.full_displacement(x).reshape(-1))
         if self.contact is not None:
-            energy += self.contact.evaluate_parts(self.full_displacement(x).reshape(-1))[2]
+            energy += self.contact.evaluate_parts(self.full_displacement(x).reshape(-1),
+                                                  tangent=False)[2]
         return energy + self._example_energy(x) + self._drag_energy(x)
 
     def _drag_energy(self, x: np.ndarray) -> float:

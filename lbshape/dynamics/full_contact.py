@@ -113,11 +113,14 @@ class FullSpaceContact:
                 return K
         return add(K, self.matrix(parts)[free_dofs][:, free_dofs]).tocsr()
 
-    def evaluate_parts(self, u: np.ndarray, v: np.ndarray | None = None, rate: float = 0.0):
+    def evaluate_parts(self, u: np.ndarray, v: np.ndarray | None = None, rate: float = 0.0,
+                       *, tangent: bool = True):
         """``(f (3n,), parts, energy J)`` of :meth:`evaluate`, the tangent as its blocks: per
         plane touched ``(faces (m,), pair (m, 3, 3, 3, 3), loaded (h,) or None, rates
         (h, 3, 3))``, ``pair[t, j, l]`` the 3 × 3 block of the triangle's corners (j, l) and
-        ``rates`` the friction's vertex blocks (``loaded`` surface rows; None: no friction)."""
+        ``rates`` the friction's vertex blocks (``loaded`` surface rows; None: no friction).
+        ``tangent=False`` (a residual or an energy alone): each touched plane's part is
+        ``(None, None, None, None)``, its blocks not formed."""
         x = self.rest + u.reshape(-1, 3)[self.vertices]
         s_count = x.shape[0]
         force = np.zeros((self.n, 3))
@@ -133,6 +136,14 @@ class FullSpaceContact:
                                  float(plane.stiffness), F, S, blocks, np.zeros((6, 3)))
             loaded = np.flatnonzero(S > 0.0)
             np.add.at(force, self.vertices[loaded], -F[loaded, None] * n[None, :])
+            if not tangent:
+                if mu > 0:
+                    w = (np.zeros((loaded.size, 3)) if v is None
+                         else v.reshape(-1, 3)[self.vertices[loaded]])
+                    friction = friction_force(w, n, F[loaded], mu, self.slip_speed)[0]
+                    np.add.at(force, self.vertices[loaded], -friction)
+                parts.append((None, None, None, None))
+                continue
             touched = np.flatnonzero(np.any(blocks != 0.0, axis=1))
             M = blocks[touched].reshape(-1, 3, 3)  # (m, 3, 3) the triangles' pairs
             pair = M[:, :, :, None, None] * np.outer(n, n)[None, None, None]

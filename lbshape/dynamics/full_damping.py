@@ -10,6 +10,7 @@ import scipy.linalg
 import scipy.sparse as sp
 
 from lbshape.dynamics.rigid_frame import best_rigid_frame
+from lbshape.dynamics.rigid_motions import rigid_modes
 
 
 class FullSpaceDamping:
@@ -50,7 +51,7 @@ class FullSpaceDamping:
             tangent: keep the rank-12 part (False: the force alone; the kept part stays).
         """
         n = self.n_vertices
-        rigid, mass_rigid = _rigid_modes(self.mesh.points + x.reshape(n, 3), self._mass_ff,
+        rigid, mass_rigid = rigid_modes(self.mesh.points + x.reshape(n, 3), self._mass_ff,
                                          getattr(self, "_scalar_mass", None))
         if tangent:
             damped_rigid = np.asarray(damping @ rigid)
@@ -103,35 +104,3 @@ class FullSpaceDamping:
                 return
         Q = sp.kron(sp.identity(n, format="csr"), sp.csr_matrix(R), format="csr")
         self._damping_now = (Q @ self._damping_rest @ Q.T).tocsr()
-
-
-
-def _rigid_modes(points: np.ndarray, mass: sp.spmatrix,
-                 scalar_mass: sp.spmatrix | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``(Ψ, M Ψ)``: :func:`~lbshape.elastic.modes.rigid_body_modes` of ``points`` and its
-    product with the mass, from one sparse product (``M Ψ = (M F) L⁻ᵀ`` with the fields F
-    and the Cholesky factor L of their Gram matrix). With ``scalar_mass`` M₁ (n, n), M =
-    M₁ ⊗ I₃ on every dof: ``M F`` from ``M₁ [1 r]`` (the fields are 1 and e_c × r)."""
-    n = points.shape[0]
-    r = points - points.mean(axis=0)
-    F = _fields(np.ones(n), r)
-    if scalar_mass is not None and mass.shape[0] == 3 * n:
-        scaled = np.asarray(scalar_mass @ np.column_stack([np.ones(n), r]))
-        MF = _fields(scaled[:, 0], scaled[:, 1:])
-    else:
-        MF = np.asarray(mass @ F)
-    gram = F.T @ MF
-    lower = np.linalg.cholesky(0.5 * (gram + gram.T))
-    inverse = scipy.linalg.solve_triangular(lower, np.eye(6), lower=True)  # L⁻¹ (6 × 6)
-    return F @ inverse.T, MF @ inverse.T
-
-
-def _fields(one: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """(3n, 6) the translations ``one e_c`` and rotations ``e_c × r`` per vertex."""
-    n = r.shape[0]
-    fields = np.zeros((n, 3, 6))
-    fields[:, [0, 1, 2], [0, 1, 2]] = one[:, None]
-    fields[:, 1, 3], fields[:, 2, 3] = -r[:, 2], r[:, 1]  # e_c × r
-    fields[:, 0, 4], fields[:, 2, 4] = r[:, 2], -r[:, 0]
-    fields[:, 0, 5], fields[:, 1, 5] = -r[:, 1], r[:, 0]
-    return fields.reshape(3 * n, 6)

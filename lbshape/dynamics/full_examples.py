@@ -14,6 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from lbshape.dynamics.rigid_frame import best_rigid_frame
+from lbshape.dynamics.rigid_motions import rigid_modes
 from lbshape.elastic.modes import rigid_body_modes
 from lbshape.errors import LbshapeError, SolverError
 from lbshape.shapespace.euclidean_energy import EuclideanExampleEnergy
@@ -139,7 +140,12 @@ class FullSpaceExampleForce:
         positions = self.mesh.points + x.reshape(n, 3)
         center, R = self._target_fit(positions)
         placed = center + (self._target_body - self._target_center) @ R.T
-        if tangent:
+        if tangent and self._spring_ff is self._mass_ff and hasattr(self, "_scalar_mass"):
+            # M Ψ L⁻ᵀ of the placed target's rigid motions, compiled (the orthonormalised
+            # rigid motions do not depend on the point the rotations are taken about)
+            _, mass_rigid = rigid_modes(placed, self._mass_ff, self._scalar_mass)
+            self._pull_rigid = np.sqrt(self._k_ex) * mass_rigid
+        elif tangent:
             arm = placed - center
             psi = np.zeros((n, 3, 6))
             psi[:, [0, 1, 2], [0, 1, 2]] = 1.0
@@ -228,7 +234,11 @@ class FullSpaceExampleForce:
         weights = self._simplex(self._descriptor @ body.ravel())
         c_star = self._target_solver.solve(weights).z
         self.weights = weights
+        unchanged = (self._target_body is not None and self.target_coefficients is not None
+                     and np.array_equal(c_star, self.target_coefficients))
         self.target_coefficients = c_star
+        if unchanged:  # one example, or weights that stay: the same placed target
+            return
         shape = self._lb_basis @ c_star
         rigid, mass_rigid = self._rigid_modes
         shape = shape - rigid @ (mass_rigid.T @ shape)  # no rigid content, as U in reduced

@@ -44,6 +44,13 @@ LINEAR_RTOL = 1e-11
 NEWTON_FRACTION = 0.1
 #: linear solver names of :func:`make_linear_solver`
 LINEAR_SOLVERS = ("reuse", "lu-each-iteration")
+#: CHOLMOD's simplicial factorisation up to this many rows: on the built-in scenes' Newton
+#: matrices (216-2,157 rows) its numeric factorisation took 0.4-0.7× the supernodal one's
+#: and its solves 0.7-0.9×, single-threaded; on compact meshes of 4,000+ rows it took 2-9×
+#: (``docs/decisions.md``)
+SIMPLICIAL_MAX_DOFS = 3000
+#: the options prefix of the simplicial factors
+_SIMPLICIAL_PREFIX = "lbshape_simplicial_"
 
 
 class SuperLUFactor:
@@ -65,7 +72,8 @@ class SuperLUFactor:
 class CholmodFactor:
     """Sparse Cholesky factorisation (CHOLMOD through PETSc) of a symmetric positive
     definite CSR matrix; :meth:`refactor` reuses the symbolic factorisation (ordering,
-    elimination tree) for a matrix of the same pattern.
+    elimination tree) for a matrix of the same pattern. Up to :data:`SIMPLICIAL_MAX_DOFS`
+    rows CHOLMOD's simplicial factorisation, above them its own choice (supernodal there).
 
     Raises:
         SolverError: not positive definite (or singular).
@@ -84,10 +92,14 @@ class CholmodFactor:
         self._mat = PETSc.Mat().createAIJ(size=A.shape, csr=(self._indptr, self._indices,
                                                              A.data), comm=PETSc.COMM_SELF)
         self._ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+        if A.shape[0] <= SIMPLICIAL_MAX_DOFS:
+            PETSc.Options().setValue(_SIMPLICIAL_PREFIX + "mat_cholmod_factor", "simplicial")
+            self._ksp.setOptionsPrefix(_SIMPLICIAL_PREFIX)
         self._ksp.setType("preonly")
         pc = self._ksp.getPC()
         pc.setType("cholesky")
         pc.setFactorSolverType("cholmod")
+        self._ksp.setFromOptions()
         self._b = PETSc.Vec().createSeq(A.shape[0], comm=PETSc.COMM_SELF)
         self._x = PETSc.Vec().createSeq(A.shape[0], comm=PETSc.COMM_SELF)
         self._factorise()

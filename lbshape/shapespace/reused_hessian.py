@@ -17,8 +17,9 @@ Converged to the same point: the iteration stops when the step falls below
 ``refinement × tolerance × max_k ‖z_k‖`` (``refinement`` = 0.1 by default: a linearly
 convergent iteration's remaining error is about the last step times ρ/(1 − ρ), ρ ≤
 :data:`REFRESH_RATIO`, a tenth of the base solver's tolerance; the full reference's
-trajectories stay within 1e-8 of the base solver's, ``docs/decisions.md``); it falls back to the full Newton method of the base class when
-it has not converged after ``max_passes`` gradient passes.
+trajectories stay within 1e-8 of the base solver's, ``docs/decisions.md``); it falls
+back to the full Newton method of the base class when it has not converged after
+``max_passes`` gradient passes.
 
 The time stepping calls it once per step from the previous target with new weights: the
 first step from there is the Euler–Newton predictor, the next ones correct it with cheap

@@ -384,6 +384,11 @@ def test_a_trial_increment_leaves_the_state_and_starts_the_same_step(block):
         assert np.abs(started.stepper.x - plain.stepper.x).max() <= 1e-6 * scale
 
 
+#: Newton iterations allowed in the car's wall steps: the step from the predictor needs
+#: ~40-57, the continued one 8
+NEWTON_CAP_AT_THE_WALL = 25
+
+
 @pytest.fixture(scope="module")
 def car_before_the_wall():
     """The full car with its examples (the scene's settings) and its state after 151 steps."""
@@ -401,14 +406,17 @@ def car_before_the_wall():
 def test_full_car_reaches_its_wall_step_through_the_slip_continuation(
         monkeypatch, car_before_the_wall, continuation):
     """The full car with its examples at the wall (step 152, t = 0.152 s): Newton from the
-    predictor does not meet the residual test in its 60 iterations (friction's slip speed
-    ε turns the slip direction within 0.5 mm/s); from the step converged at 16 ε and 4 ε
-    it meets the same test at ε. Without the continuation the step fails."""
+    predictor needs ~57 iterations there (friction's slip speed ε turns the slip direction
+    within 0.5 mm/s), at the edge of the scene's 60: round-off in the example target
+    decides whether it fails. With Newton capped at 25, the step from the predictor fails
+    by a wide margin, and from the step converged at 16 ε and 4 ε it meets the same test at
+    ε (8 iterations)."""
     from lbshape.dynamics import full_contact
     from lbshape.errors import NewtonFailure
 
     sim, state = car_before_the_wall
     sim.reset(state)
+    monkeypatch.setattr(sim.stepper, "max_iterations", NEWTON_CAP_AT_THE_WALL)
     if not continuation:
         monkeypatch.setattr(full_contact, "SLIP_CONTINUATION", ())
         with pytest.raises(NewtonFailure, match="step 152"):

@@ -12,8 +12,8 @@ import scipy.sparse as sp
 
 from lbshape.dynamics.contact import ContactPlane
 from lbshape.dynamics.full import FullSpaceContact, FullSpaceExamples, FullSpaceSimulator
-from lbshape.dynamics.full_damping import _rigid_modes
 from lbshape.dynamics.linear_solvers import NEWTON_FRACTION, ReusedFactorSolver
+from lbshape.dynamics.rigid_motions import rigid_modes
 from lbshape.elastic.assembly import CompiledElasticity
 from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.elastic.materials import Material
@@ -56,6 +56,9 @@ def test_contact_tangent_in_place_equals_the_sparse_sum(box, held):
     assert len(parts) == 2 and parts[0][2] is not None and parts[1][2] is None
     f_old, Kc, e_old = contact.evaluate(u, v, 500.0)
     assert np.array_equal(force, f_old) and energy == e_old
+    # the residual's evaluation (no blocks): the same force and energy, bit for bit
+    f_alone, marks, e_alone = contact.evaluate_parts(u, v, 500.0, tangent=False)
+    assert np.array_equal(f_alone, force) and e_alone == energy and len(marks) == 2
     expected = K + Kc[free][:, free]
     total = contact.add_into(K.copy(), parts, free, compiled, _sparse_add)
     assert compiled.on_pattern(total)  # added in place, on the kept positions
@@ -80,8 +83,8 @@ def test_rigid_modes_from_the_scalar_mass_equal_the_sparse_product(box):
     mass = mass_matrix(box, 1000.0)
     scalar = sp.csr_matrix(mass[0::3, 0::3])
     points = box.points + 0.01 * np.random.default_rng(4).normal(size=box.points.shape)
-    psi, mass_psi = _rigid_modes(points, mass)
-    psi2, mass_psi2 = _rigid_modes(points, mass, scalar)
+    psi, mass_psi = rigid_modes(points, mass)
+    psi2, mass_psi2 = rigid_modes(points, mass, scalar)
     assert np.abs(psi2 - psi).max() <= 1e-12 * np.abs(psi).max()
     assert np.abs(mass_psi2 - mass_psi).max() <= 1e-12 * np.abs(mass_psi).max()
     np.testing.assert_allclose(psi.T @ (mass @ psi), np.eye(6), atol=1e-12)
