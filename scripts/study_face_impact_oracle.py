@@ -9,7 +9,8 @@ straight bar; with its example the bar flies S-bent. This study replaces the fac
 frames (direction +x) by the frames in contact of the designed face hit *with* the example
 (the full reference, :func:`lbshape.studies.free_bodies.designed_impact`'s scene), builds
 the 26 columns, and prints the face hits at ``--speed`` and 3 m/s with and without the
-example: restitution of both methods, its relative error and the deepest penetration.
+example: restitution of both methods, its relative error, the errors of the change of
+linear and angular momentum and the deepest penetration.
 An oracle (the hit's own frames), not a method: it locates the limit.
 """
 
@@ -69,7 +70,9 @@ def main(argv: list[str] | None = None) -> None:
             row = designed_impact(scene, pre, "face", speed, examples=examples).stats()
             print(f"face {speed:g} m/s, examples {examples}: restitution full "
                   f"{row['restitution_full']:.4f} reduced {row['restitution_reduced']:.4f} "
-                  f"(error {100 * row['restitution_error']:.1f} %), deepest "
+                  f"(error {100 * row['restitution_error']:.1f} %), Δp error "
+                  f"{100 * row['delta_p_error']:.1f} %, ΔL error "
+                  f"{100 * row['delta_L_error']:.1f} %, deepest "
                   f"{row['depth_full_mm']:.2f} / {row['depth_reduced_mm']:.2f} mm")
 
 
