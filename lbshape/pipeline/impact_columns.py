@@ -10,10 +10,13 @@ This stage makes such columns without knowing the scene's impacts:
    plane along each of its hull directions (:func:`lbshape.geometry.hull_directions.
    hull_directions`: a plane flat on each side, on each crease between two sides and on
    each corner), at :func:`throw_speed`, with the scene's first plane's stiffness, no
-   friction and no loads; the full-space reference
+   friction and no loads, but with the scene's global examples' pull (and its ramp),
+   which shapes the body as it flies in the scene; the full-space reference
    (:class:`~lbshape.dynamics.full.FullSpaceSimulator`) runs from touching until
    :data:`THROW_CLEAR_STEPS` steps after its last contact (at most
-   :data:`THROW_MAX_STEPS`).
+   :data:`THROW_MAX_STEPS`). Thrown as the straight body without its pull, the Figure 4
+   bar's face hit with its example stayed 16 % off in restitution; with the pull it is
+   within 10 % (``docs/decisions.md``, "Impact throws with the example pull").
 2. **Columns** (:func:`impact_basis`): each throw's body-frame deformations during contact
    (:func:`~lbshape.analysis.free_body.body_deformations`), their rigid motions and span U
    removed M-orthogonally, give its leading principal components (``ceil(k / throws)``
@@ -42,6 +45,7 @@ from lbshape.analysis.free_body_eval import penetration
 from lbshape.dynamics.contact import ContactPlane
 from lbshape.dynamics.full import FullSpaceSimulator, rigid_velocity
 from lbshape.dynamics.full_contact import FullSpaceContact
+from lbshape.dynamics.full_examples import FullSpaceExamples
 from lbshape.elastic.basis import NonlinearBasis, append_directions, principal_components
 from lbshape.elastic.modes import rigid_body_modes
 from lbshape.elastic.polynomial_forces import PolynomialForceModel, resolve_force_model
@@ -90,11 +94,12 @@ def throw_speed(scene: Scene, points: np.ndarray) -> float:
     return max(speed, MIN_THROW_SPEED)
 
 
-def throw(scene: Scene, mesh: TetMesh, direction: np.ndarray, speed: float) -> np.ndarray:
+def throw(scene: Scene, mesh: TetMesh, direction: np.ndarray, speed: float,
+          examples: FullSpaceExamples | None = None) -> np.ndarray:
     """(k, n, 3) world displacements (m) of the steps of one throw in contact: the body
     along −``direction`` at ``speed`` (m/s) onto a plane of that normal touching it, the
     scene's first plane's stiffness, no friction, no loads, the scene's dt, integrator
-    and damping.
+    and damping; ``examples``: the example pull acting (with the scene's ramp).
 
     Raises:
         LbshapeError: the full-space run stopped (named with the direction).
@@ -108,7 +113,10 @@ def throw(scene: Scene, mesh: TetMesh, direction: np.ndarray, speed: float) -> n
         integrator=scene.simulation.integrator, alpha=scene.damping.alpha,
         beta=scene.damping.beta, contact=FullSpaceContact([plane], mesh.points, mesh.tets),
         initial_velocity=rigid_velocity(mesh, scene.material.density, -speed * direction,
-                                        (0.0, 0.0, 0.0)))
+                                        (0.0, 0.0, 0.0)),
+        examples=examples,
+        example_ramp=0.0 if examples is None or scene.examples is None
+        else float(scene.examples.ramp))
     frames, clear = [], 0
     try:
         for _ in range(THROW_MAX_STEPS):
@@ -127,8 +135,8 @@ def throw(scene: Scene, mesh: TetMesh, direction: np.ndarray, speed: float) -> n
     return np.asarray(frames).reshape(-1, mesh.n_vertices, 3)
 
 
-def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness,
-                 basis: NonlinearBasis) -> ImpactBasis:
+def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness, basis: NonlinearBasis,
+                 examples: FullSpaceExamples | None = None) -> ImpactBasis:
     """The ``impact-basis`` stage: ``basis`` with ``scene.reduced.impact_columns`` impact
     columns appended (module docstring), the coupling ``Uᵀ K₀ U`` and the columns' own
     polynomial energy (None where it is not built).
@@ -138,6 +146,7 @@ def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness,
         mesh: its rest mesh.
         mass, stiffness: (3n, 3n) M (kg) and the rest stiffness K₀ (N/m).
         basis: the basis so far (M-orthonormal).
+        examples: the scene's global examples' pull for the throws (:func:`throw`), or None.
     """
     count = int(scene.reduced.impact_columns)
     directions = hull_directions(mesh.points).all
@@ -155,7 +164,7 @@ def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness,
     each = math.ceil(count / len(directions))
     columns = []
     for index, direction in enumerate(directions):
-        u = throw(scene, mesh, direction, speed)
+        u = throw(scene, mesh, direction, speed, examples)
         if len(u):  # the leading principal components of its deformations outside U
             deformations = body_deformations(scalar_mass, mesh.points, u)
             components, _ = principal_components(

@@ -80,6 +80,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -87,6 +88,7 @@ import scipy.sparse as sp
 from mpi4py import MPI
 
 from lbshape.dynamics.fictitious import frame_tensors
+from lbshape.dynamics.full_examples import FullSpaceExamples
 from lbshape.dynamics.rigid_frame import best_rigid_frame
 from lbshape.elastic.basis import (
     EQUILIBRIUM_MIN_OUTSIDE,
@@ -295,7 +297,8 @@ def _compute(scene: Scene, stages: StageRecorder, comm: MPI.Comm,
     impact = None
     if "impact-basis" in stages.names:
         impact = ranks.on_root("impact-basis", lambda: impact_basis(
-            scene, mesh, elastic.mass, elastic.modes.stiffness, basis))
+            scene, mesh, elastic.mass, elastic.modes.stiffness, basis,
+            _throw_examples(scene, shape, None if auto is None else auto.k_ex)))
         basis = None if impact is None else impact.basis
     U, cubature, polynomial = _force_stages(scene, mesh, basis, ranks)
     examples = None
@@ -499,6 +502,19 @@ class LBCubatureInputs(NamedTuple):
     eigenvalues: np.ndarray  #: (m,) λ (the perturbations' scales)
     example_coefficients: np.ndarray  #: (k, m, 3)
     path: np.ndarray  #: (P, 3m) the exact targets to train on
+
+
+def _throw_examples(scene: Scene, shape: _GlobalShape | None,
+                    auto: float | None) -> FullSpaceExamples | None:
+    """The global examples' pull for the impact throws (the full reference's example
+    force: LB eigenpairs, the examples' coefficients, k_ex), or None (no global examples
+    or k_ex = 0)."""
+    k_ex = example_response_stiffness(scene, auto)
+    if shape is None or not k_ex > 0 or not math.isfinite(k_ex):
+        return None
+    spectrum, m = shape.spectrum, scene.reduced.m
+    coefficients = np.asarray(shape.coefficients, dtype=float).reshape(-1, m, 3)
+    return FullSpaceExamples(spectrum.eigenvalues, spectrum.eigenvectors, coefficients, k_ex)
 
 
 def _global_shape_space(scene: Scene, mesh: TetMesh, fixed: np.ndarray,

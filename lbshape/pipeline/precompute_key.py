@@ -79,7 +79,7 @@ ARTIFACT_NAME = "precompute"
 STAGE_VERSIONS = {"mesh": 1, "modes": 1, "derivatives": 2, "basis": 1, "lb": 1,
                   "examples": 1, "target-table": 1, "lb-cubature": 1, "regions": 1,
                   "static-equilibria": 1, "example-stiffness": 2, "example-basis": 3,
-                  "impact-basis": 2, "cubature": 1, "forces": 1, "projections": 1,
+                  "impact-basis": 3, "cubature": 1, "forces": 1, "projections": 1,
                   "frame": 1, "estimate": 2}
 
 
@@ -98,13 +98,15 @@ def example_label(pose: ExamplePose) -> str:
 
 
 def impact_throw_key(scene: Scene) -> dict:
-    """What the ``impact-basis`` stage's throws read of the scene besides the mesh and
-    material: the planes, gravity and initial motion (the throw speed), the step,
-    integrator and damping, and the throws' constants."""
+    """What the ``impact-basis`` stage's throws read of the scene besides the mesh,
+    material, shape space and k_ex: the planes, gravity and initial motion (the throw
+    speed), the step, integrator and damping, the example ramp, and the throws'
+    constants."""
     runtime = scene.runtime_fields()
     return {name: runtime[name] for name in ("planes", "initial", "dt", "integrator",
                                              "damping")} | {
         "gravity": [list(load.vector) for load in scene.loads if load.type == "gravity"],
+        "ramp": 0.0 if scene.examples is None else float(scene.examples.ramp),
         "constants": [THROW_MAX_STEPS, THROW_CLEAR_STEPS, MIN_THROW_SPEED,
                       GROUP_ANGLE_DEG, MAX_FACES]}
 
@@ -155,7 +157,7 @@ def stage_keys(scene: Scene, names: list[str], settings: list) -> dict[str, str]
                   settings, EXAMPLE_RESPONSE_DEPTH, POLYNOMIAL_BUILD_FLOPS,
                   reduced.forces) or current
     current = key("impact-basis", current, mesh, material, reduced.impact_columns,
-                  impact_throw_key(scene)) or current
+                  impact_throw_key(scene), shape, k_ex) or current
     cubature = key("cubature", current, mesh, material, reduced.s,
                    reduced.cubature_tolerance, CUBATURE_TRAINING_POSES, PRECOMPUTE_SEED)
     key("forces", cubature, mesh, material, reduced.forces)

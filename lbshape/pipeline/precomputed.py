@@ -59,8 +59,9 @@ from lbshape.spectral.spectrum import LBSpectrum
 #: ``estimate`` stage holds the LDLᵀ factor of the estimate's effective stiffness, packed.
 #: 23: local examples with a strong pull hold the anchored read-out responses; the exact
 #: force's build budget doubled. 24: a free body's impact columns (``impact-basis``) with
-#: their coupling and their own polynomial energy.
-PIPELINE_VERSION = 24
+#: their coupling and their own polynomial energy. 25: the impact throws carry the
+#: global examples' pull.
+PIPELINE_VERSION = 25
 #: FrameTensors fields stored as ``frame_<field>`` arrays (free bodies)
 FRAME_FIELDS = ("mass", "center", "Y0", "G", "C", "H", "S", "translation")
 #: arrays every artifact holds, and those of scenes with examples
