@@ -4,11 +4,12 @@ Usage: ``OMP_NUM_THREADS=1 LBSHAPE_CACHE=<empty folder> .venv/bin/python
 scripts/study_face_impact_oracle.py [--speed 1.5]`` (an empty cache: the ``impact-basis``
 stage must run with the replaced throw, not come from the cache).
 
-The impact columns (``reduced.impact_columns``) come from throws of the body at rest, the
-straight bar; with its example the bar flies S-bent. This study replaces the face throw's
-frames (direction +x) by the frames in contact of the designed face hit *with* the example
-(the full reference, :func:`lbshape.studies.free_bodies.designed_impact`'s scene), builds
-the 26 columns, and prints the face hits at ``--speed`` and 3 m/s with and without the
+The impact columns (``reduced.impact_columns``) come from throws of the body (under its
+example pull; the study was first run when the throws were of the straight bar without
+it). This study replaces the face throw's frames (direction +x) by the frames in contact
+of the designed face hit *with* the example (the full reference,
+:func:`lbshape.studies.free_bodies.designed_impact`'s scene), builds the 26 columns, and
+prints the face hits at ``--speed`` and 3 m/s with and without the
 example: restitution of both methods, its relative error, the errors of the change of
 linear and angular momentum and the deepest penetration.
 An oracle (the hit's own frames), not a method: it locates the limit.
@@ -54,10 +55,10 @@ def main(argv: list[str] | None = None) -> None:
     face /= np.linalg.norm(face)
     original = impact_columns.throw
 
-    def throw(scene, mesh, direction, speed):
+    def throw(scene, mesh, direction, speed, examples=None):
         if np.allclose(np.asarray(direction, dtype=float), face, atol=1e-6):
             return frames
-        return original(scene, mesh, direction, speed)
+        return original(scene, mesh, direction, speed, examples)
 
     impact_columns.throw = throw
     scene = dataclasses.replace(base, reduced=dataclasses.replace(base.reduced,
