@@ -136,12 +136,13 @@ class FullSpaceContact:
                                  float(plane.stiffness), F, S, blocks, np.zeros((6, 3)))
             loaded = np.flatnonzero(S > 0.0)
             np.add.at(force, self.vertices[loaded], -F[loaded, None] * n[None, :])
+            if mu > 0:
+                w = (np.zeros((loaded.size, 3)) if v is None
+                     else v.reshape(-1, 3)[self.vertices[loaded]])
+                friction, rates, direction = friction_force(w, n, F[loaded], mu,
+                                                            self.slip_speed)
+                np.add.at(force, self.vertices[loaded], -friction)
             if not tangent:
-                if mu > 0:
-                    w = (np.zeros((loaded.size, 3)) if v is None
-                         else v.reshape(-1, 3)[self.vertices[loaded]])
-                    friction = friction_force(w, n, F[loaded], mu, self.slip_speed)[0]
-                    np.add.at(force, self.vertices[loaded], -friction)
                 parts.append((None, None, None, None))
                 continue
             touched = np.flatnonzero(np.any(blocks != 0.0, axis=1))
@@ -150,10 +151,6 @@ class FullSpaceContact:
             if not mu > 0:
                 parts.append((touched, pair, None, None))
                 continue
-            w = (np.zeros((loaded.size, 3)) if v is None
-                 else v.reshape(-1, 3)[self.vertices[loaded]])
-            friction, rates, direction = friction_force(w, n, F[loaded], mu, self.slip_speed)
-            np.add.at(force, self.vertices[loaded], -friction)
             slip = np.zeros((s_count, 3))
             slip[loaded] = direction
             pair = pair - mu * (M[:, :, :, None, None]

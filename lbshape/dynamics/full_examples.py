@@ -133,30 +133,19 @@ class FullSpaceExampleForce:
         by its mass-weighted best rigid fit onto them (see :meth:`_update_free_target`).
 
         With ``tangent`` also the rigid part of the pull's tangent: with Ψ (3n, 6) the
-        rigid motions of the placed target (translations, rotations about its centre)
-        and G = Ψᵀ M Ψ = L Lᵀ, ``W = √k_ex M Ψ L⁻ᵀ`` (3n, 6), so that the pull's tangent
-        is ``k_ex M − W Wᵀ`` (no stiffness along rigid motions: the fit follows them)."""
+        rigid motions of the placed target and G = Ψᵀ M Ψ = L Lᵀ, ``W = √k_ex M Ψ L⁻ᵀ``
+        (3n, 6, :func:`~lbshape.dynamics.rigid_motions.rigid_modes`: it does not depend on
+        the point the rotations are taken about), so that the pull's tangent is
+        ``k_ex M − W Wᵀ`` (no stiffness along rigid motions: the fit follows them)."""
         n = self.n_vertices
         positions = self.mesh.points + x.reshape(n, 3)
         center, R = self._target_fit(positions)
         placed = center + (self._target_body - self._target_center) @ R.T
-        if tangent and self._spring_ff is self._mass_ff and hasattr(self, "_scalar_mass"):
-            # M Ψ L⁻ᵀ of the placed target's rigid motions, compiled (the orthonormalised
-            # rigid motions do not depend on the point the rotations are taken about)
-            _, mass_rigid = rigid_modes(placed, self._mass_ff, self._scalar_mass)
+        if tangent:  # M Ψ L⁻ᵀ of the placed target's rigid motions
+            scalar = getattr(self, "_scalar_mass", None) if self._spring_ff is self._mass_ff \
+                else None
+            _, mass_rigid = rigid_modes(placed, self._spring_ff, scalar)
             self._pull_rigid = np.sqrt(self._k_ex) * mass_rigid
-        elif tangent:
-            arm = placed - center
-            psi = np.zeros((n, 3, 6))
-            psi[:, [0, 1, 2], [0, 1, 2]] = 1.0
-            # e_c × arm
-            psi[:, 1, 3], psi[:, 2, 3] = -arm[:, 2], arm[:, 1]
-            psi[:, 0, 4], psi[:, 2, 4] = arm[:, 2], -arm[:, 0]
-            psi[:, 0, 5], psi[:, 1, 5] = -arm[:, 1], arm[:, 0]
-            psi = psi.reshape(3 * n, 6)
-            mass_psi = np.asarray(self._spring_ff @ psi)
-            lower = np.linalg.cholesky(psi.T @ mass_psi)
-            self._pull_rigid = np.sqrt(self._k_ex) * np.linalg.solve(lower, mass_psi.T).T
         return (positions - placed).ravel()
 
     def _target_fit(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -55,7 +55,7 @@ def _field_row(one, rx, ry, rz, c, out):
 
 @njit
 def _scalar_rigid_modes(points, indptr, indices, data, psi, mass_psi):
-    """:func:`_rigid_modes` with the scalar mass M₁ (CSR arrays): Ψ and M Ψ (3n, 6) into
+    """:func:`rigid_modes` with the scalar mass M₁ (CSR arrays): Ψ and M Ψ (3n, 6) into
     ``psi`` and ``mass_psi``; False when the Gram matrix is not positive definite."""
     n = points.shape[0]
     mean = np.zeros(3)
