@@ -59,6 +59,12 @@ class FullSpaceContact:
         self.continued_steps = 0
         self._positions = None  # (pattern, positions) of add_into's in-place additions
 
+    def touches(self, u: np.ndarray) -> bool:
+        """Whether a surface vertex of the displacement u (3n,) m lies behind a plane."""
+        x = self.rest + u.reshape(-1, 3)[self.vertices]
+        return any(float(np.min((x - np.asarray(plane.point)) @ n)) < 0.0
+                   for plane, n in zip(self.planes, self.normals, strict=True))
+
     def face_shares(self, x: np.ndarray, normal: np.ndarray) -> np.ndarray:
         """(f,) the boundary triangles' areas facing a plane of unit normal ``normal``,
         ``max(β |a_T|, −a_T · n)`` (m², a_T the outward area vector on the deformed
@@ -204,23 +210,25 @@ class FullSpaceContact:
         vals.append(np.ascontiguousarray(blocks).ravel())
 
 
-def step_with_slip_continuation(stepper, contact: FullSpaceContact | None):
-    """``stepper.step()`` (an :class:`~lbshape.dynamics.integrators.ImplicitStepper`);
+def step_with_slip_continuation(stepper, contact: FullSpaceContact | None,
+                                guess: np.ndarray | None = None):
+    """``stepper.step(guess)`` (an :class:`~lbshape.dynamics.integrators.ImplicitStepper`;
+    ``guess`` the Newton iteration's first increment, None: the scheme's predictor);
     where its Newton iteration fails and the contact has friction, the same step again from
     the increment converged with the slip speed widened (:data:`SLIP_CONTINUATION`, each
-    from the last): regularised friction is steep within ε of the slip speed, where Newton
-    from the predictor may cycle between sticking and slipping vertices. The step taken is the one
-    at ε, to the same residual test; only its starting point differs.
+    from the last, the first from ``guess``): regularised friction is steep within ε of
+    the slip speed, where Newton may cycle between sticking and slipping vertices. The
+    step taken is the one at ε, to the same residual test; only its starting point differs.
 
     Raises:
         SolverError: the step failed (at ε, or on the way down).
     """
     try:
-        return stepper.step()
+        return stepper.step(guess)
     except NewtonFailure:
         if contact is None or not contact.has_friction:
             raise
-    slip_speed, guess = contact.slip_speed, None
+    slip_speed = contact.slip_speed
     try:
         for factor in SLIP_CONTINUATION:
             contact.slip_speed = factor * slip_speed

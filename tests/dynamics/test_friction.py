@@ -384,8 +384,8 @@ def test_a_trial_increment_leaves_the_state_and_starts_the_same_step(block):
         assert np.abs(started.stepper.x - plain.stepper.x).max() <= 1e-6 * scale
 
 
-#: Newton iterations allowed in the car's wall steps: the step from the predictor needs
-#: ~40-57, the continued one 8
+#: Newton iterations allowed in the car's wall steps: the step from the scheme's
+#: predictor needs ~40-57, the continued one 8
 NEWTON_CAP_AT_THE_WALL = 25
 
 
@@ -410,13 +410,15 @@ def test_full_car_reaches_its_wall_step_through_the_slip_continuation(
     within 0.5 mm/s), at the edge of the scene's 60: round-off in the example target
     decides whether it fails. With Newton capped at 25, the step from the predictor fails
     by a wide margin, and from the step converged at 16 ε and 4 ε it meets the same test at
-    ε (8 iterations)."""
+    ε (8 iterations). (The fast path starts its steps in contact from ``h v``, which the
+    next test covers; here the steps start from the scheme's predictor.)"""
     from lbshape.dynamics import full_contact
     from lbshape.errors import NewtonFailure
 
     sim, state = car_before_the_wall
     sim.reset(state)
     monkeypatch.setattr(sim.stepper, "max_iterations", NEWTON_CAP_AT_THE_WALL)
+    monkeypatch.setattr(sim.contact, "touches", lambda u: False)  # the scheme's predictor
     if not continuation:
         monkeypatch.setattr(full_contact, "SLIP_CONTINUATION", ())
         with pytest.raises(NewtonFailure, match="step 152"):
@@ -427,6 +429,30 @@ def test_full_car_reaches_its_wall_step_through_the_slip_continuation(
         sim.step()
     assert sim.contact.continued_steps > before
     assert sim.stepper.time == pytest.approx(0.154)
+
+
+@pytest.mark.slow
+def test_full_car_wall_steps_from_the_constant_velocity_increment(monkeypatch,
+                                                                  car_before_the_wall):
+    """The fast path's steps in contact start from ``h v``: at the car's wall (steps
+    152-154) each converges from it in under half the iterations the scheme's predictor
+    needs (~40-57 there), without the slip continuation, to the state the continued
+    steps from the predictor reach (within the Newton tolerance's reach, 1e-6)."""
+    sim, state = car_before_the_wall
+    sim.reset(state)
+    before = sim.contact.continued_steps
+    iterations = [sim.step() for _ in range(3)]
+    assert sim.contact.continued_steps == before
+    assert max(iterations) < NEWTON_CAP_AT_THE_WALL, iterations
+    from_h_v = np.array(sim.stepper.x)
+    sim.reset(state)
+    monkeypatch.setattr(sim.stepper, "max_iterations", NEWTON_CAP_AT_THE_WALL)
+    monkeypatch.setattr(sim.contact, "touches", lambda u: False)
+    for _ in range(3):
+        sim.step()
+    assert sim.contact.continued_steps > before  # the predictor's steps were continued
+    scale = np.abs(sim.stepper.x).max()
+    assert np.abs(from_h_v - sim.stepper.x).max() <= 1e-6 * scale
 
 
 @pytest.mark.slow
