@@ -621,9 +621,10 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         """Advance one step: the example target (with examples; a free body's at the
         predicted end of the step), a free body's co-rotated damping, then the implicit
         step; returns the Newton iterations. The wall times are left in ``_marks`` for :meth:`run`.
-        The fast path's Newton starts a step in contact from the constant-velocity increment
-        ``h v``: a stiff penalty turns the acceleration within a step, and the car's wall
-        steps took 3.7× fewer Newton iterations from it (``docs/decisions.md``).
+        The fast path's Newton starts a free body's step in contact from the
+        constant-velocity increment ``h v``: a stiff penalty turns the acceleration within
+        a step, and the car's wall steps took 2.3× fewer Newton iterations from it
+        (``docs/decisions.md``).
 
         Raises:
             SolverError: the step failed, named by its index and time; the state stays at
@@ -639,7 +640,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         if self._corotated_beta:
             self._corotate()
         guess, contact = None, self.contact  # None: the scheme's predictor
-        if self._fast and contact is not None and contact.touches(self.full_displacement()):
+        if self._fast and self.fixed_vertices.size == 0 and contact is not None \
+                and contact.touches(self.full_displacement()):
             guess = self.stepper.dt * self.stepper.v
         info = step_with_slip_continuation(self.stepper, contact, guess)
         marks[2] = time.perf_counter()

@@ -176,6 +176,8 @@ class FullSpaceExampleForce:
             self._b = self._k_ex * pull[self.free_dofs]
             return
         if self.fixed_vertices.size == 0:  # free body: interpolate in the co-moving frame
+            if self._target_body is not None and np.size(self.weights) == 1:
+                return  # one example: its weight is 1, its placed target stays
             # the fitted pull is part of the potential: the energy the moved target puts
             # in at the fixed state is work done on the body (the energy monitor's budget)
             before = self._example_energy(x)
