@@ -169,13 +169,7 @@ def first_contact(sim: FullSpaceSimulator, states: np.ndarray) -> int | None:
     no contact planes, or none reached)."""
     if sim.contact is None:
         return None
-    contact = sim.contact
-    for index, u in enumerate(states):
-        x = contact.rest + u.reshape(-1, 3)[contact.vertices]
-        for plane, normal in zip(contact.planes, contact.normals, strict=True):
-            if np.any((x - np.asarray(plane.point)) @ normal < 0.0):
-                return index
-    return None
+    return next((index for index, u in enumerate(states) if sim.contact.touches(u)), None)
 
 
 def trajectory_difference(new: np.ndarray, old: np.ndarray, mass) -> float:
