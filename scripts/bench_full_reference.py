@@ -381,12 +381,16 @@ def markdown(payload: dict) -> str:
         "example energy. Fast: compiled assembly, one Cholesky factorisation (CHOLMOD) "
         "reused across Newton iterations and steps as GMRES's preconditioner, each update "
         f"solved to a relative residual of {payload['linear_rtol']:g} or to a tenth of the "
-        "step's Newton tolerance where that is larger (refactorised when GMRES slows), the "
-        "compiled block example energy; a modified Newton (the residual test on the force "
-        "alone, the tangent kept while each update lowers the residual 10-fold, evaluated "
-        "afresh when one does not): across steps with its factor on fixed scenes without "
-        "contact or friction, else taken afresh with each step's first residual. Same "
-        "Newton residual test. Both in one process, interleaved.",
+        "step's Newton tolerance where that is larger (a free body's: or to a tenth of the "
+        "last update's contraction of the residual, at most 1e-3; refactorised when GMRES "
+        "slows), the compiled block example energy; a modified Newton (the residual test on "
+        "the force alone, the tangent kept while each update lowers the residual 10-fold, "
+        "evaluated afresh when one does not): across steps with its factor on fixed scenes "
+        "without contact or friction and on free bodies in flight (turned with the body, "
+        "kept while each update lowers the residual 100-fold), else taken afresh with each "
+        "step's first residual; a free body's tangent with its damping's turn with the spin "
+        "and the contact's with the facing areas' change. Same Newton residual test. Both in "
+        "one process, interleaved.",
         "",
         f"Command: `{payload['command']}`  ",
         f"Commit: `{payload['commit']}`, {payload['date']}  ",

@@ -223,9 +223,10 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         self.warnings = step_warnings(omega_max, float(dt), log)
         self.newton, self.dt = newton, float(dt)
         self.contact = contact
+        if contact is not None:  # the fast path's contact tangent holds the areas' change
+            contact.share_tangent = self._fast
         self._drag: Drag | None = None
-        self.mesh = mesh
-        self.material = material
+        self.mesh, self.material = mesh, material
         self.n_vertices = n
         fixed = vertex_indices(fixed_vertices, n)
         free_mask = free_dof_mask(n, fixed)
@@ -272,7 +273,9 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         self._corotated_beta = float(beta) if (free_body and beta > 0) else 0.0
         self._damping_rest = K0_ff if self._corotated_beta else None
         self._damping_now = K0_ff if self._corotated_beta else None
-        self._damping_data = None  # β Q K₀ Qᵀ on the compiled pattern (_corotate)
+        self._damping_data = None  # β Q K₀ Qᵀ on the compiled pattern (_corotate, lazily)
+        self._tangent_across_flight = bool(self._fast and self._corotated_beta)
+        self._tangent_frame = None  # the frame the kept tangent is turned to
         if self._corotated_beta:
             beta = 0.0
         # a free body's global examples: the rigid-invariant fitted pull (_free_gap)
@@ -308,6 +311,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             # the tangent afresh at each step's first update, kept within the step
             force=self._force if self._fast else None,
             tangent_each_step=self.contact is not None or friction or fitted_pull,
+            # a free body's tangent and factor turned with it in flight (_turn_kept_tangent)
+            refactor_with_tangent=not self._tangent_across_flight,
         )
 
     def _check_inversion(self, x: np.ndarray, index: int, t: float) -> None:
@@ -432,7 +437,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
     #: the engine's caches of the step that are replaced (not changed in place) and may
     #: be absent (None)
     _CACHES = ("_b", "weights", "target_coefficients", "_target_body", "_target_center",
-               "_pull_rigid")
+               "_pull_rigid", "_tangent_frame")
     _STEPPER_ARRAYS = ("_x", "_v", "_a", "_f", "_fext")
     _STEPPER_SCALARS = ("_t", "_steps", "_work", "_energy", "_initial_energy")
 
@@ -528,10 +533,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             damping = self._scaled_damping()
             rate = stepper.scheme.cv / stepper.dt
             f = f + self._deformation_damping(x, damping, v1, rate)
-            if self._damping_data is not None and self._compiled.on_pattern(K):
-                K.data += rate * self._damping_data
-            else:
-                K = (K + rate * damping).tocsr()  # + its rigid part (_tangent_correction)
+            K = self._add_damping_tangent(K, damping, rate)  # low-rank: _tangent_correction
         if self._drag is not None:  # the spring k u_i on the vertex's free dofs, k I₃
             f = f.copy()
             f[self._drag_dofs] += self._drag.stiffness * x[self._drag_dofs]
@@ -543,7 +545,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         the stepper evaluates the tangent only where a Newton update needs it)."""
         u = self.full_displacement(x).reshape(-1)
         f = self._compiled.force(u)
-        if self.contact is not None:
+        if self.contact is not None and self.contact.touches(u):  # none in flight
             velocity, rate = self._contact_velocity(x)
             fc, parts, _ = self.contact.evaluate_parts(u, velocity, rate, tangent=False)
             if parts:
@@ -579,10 +581,10 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
 
     def _potential(self, x: np.ndarray) -> float:
         elastic = self.elastic if self._compiled is None else self._compiled
-        energy = elastic.energy(self.full_displacement(x).reshape(-1))
-        if self.contact is not None:
-            energy += self.contact.evaluate_parts(self.full_displacement(x).reshape(-1),
-                                                  tangent=False)[2]
+        u = self.full_displacement(x).reshape(-1)
+        energy = elastic.energy(u)
+        if self.contact is not None and self.contact.touches(u):
+            energy += self.contact.evaluate_parts(u, tangent=False)[2]
         return energy + self._example_energy(x) + self._drag_energy(x)
 
     def _drag_energy(self, x: np.ndarray) -> float:
@@ -608,13 +610,13 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         k_ex = factor * self._configured_k_ex
         if not (self._examples_on and self._configured_k_ex) or k_ex == self._k_ex:
             return
-        x = self.stepper.x
-        before = self._example_energy(x)
-        self._k_ex = k_ex
-        if factor == 1.0 and self.stepper.tangent_each_step:  # per-step tangents: a
-            self.stepper.forget_factor()  # reused factor of the full spring's matrix
+        stepper = self.stepper
+        x, before = stepper.x, self._example_energy(stepper.x)
+        self._k_ex = k_ex  # per-step tangents or a factor kept across fresh ones: a
+        if factor == 1.0 and (stepper.tangent_each_step or not stepper.refactor_with_tangent):
+            stepper.forget_factor()  # reused factor of the full spring's matrix
         self._pull_rigid = None  # the fitted pull's tangent part, of the last evaluation
-        self.stepper.credit_work(self._example_energy(x) - before)
+        stepper.credit_work(self._example_energy(x) - before)
 
     # ------------------------------------------------------------------- step
     def step(self) -> int:
@@ -637,13 +639,12 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         if self._k_ex:
             self._update_target_at_step()
         marks[1] = time.perf_counter()
+        touching = bool(self._fast and self.fixed_vertices.size == 0 and self.contact
+                        is not None and self.contact.touches(self.full_displacement()))
         if self._corotated_beta:
-            self._corotate()
-        guess, contact = None, self.contact  # None: the scheme's predictor
-        if self._fast and self.fixed_vertices.size == 0 and contact is not None \
-                and contact.touches(self.full_displacement()):
-            guess = self.stepper.dt * self.stepper.v
-        info = step_with_slip_continuation(self.stepper, contact, guess)
+            self._corotate(touching)
+        guess = self.stepper.dt * self.stepper.v if touching else None  # None: predictor
+        info = step_with_slip_continuation(self.stepper, self.contact, guess)
         marks[2] = time.perf_counter()
         return info.iterations
 

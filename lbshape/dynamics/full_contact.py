@@ -55,6 +55,9 @@ class FullSpaceContact:
         #: the friction's regularisation ε in m/s (widened for a while by the full
         #: reference's slip continuation, :meth:`FullSpaceSimulator.step`)
         self.slip_speed = SLIP_SPEED
+        #: the tangent holds the facing areas' change with the positions (the fast full
+        #: reference; not symmetric); False: left out, as the former reference does
+        self.share_tangent = False
         #: steps taken through the slip continuation so far
         self.continued_steps = 0
         self._positions = None  # (pattern, positions) of add_into's in-place additions
@@ -154,6 +157,9 @@ class FullSpaceContact:
             touched = np.flatnonzero(np.any(blocks != 0.0, axis=1))
             M = blocks[touched].reshape(-1, 3, 3)  # (m, 3, 3) the triangles' pairs
             pair = M[:, :, :, None, None] * np.outer(n, n)[None, None, None]
+            if self.share_tangent:
+                pair = pair + self._share_blocks(x[self.faces[touched]], n, M,
+                                                 depth[self.faces[touched]])
             if not mu > 0:
                 parts.append((touched, pair, None, None))
                 continue
@@ -164,6 +170,33 @@ class FullSpaceContact:
                                 * n[None, None, None, None, :])
             parts.append((touched, pair, loaded, rate * rates))
         return force.ravel(), parts, energy
+
+    @staticmethod
+    def _share_blocks(corners: np.ndarray, normal: np.ndarray, M: np.ndarray,
+                      depths: np.ndarray) -> np.ndarray:
+        """(m, 3, 3, 3, 3) the pair blocks of the facing areas' change with the corners:
+        ``− (k s (M d)_j / s) n ⊗ ∂s/∂p_l`` for corner j's force and corner l's position,
+        s = ``max(β |a|, −a · n)`` (:meth:`face_shares`) and ``∂(a · ν)/∂p_l =
+        ½ (p_{l+1} − p_{l−1}) × ν``.
+
+        Args:
+            corners: (m, 3, 3) the touched triangles' corner positions (m).
+            normal: (3,) the plane's unit normal.
+            M: (m, 3, 3) their blocks ``k s M_jl`` (N/m) of :func:`face_loads`.
+            depths: (m, 3) the corners' penetrations (m).
+        """
+        vectors = 0.5 * np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        facing = -(vectors @ normal)
+        length = np.linalg.norm(vectors, axis=1)
+        floor = FACING_FLOOR * length
+        share = np.maximum(facing, floor)
+        along = np.where((facing >= floor)[:, None], -normal[None, :],
+                         FACING_FLOOR * vectors / np.maximum(length, 1e-300)[:, None])
+        gradient = 0.5 * np.cross(np.roll(corners, -1, axis=1) - np.roll(corners, 1, axis=1),
+                                  along[:, None, :])  # (m, 3, 3): ∂s/∂p_l
+        per_area = np.einsum("tjl,tl->tj", M, depths) / share[:, None]  # k (M d)_j
+        return -(per_area[:, :, None, None, None] * normal[None, None, None, :, None]
+                 * gradient[:, None, :, None, :])
 
     def add_tangent(self, data: np.ndarray, positions, parts) -> None:
         """Add the tangent ``parts`` of :meth:`evaluate_parts` into a CSR data array in

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from lbshape.dynamics.rigid_frame import best_rigid_frame
+from lbshape.dynamics.rigid_frame import KabschFit, best_rigid_frame
 from lbshape.dynamics.rigid_motions import rigid_modes
 from lbshape.elastic.modes import rigid_body_modes
 from lbshape.errors import LbshapeError, SolverError
@@ -149,20 +149,13 @@ class FullSpaceExampleForce:
         return (positions - placed).ravel()
 
     def _target_fit(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(c, R) of :func:`~lbshape.dynamics.rigid_frame.best_rigid_frame` of the step's
-        target shape onto ``positions`` (n, 3), its parts that depend on the target kept."""
+        """(c, R) of the :class:`~lbshape.dynamics.rigid_frame.KabschFit` of the step's
+        target shape onto ``positions`` (n, 3), kept while the target is."""
         kept = getattr(self, "_fit_kept", None)
         if kept is None or kept[0] is not self._target_body:
-            weights = np.asarray(self._scalar_mass.sum(axis=1)).ravel()
-            weights = weights / weights.sum()
-            Xbar = self._target_body - weights @ self._target_body
-            kept = (self._target_body, weights, np.asarray(self._scalar_mass @ Xbar))
+            kept = (self._target_body, KabschFit(self._scalar_mass, self._target_body))
             self._fit_kept = kept
-        _, weights, mass_Xbar = kept
-        center = weights @ positions
-        left, _, right = np.linalg.svd((positions - center).T @ mass_Xbar)
-        R = left @ np.diag([1.0, 1.0, np.sign(np.linalg.det(left @ right))]) @ right
-        return center, R
+        return kept[1](positions)
 
     def _update_target(self) -> None:
         """Weights and target from the state at the start of the step (a fixed object) or,

@@ -81,8 +81,11 @@ from lbshape.errors import LbshapeError, NewtonFailure, SolverError
 log = logging.getLogger(__name__)
 
 Matrix = np.ndarray | sp.spmatrix
-ForceAndTangent = Callable[[np.ndarray], tuple[np.ndarray, Matrix]]
 
+#: the contraction ``‖R_new‖ / ‖R‖`` a kept tangent's update must achieve (default)
+TANGENT_CONTRACTION = 0.1
+
+ForceAndTangent = Callable[[np.ndarray], tuple[np.ndarray, Matrix]]
 
 
 @dataclass(frozen=True)
@@ -138,7 +141,7 @@ class ImplicitStepper:
         line_search: halve a Newton update (down to 1/64) until it lowers ‖R‖ (for
             forces whose residual is steep in a narrow band, as regularised friction
             is below its slip speed); ``False``: full updates.
-        low_rank_tangent: returns ``(W, S)`` (n, k) and (k, k) symmetric, or None,
+        low_rank_tangent: returns ``(W, S)`` (n, k) and (k, k), or None,
             after each force evaluation: the Newton matrix is then ``J + W S Wᵀ`` (a
             rank-k correction of the sparse one, e.g. a free body's rigid-invariant
             example pull, whose rigid directions carry no stiffness, or its stiffness
@@ -157,6 +160,9 @@ class ImplicitStepper:
             first update and kept within the step only (a non-smooth force: friction,
             contact, a free body's fitted pull); a reused-factor ``linear_solver`` keeps
             its factor, which preconditions the fresh tangents.
+        refactor_with_tangent: a tangent evaluated afresh across steps (not
+            ``tangent_each_step``) is factorised afresh; ``False``: the reused factor
+            stays and preconditions it (a free body's, turned with its frame).
     """
 
     #: the scheme's coefficients (one of :data:`SCHEMES`)
@@ -187,8 +193,9 @@ class ImplicitStepper:
         linear_solver: Callable | None = None,
         check_state: Callable[[np.ndarray, int, float], None] | None = None,
         force: Callable[[np.ndarray], np.ndarray] | None = None,
-        tangent_contraction: float = 0.1,
+        tangent_contraction: float = TANGENT_CONTRACTION,
         tangent_each_step: bool = False,
+        refactor_with_tangent: bool = True,
     ):
         self._sparse = sp.issparse(mass)
         self.mass = _square_matrix(mass, "mass")
@@ -211,6 +218,7 @@ class ImplicitStepper:
         self._force = force
         self.tangent_contraction = float(tangent_contraction)
         self.tangent_each_step = bool(tangent_each_step)
+        self.refactor_with_tangent = bool(refactor_with_tangent)
         self._kept = None  # (K, low-rank part) kept for updates (``force`` given)
         self._fresh_tangent = True  # the next update evaluates the tangent
         self.tangent_evaluations = 0
@@ -396,7 +404,7 @@ class ImplicitStepper:
             # a modified Newton (``force``) halves an update that raises ‖R‖, as the search
             if not (self.line_search or self._force is not None and not state[-1] < norm):
                 dx = dx - delta
-                self._fresh_tangent = state[-1] > self.tangent_contraction * norm
+                self._contracted(state[-1], norm)
                 continue
             # backtracking: the last trial is the accepted one
             fraction, trial = 1.0, dx - delta
@@ -405,8 +413,16 @@ class ImplicitStepper:
                 trial = dx - fraction * delta
                 state = self._residual(trial, fext, index, t1)
             dx = trial
-            self._fresh_tangent = state[-1] > self.tangent_contraction * norm
+            self._contracted(state[-1], norm)
         return state, dx, iteration, residuals
+
+    def _contracted(self, new: float, old: float) -> None:
+        """After an accepted update that took ‖R‖ from ``old`` to ``new``: a kept tangent
+        that contracted less than :attr:`tangent_contraction` is evaluated afresh next;
+        an inexact linear solver learns the contraction (its solves need not be finer)."""
+        self._fresh_tangent = new > self.tangent_contraction * old
+        if hasattr(self._linear_solver, "newton_contraction"):
+            self._linear_solver.newton_contraction = new / old if old > 0 else 0.0
 
     def run(self, steps: int) -> list[StepInfo]:
         """Take ``steps`` steps; return their infos (raises like :meth:`step`)."""
@@ -489,6 +505,13 @@ class ImplicitStepper:
         """The next update evaluates the tangent (``force`` given; the forces changed)."""
         self._kept, self._fresh_tangent = None, True
 
+    def turn_kept_tangent(self, turn: Callable) -> None:
+        """Carry the kept tangent along a rigid turn of the state: ``turn(K, low-rank
+        part or None) -> (K, low-rank part)`` turned, or None (none kept: nothing to do)."""
+        if self._kept is not None:  # None from turn: evaluated afresh at the next update
+            self._kept = turn(*self._kept)
+            self._fresh_tangent = self._fresh_tangent or self._kept is None
+
     def kept_tangent(self) -> dict[str, np.ndarray]:
         """The kept tangent (sparse) and its low-rank part as arrays (empty: none)."""
         if self._kept is None or not sp.issparse(self._kept[0]):
@@ -519,7 +542,7 @@ class ImplicitStepper:
         if K is not None:
             return self._solve_newton(K, R, index, t)
         if self._kept is None or self._fresh_tangent:
-            if not self.tangent_each_step:
+            if not self.tangent_each_step and self.refactor_with_tangent:
                 self.forget_factor()  # a reused factor: of this tangent's matrix
             self._keep(self._evaluate(x1, index, t)[1])
         return self._solve_newton(self._kept[0], R, index, t, self._kept[1])

@@ -14,10 +14,13 @@ preconditioner of the current one:
   (:attr:`ReusedFactorSolver.newton_tolerance`, set by the stepper), to the residual
   ``NEWTON_FRACTION · τ`` where that is larger (an inexact Newton: an update's linear
   residual stays a tenth of what the Newton test accepts, so the iteration converges as
-  the exact one does), and factorises the current J afresh when GMRES needs more than
-  ``max_inner`` iterations (the next call refactorises first when it needed more than
-  ``refactor_after``). The Newton iteration around it is unchanged: the same residual
-  test.
+  the exact one does), or to ``NEWTON_FRACTION · c ‖R‖`` where that is larger still, c
+  the contraction of the Newton iteration's last update, at most the caller's
+  :attr:`ReusedFactorSolver.contraction_cap` (a free body's: an update whose tangent
+  leaves ``c ‖R‖`` behind gains nothing from a finer solve), and factorises the current J
+  afresh when GMRES needs more than ``max_inner`` iterations (the next call refactorises
+  first when it needed more than ``refactor_after``). The Newton iteration around it is
+  unchanged: the same residual test.
 * factorisations: sparse Cholesky (CHOLMOD through PETSc, :class:`CholmodFactor`) when
   J is symmetric, numeric refactorisation reusing the symbolic one while the pattern
   stays; where Cholesky fails (an indefinite matrix: buckling) or J is not symmetric
@@ -42,6 +45,12 @@ from lbshape.errors import LbshapeError, SolverError
 LINEAR_RTOL = 1e-11
 #: the fraction of the Newton tolerance an update's linear residual may reach
 NEWTON_FRACTION = 0.1
+#: the largest Newton contraction a free body's solves follow
+#: (:attr:`ReusedFactorSolver.contraction_cap`; a stalling iteration, whose updates
+#: contract ‖R‖ little, needs its updates solved finely). Held objects follow none: there
+#: the looser updates led Newton to other solutions (a soft hanging bar on a plane settled
+#: 7.7 mm through it instead of 4.6 mm; a bar under a 1e4 g load no longer failed)
+CONTRACTION_CAP = 1e-3
 #: linear solver names of :func:`make_linear_solver`
 LINEAR_SOLVERS = ("reuse", "lu-each-iteration")
 #: CHOLMOD's simplicial factorisation up to this many rows: on the built-in scenes' Newton
@@ -191,6 +200,12 @@ class ReusedFactorSolver:
     Attributes:
         newton_tolerance: the Newton residual tolerance τ (force units) of the current
             step, set by the stepper; 0 (default): every solve to ``rtol``.
+        newton_contraction: ``‖R_new‖ / ‖R‖`` of the stepper's last accepted Newton update
+            (set by the stepper; 0: none yet): a solve may stop at a linear residual of
+            ``NEWTON_FRACTION`` times that contraction, at most ``contraction_cap``, of ‖R‖.
+        contraction_cap: the largest contraction a solve's goal follows (set by the caller;
+            0, the default: every solve to the goals above alone). A free body uses
+            :data:`CONTRACTION_CAP`.
         frame: (3, 3) the rotation of a free body's current rigid frame, or None (set by
             the caller each step; the dofs are then whole vertices, node-major). A factor
             of ``J₀`` taken in frame R₀ preconditions ``Q J₀ Qᵀ``, ``Q = diag(R R₀ᵀ, …)``:
@@ -215,6 +230,8 @@ class ReusedFactorSolver:
         self._norm = 0.0  # ‖J‖∞ of the factorised matrix (the round-off level)
         self.frame: np.ndarray | None = None
         self.newton_tolerance = 0.0
+        self.newton_contraction = 0.0
+        self.contraction_cap = 0.0
         self._factor_frame: np.ndarray | None = None  # the frame the factor was taken in
         self.factorisations = 0
         self.solves = 0
@@ -333,7 +350,9 @@ class ReusedFactorSolver:
         # the tolerance, or the round-off level of evaluating J x where that is larger
         # (an ill-conditioned J: no solve, direct or not, gets its residual lower)
         noise = 64.0 * np.finfo(float).eps * (self._norm * math.sqrt(float(x @ x)) + norm_r)
-        target = max(self.rtol * norm_r, NEWTON_FRACTION * self.newton_tolerance, noise)
+        target = max(self.rtol * norm_r, NEWTON_FRACTION * self.newton_tolerance, noise,
+                     NEWTON_FRACTION * min(self.newton_contraction, self.contraction_cap)
+                     * norm_r)
         r = R - operator(x)
         beta = math.sqrt(float(r @ r))
         if beta <= target:

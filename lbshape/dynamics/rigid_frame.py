@@ -199,9 +199,61 @@ def rotate_into(rotation, body_momentum, inertia, relative, dt, R1, Pi1, omega, 
     return True
 
 
+class KabschFit:
+    """The mass-weighted best rigid placement of one shape onto positions (a Kabsch fit),
+    the shape's parts computed once.
+
+    Args:
+        scalar_mass: (n, n) scalar mass M₁ (kg), sparse or dense.
+        shape: (n, 3) the shape placed (m).
+
+    Attributes:
+        weights: (n,) the mass fractions ``M₁ 1 / m``.
+        centered: (n, 3) the shape about its centre of mass, X̄ (m).
+    """
+
+    def __init__(self, scalar_mass, shape: np.ndarray):
+        weights = np.asarray(scalar_mass.sum(axis=1)).ravel()
+        self.weights = weights / weights.sum()
+        self.centered = shape - self.weights @ shape
+        self._mass_centered = np.ascontiguousarray(scalar_mass @ self.centered,
+                                                   dtype=np.float64)
+
+    def __call__(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(c (3,), R (3, 3))``: the centre of mass of ``positions`` (n, 3) m and the
+        rotation of the polar decomposition of ``Σ M₁ (x − c) X̄ᵀ`` (det R = +1)."""
+        center, R = np.empty(3), np.empty((3, 3))
+        _kabsch(self.weights, np.ascontiguousarray(positions, dtype=np.float64),
+                self._mass_centered, center, R)
+        return center, R
+
+
+@njit
+def _kabsch(weights, positions, mass_centered, center, R):
+    """:class:`KabschFit`'s centre (3,) and rotation (3, 3) into ``center`` and ``R``."""
+    for a in range(3):
+        center[a] = 0.0
+        for i in range(positions.shape[0]):
+            center[a] += weights[i] * positions[i, a]
+    A = np.zeros((3, 3))
+    for i in range(positions.shape[0]):
+        for a in range(3):
+            offset = positions[i, a] - center[a]
+            for b in range(3):
+                A[a, b] += offset * mass_centered[i, b]
+    left, _, right = np.linalg.svd(A)
+    turn = left @ right
+    det = (turn[0, 0] * (turn[1, 1] * turn[2, 2] - turn[1, 2] * turn[2, 1])
+           - turn[0, 1] * (turn[1, 0] * turn[2, 2] - turn[1, 2] * turn[2, 0])
+           + turn[0, 2] * (turn[1, 0] * turn[2, 1] - turn[1, 1] * turn[2, 0]))
+    for a in range(3):
+        left[a, 2] *= 1.0 if det >= 0.0 else -1.0
+    R[:, :] = left @ right
+
+
 def best_rigid_frame(scalar_mass, rest: np.ndarray,
                      positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mass-weighted best-fitting rigid frame of a deformed shape (Kabsch fit).
+    """Mass-weighted best-fitting rigid frame of a deformed shape (:class:`KabschFit`).
 
     Args:
         scalar_mass: (n, n) scalar mass M₁ (kg), sparse or dense.
@@ -213,11 +265,6 @@ def best_rigid_frame(scalar_mass, rest: np.ndarray,
         rotation of the polar decomposition of ``Σ M₁ (x − c) X̄ᵀ`` (X̄ = X − X_cm,
         det R = +1) and the body-frame displacement ``Rᵀ (x − c) − X̄``.
     """
-    weights = np.asarray(scalar_mass.sum(axis=1)).ravel()
-    weights = weights / weights.sum()
-    Xbar = rest - weights @ rest
-    center = weights @ positions
-    A = (positions - center).T @ np.asarray(scalar_mass @ Xbar)
-    left, _, right = np.linalg.svd(A)
-    R = left @ np.diag([1.0, 1.0, np.sign(np.linalg.det(left @ right))]) @ right
-    return center, R, (positions - center) @ R - Xbar
+    fit = KabschFit(scalar_mass, rest)
+    center, R = fit(positions)
+    return center, R, (positions - center) @ R - fit.centered

@@ -71,18 +71,32 @@ def _scalar_rigid_modes(points, indptr, indices, data, psi, mass_psi):
             scaled[i, 0] += w
             for a in range(3):
                 scaled[i, 1 + a] += w * (points[j, a] - mean[a])
-    gram = np.zeros((6, 6))
-    row, mrow = np.empty(6), np.empty(6)
+    # the Gram matrix Fᵀ M F from moments: with s = M₁ 1, q = M₁ r, Q = Σ q and
+    # C_xy = Σ r_x q_y: [[Σs I, G], [Gᵀ, tr(C) I − Cᵀ]], G_ab = (e_b × Q)_a
+    # ((e_a × r)·(e_b × q) = δ_ab r·q − r_b q_a)
+    total = 0.0
+    Q = np.zeros(3)
+    C = np.zeros((3, 3))
     for i in range(n):
-        rx, ry, rz = points[i, 0] - mean[0], points[i, 1] - mean[1], points[i, 2] - mean[2]
-        for c in range(3):
-            _field_row(1.0, rx, ry, rz, c, row)
-            _field_row(scaled[i, 0], scaled[i, 1], scaled[i, 2], scaled[i, 3], c, mrow)
-            for a in range(6):
-                psi[3 * i + c, a] = row[a]
-                mass_psi[3 * i + c, a] = mrow[a]
-                for b in range(6):
-                    gram[a, b] += row[a] * mrow[b]
+        total += scaled[i, 0]
+        for x in range(3):
+            Q[x] += scaled[i, 1 + x]
+            for y in range(3):
+                C[x, y] += (points[i, x] - mean[x]) * scaled[i, 1 + y]
+    gram = np.zeros((6, 6))
+    trace = C[0, 0] + C[1, 1] + C[2, 2]
+    for a in range(3):
+        gram[a, a] = total
+        for b in range(3):
+            gram[3 + a, 3 + b] = (trace if a == b else 0.0) - C[b, a]
+    for b in range(3):  # translation a, rotation b: (e_b × Q)_a
+        e = np.zeros(3)
+        e[b] = 1.0
+        cross = (e[1] * Q[2] - e[2] * Q[1], e[2] * Q[0] - e[0] * Q[2],
+                 e[0] * Q[1] - e[1] * Q[0])
+        for a in range(3):
+            gram[a, 3 + b] = cross[a]
+            gram[3 + b, a] = cross[a]
     lower = 0.5 * (gram + gram.T)
     if not cholesky_in_place(lower):
         return False
@@ -93,15 +107,19 @@ def _scalar_rigid_modes(points, indptr, indices, data, psi, mass_psi):
             for k in range(j, i):
                 value -= lower[i, k] * inverse[k, j]
             inverse[i, j] = value / lower[i, i]
-    for out in (psi, mass_psi):  # F L⁻ᵀ, row by row
-        for i in range(3 * n):
+    row, mrow = np.empty(6), np.empty(6)
+    for i in range(n):  # the rows of F L⁻ᵀ and M F L⁻ᵀ
+        rx, ry, rz = points[i, 0] - mean[0], points[i, 1] - mean[1], points[i, 2] - mean[2]
+        for c in range(3):
+            _field_row(1.0, rx, ry, rz, c, row)
+            _field_row(scaled[i, 0], scaled[i, 1], scaled[i, 2], scaled[i, 3], c, mrow)
             for a in range(6):
-                row[a] = out[i, a]
-            for a in range(6):
-                value = 0.0
+                value, mvalue = 0.0, 0.0
                 for b in range(a + 1):
                     value += row[b] * inverse[a, b]
-                out[i, a] = value
+                    mvalue += mrow[b] * inverse[a, b]
+                psi[3 * i + c, a] = value
+                mass_psi[3 * i + c, a] = mvalue
     return True
 
 

@@ -79,7 +79,8 @@ class CompiledElasticity:
         self._constant: dict[int, tuple] = {}  # add_into's kept positions
         # whole vertices free: rows 3I..3I+2 share their columns, in aligned triples
         counts3 = counts.reshape(-1, 3) if nf % 3 == 0 else None
-        self._blocked = bool(
+        #: the free dofs form whole vertices: the pattern is made of 3 × 3 blocks
+        self.blocked = bool(
             counts3 is not None and np.all(free.reshape(-1, 3) % 3 == np.arange(3))
             and np.all(free.reshape(-1, 3)[:, 0] // 3 == free.reshape(-1, 3)[:, 2] // 3)
             and np.all(counts3 == counts3[:, :1]) and np.all(counts3 % 3 == 0)
@@ -133,7 +134,7 @@ class CompiledElasticity:
         """The data array of ``Q A Qᵀ``, ``Q = diag(R, …, R)``, for A given by its ``data``
         on this pattern (each 3 × 3 vertex block ``R A_IJ Rᵀ``); None when the free dofs
         do not form whole vertices (the pattern is then not made of 3 × 3 blocks)."""
-        if not self._blocked:
+        if not self.blocked:
             return None
         out = np.empty_like(data)
         _rotate_blocks(self.indptr, np.ascontiguousarray(data, dtype=np.float64),
