@@ -155,19 +155,15 @@ class FullSpaceDamping:
         :class:`TurnedMatrix`."""
         spin = getattr(self, "_damping_spin", None)
         data = self._damping_pattern_data() if self._compiled is not None else None
-        on_pattern = data is not None and self._compiled.on_pattern(K)
-        if isinstance(damping, TurnedMatrix):
-            damping = sp.csr_matrix((self._damping_pattern_data(), self._compiled.indices,
-                                     self._compiled.indptr), shape=K.shape)
-        if spin is None:
-            if on_pattern:
-                K.data += rate * data
-                return K
-            return (K + rate * damping).tocsr()
-        turned = rate * np.eye(3) - _skew(spin)
-        if on_pattern:
-            K.data += (data.reshape(-1, 3) @ turned).ravel()  # 3 × 3 blocks
+        turned = None if spin is None else rate * np.eye(3) - _skew(spin)
+        if data is not None and self._compiled.on_pattern(K):
+            K.data += rate * data if turned is None else (data.reshape(-1, 3) @ turned).ravel()
             return K
+        if isinstance(damping, TurnedMatrix):  # formed on the pattern
+            damping = sp.csr_matrix((data, self._compiled.indices, self._compiled.indptr),
+                                    shape=K.shape)
+        if turned is None:
+            return (K + rate * damping).tocsr()
         n = K.shape[0] // 3
         return (K + damping @ sp.kron(sp.identity(n), sp.csr_matrix(turned))).tocsr()
 
@@ -232,8 +228,8 @@ class FullSpaceDamping:
         evaluated afresh where an update contracts ‖R‖ less than
         :data:`FLIGHT_TANGENT_CONTRACTION`, and at each step in contact (a penalty
         that changes within the step). On the Figure 4 bar in flight (steps 1-288): one
-        evaluation in about five steps, 1.7 Newton updates a step (2.2 with a tangent per
-        step). The updates are solved to the Newton iteration's contraction
+        evaluation in about five steps, 1.7 Newton updates a step. A free body's updates
+        are solved to the Newton iteration's contraction
         (:data:`~lbshape.dynamics.linear_solvers.CONTRACTION_CAP`)."""
         stepper = self.stepper
         stepper.tangent_each_step = touching
