@@ -103,7 +103,7 @@ from lbshape.dynamics.full_contact import FullSpaceContact, step_with_slip_conti
 from lbshape.dynamics.full_damping import FullSpaceDamping
 from lbshape.dynamics.full_examples import FullSpaceExampleForce, FullSpaceExamples
 from lbshape.dynamics.integrators import make_stepper
-from lbshape.dynamics.linear_solvers import LINEAR_SOLVERS, make_linear_solver
+from lbshape.dynamics.linear_solvers import CONTRACTION_CAP, LINEAR_SOLVERS, make_linear_solver
 from lbshape.dynamics.loads import TimedLoad, TimeProfile
 from lbshape.dynamics.record import RunRecord, RunRecorder
 from lbshape.dynamics.sanity import (
@@ -223,8 +223,6 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         self.warnings = step_warnings(omega_max, float(dt), log)
         self.newton, self.dt = newton, float(dt)
         self.contact = contact
-        if contact is not None:  # the fast path's contact tangent holds the areas' change
-            contact.share_tangent = self._fast
         self._drag: Drag | None = None
         self.mesh, self.material = mesh, material
         self.n_vertices = n
@@ -314,6 +312,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             # a free body's tangent and factor turned with it in flight (_turn_kept_tangent)
             refactor_with_tangent=not self._tangent_across_flight,
         )
+        if self._tangent_across_flight:  # its updates solved to the Newton contraction
+            self.stepper._linear_solver.contraction_cap = CONTRACTION_CAP
 
     def _check_inversion(self, x: np.ndarray, index: int, t: float) -> None:
         """Refuse a state x (free dofs) with an inverted element (det F ≤ 0)."""
@@ -513,8 +513,8 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
                 return K + scale * matrix
         if self.contact is not None:
             velocity, rate = self._contact_velocity(x)
-            fc, parts, _ = self.contact.evaluate_parts(self.full_displacement(x).reshape(-1),
-                                                       velocity, rate)
+            fc, parts, _ = self.contact.evaluate_parts(  # the fast path: the areas' change
+                self.full_displacement(x).reshape(-1), velocity, rate, shares=self._fast)
             if parts:
                 f = f + fc[self.free_dofs]
                 K = self.contact.add_into(K, parts, self.free_dofs, self._compiled, add)

@@ -55,9 +55,6 @@ class FullSpaceContact:
         #: the friction's regularisation ε in m/s (widened for a while by the full
         #: reference's slip continuation, :meth:`FullSpaceSimulator.step`)
         self.slip_speed = SLIP_SPEED
-        #: the tangent holds the facing areas' change with the positions (the fast full
-        #: reference; not symmetric); False: left out, as the former reference does
-        self.share_tangent = False
         #: steps taken through the slip continuation so far
         self.continued_steps = 0
         self._positions = None  # (pattern, positions) of add_into's in-place additions
@@ -123,13 +120,15 @@ class FullSpaceContact:
         return add(K, self.matrix(parts)[free_dofs][:, free_dofs]).tocsr()
 
     def evaluate_parts(self, u: np.ndarray, v: np.ndarray | None = None, rate: float = 0.0,
-                       *, tangent: bool = True):
+                       *, tangent: bool = True, shares: bool = False):
         """``(f (3n,), parts, energy J)`` of :meth:`evaluate`, the tangent as its blocks: per
         plane touched ``(faces (m,), pair (m, 3, 3, 3, 3), loaded (h,) or None, rates
         (h, 3, 3))``, ``pair[t, j, l]`` the 3 × 3 block of the triangle's corners (j, l) and
         ``rates`` the friction's vertex blocks (``loaded`` surface rows; None: no friction).
         ``tangent=False`` (a residual or an energy alone): each touched plane's part is
-        ``(None, None, None, None)``, its blocks not formed."""
+        ``(None, None, None, None)``, its blocks not formed. ``shares``: the pairs hold the
+        facing areas' change with the positions too (:meth:`_share_blocks`; the fast full
+        reference; not symmetric), else it is left out (as :meth:`evaluate` does)."""
         x = self.rest + u.reshape(-1, 3)[self.vertices]
         s_count = x.shape[0]
         force = np.zeros((self.n, 3))
@@ -157,7 +156,7 @@ class FullSpaceContact:
             touched = np.flatnonzero(np.any(blocks != 0.0, axis=1))
             M = blocks[touched].reshape(-1, 3, 3)  # (m, 3, 3) the triangles' pairs
             pair = M[:, :, :, None, None] * np.outer(n, n)[None, None, None]
-            if self.share_tangent:
+            if shares:
                 pair = pair + self._share_blocks(x[self.faces[touched]], n, M,
                                                  depth[self.faces[touched]])
             if not mu > 0:

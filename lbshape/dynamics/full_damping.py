@@ -14,21 +14,13 @@ import scipy.sparse as sp
 
 from lbshape._jit import njit
 from lbshape.dynamics.integrators import TANGENT_CONTRACTION
-from lbshape.dynamics.linear_solvers import CONTRACTION_CAP
-from lbshape.dynamics.rigid_frame import KabschFit
+from lbshape.dynamics.rigid_frame import KabschFit, skew
 from lbshape.dynamics.rigid_motions import rigid_modes
 
 #: the contraction ``‖R_new‖ / ‖R‖`` a free body's tangent kept across steps in flight
 #: must achieve (else evaluated afresh at the next update): on the Figure 4 bar, 0.1 let
 #: 3.5 updates a step through, 1e-3 evaluated it at every third step; 0.01: every fifth
 FLIGHT_TANGENT_CONTRACTION = 0.01
-
-
-def _skew(omega: np.ndarray) -> np.ndarray:
-    """(3, 3) ``[ω]×``: ``[ω]× a = ω × a``."""
-    return np.array([[0.0, -omega[2], omega[1]],
-                     [omega[2], 0.0, -omega[0]],
-                     [-omega[1], omega[0], 0.0]])
 
 
 def _turned_rows(turn: np.ndarray, fields: np.ndarray) -> np.ndarray:
@@ -61,7 +53,6 @@ class TurnedMatrix:
 
     def __init__(self, matrix: sp.spmatrix, turn: np.ndarray):
         self.matrix, self.turn = matrix, np.asarray(turn)
-        self.shape = matrix.shape
 
     def __matmul__(self, a: np.ndarray) -> np.ndarray:
         """``Q A Qᵀ a`` for a (3n,) or (3n, k)."""
@@ -127,8 +118,8 @@ class FullSpaceDamping:
             rate: ∂v₁/∂x of the scheme in 1/s.
             tangent: keep the rank-12 part (False: the force alone; the kept part stays).
         """
-        n = self.n_vertices
-        rigid, mass_rigid = rigid_modes(self.mesh.points + x.reshape(n, 3), self._mass_ff,
+        points = self.mesh.points + x.reshape(self.n_vertices, 3)
+        rigid, mass_rigid = rigid_modes(points, self._mass_ff,
                                          getattr(self, "_scalar_mass", None))
         rigid_velocity = rigid @ (mass_rigid.T @ velocity)
         if tangent:
@@ -139,10 +130,10 @@ class FullSpaceDamping:
             self._damping_rigid = (W, core)
             self._damping_spin = None
             if self._fast:  # − Pᵀ D P Ω = − D Ω + W (core / rate) (Ω W)ᵀ
-                omega = angular_velocity(self.mesh.points + x.reshape(n, 3), rigid_velocity)
+                omega = angular_velocity(points, rigid_velocity)
                 self._damping_spin = omega
                 zero = np.zeros_like(core)
-                self._damping_rigid = (np.hstack([W, W + _turned_rows(_skew(omega), W) / rate]),
+                self._damping_rigid = (np.hstack([W, W + _turned_rows(skew(omega), W) / rate]),
                                        np.block([[zero, core], [zero, zero]]))
         force = damping @ (velocity - rigid_velocity)
         return force - mass_rigid @ (rigid.T @ force)
@@ -154,8 +145,8 @@ class FullSpaceDamping:
         3 × 3 blocks, else a sparse sum. ``damping``: D, (3n, 3n) sparse or a
         :class:`TurnedMatrix`."""
         spin = getattr(self, "_damping_spin", None)
-        data = self._damping_pattern_data() if self._compiled is not None else None
-        turned = None if spin is None else rate * np.eye(3) - _skew(spin)
+        data = self._damping_pattern_data()
+        turned = None if spin is None else rate * np.eye(3) - skew(spin)
         if data is not None and self._compiled.on_pattern(K):
             K.data += rate * data if turned is None else (data.reshape(-1, 3) @ turned).ravel()
             return K
@@ -228,12 +219,11 @@ class FullSpaceDamping:
         evaluated afresh where an update contracts ‖R‖ less than
         :data:`FLIGHT_TANGENT_CONTRACTION`, and at each step in contact (a penalty
         that changes within the step). On the Figure 4 bar in flight (steps 1-288): one
-        evaluation in about five steps, 1.7 Newton updates a step. A free body's updates
-        are solved to the Newton iteration's contraction
-        (:data:`~lbshape.dynamics.linear_solvers.CONTRACTION_CAP`)."""
+        evaluation in about five steps, 1.7 Newton updates a step (its updates solved to
+        the Newton iteration's contraction: :data:`~lbshape.dynamics.linear_solvers.
+        CONTRACTION_CAP`, set with the stepper)."""
         stepper = self.stepper
         stepper.tangent_each_step = touching
-        stepper._linear_solver.contraction_cap = CONTRACTION_CAP
         stepper.tangent_contraction = (TANGENT_CONTRACTION if touching
                                        else FLIGHT_TANGENT_CONTRACTION)
         last, self._tangent_frame = self._tangent_frame, np.array(R)

@@ -242,12 +242,8 @@ def _kabsch(weights, positions, mass_centered, center, R):
             for b in range(3):
                 A[a, b] += offset * mass_centered[i, b]
     left, _, right = np.linalg.svd(A)
-    turn = left @ right
-    det = (turn[0, 0] * (turn[1, 1] * turn[2, 2] - turn[1, 2] * turn[2, 1])
-           - turn[0, 1] * (turn[1, 0] * turn[2, 2] - turn[1, 2] * turn[2, 0])
-           + turn[0, 2] * (turn[1, 0] * turn[2, 1] - turn[1, 1] * turn[2, 0]))
-    for a in range(3):
-        left[a, 2] *= 1.0 if det >= 0.0 else -1.0
+    if np.linalg.det(left @ right) < 0.0:  # a reflection: turn the least axis
+        left[:, 2] *= -1.0
     R[:, :] = left @ right
 
 

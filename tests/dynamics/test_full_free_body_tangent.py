@@ -66,20 +66,32 @@ def test_contact_tangent_holds_the_facing_areas_change(box):
 
     errors = {}
     for share in (False, True):
-        contact.share_tangent = share
-        _, parts, _ = contact.evaluate_parts(u)
+        _, parts, _ = contact.evaluate_parts(u, shares=share)
         errors[share] = directional_error(contact.matrix(parts) @ direction, force, u,
                                           direction, 1e-7)
     assert errors[True] <= 1e-7, errors
     assert errors[False] >= 0.05, errors
 
 
-def test_fast_simulator_evaluates_the_facing_areas_change(box):
+def test_fast_simulator_evaluates_the_facing_areas_change(box, monkeypatch):
+    """The fast path's tangent asks the contact for the facing areas' change; the former
+    path's does not."""
     floor = ContactPlane((0.0, 0.0, -0.001), (0.0, 0.0, 1.0), 2e5, 0.0)
+    asked = []
+    original = FullSpaceContact.evaluate_parts
+
+    def spy(self, *args, **kwargs):
+        if kwargs.get("tangent", True):
+            asked.append(kwargs.get("shares", False))
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(FullSpaceContact, "evaluate_parts", spy)
     for solver, share in (("reuse", True), ("lu-each-iteration", False)):
-        contact = FullSpaceContact([floor], box.points, box.tets)
-        FullSpaceSimulator(box, material(), dt=0.002, contact=contact, linear_solver=solver)
-        assert contact.share_tangent is share
+        sim = FullSpaceSimulator(box, material(), dt=0.002, linear_solver=solver,
+                                 contact=FullSpaceContact([floor], box.points, box.tets))
+        asked.clear()
+        sim._force_and_tangent(np.zeros(sim.free_dofs.size))
+        assert asked == [share]
 
 
 def damping_tangent_error(box, solver: str) -> float:
