@@ -17,16 +17,16 @@ reaches a plane):
    K₆ the contact stiffness; θ = ½, trapezoidal and conservative, while the contact
    frequency is resolved, up to θ = 1, backward Euler, when it is not:
    :func:`contact_theta`; stable for any penalty stiffness), which changes p and L
-   by ``M₆ Δν``; then ``c₁ = c₀ + Δt (v₀ + v₁)/2`` (exact for a ballistic throw) and
-   the torque-free Cayley–midpoint rotation
-   (:func:`~lbshape.dynamics.rigid_frame.rotate`) with I(q₀) and h(q₀, q̇₀);
-3. **contact**: the planes' penalty forces on the deformation, implicit in q at
-   the new pose (c₁, R₁);
+   by ``M₆ Δν``; then ``c₁ = c₀ + Δt (v₀ + v₁)/2`` (exact for a ballistic throw) and,
+   split about the impulse (half of ΔL either side), the torque-free Cayley–midpoint
+   rotation (:func:`~lbshape.dynamics.rigid_frame.rotate`) with ``R₀ᵀ (L₀ + L₁)/2``
+   and I, h at the predicted mid-step deformation: second order under a torque;
+3. **contact**: the planes' penalty forces on the deformation, implicit in q at (c₁, R₁);
 4. **deformation solve**: Newmark (β = ¼, γ = ½) or backward Euler on
    ``q̈ + (D + Γ(ω)) q̇ + f_int(q) + k_ex q + F_euler(q) + F_centrifugal(q) − F_contact(q)
    = Uᵀ R₁ᵀ f_ext(t₁) + k_ex q*``, D = αI + βK₀ (deformation only: rigid motion is
-   never damped), ω the midpoint body angular velocity of step 2 and ω̇ its
-   difference quotient, Newton on a dense r × r system;
+   never damped), ω = ``I⁻¹ (R₁ᵀ L₁ − h)`` and ω̇ the difference quotient of
+   ``I⁻¹ (Rᵀ L − h)`` over the step, Newton on a dense r × r system;
 5. **contact sweeps**: while a plane touches the body at the end of the step (and its
    contact frequency is resolved, θ = ½), steps 2–4 are repeated with the kick
    ``(M₆ + θ² Δt² K₆) Δν = Δt F_loads + ½ Δt (C₀ + C₁) + θ² Δt² K₆ (ν₁ − ν₀)``, C₁ and

@@ -190,7 +190,7 @@ class Scratch(NamedTuple):
     #: (8, 3, 3) 3 × 3 work: inertia, inverse, I_world, the rotation's (2); the energies'
     #: inertia, inverse and vectors
     m33: np.ndarray
-    #: (4, 6) 6-vector work: (h, tmp), F₆ (then Π = R₀ᵀ L₁, Π₁), ν₀, right-hand side
+    #: (4, 6) 6-vector work: (h, tmp), F₆ (then the body momenta Π₀, Π₁), ν₀, right-hand side
     v6: np.ndarray
     #: (4, 6, 6) 6 × 6 work: M₆, the kick's matrix, θ's two
     m66: np.ndarray
@@ -347,14 +347,20 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
         q_mid[j] = start.q[j] + 0.5 * dt * start.qd[j] + 0.125 * dt * dt * start.qa[j]
         qd_mid[j] = start.qd[j] + 0.5 * dt * start.qa[j]
     inertia_momentum_into(q_mid, qd_mid, frame, inertia, h)
-    body = work.v6[1, :3]  # Π = R₀ᵀ L₁
+    # half the impulse, the torque-free rotation, the other half (Strang): Π = R₀ᵀ L½
+    body = work.v6[1, :3]
     for a in range(3):
-        body[a] = R0[0, a] * L1[0] + R0[1, a] * L1[1] + R0[2, a] * L1[2]
+        body[a] = 0.5 * (R0[0, a] * (L0[0] + L1[0]) + R0[1, a] * (L0[1] + L1[1])
+                         + R0[2, a] * (L0[2] + L1[2]))
     body1 = work.v6[1, 3:]
-    if not rotate_into(R0, body, inertia, h, dt, end.R, body1, kick.omega_mid, work.m33[3:5]):
+    R1 = end.R
+    if not rotate_into(R0, body, inertia, h, dt, R1, body1, kick.omega_mid, work.m33[3:5]):
         return KICK_ROTATION_FAILED
     if not inverse3_into(inertia, inverse):
         return KICK_SINGULAR
+    for a in range(3):  # the body momenta at t₀ and t₁: Π₀ = R₀ᵀ L₀, Π₁ = R₁ᵀ L₁
+        body[a] = R0[0, a] * L0[0] + R0[1, a] * L0[1] + R0[2, a] * L0[2]
+        body1[a] = R1[0, a] * L1[0] + R1[1, a] * L1[1] + R1[2, a] * L1[2]
     omega1, omega_dot = kick.omega1, kick.omega_dot
     for a in range(3):
         omega1[a] = (inverse[a, 0] * (body1[0] - h[0]) + inverse[a, 1] * (body1[1] - h[1])

@@ -251,9 +251,9 @@ class ReferenceFreeBody:
         q_mid = self.q + 0.5 * dt * self.qd + 0.125 * dt * dt * self.qa
         qd_mid = self.qd + 0.5 * dt * self.qa
         I_mid, h_mid = ref_inertia(frame, q_mid), ref_momentum(frame, q_mid, qd_mid)
-        R1, body1, _ = ref_rotate(self.R, self.R.T @ L1, I_mid, h_mid, dt)
-        omega1 = np.linalg.solve(I_mid, body1 - h_mid)
-        omega_dot = (omega1 - np.linalg.solve(I_mid, self.R.T @ L1 - h_mid)) / dt
+        R1, _, _ = ref_rotate(self.R, self.R.T @ (self.L + L1) / 2, I_mid, h_mid, dt)
+        omega1 = np.linalg.solve(I_mid, R1.T @ L1 - h_mid)
+        omega_dot = (omega1 - np.linalg.solve(I_mid, self.R.T @ self.L - h_mid)) / dt
         return c1, R1, p1, L1, omega1, omega_dot
 
     def deform(self, pose, t1):
