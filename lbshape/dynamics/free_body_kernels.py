@@ -114,7 +114,7 @@ class RigidKick(NamedTuple):
     omega0: np.ndarray
     #: (3,) body angular velocity at t₁, output
     omega1: np.ndarray
-    #: (3,) body angular acceleration over the rotation (rad/s²), output
+    #: (3,) body angular acceleration over the step (rad/s²), output
     omega_dot: np.ndarray
     #: (3,) midpoint body angular velocity of the rotation, output
     omega_mid: np.ndarray
@@ -190,7 +190,7 @@ class Scratch(NamedTuple):
     #: (8, 3, 3) 3 × 3 work: inertia, inverse, I_world, the rotation's (2); the energies'
     #: inertia, inverse and vectors
     m33: np.ndarray
-    #: (4, 6) 6-vector work: (h, tmp), F₆ (then the body momenta Π₀, Π₁), ν₀, right-hand side
+    #: (4, 6) 6-vector work: (h, the ω at t₀ of ω̇), F₆ (then Π½, Π₁), ν₀, right-hand side
     v6: np.ndarray
     #: (4, 6, 6) 6 × 6 work: M₆, the kick's matrix, θ's two
     m66: np.ndarray
@@ -314,16 +314,14 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
     work = scratch(scratch_data, r)
     mass = frame.mass[0]
     inertia, inverse, world = work.m33[0], work.m33[1], work.m33[2]
-    h, tmp = work.v6[0, :3], work.v6[0, 3:]
+    h, before = work.v6[0, :3], work.v6[0, 3:]
     R0, L0, p0 = start.R, start.L, start.p
     inertia_momentum_into(start.q, start.qd, frame, inertia, h)
     if not inverse3_into(inertia, inverse):
         return KICK_SINGULAR
-    for a in range(3):
-        tmp[a] = R0[0, a] * L0[0] + R0[1, a] * L0[1] + R0[2, a] * L0[2] - h[a]
     omega0, dp, dL, v0 = kick.omega0, kick.dp, kick.dL, kick.v0
+    body_angular_velocity_into(R0, L0, h, inverse, omega0)
     for a in range(3):
-        omega0[a] = inverse[a, 0] * tmp[0] + inverse[a, 1] * tmp[1] + inverse[a, 2] * tmp[2]
         v0[a] = p0[a] / mass
     F6 = work.v6[1]
     for a in range(3):
@@ -358,16 +356,12 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
         return KICK_ROTATION_FAILED
     if not inverse3_into(inertia, inverse):
         return KICK_SINGULAR
-    for a in range(3):  # the body momenta at t₀ and t₁: Π₀ = R₀ᵀ L₀, Π₁ = R₁ᵀ L₁
-        body[a] = R0[0, a] * L0[0] + R0[1, a] * L0[1] + R0[2, a] * L0[2]
-        body1[a] = R1[0, a] * L1[0] + R1[1, a] * L1[1] + R1[2, a] * L1[2]
+    # ω at t₁ and its difference quotient over the step (mid-step I and h)
     omega1, omega_dot = kick.omega1, kick.omega_dot
+    body_angular_velocity_into(R1, L1, h, inverse, omega1)
+    body_angular_velocity_into(R0, L0, h, inverse, before)
     for a in range(3):
-        omega1[a] = (inverse[a, 0] * (body1[0] - h[0]) + inverse[a, 1] * (body1[1] - h[1])
-                     + inverse[a, 2] * (body1[2] - h[2]))
-        before = (inverse[a, 0] * (body[0] - h[0]) + inverse[a, 1] * (body[1] - h[1])
-                  + inverse[a, 2] * (body[2] - h[2]))
-        omega_dot[a] = (omega1[a] - before) / dt
+        omega_dot[a] = (omega1[a] - before[a]) / dt
     solve = deformation_solve(solve_data, r)
     coriolis_into(omega1, frame, solve.D, solve.damping)
     return KICK_DONE
@@ -495,6 +489,18 @@ def end_rates_into(c, dt, dq, qd, qa, v1, a1):
 
 
 @njit
+def body_angular_velocity_into(R, L, h, inverse, out):
+    """The body angular velocity ``ω = I⁻¹ (Rᵀ L − h)`` (3,) rad/s into ``out``: R (3, 3)
+    the body-to-world rotation, L (3,) the world angular momentum about c (kg·m²/s), h
+    (3,) the deformation's relative momentum and ``inverse`` (3, 3) I⁻¹ (body frame)."""
+    b0 = R[0, 0] * L[0] + R[1, 0] * L[1] + R[2, 0] * L[2] - h[0]
+    b1 = R[0, 1] * L[0] + R[1, 1] * L[1] + R[2, 1] * L[2] - h[1]
+    b2 = R[0, 2] * L[0] + R[1, 2] * L[1] + R[2, 2] * L[2] - h[2]
+    for a in range(3):
+        out[a] = inverse[a, 0] * b0 + inverse[a, 1] * b1 + inverse[a, 2] * b2
+
+
+@njit
 def newton_base(damping1, ca_dt2, cv_dt, base):
     """base = c_a/Δt² I + c_v/Δt (D + Γ)."""
     r = base.shape[0]
@@ -539,11 +545,8 @@ def commit_energy(r, k_ex, contact_energy, frame_data, start_data, end_data, kic
     inertia_momentum_into(q1, v1, frame, inertia, h)
     if not inverse3_into(inertia, inverse):
         return False
-    body, omega = tmp[1], tmp[2]
-    for a in range(3):
-        body[a] = R1[0, a] * L1[0] + R1[1, a] * L1[1] + R1[2, a] * L1[2] - h[a]
-    for a in range(3):
-        omega[a] = inverse[a, 0] * body[0] + inverse[a, 1] * body[1] + inverse[a, 2] * body[2]
+    omega = tmp[2]
+    body_angular_velocity_into(R1, L1, h, inverse, omega)
     kinetic = 0.0
     for a in range(3):
         kinetic += 0.5 * p1[a] * p1[a] / mass + omega[a] * h[a]
