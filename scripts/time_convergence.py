@@ -1,16 +1,17 @@
 """Self-convergence in dt of the free bodies with examples; writes ``time_convergence.md``.
 
 Usage: ``.venv/bin/python scripts/time_convergence.py [SCENE ...] [--durations S|own ...]
-[--methods reduced full] [--out-dir results]`` (default: car and bar-s-cuboid, reduced,
-over each scene's own duration). Every method runs over every duration, so that the
-methods are compared over the same simulated time.
+[--methods reduced full] [--restart SCENE:T ...] [--out-dir results]`` (default: car and
+bar-s-cuboid, reduced, over each scene's own duration). Every method runs over every
+duration, so that the methods are compared over the same simulated time.
 
 Per scene and method, runs at dt, dt/2, dt/4 and dt/8 (dt the scene's own) over the same
 simulated time, samples every 1 ms, and reports the trajectory error
 ``max_t ‖u(t) − u_{dt/8}(t)‖_M / max_t ‖u_{dt/8}(t)‖_M`` of each coarser run and the
 observed order ``log2(e(dt) / e(dt/2))``; beside them the trajectory's own sensitivity:
 the dt/8 run with the throw (initial velocity and spin) 0.1 % faster against the dt/8 run.
-No timings.
+``--restart SCENE:T`` adds, per method, a row over the scene's own duration whose runs
+all start from the dt/8 run's state at T s (the error made after T alone). No timings.
 """
 
 from __future__ import annotations
@@ -41,28 +42,43 @@ DIVISORS = (1, 2, 4, 8)
 THROW_CHANGE = 1e-3
 
 
-def self_convergence(scene, pre, method: str, duration: float) -> dict:
+def self_convergence(scene, pre, method: str, duration: float, start: float = 0.0) -> dict:
     """Errors of dt, dt/2, dt/4 against dt/8 (keys 1, 2, 4) and of the dt/8 run with a
-    :data:`THROW_CHANGE` faster throw (key ``"throw"``); ``None`` where a run stopped."""
+    :data:`THROW_CHANGE` faster throw (key ``"throw"``); ``None`` where a run stopped.
+    ``start`` > 0: every run starts from the dt/8 run's state at that time (s), and
+    there is no throw run."""
     mass = mass_matrix(pre.mesh, pre.material.density)
     dt = scene.simulation.dt
     frames, times = {}, {}
     runs = {n: (with_step(scene, dt / n, duration), n) for n in DIVISORS}
-    runs["throw"] = (with_step(with_throw(scene, 1.0 + THROW_CHANGE), dt / 8, duration), 8)
+    if start > 0:
+        finest = _engine(runs[8][0], pre, method)
+        finest.run(int(round(start / (dt / 8))))
+        state = finest.state
+    else:
+        runs["throw"] = (with_step(with_throw(scene, 1.0 + THROW_CHANGE), dt / 8, duration), 8)
     for key, (stepped, stride) in runs.items():
-        engine = (full_simulation(stepped, pre) if method == "full"
-                  else reduced_simulation(stepped, pre))
-        record = engine.run(stepped.simulation.steps, stride=stride)
+        engine = _engine(stepped, pre, method)
+        steps = stepped.simulation.steps
+        if start > 0:
+            engine.reset(state)
+            steps -= int(round(start / stepped.simulation.dt))
+        record = engine.run(steps, stride=stride)
         frames[key] = engine.displacements(record) if record.stable else None
         times[key] = record.times
     errors = {}
     for n in (*DIVISORS[:-1], "throw"):
-        if frames[n] is None or frames[8] is None or len(frames[n]) != len(frames[8]):
+        if (frames.get(n) is None or frames[8] is None
+                or len(frames[n]) != len(frames[8])):
             errors[n] = None
             continue
         errors[n] = trajectory_error(frames[n], frames[8], mass, times=times[n],
                                      times_full=times[8])
     return errors
+
+
+def _engine(scene, pre, method: str):
+    return full_simulation(scene, pre) if method == "full" else reduced_simulation(scene, pre)
 
 
 def markdown(rows: list[tuple[str, str, float, dict]]) -> str:
@@ -90,7 +106,7 @@ def markdown(rows: list[tuple[str, str, float, dict]]) -> str:
             if errors[a] and errors[b]:
                 orders.append(f"{math.log2(errors[a] / errors[b]):.2f}")
         throw = (f"{100 * errors['throw']:.2f} %" if errors["throw"] is not None
-                 else "stopped")
+                 else "—" if "from" in scene else "stopped")
         lines.append(f"| {scene} | {method} | {duration:g} | " + " | ".join(cells)
                      + f" | {' / '.join(orders)} | {throw} |")
     return "\n".join(lines) + "\n"
@@ -102,8 +118,11 @@ def main(argv: list[str] | None = None) -> Path:
     parser.add_argument("--durations", nargs="+", default=["own"],
                         help="simulated times in s, or 'own' for the scene's")
     parser.add_argument("--methods", nargs="+", default=["reduced"])
+    parser.add_argument("--restart", nargs="*", default=[], metavar="SCENE:T",
+                        help="also run SCENE from the dt/8 run's state at T s")
     parser.add_argument("--out-dir", type=Path, default=Path("results"))
     args = parser.parse_args(argv)
+    restarts = [(text.split(":")[0], float(text.split(":")[1])) for text in args.restart]
     rows = []
     for name in args.scenes:
         scene = load_scene(name)
@@ -114,6 +133,12 @@ def main(argv: list[str] | None = None) -> Path:
                 errors = self_convergence(scene, pre, method, duration)
                 print(name, method, duration, errors, flush=True)
                 rows.append((name, method, duration, errors))
+        for start in (t for restarted, t in restarts if restarted == name):
+            for method in args.methods:
+                errors = self_convergence(scene, pre, method, own, start)
+                print(name, method, own, "from", start, errors, flush=True)
+                rows.append((f"{name}, from the dt/8 state at {start:g} s", method, own,
+                             errors))
     path = args.out_dir / "time_convergence.md"
     path.write_text(markdown(rows))
     return path

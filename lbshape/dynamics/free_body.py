@@ -36,6 +36,12 @@ reaches a plane):
    ½ Δt (C₀ + C₁)`` of the rigid motion and the deformation together (why:
    ``docs/decisions.md``, free bodies).
 
+**Sub-steps**: while a plane touches the body a step is taken as k =
+:attr:`~FreeBodySimulation.contact_substeps` passes of steps 1–5 of ``Δt / k`` ≤
+``contact_dt`` (the example target interpolated again in each); a whole step that ends
+touching a plane it did not touch at its start is discarded and taken again so. In
+flight a step is one pass.
+
 **Friction** (a plane's μ > 0): see :mod:`lbshape.dynamics.free_body_contact`, where the
 contact's part of the step lives.
 
@@ -53,24 +59,19 @@ and computes the exact elastic energy when the estimated total reaches
 failure while a normal step stays free of the allocating energy evaluation.
 
 **The step path** is compiled and allocation-free, as in :mod:`lbshape.dynamics.reduced`:
-state and work arrays are preallocated in a few named structures
-(:mod:`lbshape.dynamics.free_body_kernels`: the state at t₀ and the state being
-computed, :class:`~lbshape.dynamics.free_body_kernels.BodyState`, swap when a step is
-accepted), the weights and target are written in place, the elastic force and tangent
-come from
+state and work arrays live in a few named structures
+(:mod:`lbshape.dynamics.free_body_kernels`; the state at t₀ and the state being computed,
+:class:`~lbshape.dynamics.free_body_kernels.BodyState`, swap when a step is accepted), the
+weights and target are written in place, the elastic force and tangent come from
 :meth:`~lbshape.elastic.reduced_forces.ReducedForceModel.force_and_tangent_into`, and
-numba kernels do the rest: the loads
-(:func:`~lbshape.dynamics.free_body_kernels.loads_into`), the rigid update
-(:func:`~lbshape.dynamics.free_body_kernels.rigid_update`, with
-:func:`~lbshape.dynamics.rigid_frame.rotate_into`), the frame tensors and fictitious
-forces (:mod:`lbshape.dynamics.fictitious`), the contact
-(:meth:`~lbshape.dynamics.contact.PlaneContact.evaluate_into`, once per Newton
-evaluation; the contact at the start of a step is the last evaluation of the previous
-step — same configuration, same numbers — and is reused), the Newmark residual
-(:func:`~lbshape.dynamics.free_body_kernels.deformation_residual`, the scheme's
-coefficients from :data:`~lbshape.dynamics.schemes.SCHEMES`) and the LU solve of
-the Newton system (:func:`~lbshape.dynamics.kernels.lu_solve`; non-symmetric: the Euler
-and Coriolis terms are skew). Each step's wall time is split into :data:`PHASES`
+numba kernels do the rest: loads (:func:`~lbshape.dynamics.free_body_kernels.loads_into`),
+rigid update (:func:`~lbshape.dynamics.free_body_kernels.rigid_update`), frame tensors and
+fictitious forces (:mod:`lbshape.dynamics.fictitious`), contact
+(:meth:`~lbshape.dynamics.contact.PlaneContact.evaluate_into`, once per Newton evaluation;
+at a step's start the previous step's last evaluation, same configuration, is reused),
+the residual (:func:`~lbshape.dynamics.free_body_kernels.deformation_residual`) and the
+LU solve (:func:`~lbshape.dynamics.kernels.lu_solve`; the Euler and Coriolis terms are
+skew). Each step's wall time is split into :data:`PHASES`
 (:attr:`FreeBodySimulation.phase_seconds`).
 """
 
@@ -85,20 +86,19 @@ import numpy as np
 
 from lbshape.dynamics import sanity
 from lbshape.dynamics.contact import PlaneContact
-from lbshape.dynamics.drag import DragSpring, explicit_stiffness_limit
+from lbshape.dynamics.drag import DragSpring
 from lbshape.dynamics.engine import (
-    Drag,
     EngineState,
     NewtonSettings,
     OnStep,
-    basis_rows,
     check_run,
     forget_warm_starts,
     restore_arrays,
     snapshot,
 )
 from lbshape.dynamics.fictitious import FrameTensors
-from lbshape.dynamics.free_body_contact import FreeBodyContact
+from lbshape.dynamics.free_body_contact import CONTACT_DT, FreeBodyContact
+from lbshape.dynamics.free_body_drag import FreeBodyDrag
 from lbshape.dynamics.free_body_kernels import (
     KICK_ROTATION_FAILED,
     KICK_SINGULAR,
@@ -117,7 +117,6 @@ from lbshape.dynamics.free_body_loads import FreeLoad, LoadStack
 from lbshape.dynamics.free_body_record import FreeBodyRecord, FreeBodyRecorder, world_displacements
 from lbshape.dynamics.kernels import axpy, lu_solve, predict
 from lbshape.dynamics.kernels import norm as _norm
-from lbshape.dynamics.loads import TimeProfile
 from lbshape.dynamics.reduced import PHASES as FIXED_PHASES
 from lbshape.dynamics.reduced import REALTIME_NEWTON
 from lbshape.dynamics.rigid_frame import RigidState, rotation_error
@@ -140,7 +139,7 @@ PHASES: tuple[str, ...] = ("weights", "target", "example_force", "rigid", "conta
 assert set(FIXED_PHASES) <= set(PHASES)
 
 
-class FreeBodySimulation(FreeBodyContact):
+class FreeBodySimulation(FreeBodyContact, FreeBodyDrag):
     """Reduced free-body dynamics (see the module docstring).
 
     Args:
@@ -167,6 +166,10 @@ class FreeBodySimulation(FreeBodyContact):
         omega_max, load_reach: the basis's highest vibration frequency (rad/s) and the
             loads' reach for the coarse-step warning and the stop message, as
             :class:`~lbshape.dynamics.reduced.ReducedSimulation`'s; or ``None``.
+        contact_dt: the longest step while a plane touches the body (s): a step of
+            ``dt`` is then taken in ``ceil(dt / contact_dt)`` sub-steps
+            (:attr:`contact_substeps`; default
+            :data:`~lbshape.dynamics.free_body_contact.CONTACT_DT`).
 
     Attributes:
         q, qd, qa: (r,) deformation, its rate and acceleration at :attr:`time`.
@@ -201,11 +204,16 @@ class FreeBodySimulation(FreeBodyContact):
         reuse_contact: bool = True,
         omega_max: float | None = None, load_reach=None,
         basis: np.ndarray | None = None,
+        contact_dt: float = CONTACT_DT,
     ):
         self.rest_points = None if rest_points is None else np.asarray(rest_points, dtype=float)
         scheme = get_scheme(integrator)
         if not (np.isfinite(dt) and dt > 0):
             raise LbshapeError(f"time step dt must be > 0 s, got {dt}")
+        if not (np.isfinite(contact_dt) and contact_dt > 0):
+            raise LbshapeError(f"contact_dt must be > 0 s, got {contact_dt}")
+        #: sub-steps of a step while a plane touches the body: Δt / k ≤ ``contact_dt``
+        self.contact_substeps = max(1, math.ceil(dt / contact_dt * (1 - 1e-12)))
         r = frame.r
         self.elastic, self.frame, self.r = elastic, frame, r
         self.dt, self.scheme = float(dt), integrator
@@ -243,6 +251,7 @@ class FreeBodySimulation(FreeBodyContact):
         self.phase_seconds = np.zeros((0, len(PHASES)))
         self._contact_calls = -1  # contact calls when the last evaluation was committed
         self.sweeps = 0  # rigid kick + deformation solve passes of the last step (1: no sweep)
+        self.substeps = 1  # the sub-steps the last step took
         self.total_sweeps = 0  # the same, summed over every step taken
         self._initial_state(q, qd, velocity, omega_world)
         self._initial = self.state
@@ -265,18 +274,27 @@ class FreeBodySimulation(FreeBodyContact):
         self._coupling_work, self._rate6 = np.zeros((6, r)), np.zeros((6, 6))
         # the loads' force and torque at the end of the step (not used by the step)
         self._end_force, self._end_torque = np.zeros(3), np.zeros(3)
-        #: [internal force, contact, rigid, generalized load, solve] seconds of a step
-        self._seconds = np.zeros(5)
+        #: [internal force, contact, rigid, generalized load, solve, weights, target]
+        #: seconds of a step (its sub-steps summed)
+        self._seconds = np.zeros(7)
         self._marks = np.zeros(len(PHASES) + 1)
         self._clock = time.perf_counter
 
     def _set_scheme(self, scheme: Scheme) -> None:
         """The scheme's coefficients (:class:`~lbshape.dynamics.schemes.Scheme`) in the
-        Newton solve, and the factors of the Newton matrix and the round-off level."""
-        dt = self.dt
+        Newton solve; the step length is :attr:`dt`."""
+        self._scheme_coefficients = scheme
         self._solve.scheme[:] = scheme.array
-        self._solve.rates[:] = scheme.step_rates(dt)
-        self._ca_dt2, self._ca_dt, self._cv_dt = scheme.ca / dt**2, scheme.ca / dt, scheme.cv / dt
+        self._set_step_length(self.dt)
+
+    def _set_step_length(self, h: float) -> None:
+        """The length h (s) of the steps taken from now on (:attr:`dt`, or a sub-step of
+        it): the scheme's step rates, the factors of the Newton matrix and the round-off
+        level."""
+        scheme = self._scheme_coefficients
+        self._h = h
+        self._solve.rates[:] = scheme.step_rates(h)
+        self._ca_dt2, self._ca_dt, self._cv_dt = scheme.ca / h**2, scheme.ca / h, scheme.cv / h
 
     def _initial_state(self, q: np.ndarray, qd: np.ndarray, velocity: np.ndarray,
                        omega_world: np.ndarray) -> None:
@@ -298,45 +316,6 @@ class FreeBodySimulation(FreeBodyContact):
         self._elastic_energy = 0.0  # the monitor's elastic energy at the committed state (J)
         self.energy0 = self.energy()
         self.work = 0.0
-
-    def set_drag(self, drag: Drag | None) -> None:
-        """A user's point pull (:class:`~lbshape.dynamics.engine.Drag`) from the next step
-        on, or ``None`` to release it (needs ``basis`` and ``rest_points``): a
-        :class:`~lbshape.dynamics.drag.DragSpring` on the vertex's rows of the basis, a world
-        point force at the body point evaluated at the start of each step and held over it,
-        its stiffness capped at :func:`~lbshape.dynamics.drag.explicit_stiffness_limit`
-        (:attr:`drag` holds the capped spring). A drag on the same vertex with the same
-        stiffness moves the spring's target. The first drag adds one load to the stack
-        (zero while released)."""
-        if drag is None:
-            self._set_drag_spring(None)
-            return
-        if (self.drag is not None and self.drag.vertex == drag.vertex
-                and self._drag_stiffness == drag.stiffness):
-            self.drag.move(drag.target)
-            return
-        rows = basis_rows(self.basis, drag.vertex, "a drag")
-        if self.rest_points is None:
-            raise LbshapeError("a drag needs the rest points (give rest_points=...)")
-        body_point = self.rest_points[drag.vertex] - self.frame.center
-        limit = explicit_stiffness_limit(
-            rows, self.dt, mass=self.frame.mass, arm=float(np.linalg.norm(body_point)),
-            inertia=float(np.linalg.eigvalsh(self.frame.inertia0)[0]))
-        self._set_drag_spring(DragSpring(drag.vertex, rows, body_point,
-                                         min(drag.stiffness, limit), drag.target))
-        self._drag_stiffness = drag.stiffness
-
-    def _set_drag_spring(self, drag: DragSpring | None) -> None:
-        """The drag spring (or ``None``) into the load stack."""
-        if drag is not None and self.drag is None and len(self._loads.profiles) == len(
-                self.loads):
-            slot = FreeLoad(np.zeros(3), np.zeros((self.r, 3, 3)), np.zeros((3, 3)),
-                            np.zeros((self.r, 3, 3)), TimeProfile())
-            self._loads = LoadStack([*self.loads, slot], self.r)
-        self.drag = drag
-        if drag is None and len(self._loads.profiles) > len(self.loads):
-            self._loads.forces[-1] = 0.0
-            self._loads.P[-1] = self._loads.Z0[-1] = self._loads.Z1[-1] = 0.0
 
     def set_examples(self, on: bool) -> bool:
         """The configured example force (the constructor's ``driver``, ``k_ex``) on or off
@@ -365,7 +344,7 @@ class FreeBodySimulation(FreeBodyContact):
                 "rate6": self._rate6}
 
     _SCALARS = ("time", "steps_taken", "work", "energy0", "_elastic_energy",
-                "_contact_calls", "sweeps", "total_sweeps")
+                "_contact_calls", "sweeps", "total_sweeps", "substeps")
 
     @property
     def state(self) -> EngineState:
@@ -394,13 +373,6 @@ class FreeBodySimulation(FreeBodyContact):
         self.k_ex = float(k_ex) if self.driver is not None else 0.0
         self._in_place = self.driver is not None and hasattr(self.driver, "weights_into") \
             and hasattr(self.driver, "target_from_weights_into")
-
-    def _drag_load(self) -> None:
-        """The drag's point force at the current state into its load slot."""
-        state, stack = self._now, self._loads
-        force = self.drag.point_force(state.c, state.R, state.q)
-        P, Z0, Z1 = self.drag.load_arrays(force)
-        stack.forces[-1], stack.P[-1], stack.Z0[-1], stack.Z1[-1] = force, P, Z0, Z1
 
     # ------------------------------------------------------------ quantities
     @property
@@ -466,21 +438,24 @@ class FreeBodySimulation(FreeBodyContact):
         if self.k_ex:
             axpy(self.k_ex, self.q_target, out)
 
-    def _interpolate(self, marks: np.ndarray) -> None:
+    def _interpolate(self, times: np.ndarray) -> None:
         """Step 1: weights and target ``q*`` at the predicted ``q₁ = q + h q̇ + ½ k_a h² q̈``,
-        where the step's other forces act (``marks[1]``, ``marks[2]`` after each)."""
+        where the step's other forces act (their seconds added to ``times[5]``,
+        ``times[6]``)."""
         clock, guess, state = self._clock, self._q_guess, self._now
-        predict(state.qd, state.qa, self.dt, guess, self._solve.rates)
+        started = clock()
+        predict(state.qd, state.qa, self._h, guess, self._solve.rates)
         guess += state.q
+        weighted = started
         if self._in_place:
             self.driver.weights_into(guess)
-            marks[1] = clock()
+            weighted = clock()
             self.driver.target_from_weights_into(self.q_target)
-        else:  # without a driver, or one without the in-place methods
-            marks[1] = marks[0]
-            if self.driver is not None:
-                self.q_target[:] = self.driver.target(guess).q_target
-        marks[2] = clock()
+        elif self.driver is not None:  # a driver without the in-place methods
+            self.q_target[:] = self.driver.target(guess).q_target
+        finished = clock()
+        times[5] += weighted - started
+        times[6] += finished - weighted
 
     def _evaluate(self, index: int, t1: float, times: np.ndarray) -> float:
         """Deformation force, tangent and residual at ``q₁ = q + Δq`` (the next state's q)
@@ -500,13 +475,13 @@ class FreeBodySimulation(FreeBodyContact):
         contact = self.contact
         if contact is not None:
             if contact.has_friction:  # the friction reads q̇₁ of this trial
-                end_rates_into(solve.scheme, self.dt, self._dqt, self._now.qd, self._now.qa,
+                end_rates_into(solve.scheme, self._h, self._dqt, self._now.qd, self._now.qa,
                                end.qd, end.qa)
             active = contact.evaluate_into(end.c, end.R, end.q, True, self._velocity,
                                            self._omega, end.qd, self._cv_dt) > 0
         after = clock()
         norm = deformation_residual(
-            self.r, self.dt, self.k_ex, active, self._frame_arrays.data, self._now.data,
+            self.r, self._h, self.k_ex, active, self._frame_arrays.data, self._now.data,
             end.data, self._kick_arrays.data, solve.data, self._dqt,
             contact.generalized if contact is not None else self._gen,
             contact.stiffness_q if contact is not None else solve.K)
@@ -524,11 +499,11 @@ class FreeBodySimulation(FreeBodyContact):
         (c₁, p₁, R₁, L₁), the deformation damping D + Γ(ω₁) and the generalized load at
         t₁; a ``sweep`` uses the contact at the end of the previous sweep."""
         started = self._clock()
-        result = rigid_update(self.r, self.dt, active or sweep, sweep, self._frame_arrays.data,
+        result = rigid_update(self.r, self._h, active or sweep, sweep, self._frame_arrays.data,
                               self._now.data, self._next.data, self._kick_arrays.data,
                               self._solve.data, self._scratch.data)
         if result == KICK_ROTATION_FAILED:
-            raise rotation_error(self.dt, self._kick_arrays.omega_mid, index, t1)
+            raise rotation_error(self._h, self._kick_arrays.omega_mid, index, t1)
         if result == KICK_SINGULAR:
             raise SolverError(f"singular inertia at step {index} (t = {t1:.6g} s)")
         if self.contact is not None and self.contact.has_friction:
@@ -545,7 +520,7 @@ class FreeBodySimulation(FreeBodyContact):
         the iterations. ``times`` accumulates [internal force, contact, -, -, solve] s."""
         started = self._clock()
         before = times[0] + times[1]
-        dt, state, solve = self.dt, self._now, self._solve
+        dt, state, solve = self._h, self._now, self._solve
         newton_base(solve.damping, self._ca_dt2, self._cv_dt, solve.base)
         predict(state.qd, state.qa, dt, self._dqt, solve.rates)
         np.add(state.q, self._dqt, out=self._next.q)
@@ -600,7 +575,7 @@ class FreeBodySimulation(FreeBodyContact):
             sweeps += 1
             if not self._sweep_again(sweeps):
                 break
-        self.sweeps = sweeps
+        self.sweeps += sweeps
         self.total_sweeps += sweeps
         contact = self.contact
         self._depth = depth = float(contact.scalars[2]) if contact is not None else 0.0
@@ -642,34 +617,59 @@ class FreeBodySimulation(FreeBodyContact):
 
     # ------------------------------------------------------------------ step
     def step(self, index: int | None = None) -> int:
-        """Advance one step; return the Newton iterations. The wall time of its parts
-        (:data:`PHASES`, s) is left in ``_marks`` for :meth:`run`.
+        """Advance one step of :attr:`dt`, in :attr:`contact_substeps` sub-steps while a plane
+        touches the body (see :meth:`_substeps`); return the Newton iterations. The wall
+        time of its parts (:data:`PHASES`, s) is left in ``_marks`` for :meth:`run`.
 
         Raises:
-            SolverError: see the module docstring; the state is left unchanged.
+            SolverError: see the module docstring; the state is that of the last accepted
+                sub-step (unchanged when the step had none).
         """
         clock, marks = self._clock, self._marks
         marks[0] = clock()
         index = self.steps_taken + 1 if index is None else index
-        t1 = self.time + self.dt
+        times = self._seconds
+        times[:] = 0.0
+        self.sweeps = 0
+        substeps = self._substeps()
+        iterations = 0
+        if substeps == 1:
+            iterations = self._advance(index, self.time + self.dt, times)
+            if self._contact_began():  # discard the step, take it again in sub-steps
+                self._contact_calls = -1
+                self.total_sweeps -= self.sweeps
+                self.sweeps = 0
+                substeps = self.contact_substeps
+            else:
+                self._commit(index, self.time + self.dt)
+        if substeps > 1:
+            start = self.time
+            self._set_step_length(self.dt / substeps)
+            try:
+                for k in range(1, substeps + 1):
+                    t1 = start + self.dt * k / substeps
+                    iterations += self._advance(index, t1, times)
+                    self._commit(index, t1)
+            finally:
+                self._set_step_length(self.dt)
+        self.substeps = substeps
+        # PHASES: weights, target, example force (the generalized load), rigid, contact,
+        # internal force and tangent, solve; the rest of the step is overhead
+        for mark, part in enumerate((5, 6, 3, 2, 1, 0, 4), start=1):
+            marks[mark] = marks[mark - 1] + times[part]
+        marks[8] = clock()
+        return iterations
+
+    def _advance(self, index: int, t1: float, times: np.ndarray) -> int:
+        """Steps 1–5 from :attr:`time` to ``t1`` (one step or sub-step of length
+        ``_h``) into the next state, not yet committed; returns the Newton iterations.
+        ``times`` accumulates the seconds of the parts (``_seconds``)."""
         if self.drag is not None:
             self._drag_load()
-        self._interpolate(marks)
-        # rigid update (loads and contact at t₀, impulse, rotation), then the deformation
-        # solve (contact implicit at the new pose); in contact, sweeps
+        self._interpolate(times)
         active, contact_t0 = self._start_of_step()
-        times = self._seconds
-        times[:] = 0.0  # [internal force, contact, rigid, generalized load, solve] seconds
-        iterations = self._sweeps(index, t1, active, times)
-        self._commit(index, t1)
-        finished = clock()
-        marks[3] = marks[2] + times[3]  # example force (generalized load)
-        marks[4] = marks[3] + times[2]  # rigid update
-        marks[5] = marks[4] + contact_t0 + times[1]
-        marks[6] = marks[5] + times[0]
-        marks[7] = marks[6] + times[4]
-        marks[8] = finished
-        return iterations
+        times[1] += contact_t0
+        return self._sweeps(index, t1, active, times)
 
     # ------------------------------------------------------------------- run
     def run(self, steps: int, *, stride: int = 1, on_step: OnStep | None = None

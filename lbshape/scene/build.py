@@ -46,6 +46,7 @@ def scene_from_mesh(
     dt: float = Simulation.dt,
     steps: int = Simulation.steps,
     integrator: str = Simulation.integrator,
+    contact_dt: float | None = None,
 ) -> Scene:
     """A scene built in code around a mesh in memory (no file needed).
 
@@ -82,15 +83,16 @@ def scene_from_mesh(
         dt: time step in s.
         steps: the scene's number of steps (the CLI's default run length).
         integrator: ``"newmark"`` or ``"backward-euler"``.
+        contact_dt: a free body's longest step in contact, s (``None``: 0.25 ms).
 
     Raises:
         LbshapeError: one line naming the bad setting (the scene file's key path).
     """
-    label = f"scene {name}"
-    obj = as_tet_mesh(mesh, what=f"{label}: mesh")
+    obj = as_tet_mesh(mesh, what=f"{(label := f'scene {name}')}: mesh")
     data: dict[str, Any] = {
         "name": name, "description": description, "object": {"mesh": obj},
-        "simulation": {"dt": _plain(dt), "steps": _plain(steps), "integrator": integrator},
+        "simulation": {"dt": _plain(dt), "steps": _plain(steps), "integrator": integrator,
+                       **({} if contact_dt is None else {"contact_dt": _plain(contact_dt)})},
     }
     for key, value in (("material", material), ("damping", damping), ("reduced", reduced),
                        ("initial", initial)):

@@ -167,10 +167,16 @@ def scene_from_dict(
                         "only; this object " + ("has '[fixed]'" if fixed is not None
                                                 else "has no '[[planes]]'")
                         + " (set impact_columns = 0)")
+    simulation = _simulation(top)
+    if simulation.contact_dt is not None and (fixed is not None or not planes):
+        raise ctx.error("'simulation.contact_dt' sets a free body's step in contact only; "
+                        "this object " + ("has '[fixed]'" if fixed is not None
+                                          else "has no '[[planes]]'")
+                        + " (remove contact_dt)")
     return Scene(
         name=scene_name, description=description, object=obj, material=material,
         damping=damping, reduced=reduced, examples=examples, fixed=fixed, loads=loads,
-        planes=planes, regions=_regions(top, ctx, examples), simulation=_simulation(top),
+        planes=planes, regions=_regions(top, ctx, examples), simulation=simulation,
         initial=_initial(top, ctx, fixed), source=source,
     )
 
@@ -270,11 +276,12 @@ def _regions(top: _Table, ctx: _Context, examples: Examples | None) -> tuple[Loc
 
 
 def _simulation(top: _Table) -> Simulation:
-    sim = top.subtable("simulation", ("dt", "steps", "integrator"))
+    sim = top.subtable("simulation", ("dt", "steps", "integrator", "contact_dt"))
     return Simulation(
         dt=sim.number("dt", Simulation.dt, low=0.0, open_low=True, unit="s"),
         steps=sim.integer("steps", Simulation.steps, low=1),
         integrator=sim.choice("integrator", Simulation.integrator, INTEGRATORS),
+        contact_dt=sim.number("contact_dt", None, low=0.0, open_low=True, unit="s"),
     )
 
 

@@ -447,11 +447,14 @@ class LocalRegion:
 
 @dataclass(frozen=True)
 class Simulation:
-    """Time stepping: dt (s), number of steps, integrator name."""
+    """Time stepping: dt (s), number of steps, integrator name, and ``contact_dt`` (s):
+    the reduced free body's longest step while a plane touches it (``None``: the
+    default, :data:`lbshape.dynamics.free_body_contact.CONTACT_DT`)."""
 
     dt: float = 0.001
     steps: int = 1000
     integrator: str = "newmark"
+    contact_dt: float | None = None
 
 
 @dataclass(frozen=True)
@@ -544,6 +547,8 @@ class Scene:
             "dt": self.simulation.dt,
             "steps": self.simulation.steps,
             "integrator": self.simulation.integrator,
+            **({"contact_dt": self.simulation.contact_dt}
+               if self.simulation.contact_dt is not None else {}),
             "interpolation": self.reduced.interpolation,
             "damping": {"alpha": self.damping.alpha, "beta": self.damping.beta},
             "loads": [load.key() for load in self.loads],

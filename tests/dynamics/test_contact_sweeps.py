@@ -7,7 +7,8 @@ speed was 3.12 m/s at dt = 1 ms and 3.54 m/s at 0.25 ms (12 % apart: the kick us
 contact at the start of the step only, with the deformation lagging by a step); with
 them 3.692 and 3.689 m/s (0.08 %). The car's planes now have friction (μ = 0.5): 3.578
 and 3.575 m/s (0.08 %; at most 5 and 4 sweeps a step). The limit 2 % sits far from all
-(``contact_sweeps.rebound_speed_difference`` in tests/golden.toml).
+(``contact_sweeps.rebound_speed_difference`` in tests/golden.toml). The steps are whole
+(no contact sub-steps, which would make the two runs' contact steps the same).
 """
 
 from __future__ import annotations
@@ -28,8 +29,9 @@ DURATION = 0.4  # s: the car reaches the wall at ~0.14 s and leaves it by ~0.3 s
 def _rebound_speed(scene, pre, dt: float) -> tuple[float, int]:
     """(largest centre-of-mass speed away from the wall in m/s, most sweeps of a step)."""
     steps = int(round(DURATION / dt))
-    scene = dataclasses.replace(
-        scene, simulation=dataclasses.replace(scene.simulation, dt=dt, steps=steps))
+    scene = dataclasses.replace(  # whole steps: contact_dt = dt (no contact sub-steps)
+        scene, simulation=dataclasses.replace(scene.simulation, dt=dt, steps=steps,
+                                              contact_dt=dt))
     sim = reduced_simulation(scene, pre)
     most = 0
     speeds = []
