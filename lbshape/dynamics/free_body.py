@@ -617,14 +617,13 @@ class FreeBodySimulation(FreeBodyContact, FreeBodyDrag):
 
     # ------------------------------------------------------------------ step
     def step(self, index: int | None = None) -> int:
-        """Advance one step of :attr:`dt`, in :attr:`contact_substeps` sub-steps while a plane
-        touches the body (see :meth:`_substeps`); return the Newton iterations. The wall
-        time of its parts (:data:`PHASES`, s) is left in ``_marks`` for :meth:`run`.
+        """Advance one step of :attr:`dt` (in :attr:`contact_substeps` sub-steps while a
+        plane touches the body); return the Newton iterations. The wall time of its parts
+        (:data:`PHASES`, s) is left in ``_marks`` for :meth:`run`.
 
         Raises:
             SolverError: see the module docstring; the state is that of the last accepted
-                sub-step (unchanged when the step had none).
-        """
+                sub-step (unchanged when the step had none)."""
         clock, marks = self._clock, self._marks
         marks[0] = clock()
         index = self.steps_taken + 1 if index is None else index
@@ -634,12 +633,15 @@ class FreeBodySimulation(FreeBodyContact, FreeBodyDrag):
         substeps = self._substeps()
         iterations = 0
         if substeps == 1:
-            iterations = self._advance(index, self.time + self.dt, times)
-            if self._contact_began():  # discard the step, take it again in sub-steps
-                self._contact_calls = -1
-                self.total_sweeps -= self.sweeps
-                self.sweeps = 0
+            failure = None
+            try:
+                iterations = self._advance(index, self.time + self.dt, times)
+            except SolverError as exc:
+                failure = exc
+            if self._retake_in_substeps():
                 substeps = self.contact_substeps
+            elif failure is not None:
+                raise failure
             else:
                 self._commit(index, self.time + self.dt)
         if substeps > 1:
@@ -661,9 +663,8 @@ class FreeBodySimulation(FreeBodyContact, FreeBodyDrag):
         return iterations
 
     def _advance(self, index: int, t1: float, times: np.ndarray) -> int:
-        """Steps 1–5 from :attr:`time` to ``t1`` (one step or sub-step of length
-        ``_h``) into the next state, not yet committed; returns the Newton iterations.
-        ``times`` accumulates the seconds of the parts (``_seconds``)."""
+        """Steps 1–5 from :attr:`time` to ``t1`` (a step or sub-step of length ``_h``) into
+        the next state, not committed; returns the Newton iterations (seconds to ``times``)."""
         if self.drag is not None:
             self._drag_load()
         self._interpolate(times)
@@ -672,8 +673,7 @@ class FreeBodySimulation(FreeBodyContact, FreeBodyDrag):
         return self._sweeps(index, t1, active, times)
 
     # ------------------------------------------------------------------- run
-    def run(self, steps: int, *, stride: int = 1, on_step: OnStep | None = None
-            ) -> FreeBodyRecord:
+    def run(self, steps: int, *, stride: int = 1, on_step: OnStep | None = None) -> FreeBodyRecord:
         """Advance ``steps`` steps keeping every ``stride``-th state (and the initial one);
         a failure ends the run with ``stable=False`` and the message. ``on_step`` is
         called after each step (outside its timing) with (step index from 0, time in s,

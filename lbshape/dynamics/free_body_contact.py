@@ -63,12 +63,18 @@ class FreeBodyContact:
             return 1
         return self.contact_substeps
 
-    def _contact_began(self) -> bool:
-        """A step taken whole (:meth:`_substeps` 1) ends with a plane touching the body
-        that did not touch it at its start: the step is taken again in sub-steps."""
+    def _retake_in_substeps(self) -> bool:
+        """Whether a step taken whole (:meth:`_substeps` 1), not committed, is taken again
+        in sub-steps: it ended (or failed) with a plane touching the body that did not
+        touch it at its start. If so, its sweeps are uncounted and the contact is
+        evaluated afresh at the start."""
         contact = self.contact
-        return (contact is not None and self.contact_substeps > 1
-                and contact.scalars[1] > 0)
+        if contact is None or self.contact_substeps == 1 or contact.scalars[1] == 0:
+            return False
+        self._contact_calls = -1
+        self.total_sweeps -= self.sweeps
+        self.sweeps = 0
+        return True
 
     def _start_of_step(self) -> tuple[bool, float]:
         """The loads and the contact at t₀ into the kick's inputs; returns (the contact
