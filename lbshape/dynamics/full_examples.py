@@ -153,6 +153,8 @@ class FullSpaceExampleForce:
         target shape onto ``positions`` (n, 3), kept while the target is."""
         kept = getattr(self, "_fit_kept", None)
         if kept is None or kept[0] is not self._target_body:
+            if not hasattr(self, "_scalar_mass"):  # a state restored into a new engine
+                self._init_rigid_fit()
             kept = (self._target_body, KabschFit(self._scalar_mass, self._target_body))
             self._fit_kept = kept
         return kept[1](positions)
