@@ -373,15 +373,17 @@ def test_contact_step_sets_the_sub_steps(soft):
 
 def test_resting_five_seconds_at_large_step(soft):
     """Dropped 0.3 m (2.43 m/s at landing) at 60 Hz steps, its contact in 0.25 ms
-    sub-steps: after 5 s it rests on the floor, its speed 0.1 % of the landing speed
-    (limit 0.5 %; the contact is conservative, the deformation's damping ends the bounce)."""
+    sub-steps: after 5 s it rests on the floor (speed 1.5e-8 m/s, limit 1e-3). The
+    resolved contact is conservative, so the deformation's damping ends the bounce: at
+    β = 0.01 it does within the 5 s; at β = 0.001 the bar still bounced at up to
+    0.3-0.8 m/s in the last second (the amount depending on round-off, the BLAS threads)."""
     contact = _contact(soft, (0.0, 0.0, -0.3), (0.0, 0.0, 1.0), 1e5)
-    sim = soft.simulation(dt=1.0 / 60.0, loads=[_gravity(soft)], contact=contact, beta=0.001)
+    sim = soft.simulation(dt=1.0 / 60.0, loads=[_gravity(soft)], contact=contact, beta=0.01)
     record = sim.run(300)
     assert record.stable, record.message
-    assert record.contact_depth[-1] <= soft.frame.mass * 9.81 / 1e5
-    landing = math.sqrt(2 * 9.81 * 0.3)
-    assert abs(record.momenta[-1][2]) / soft.frame.mass <= 5e-3 * landing
+    assert 0 < record.contact_depth[-1] <= soft.frame.mass * 9.81 / 1e5
+    speeds = np.linalg.norm(np.asarray(record.momenta)[-60:], axis=1) / soft.frame.mass
+    assert speeds.max() <= 1e-3, speeds.max()
 
 
 def test_fast_impact_into_a_wall(soft):
