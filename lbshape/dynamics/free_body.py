@@ -39,8 +39,8 @@ reaches a plane):
 **Sub-steps**: while a plane touches the body a step is taken as k =
 :attr:`~FreeBodySimulation.contact_substeps` passes of steps 1–5 of ``Δt / k`` ≤
 ``contact_dt`` (the example target interpolated again in each); a whole step that ends
-touching a plane it did not touch at its start is discarded and taken again so. In
-flight a step is one pass.
+(or fails) touching a plane it did not touch at its start is discarded and taken again
+so. In flight a step is one pass.
 
 **Friction** (a plane's μ > 0): see :mod:`lbshape.dynamics.free_body_contact`, where the
 contact's part of the step lives.
@@ -166,10 +166,8 @@ class FreeBodySimulation(FreeBodyContact, FreeBodyDrag):
         omega_max, load_reach: the basis's highest vibration frequency (rad/s) and the
             loads' reach for the coarse-step warning and the stop message, as
             :class:`~lbshape.dynamics.reduced.ReducedSimulation`'s; or ``None``.
-        contact_dt: the longest step while a plane touches the body (s): a step of
-            ``dt`` is then taken in ``ceil(dt / contact_dt)`` sub-steps
-            (:attr:`contact_substeps`; default
-            :data:`~lbshape.dynamics.free_body_contact.CONTACT_DT`).
+        contact_dt: the longest step in s while a plane touches the body: a step of dt is
+            ``ceil(dt / contact_dt)`` sub-steps (``None``: ``CONTACT_DT``, 0.25 ms).
 
     Attributes:
         q, qd, qa: (r,) deformation, its rate and acceleration at :attr:`time`.
@@ -204,12 +202,13 @@ class FreeBodySimulation(FreeBodyContact, FreeBodyDrag):
         reuse_contact: bool = True,
         omega_max: float | None = None, load_reach=None,
         basis: np.ndarray | None = None,
-        contact_dt: float = CONTACT_DT,
+        contact_dt: float | None = None,
     ):
         self.rest_points = None if rest_points is None else np.asarray(rest_points, dtype=float)
         scheme = get_scheme(integrator)
         if not (np.isfinite(dt) and dt > 0):
             raise LbshapeError(f"time step dt must be > 0 s, got {dt}")
+        contact_dt = CONTACT_DT if contact_dt is None else contact_dt
         if not (np.isfinite(contact_dt) and contact_dt > 0):
             raise LbshapeError(f"contact_dt must be > 0 s, got {contact_dt}")
         #: sub-steps of a step while a plane touches the body: Δt / k ≤ ``contact_dt``

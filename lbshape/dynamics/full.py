@@ -269,15 +269,16 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
         # free body: the stiffness damping follows the body's rotation (see _corotate)
         free_body = self.fixed_vertices.size == 0
         self._corotated_beta = float(beta) if (free_body and beta > 0) else 0.0
-        self._damping_rest = K0_ff if self._corotated_beta else None
-        self._damping_now = K0_ff if self._corotated_beta else None
+        self._damping_rest = self._damping_now = K0_ff if self._corotated_beta else None
         self._damping_data = None  # β Q K₀ Qᵀ on the compiled pattern (_corotate, lazily)
         self._tangent_across_flight = bool(self._fast and self._corotated_beta)
         self._tangent_frame = None  # the frame the kept tangent is turned to
         if self._corotated_beta:
             beta = 0.0
-        # a free body's global examples: the rigid-invariant fitted pull (_free_gap)
-        fitted_pull = bool(self._k_ex and free_body and self._local is None)
+        fitted_pull = bool(self._k_ex and free_body and self._local is None)  # see _free_gap
+        rigid_fit = bool(fitted_pull or self._corotated_beta)  # both fit the rigid frame
+        if rigid_fit:
+            self._init_rigid_fit()
         friction = self.contact is not None and self.contact.has_friction
         newton = self.newton
         #: the stepper's least Newton iterations (a line search's steps may need more)
@@ -298,8 +299,7 @@ class FullSpaceSimulator(FullSpaceExampleForce, FullSpaceDamping):
             atol=self._free_pull_round_off() if fitted_pull else 0.0,
             max_iterations=max(newton.max_iterations, self._newton_floor),
             line_search=friction or fitted_pull,
-            low_rank_tangent=(self._tangent_correction
-                              if fitted_pull or self._corotated_beta else None),
+            low_rank_tangent=self._tangent_correction if rigid_fit else None,
             linear_solver=(make_linear_solver(self._linear_solver, symmetric=not friction)
                            if self._fast else None),
             check_state=self._check_inversion if self._inversion else None,

@@ -119,8 +119,7 @@ class FullSpaceDamping:
             tangent: keep the rank-12 part (False: the force alone; the kept part stays).
         """
         points = self.mesh.points + x.reshape(self.n_vertices, 3)
-        rigid, mass_rigid = rigid_modes(points, self._mass_ff,
-                                         getattr(self, "_scalar_mass", None))
+        rigid, mass_rigid = rigid_modes(points, self._mass_ff, self._scalar_mass)
         rigid_velocity = rigid @ (mass_rigid.T @ velocity)
         if tangent:
             damped_rigid = np.asarray(damping @ rigid)
@@ -181,8 +180,6 @@ class FullSpaceDamping:
         path turns its kept tangent into the frame too (:meth:`_turn_kept_tangent`;
         ``touching``: a surface vertex is behind a contact plane)."""
         n = self.n_vertices
-        if not hasattr(self, "_scalar_mass"):
-            self._init_rigid_fit()
         rest = self.mesh.points
         if getattr(self, "_rest_fit", None) is None:
             self._rest_fit = KabschFit(self._scalar_mass, rest)

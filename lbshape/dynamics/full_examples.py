@@ -142,8 +142,7 @@ class FullSpaceExampleForce:
         center, R = self._target_fit(positions)
         placed = center + (self._target_body - self._target_center) @ R.T
         if tangent:  # M Ψ L⁻ᵀ of the placed target's rigid motions
-            scalar = getattr(self, "_scalar_mass", None) if self._spring_ff is self._mass_ff \
-                else None
+            scalar = self._scalar_mass if self._spring_ff is self._mass_ff else None
             _, mass_rigid = rigid_modes(placed, self._spring_ff, scalar)
             self._pull_rigid = np.sqrt(self._k_ex) * mass_rigid
         return (positions - placed).ravel()
@@ -153,8 +152,6 @@ class FullSpaceExampleForce:
         target shape onto ``positions`` (n, 3), kept while the target is."""
         kept = getattr(self, "_fit_kept", None)
         if kept is None or kept[0] is not self._target_body:
-            if not hasattr(self, "_scalar_mass"):  # a state restored into a new engine
-                self._init_rigid_fit()
             kept = (self._target_body, KabschFit(self._scalar_mass, self._target_body))
             self._fit_kept = kept
         return kept[1](positions)
@@ -186,6 +183,9 @@ class FullSpaceExampleForce:
         self._b = self._k_ex * (self._mass_target @ c_star)
 
     def _init_rigid_fit(self) -> None:
+        """A free body's rigid-frame fit (built with the stepper of
+        :class:`~lbshape.dynamics.full.FullSpaceSimulator`):
+        the scalar mass M₁ (n, n) and the rest shape's M-orthonormal rigid modes (3n, 6)."""
         self._scalar_mass = sp.csr_matrix(self.mass[0::3, 0::3])
         rigid = rigid_body_modes(self.mesh.points, self.mass)  # (3n, 6), M-orthonormal
         self._rigid_modes = (rigid, np.asarray(self.mass @ rigid))
@@ -212,8 +212,6 @@ class FullSpaceExampleForce:
         keeps ``k_ex M``, exact but for the fit's motion, so Newton converges.
         """
         n = self.n_vertices
-        if not hasattr(self, "_scalar_mass"):
-            self._init_rigid_fit()
         rest = self.mesh.points
         x = rest + u.reshape(n, 3)
         _, _, body = best_rigid_frame(self._scalar_mass, rest, x)

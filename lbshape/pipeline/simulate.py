@@ -293,9 +293,8 @@ def _free_body_simulation(scene: Scene, pre: Precomputed, elastic, driver, k_ex:
         k_ex=k_ex, contact=_contact(scene, pre, pre.frame.center),
         velocity=scene.initial.velocity, angular_velocity=scene.initial.angular_velocity,
         rest_points=pre.mesh.points, omega_max=basis_omega_max(pre), basis=pre.U,
-        newton=newton, load_reach=load_reach(scene, pre), **extra,
-        **({} if scene.simulation.contact_dt is None
-           else {"contact_dt": scene.simulation.contact_dt}),
+        newton=newton, load_reach=load_reach(scene, pre),
+        contact_dt=scene.simulation.contact_dt, **extra,
     )
 
 

@@ -88,11 +88,11 @@ def scene_from_mesh(
     Raises:
         LbshapeError: one line naming the bad setting (the scene file's key path).
     """
-    obj = as_tet_mesh(mesh, what=f"{(label := f'scene {name}')}: mesh")
+    label = f"scene {name}"
+    obj = as_tet_mesh(mesh, what=f"{label}: mesh")
     data: dict[str, Any] = {
         "name": name, "description": description, "object": {"mesh": obj},
-        "simulation": {"dt": _plain(dt), "steps": _plain(steps), "integrator": integrator,
-                       **({} if contact_dt is None else {"contact_dt": _plain(contact_dt)})},
+        "simulation": _simulation_table(dt, steps, integrator, contact_dt),
     }
     for key, value in (("material", material), ("damping", damping), ("reduced", reduced),
                        ("initial", initial)):
@@ -108,6 +108,14 @@ def scene_from_mesh(
         if value:
             data[key] = _plain(list(value))
     return scene_from_dict(data, name=name, label=label)
+
+
+def _simulation_table(dt, steps, integrator: str, contact_dt) -> dict[str, Any]:
+    """The scene file's ``[simulation]`` table of :func:`scene_from_mesh`'s keywords."""
+    table = {"dt": _plain(dt), "steps": _plain(steps), "integrator": integrator}
+    if contact_dt is not None:
+        table["contact_dt"] = _plain(contact_dt)
+    return table
 
 
 def _examples_table(examples: Sequence[ExampleSpec], example_stiffness, obj: TetMesh,
