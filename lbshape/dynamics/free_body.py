@@ -36,11 +36,11 @@ reaches a plane):
    ½ Δt (C₀ + C₁)`` of the rigid motion and the deformation together (why:
    ``docs/decisions.md``, free bodies).
 
-**Sub-steps**: while a plane touches the body a step is taken as k =
-:attr:`~FreeBodySimulation.contact_substeps` passes of steps 1–5 of ``Δt / k`` ≤
-``contact_dt`` (the example target interpolated again in each); a whole step that ends
-(or fails) touching a plane it did not touch at its start is discarded and taken again
-so. In flight a step is one pass.
+**Passes**: a step of Δt is one or more passes of steps 1–5, each committed: in flight
+as many as resolve the deformation's highest frequency (the example spring's included),
+while a plane touches the body :attr:`~FreeBodySimulation.contact_substeps` of ``Δt / k``
+≤ ``contact_dt`` (the example target interpolated again in each), a flight pass that
+touches a plane taken again so: :mod:`lbshape.dynamics.free_body_passes`.
 
 **Friction** (a plane's μ > 0): see :mod:`lbshape.dynamics.free_body_contact`, where the
 contact's part of the step lives.
@@ -97,7 +97,7 @@ from lbshape.dynamics.engine import (
     snapshot,
 )
 from lbshape.dynamics.fictitious import FrameTensors
-from lbshape.dynamics.free_body_contact import CONTACT_DT, FreeBodyContact
+from lbshape.dynamics.free_body_contact import FreeBodyContact
 from lbshape.dynamics.free_body_drag import FreeBodyDrag
 from lbshape.dynamics.free_body_kernels import (
     KICK_ROTATION_FAILED,
@@ -114,6 +114,7 @@ from lbshape.dynamics.free_body_kernels import (
     trial,
 )
 from lbshape.dynamics.free_body_loads import FreeLoad, LoadStack
+from lbshape.dynamics.free_body_passes import FreeBodyPasses
 from lbshape.dynamics.free_body_record import FreeBodyRecord, FreeBodyRecorder, world_displacements
 from lbshape.dynamics.kernels import axpy, lu_solve, predict
 from lbshape.dynamics.kernels import norm as _norm
@@ -139,7 +140,7 @@ PHASES: tuple[str, ...] = ("weights", "target", "example_force", "rigid", "conta
 assert set(FIXED_PHASES) <= set(PHASES)
 
 
-class FreeBodySimulation(FreeBodyContact, FreeBodyDrag):
+class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
     """Reduced free-body dynamics (see the module docstring).
 
     Args:
@@ -168,6 +169,9 @@ class FreeBodySimulation(FreeBodyContact, FreeBodyDrag):
             :class:`~lbshape.dynamics.reduced.ReducedSimulation`'s; or ``None``.
         contact_dt: the longest step in s while a plane touches the body: a step of dt is
             ``ceil(dt / contact_dt)`` sub-steps (``None``: ``CONTACT_DT``, 0.25 ms).
+        flight_dt: the longest pass in s while no plane touches the body (``None``: the
+            pass that resolves the deformation's highest frequency,
+            :func:`~lbshape.dynamics.free_body_passes.resolved_pass`).
 
     Attributes:
         q, qd, qa: (r,) deformation, its rate and acceleration at :attr:`time`.
@@ -203,19 +207,16 @@ class FreeBodySimulation(FreeBodyContact, FreeBodyDrag):
         omega_max: float | None = None, load_reach=None,
         basis: np.ndarray | None = None,
         contact_dt: float | None = None,
+        flight_dt: float | None = None,
     ):
         self.rest_points = None if rest_points is None else np.asarray(rest_points, dtype=float)
         scheme = get_scheme(integrator)
         if not (np.isfinite(dt) and dt > 0):
             raise LbshapeError(f"time step dt must be > 0 s, got {dt}")
-        contact_dt = CONTACT_DT if contact_dt is None else contact_dt
-        if not (np.isfinite(contact_dt) and contact_dt > 0):
-            raise LbshapeError(f"contact_dt must be > 0 s, got {contact_dt}")
-        #: sub-steps of a step while a plane touches the body: Δt / k ≤ ``contact_dt``
-        self.contact_substeps = max(1, math.ceil(dt / contact_dt * (1 - 1e-12)))
         r = frame.r
         self.elastic, self.frame, self.r = elastic, frame, r
         self.dt, self.scheme = float(dt), integrator
+        self._set_passes(contact_dt, flight_dt)
         self.loads = list(loads)
         self._loads = LoadStack(self.loads, r)
         self.drag: DragSpring | None = None
@@ -227,7 +228,7 @@ class FreeBodySimulation(FreeBodyContact, FreeBodyDrag):
         self.contact, self.reuse_contact = contact, bool(reuse_contact)
         self.omega_max, self.load_reach = omega_max, load_reach
         self._inversion = sanity.checks_inversion(elastic)  # det F <= 0 stops the run
-        self.warnings = sanity.step_warnings(omega_max, self.dt, log)
+        self.warnings = sanity.step_warnings(omega_max, self.dt / self.flight_passes, log)
         self.newton = newton
         self.basis = None if basis is None else np.asarray(basis, dtype=float)
         self._examples = (self.driver, self.k_ex)  # the configured example force
@@ -615,52 +616,6 @@ class FreeBodySimulation(FreeBodyContact, FreeBodyDrag):
         self.time, self.steps_taken = t1, index
 
     # ------------------------------------------------------------------ step
-    def step(self, index: int | None = None) -> int:
-        """Advance one step of :attr:`dt` (in :attr:`contact_substeps` sub-steps while a
-        plane touches the body); return the Newton iterations. The wall time of its parts
-        (:data:`PHASES`, s) is left in ``_marks`` for :meth:`run`.
-
-        Raises:
-            SolverError: see the module docstring; the state is that of the last accepted
-                sub-step (unchanged when the step had none)."""
-        clock, marks = self._clock, self._marks
-        marks[0] = clock()
-        index = self.steps_taken + 1 if index is None else index
-        times = self._seconds
-        times[:] = 0.0
-        self.sweeps = 0
-        substeps = self._substeps()
-        iterations = 0
-        if substeps == 1:
-            failure = None
-            try:
-                iterations = self._advance(index, self.time + self.dt, times)
-            except SolverError as exc:
-                failure = exc
-            if self._retake_in_substeps():
-                substeps = self.contact_substeps
-            elif failure is not None:
-                raise failure
-            else:
-                self._commit(index, self.time + self.dt)
-        if substeps > 1:
-            start = self.time
-            self._set_step_length(self.dt / substeps)
-            try:
-                for k in range(1, substeps + 1):
-                    t1 = start + self.dt * k / substeps
-                    iterations += self._advance(index, t1, times)
-                    self._commit(index, t1)
-            finally:
-                self._set_step_length(self.dt)
-        self.substeps = substeps
-        # PHASES: weights, target, example force (the generalized load), rigid, contact,
-        # internal force and tangent, solve; the rest of the step is overhead
-        for mark, part in enumerate((5, 6, 3, 2, 1, 0, 4), start=1):
-            marks[mark] = marks[mark - 1] + times[part]
-        marks[8] = clock()
-        return iterations
-
     def _advance(self, index: int, t1: float, times: np.ndarray) -> int:
         """Steps 1–5 from :attr:`time` to ``t1`` (a step or sub-step of length ``_h``) into
         the next state, not committed; returns the Newton iterations (seconds to ``times``)."""

@@ -35,12 +35,6 @@ from lbshape.dynamics.kernels import lu_solve
 SWEEP_RTOL = 1e-4
 #: at most this many contact sweeps per step (the last one is accepted)
 MAX_CONTACT_SWEEPS = 12
-#: the longest step while a plane touches the body (s): a longer step is taken in
-#: sub-steps. Reduced, each scene's own run at dt = 1 ms against the same at dt/8:
-#: bar-s-cuboid 10.2 / 3.1 / 0.82 % with sub-steps of 1 / 0.5 / 0.25 ms; the car without
-#: examples at 60 Hz, its contact in sub-steps of 0.98 or 0.25 ms, within 0.9 % of its
-#: run at 1 ms (whole 60 Hz steps stall in its wall impact)
-CONTACT_DT = 2.5e-4
 
 
 class FreeBodyContact:
@@ -53,28 +47,6 @@ class FreeBodyContact:
         contact = self.contact
         return (self.reuse_contact and contact is not None
                 and contact.evaluated + contact.skipped == self._contact_calls)
-
-    def _substeps(self) -> int:
-        """The sub-steps of the next step: :attr:`contact_substeps` while a plane touches the
-        body (at the end of the last step, the start of this one), else 1."""
-        contact = self.contact
-        if (contact is None or self.contact_substeps == 1 or not self._contact_fresh()
-                or contact.scalars[1] == 0):
-            return 1
-        return self.contact_substeps
-
-    def _retake_in_substeps(self) -> bool:
-        """Whether a step taken whole (:meth:`_substeps` 1), not committed, is taken again
-        in sub-steps: it ended (or failed) with a plane touching the body that did not
-        touch it at its start. If so, its sweeps are uncounted and the contact is
-        evaluated afresh at the start."""
-        contact = self.contact
-        if contact is None or self.contact_substeps == 1 or contact.scalars[1] == 0:
-            return False
-        self._contact_calls = -1
-        self.total_sweeps -= self.sweeps
-        self.sweeps = 0
-        return True
 
     def _start_of_step(self) -> tuple[bool, float]:
         """The loads and the contact at t₀ into the kick's inputs; returns (the contact

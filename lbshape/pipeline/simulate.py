@@ -294,7 +294,7 @@ def _free_body_simulation(scene: Scene, pre: Precomputed, elastic, driver, k_ex:
         velocity=scene.initial.velocity, angular_velocity=scene.initial.angular_velocity,
         rest_points=pre.mesh.points, omega_max=basis_omega_max(pre), basis=pre.U,
         newton=newton, load_reach=load_reach(scene, pre),
-        contact_dt=scene.simulation.contact_dt, **extra,
+        contact_dt=scene.simulation.contact_dt, flight_dt=scene.simulation.flight_dt, **extra,
     )
 
 

@@ -47,6 +47,7 @@ def scene_from_mesh(
     steps: int = Simulation.steps,
     integrator: str = Simulation.integrator,
     contact_dt: float | None = None,
+    flight_dt: float | None = None,
 ) -> Scene:
     """A scene built in code around a mesh in memory (no file needed).
 
@@ -56,8 +57,7 @@ def scene_from_mesh(
             (:func:`~lbshape.geometry.mesh.check_mesh`). There is no ``units``: the
             arrays are already in metres (scale them before, e.g. ``points * 1e-3``
             for millimetres; ``lbshape.read_mesh(path, units="mm")`` reads a file so).
-        name: the scene's name (outputs, messages).
-        description: free text.
+        name, description: the scene's name (outputs, messages) and free text.
         fixed: the fixed vertices: a region expression in x, y, z (m), e.g.
             ``"z < 0.01"``, or ``{"group": name}`` (a vertex group of ``mesh``) /
             ``{"region": expression}``; ``None``: a free body.
@@ -80,10 +80,10 @@ def scene_from_mesh(
         planes: mappings as ``[[planes]]`` (contact planes).
         regions: mappings as ``[[regions]]`` (local examples).
         initial: a free body's ``{"velocity": m/s, "angular_velocity": rad/s}``.
-        dt: time step in s.
-        steps: the scene's number of steps (the CLI's default run length).
-        integrator: ``"newmark"`` or ``"backward-euler"``.
-        contact_dt: a free body's longest step in contact, s (``None``: 0.25 ms).
+        dt, steps, integrator: the time step (s), the scene's number of steps (the CLI's
+            default run length), ``"newmark"`` or ``"backward-euler"``.
+        contact_dt, flight_dt: a free body's longest step in contact (``None``: 0.25 ms)
+            and in flight (``None``: the one that resolves its highest frequency), s.
 
     Raises:
         LbshapeError: one line naming the bad setting (the scene file's key path).
@@ -92,7 +92,7 @@ def scene_from_mesh(
     obj = as_tet_mesh(mesh, what=f"{label}: mesh")
     data: dict[str, Any] = {
         "name": name, "description": description, "object": {"mesh": obj},
-        "simulation": _simulation_table(dt, steps, integrator, contact_dt),
+        "simulation": _simulation_table(dt, steps, integrator, contact_dt, flight_dt),
     }
     for key, value in (("material", material), ("damping", damping), ("reduced", reduced),
                        ("initial", initial)):
@@ -110,11 +110,12 @@ def scene_from_mesh(
     return scene_from_dict(data, name=name, label=label)
 
 
-def _simulation_table(dt, steps, integrator: str, contact_dt) -> dict[str, Any]:
+def _simulation_table(dt, steps, integrator: str, contact_dt, flight_dt) -> dict[str, Any]:
     """The scene file's ``[simulation]`` table of :func:`scene_from_mesh`'s keywords."""
     table = {"dt": _plain(dt), "steps": _plain(steps), "integrator": integrator}
-    if contact_dt is not None:
-        table["contact_dt"] = _plain(contact_dt)
+    for key, value in (("contact_dt", contact_dt), ("flight_dt", flight_dt)):
+        if value is not None:
+            table[key] = _plain(value)
     return table
 
 

@@ -173,6 +173,9 @@ def scene_from_dict(
                         "this object " + ("has '[fixed]'" if fixed is not None
                                           else "has no '[[planes]]'")
                         + " (remove contact_dt)")
+    if simulation.flight_dt is not None and fixed is not None:
+        raise ctx.error("'simulation.flight_dt' sets a free body's step in flight only; "
+                        "this object has '[fixed]' (remove flight_dt)")
     return Scene(
         name=scene_name, description=description, object=obj, material=material,
         damping=damping, reduced=reduced, examples=examples, fixed=fixed, loads=loads,
@@ -276,12 +279,14 @@ def _regions(top: _Table, ctx: _Context, examples: Examples | None) -> tuple[Loc
 
 
 def _simulation(top: _Table) -> Simulation:
-    sim = top.subtable("simulation", ("dt", "steps", "integrator", "contact_dt"))
+    sim = top.subtable("simulation", ("dt", "steps", "integrator", "contact_dt",
+                                          "flight_dt"))
     return Simulation(
         dt=sim.number("dt", Simulation.dt, low=0.0, open_low=True, unit="s"),
         steps=sim.integer("steps", Simulation.steps, low=1),
         integrator=sim.choice("integrator", Simulation.integrator, INTEGRATORS),
         contact_dt=sim.number("contact_dt", None, low=0.0, open_low=True, unit="s"),
+        flight_dt=sim.number("flight_dt", None, low=0.0, open_low=True, unit="s"),
     )
 
 

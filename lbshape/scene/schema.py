@@ -447,14 +447,17 @@ class LocalRegion:
 
 @dataclass(frozen=True)
 class Simulation:
-    """Time stepping: dt (s), number of steps, integrator name, and ``contact_dt`` (s):
-    the reduced free body's longest step while a plane touches it (``None``: the
-    default, :data:`lbshape.dynamics.free_body_contact.CONTACT_DT`)."""
+    """Time stepping: dt (s), number of steps, integrator name, ``contact_dt`` (s):
+    the reduced free body's longest pass while a plane touches it (``None``: the
+    default, :data:`lbshape.dynamics.free_body_passes.CONTACT_DT`), and ``flight_dt``
+    (s): its longest pass in flight (``None``: the pass that resolves its highest
+    frequency, :func:`lbshape.dynamics.free_body_passes.resolved_pass`)."""
 
     dt: float = 0.001
     steps: int = 1000
     integrator: str = "newmark"
     contact_dt: float | None = None
+    flight_dt: float | None = None
 
 
 @dataclass(frozen=True)
@@ -549,6 +552,8 @@ class Scene:
             "integrator": self.simulation.integrator,
             **({"contact_dt": self.simulation.contact_dt}
                if self.simulation.contact_dt is not None else {}),
+            **({"flight_dt": self.simulation.flight_dt}
+               if self.simulation.flight_dt is not None else {}),
             "interpolation": self.reduced.interpolation,
             "damping": {"alpha": self.damping.alpha, "beta": self.damping.beta},
             "loads": [load.key() for load in self.loads],

@@ -37,7 +37,8 @@ SPINNING = {
         {"shape": "demo-bar", "pose": "arc", "parameters": {"angle": 0.8, "axis": "z",
                                                            "direction": "x"}}]},
     "initial": {"velocity": [0.3, 0.0, 0.0], "angular_velocity": [0.0, 2.0, 1.0]},
-    "simulation": {"dt": 0.002, "steps": 150},
+    # whole steps (flight_dt = dt), as the full reference takes: the basis is measured
+    "simulation": {"dt": 0.002, "steps": 150, "flight_dt": 0.002},
 }
 
 

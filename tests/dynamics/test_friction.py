@@ -375,6 +375,30 @@ def test_scene_contact_step_key():
         _scene(0.4, simulation={"contact_dt": 0.0})
 
 
+def test_scene_flight_step_key():
+    """``[simulation] flight_dt`` reaches the reduced free body's flight passes (with or
+    without planes); it is refused on a fixed object and where it is not a positive time."""
+    from lbshape.geometry.primitives import structured_box
+    from lbshape.pipeline.simulate import reduced_simulation
+    from lbshape.scene.build import scene_from_mesh
+
+    scene = _scene(0.4, simulation={"dt": 1e-3, "flight_dt": 2.5e-4})
+    assert scene.simulation.flight_dt == 2.5e-4
+    assert scene.runtime_fields()["flight_dt"] == 2.5e-4
+    assert "flight_dt" not in _scene(0.4).runtime_fields()
+    engine = reduced_simulation(scene, precompute(scene))
+    assert (engine.flight_dt, engine.flight_passes) == (2.5e-4, 4)
+    assert _scene(None, planes=[], simulation={"flight_dt": 1e-3}).simulation.flight_dt == 1e-3
+    built = scene_from_mesh(structured_box((0.1, 0.1, 0.1), (1, 1, 1)), flight_dt=5e-4)
+    assert built.simulation.flight_dt == 5e-4
+    with pytest.raises(LbshapeError) as failure:
+        _scene(0.0, simulation={"flight_dt": 5e-4}, fixed={"region": "z > 0.999"})
+    message = str(failure.value)
+    assert "'simulation.flight_dt'" in message and "has '[fixed]'" in message, message
+    with pytest.raises(LbshapeError, match="'simulation.flight_dt' must be > 0"):
+        _scene(0.4, simulation={"flight_dt": -1e-3})
+
+
 def test_engines_refuse_bad_friction(block):
     with pytest.raises(LbshapeError, match="friction must be a finite number >= 0"):
         PlaneContact.for_mesh([ContactPlane((0, 0, 0), (0, 0, 1), 1e4, -1.0)],
@@ -506,7 +530,7 @@ def test_reduced_car_at_60_hz_takes_its_contacts_in_sub_steps():
     """The reduced car without examples at 60 Hz steps, its contacts in sub-steps of
     0.25 ms (the default contact_dt), follows its own run at 1 ms within 2 % (measured
     0.89 %) over 0.4 s: the wall impact and the first floor contact. Taken in whole 60 Hz
-    steps (contact_dt = dt), Newton stalls in the wall impact (step 12, t = 0.2 s; the
+    steps (contact_dt = flight_dt = dt), Newton stalls in the wall impact (step 12, t = 0.2 s; the
     nose meets the wall at step 9) and the run stops, advising a smaller dt."""
     from lbshape.analysis.norms import trajectory_error
     from lbshape.pipeline.simulate import reduced_simulation
@@ -529,7 +553,7 @@ def test_reduced_car_at_60_hz_takes_its_contacts_in_sub_steps():
     error = trajectory_error(u_coarse, u_fine[frames], mass)
     assert error <= 0.02, error
     whole = dataclasses.replace(coarse_scene, simulation=dataclasses.replace(
-        coarse_scene.simulation, contact_dt=1.0 / 60.0))
+        coarse_scene.simulation, contact_dt=1.0 / 60.0, flight_dt=1.0 / 60.0))
     record, _ = run(whole)
     assert not record.stable
     stopped = re.search(r"at step (\d+) ", record.message)
