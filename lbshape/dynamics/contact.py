@@ -45,7 +45,8 @@ spectral norm of the vertex blocks U_i (so ``|U_i q| ≤ u_max |q|``).
 the contact owns (:attr:`PlaneContact.force`, …), through one compiled kernel that
 loops over the surface vertices once (positions, gaps, forces and stiffnesses of all
 reached planes) and, when a plane has friction and a vertex penetrates, a second one
-over the surface vertices for the friction; it allocates nothing.
+over the surface vertices for the friction (:mod:`lbshape.dynamics.contact_kernels`);
+it allocates nothing.
 :meth:`PlaneContact.evaluate` returns a copy as a :class:`ContactResult`.
 """
 
@@ -54,17 +55,22 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
-from lbshape._jit import njit, py_func
 from lbshape.dynamics.contact_faces import (
     face_kernel,
     surface_areas,
     surface_faces,
 )
-from lbshape.dynamics.kernels import check_size, take
+from lbshape.dynamics.contact_kernels import (
+    ContactOutput,
+    ContactWork,
+    contact_kernel,
+    friction_kernel,
+    pack_motion,
+    reach_kernel,
+)
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import boundary_faces
 
@@ -201,6 +207,11 @@ class PlaneContact:
         self.scalars = self._out.scalars
         self._reach = np.zeros(len(planes), dtype=np.bool_)
         self._work = ContactWork.allocate(r)
+        # (s, r) the rows √S g of the loaded vertices: stiffness_q = Σ S g gᵀ as one
+        # BLAS product (vertex by vertex it took 37 µs of 52 on a bar resting on 127)
+        self._stiffness_rows = np.zeros((s_count * P, r))
+        # (4 s P, r) the friction's rows: 2 per pair of √C G (C = L Lᵀ), then Gᵀ T, Gᵀ n
+        self._friction_rows = np.zeros((4 * s_count * P, r))
         # the surface deformed in the body frame, y_i = X̄_i + U_i q (one BLAS product
         # per evaluation; the kernels' own loops over r were 6x slower on the car)
         self._basis_rows = self.basis.reshape(-1, r)
@@ -225,8 +236,8 @@ class PlaneContact:
 
     def may_touch(self, center: np.ndarray, q: np.ndarray) -> np.ndarray:
         """(P,) bool: planes the bounding sphere around ``center`` reaches."""
-        _reach_kernel(np.asarray(center, dtype=float), np.asarray(q, dtype=float),
-                      self.radius0, self.u_max, self.points, self.normals, self._reach)
+        reach_kernel(np.asarray(center, dtype=float), np.asarray(q, dtype=float),
+                     self.radius0, self.u_max, self.points, self.normals, self._reach)
         return self._reach.copy()
 
     def evaluate_into(self, center: np.ndarray, rotation: np.ndarray, q: np.ndarray,
@@ -243,23 +254,24 @@ class PlaneContact:
         the world angular velocity (rad/s), ``qd`` (r,) the deformation's rate (each
         zero when ``None``), and ``rate`` = ∂q̇/∂q of the step (1/s) for the tangent.
         """
-        if _reach_kernel(center, q, self.radius0, self.u_max, self.points, self.normals,
-                         self._reach):
+        if reach_kernel(center, q, self.radius0, self.u_max, self.points, self.normals,
+                        self._reach):
             self.evaluated += 1
             np.dot(self._basis_rows, q, out=self._deformed_flat)
             np.add(self._deformed, self.body_points, out=self._deformed)
         else:
             self.skipped += 1
         self._face_pass(center, rotation)
-        active = _contact_kernel(self._arms, self.basis, self._loads, rotation, self._planes,
-                                 self._reach, rigid, self._work.data, self._out.data)
+        active = contact_kernel(self._arms, self.basis, self._loads, rotation, self._planes,
+                                self._reach, rigid, self._work.data, self._out.data,
+                                self._stiffness_rows)
         if self.has_friction and active:
-            _pack_motion(self._rest3 if velocity is None else velocity,
-                         self._rest3 if omega is None else omega,
-                         self._rest_q if qd is None else qd, float(rate), self._motion)
-            _friction_kernel(rotation, self._motion, self._arms, self.basis, self._loads,
-                             self._planes, SLIP_SPEED, self._reach, rigid, self._work.data,
-                             self._out.data)
+            pack_motion(self._rest3 if velocity is None else velocity,
+                        self._rest3 if omega is None else omega,
+                        self._rest_q if qd is None else qd, float(rate), self._motion)
+            friction_kernel(rotation, self._motion, self._arms, self.basis, self._loads,
+                            self._planes, SLIP_SPEED, self._reach, rigid, self._work.data,
+                            self._out.data, self._friction_rows)
         elif self.has_friction:
             self.damping_rigid[:] = 0.0
             self.coupling[:] = 0.0
@@ -341,345 +353,3 @@ def friction_force(velocity: np.ndarray, normal: np.ndarray, normal_force: np.nd
     rates = scale[:, None, None] * (projection[None]
                                     - direction[:, :, None] * direction[:, None, :])
     return -(friction * normal_force)[:, None] * direction, rates, direction
-
-
-@njit
-def _reach_kernel(center, q, radius0, u_max, points, normals, reach):
-    """reach[p] = the bounding sphere reaches plane p; True if any plane is reached."""
-    radius = radius0 + u_max * np.sqrt(np.dot(q, q))
-    anything = False
-    for p in range(points.shape[0]):
-        distance = 0.0
-        for a in range(3):
-            distance += (center[a] - points[p, a]) * normals[p, a]
-        reach[p] = distance <= radius
-        anything = anything or reach[p]
-    return anything
-
-
-class ContactOutput(NamedTuple):
-    """The outputs of an evaluation (:meth:`PlaneContact.evaluate_into`): views of the
-    buffer ``data`` (:func:`contact_output`), as :mod:`lbshape.dynamics.kernels` describes."""
-
-    #: the buffer every field below views
-    data: np.ndarray
-    #: (3,) total force (N, world)
-    force: np.ndarray
-    #: (3,) torque about the centre of mass (N·m, world)
-    torque: np.ndarray
-    #: (r,) generalized force on q
-    generalized: np.ndarray
-    #: (r, r) its stiffness (``−∂/∂q``)
-    Kq: np.ndarray
-    #: (6, 6) the stiffness of (force, torque) w.r.t. the rigid motion
-    K6: np.ndarray
-    #: (6, 6) the friction's rate matrix C₆
-    C6: np.ndarray
-    #: (6, r) the friction's coupling of the rigid velocity and q̇
-    X: np.ndarray
-    #: (3,) [energy (J), active vertices, largest penetration (m)]
-    scalars: np.ndarray
-
-    @staticmethod
-    def size(r: int) -> int:
-        """Floats in the buffer of a basis of r columns."""
-        return 3 + 3 + r + r * r + 36 + 36 + 6 * r + 3
-
-    @classmethod
-    def allocate(cls, r: int) -> ContactOutput:
-        """Zero arrays."""
-        return py_func(contact_output)(np.zeros(cls.size(r)), r)
-
-
-class ContactWork(NamedTuple):
-    """The kernels' work arrays: views of the buffer ``data`` (:func:`contact_work`)."""
-
-    #: the buffer every field below views
-    data: np.ndarray
-    #: (r,) ``g = U_iᵀ Rᵀ n``
-    g: np.ndarray
-    #: (12,) the normal pass's small work: J (6), arm (3), Rᵀ n (3)
-    small: np.ndarray
-    #: (8, r) the friction's G = R U_i (3 rows), C G (3), Gᵀ T, Gᵀ n
-    rows: np.ndarray
-    #: (24,) the friction's small work: -, arm, w, t (3 each), C (9), f (3)
-    friction_small: np.ndarray
-    #: (r, r) Σ Gᵀ C G (upper triangle)
-    Kf: np.ndarray
-
-    @staticmethod
-    def size(r: int) -> int:
-        """Floats in the buffer of a basis of r columns."""
-        return r + 12 + 8 * r + 24 + r * r
-
-    @classmethod
-    def allocate(cls, r: int) -> ContactWork:
-        """Zero arrays."""
-        return py_func(contact_work)(np.zeros(cls.size(r)), r)
-
-
-@njit
-def contact_output(data, r):
-    """The :class:`ContactOutput` views of a buffer of :meth:`ContactOutput.size` floats."""
-    force, at = take(data, 0, 3)
-    torque, at = take(data, at, 3)
-    generalized, at = take(data, at, r)
-    Kq, at = take(data, at, r * r)
-    K6, at = take(data, at, 36)
-    C6, at = take(data, at, 36)
-    X, at = take(data, at, 6 * r)
-    scalars, at = take(data, at, 3)
-    check_size(data, at)
-    return ContactOutput(data, force, torque, generalized, Kq.reshape((r, r)),
-                         K6.reshape((6, 6)), C6.reshape((6, 6)), X.reshape((6, r)), scalars)
-
-
-@njit
-def contact_work(data, r):
-    """The :class:`ContactWork` views of a buffer of :meth:`ContactWork.size` floats."""
-    g, at = take(data, 0, r)
-    small, at = take(data, at, 12)
-    rows, at = take(data, at, 8 * r)
-    friction_small, at = take(data, at, 24)
-    Kf, at = take(data, at, r * r)
-    check_size(data, at)
-    return ContactWork(data, g, small, rows.reshape((8, r)), friction_small,
-                       Kf.reshape((r, r)))
-
-
-@njit
-def _pack_motion(velocity, omega, qd, rate, motion):
-    """``motion = [v (3), ω (3), rate, q̇ (r)]``: what the friction kernel reads."""
-    for a in range(3):
-        motion[a] = velocity[a]
-        motion[3 + a] = omega[a]
-    motion[6] = rate
-    for j in range(qd.shape[0]):
-        motion[7 + j] = qd[j]
-
-
-@njit
-def _contact_kernel(arms, basis, loads, rotation, planes, reach, rigid, work, out):
-    """One pass over the surface vertices (see :meth:`PlaneContact.evaluate_into`), after
-    :func:`~lbshape.dynamics.contact_faces.face_kernel` (its arms and loads; ``out``'s
-    energy already set).
-
-    Vertex i with a stiffness S > 0 on a reached plane (normal force F, arm a): adds
-    ``F n`` to the force, ``F (a × n)`` to the torque, ``F g`` with ``g = U_iᵀ Rᵀ n`` to the
-    generalized force, ``S g gᵀ`` to ``stiffness_q`` and ``S J Jᵀ`` (J = [n; a × n]) to the
-    6 × 6 stiffness. ``planes`` (P, 8): point, unit normal, k (per area), μ; ``work`` and
-    ``out`` the buffers of :class:`ContactWork` and :class:`ContactOutput`.
-    Returns the number of loaded (vertex, plane) pairs.
-    """
-    r = basis.shape[2]
-    views, result = contact_work(work, r), contact_output(out, r)
-    force, torque, generalized = result.force, result.torque, result.generalized
-    Kq, K6, scalars, g = result.Kq, result.K6, result.scalars, views.g
-    force[:] = 0.0
-    torque[:] = 0.0
-    generalized[:] = 0.0
-    Kq[:, :] = 0.0
-    K6[:, :] = 0.0
-    depth = 0.0
-    active = 0
-    J, nb = views.small[0:6], views.small[9:12]
-    if not reach.any():
-        scalars[0] = scalars[1] = scalars[2] = 0.0
-        return 0
-    for p in range(planes.shape[0]):
-        if not reach[p]:
-            continue
-        for a in range(3):
-            nb[a] = (rotation[0, a] * planes[p, 3] + rotation[1, a] * planes[p, 4]
-                     + rotation[2, a] * planes[p, 5])  # Rᵀ n
-        n0, n1, n2 = planes[p, 3], planes[p, 4], planes[p, 5]
-        for i in range(arms.shape[0]):
-            k = loads[p, 2, i]
-            if not k > 0.0:
-                continue
-            fn = loads[p, 1, i]
-            arm = arms[i]
-            active += 1
-            depth = max(depth, loads[p, 0, i])
-            for a in range(3):
-                force[a] += fn * planes[p, 3 + a]
-            for j in range(r):
-                g[j] = basis[i, 0, j] * nb[0] + basis[i, 1, j] * nb[1] + basis[i, 2, j] * nb[2]
-                generalized[j] += fn * g[j]
-            for j in range(r):
-                kg = k * g[j]
-                for k2 in range(j + 1):
-                    Kq[j, k2] += kg * g[k2]
-            if rigid:
-                J[0], J[1], J[2] = n0, n1, n2
-                J[3] = arm[1] * n2 - arm[2] * n1
-                J[4] = arm[2] * n0 - arm[0] * n2
-                J[5] = arm[0] * n1 - arm[1] * n0
-                for a in range(3):
-                    torque[a] += fn * J[3 + a]
-                for a in range(6):
-                    for b in range(a + 1):
-                        K6[a, b] += k * J[a] * J[b]
-    for j in range(r):
-        for k2 in range(j):
-            Kq[k2, j] = Kq[j, k2]
-    for a in range(6):
-        for b in range(a):
-            K6[b, a] = K6[a, b]
-    scalars[1] = active
-    scalars[2] = depth
-    return active
-
-
-@njit
-def _friction_kernel(rotation, motion, arms, basis, loads, planes, eps, reach, rigid, work,
-                     out):
-    """The friction of the loaded vertices (module docstring), added to ``force``,
-    ``torque``, ``generalized`` and ``Kq`` of ``out``; its ``C6`` (6, 6) receives ``C₆``.
-
-    Vertex i (arm a, row i of ``arms``, :func:`~lbshape.dynamics.contact_faces.face_kernel`),
-    world velocity ``w = v + ω × a + R U_i q̇`` (``motion`` = [v, ω, rate, q̇],
-    :func:`_pack_motion`); per
-    reached plane with μ > 0 on which it has a stiffness, :func:`_plane_friction` with its
-    normal force and stiffness (``loads``). ``work`` and ``out`` are the buffers of
-    :class:`ContactWork` and :class:`ContactOutput`.
-    """
-    r = basis.shape[2]
-    views, result = contact_work(work, r), contact_output(out, r)
-    result.C6[:, :] = 0.0
-    result.X[:, :] = 0.0
-    views.Kf[:, :] = 0.0
-    arm, w = views.friction_small[3:6], views.friction_small[6:9]
-    G = views.rows[0:3]
-    for i in range(arms.shape[0]):
-        touching = False
-        for p in range(planes.shape[0]):
-            if reach[p] and planes[p, 7] != 0.0 and loads[p, 2, i] > 0.0:
-                touching = True
-        if not touching:
-            continue
-        for a in range(3):
-            arm[a] = arms[i, a]
-        for a in range(3):  # G = R U_i, w = v + ω × a + G q̇
-            for j in range(r):
-                G[a, j] = (rotation[a, 0] * basis[i, 0, j] + rotation[a, 1] * basis[i, 1, j]
-                           + rotation[a, 2] * basis[i, 2, j])
-        w[0] = motion[0] + motion[4] * arm[2] - motion[5] * arm[1]
-        w[1] = motion[1] + motion[5] * arm[0] - motion[3] * arm[2]
-        w[2] = motion[2] + motion[3] * arm[1] - motion[4] * arm[0]
-        for a in range(3):
-            value = 0.0
-            for j in range(r):
-                value += G[a, j] * motion[7 + j]
-            w[a] += value
-        for p in range(planes.shape[0]):
-            if reach[p] and planes[p, 7] != 0.0 and loads[p, 2, i] > 0.0:
-                _plane_friction(planes, p, loads[p, 1, i], loads[p, 2, i], eps, rigid, views,
-                                result)
-    rate, Kq, Kf = motion[6], result.Kq, views.Kf
-    for j in range(r):  # rate Σ Gᵀ C G from its upper triangle
-        Kq[j, j] += rate * Kf[j, j]
-        for k2 in range(j + 1, r):
-            value = rate * Kf[j, k2]
-            Kq[k2, j] += value
-            Kq[j, k2] += value
-
-
-@njit
-def _plane_friction(planes, p, fn, kn, eps, rigid, views, result):
-    """The friction of one vertex pressed onto plane p with the normal force fn (N) and
-    the lumped stiffness kn (N/m), its arm and velocity w and its G = R U_i in ``views``
-    (:class:`ContactWork`): ``t = (I − n nᵀ) w``, ``s = √(|t|² + ε²)``, ``T = t/s``,
-    ``f_t = −μ fn T``, ``C = μ fn (P − T Tᵀ)/s``, added to ``result``
-    (:class:`ContactOutput`)."""
-    r = views.g.shape[0]
-    G, CG, GT, GN = views.rows[0:3], views.rows[3:6], views.rows[6], views.rows[7]
-    small = views.friction_small
-    arm, w, t = small[3:6], small[6:9], small[9:12]
-    C = small[12:21].reshape((3, 3))
-    f = small[21:24]
-    force, torque, generalized, Kq = result.force, result.torque, result.generalized, result.Kq
-    Kf = views.Kf
-    n = planes[p, 3:6]
-    wn = w[0] * n[0] + w[1] * n[1] + w[2] * n[2]
-    for a in range(3):
-        t[a] = w[a] - wn * n[a]
-    s = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + eps * eps)
-    mu = planes[p, 7]
-    mu_k = mu * kn
-    scale = mu * fn / s
-    for a in range(3):
-        t[a] /= s  # T
-        f[a] = -scale * s * t[a]
-    for a in range(3):  # C = μ k d / s (P − T Tᵀ)
-        for b in range(3):
-            C[a, b] = scale * ((1.0 if a == b else 0.0) - n[a] * n[b] - t[a] * t[b])
-    for a in range(3):
-        force[a] += f[a]
-    # deformation tangent: rate Gᵀ C G − μ k (Gᵀ T) gᵀ, g = Gᵀ n. C G (3, r),
-    # Gᵀ T and g once per vertex; Gᵀ C G (symmetric) summed in Kf's upper
-    # triangle, the rank-one part straight into Kq (rows innermost)
-    for j in range(r):
-        generalized[j] += G[0, j] * f[0] + G[1, j] * f[1] + G[2, j] * f[2]
-        CG[0, j] = C[0, 0] * G[0, j] + C[0, 1] * G[1, j] + C[0, 2] * G[2, j]
-        CG[1, j] = C[1, 0] * G[0, j] + C[1, 1] * G[1, j] + C[1, 2] * G[2, j]
-        CG[2, j] = C[2, 0] * G[0, j] + C[2, 1] * G[1, j] + C[2, 2] * G[2, j]
-        GT[j] = mu_k * (G[0, j] * t[0] + G[1, j] * t[1] + G[2, j] * t[2])
-        GN[j] = G[0, j] * n[0] + G[1, j] * n[1] + G[2, j] * n[2]
-    for j in range(r):
-        c0, c1, c2 = CG[0, j], CG[1, j], CG[2, j]
-        for k2 in range(j, r):
-            Kf[j, k2] += G[0, k2] * c0 + G[1, k2] * c1 + G[2, k2] * c2
-    for k2 in range(r):
-        gt = GT[k2]
-        for j in range(r):
-            Kq[k2, j] -= gt * GN[j]
-    if rigid:
-        _friction_rigid(arm, f, C, CG, torque, result.C6, result.X)
-
-
-@njit
-def _friction_rigid(arm, f, C, CG, torque, C6, X):
-    """A friction force f at the arm: its torque, its rate on the rigid motion C₆ and the
-    coupling X += Bᵀ C G: (C G; arm × C G) per column."""
-    torque[0] += arm[1] * f[2] - arm[2] * f[1]
-    torque[1] += arm[2] * f[0] - arm[0] * f[2]
-    torque[2] += arm[0] * f[1] - arm[1] * f[0]
-    _add_rigid_rate(C, arm, C6)
-    for j in range(CG.shape[1]):
-        c0, c1, c2 = CG[0, j], CG[1, j], CG[2, j]
-        X[0, j] += c0
-        X[1, j] += c1
-        X[2, j] += c2
-        X[3, j] += arm[1] * c2 - arm[2] * c1
-        X[4, j] += arm[2] * c0 - arm[0] * c2
-        X[5, j] += arm[0] * c1 - arm[1] * c0
-
-
-@njit
-def _add_rigid_rate(C, arm, C6):
-    """C₆ += Bᵀ C B with ``B = [I, −[arm]×]`` (3, 6): the rate matrix of (force, torque)
-    about c with respect to (v, ω) of a point force with rate matrix C (3, 3).
-
-    B's columns are e_a (a < 3) and ``e_b × arm`` (3 + b); with D = C B (3, 6) each
-    column of Bᵀ D is ``(d; arm × d)`` for the column d of D."""
-    a0, a1, a2 = arm[0], arm[1], arm[2]
-    for col in range(6):
-        if col < 3:
-            d0, d1, d2 = C[0, col], C[1, col], C[2, col]
-        else:  # C (e_b × arm)
-            if col == 3:
-                e0, e1, e2 = 0.0, -a2, a1
-            elif col == 4:
-                e0, e1, e2 = a2, 0.0, -a0
-            else:
-                e0, e1, e2 = -a1, a0, 0.0
-            d0 = C[0, 0] * e0 + C[0, 1] * e1 + C[0, 2] * e2
-            d1 = C[1, 0] * e0 + C[1, 1] * e1 + C[1, 2] * e2
-            d2 = C[2, 0] * e0 + C[2, 1] * e1 + C[2, 2] * e2
-        C6[0, col] += d0
-        C6[1, col] += d1
-        C6[2, col] += d2
-        C6[3, col] += a1 * d2 - a2 * d1
-        C6[4, col] += a2 * d0 - a0 * d2
-        C6[5, col] += a0 * d1 - a1 * d0
