@@ -97,7 +97,7 @@ def markdown(rows: list[tuple[str, str, float, dict]]) -> str:
              f"the throw {100 * THROW_CHANGE:g} % faster against the dt/8 run, the "
              "trajectory's own change under that small a difference. The reduced method "
              f"takes a step in contact in sub-steps of at most {1e3 * CONTACT_DT:g} ms "
-             "(contact_dt: 4 at dt = 1 ms, 2 at dt/2, whole steps from dt/4 on) and in "
+             "(contact_dt: 3 at dt = 1 ms, 2 at dt/2, whole steps from dt/4 on) and in "
              "flight in the passes that resolve its highest frequency (flight_dt; the car "
              "with examples 2 at dt = 1 ms, one from dt/2 on); the full "
              "method takes whole steps. A row 'from the dt/8 state at T s' restarts every "

@@ -168,7 +168,7 @@ class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
             loads' reach for the coarse-step warning and the stop message, as
             :class:`~lbshape.dynamics.reduced.ReducedSimulation`'s; or ``None``.
         contact_dt: the longest step in s while a plane touches the body: a step of dt is
-            ``ceil(dt / contact_dt)`` sub-steps (``None``: ``CONTACT_DT``, 0.25 ms).
+            ``ceil(dt / contact_dt)`` sub-steps (``None``: ``CONTACT_DT``, 1/3 ms).
         flight_dt: the longest pass in s while no plane touches the body (``None``: the
             pass that resolves the deformation's highest frequency,
             :func:`~lbshape.dynamics.free_body_passes.resolved_pass`).

@@ -27,10 +27,12 @@ from lbshape.errors import LbshapeError, SolverError
 
 #: the longest pass while a plane touches the body (s): a longer step is taken in
 #: sub-steps. Reduced, each scene's own run at dt = 1 ms against the same at dt/8:
-#: bar-s-cuboid 10.2 / 3.1 / 0.82 % with sub-steps of 1 / 0.5 / 0.25 ms; the car without
-#: examples at 60 Hz, its contact in sub-steps of 0.98 or 0.25 ms, within 0.9 % of its
-#: run at 1 ms (whole 60 Hz steps stall in its wall impact)
-CONTACT_DT = 2.5e-4
+#: bar-s-cuboid 10.2 / 3.1 / 1.29 / 0.68 % with sub-steps of 1 / 0.5 / 0.33 / 0.25 ms;
+#: 1/3 ms keeps it within 2 % at three passes a 1 ms step (four cost a body resting on
+#: a plane 1.20 ms a step, three 0.96); the car without examples at 60 Hz, its contact
+#: in sub-steps of 1/3 ms, within 0.23 % of its run at 1 ms (whole 60 Hz steps stall in
+#: its wall impact)
+CONTACT_DT = 1.0 / 3000.0
 #: the period error a flight pass allows the deformation's highest frequency: Newmark
 #: (average acceleration) lengthens a period by (ω h)² / 12, so ω h ≤ √0.12 = 0.35. The
 #: car with examples (ω = 631 rad/s: its example spring √k_ex = 548 rad/s) takes 2 passes

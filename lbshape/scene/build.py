@@ -82,7 +82,7 @@ def scene_from_mesh(
         initial: a free body's ``{"velocity": m/s, "angular_velocity": rad/s}``.
         dt, steps, integrator: the time step (s), the scene's number of steps (the CLI's
             default run length), ``"newmark"`` or ``"backward-euler"``.
-        contact_dt, flight_dt: a free body's longest step in contact (``None``: 0.25 ms)
+        contact_dt, flight_dt: a free body's longest step in contact (``None``: 1/3 ms)
             and in flight (``None``: the one that resolves its highest frequency), s.
 
     Raises:

@@ -269,7 +269,7 @@ def test_reduced_block_creep_converges_in_dt(block):
     """The held block's travel in whole steps (no contact sub-steps) of dt = 0.5 and
     0.25 ms: within the 1 mm target and within 15 % of each other (in whole 1 ms steps
     its rocking on the penalty grows: 1.10 mm; the default 1 ms step, its contact in
-    0.25 ms sub-steps, is ``friction.stick_travel``)."""
+    1/3 ms sub-steps, is ``friction.stick_travel``)."""
     theta, mu = math.atan(0.5), 0.7
     travel = [np.abs(block.slide(theta, mu, duration=0.5, method="reduced", dt=dt,
                                  whole_steps=True)[1]).max()
@@ -363,7 +363,7 @@ def test_scene_contact_step_key():
     assert built.simulation.contact_dt == 5e-4
     pre = precompute(scene)
     assert reduced_simulation(scene, pre).contact_substeps == 2
-    assert reduced_simulation(_scene(0.4, simulation={"dt": 1e-3}), pre).contact_substeps == 4
+    assert reduced_simulation(_scene(0.4, simulation={"dt": 1e-3}), pre).contact_substeps == 3
     cases = [({"planes": []}, "has no '[[planes]]'"),
              ({"fixed": {"region": "z > 0.999"}}, "has '[fixed]'")]
     for changes, words in cases:
@@ -528,8 +528,8 @@ def test_full_car_wall_steps_from_the_constant_velocity_increment(monkeypatch,
 @pytest.mark.slow
 def test_reduced_car_at_60_hz_takes_its_contacts_in_sub_steps():
     """The reduced car without examples at 60 Hz steps, its contacts in sub-steps of
-    0.25 ms (the default contact_dt), follows its own run at 1 ms within 2 % (measured
-    0.89 %) over 0.4 s: the wall impact and the first floor contact. Taken in whole 60 Hz
+    1/3 ms (the default contact_dt), follows its own run at 1 ms within 2 % (measured
+    0.23 %) over 0.4 s: the wall impact and the first floor contact. Taken in whole 60 Hz
     steps (contact_dt = flight_dt = dt), Newton stalls in the wall impact (step 12, t = 0.2 s; the
     nose meets the wall at step 9) and the run stops, advising a smaller dt."""
     from lbshape.analysis.norms import trajectory_error
