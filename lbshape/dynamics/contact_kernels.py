@@ -77,17 +77,17 @@ class ContactWork(NamedTuple):
     g: np.ndarray
     #: (12,) the normal pass's small work: J (6), arm (3), Rᵀ n (3)
     small: np.ndarray
-    #: (8, r) the friction's G = R U_i (3 rows), C G (3), Gᵀ T, Gᵀ n
+    #: (6, r) the friction's G = R U_i (3 rows) and C G (3)
     rows: np.ndarray
     #: (27,) the friction's small work: e₁, arm, w, t (3 each), C (9), f, e₂ (3 each)
     friction_small: np.ndarray
-    #: (r, r) Σ Gᵀ C G (upper triangle)
+    #: (r, r) the friction tangent's products: Σ Gᵀ C G, then Σ (Gᵀ T) gᵀ
     Kf: np.ndarray
 
     @staticmethod
     def size(r: int) -> int:
         """Floats in the buffer of a basis of r columns."""
-        return r + 12 + 8 * r + 27 + r * r
+        return r + 12 + 6 * r + 27 + r * r
 
     @classmethod
     def allocate(cls, r: int) -> ContactWork:
@@ -116,11 +116,11 @@ def contact_work(data, r):
     """The :class:`ContactWork` views of a buffer of :meth:`ContactWork.size` floats."""
     g, at = take(data, 0, r)
     small, at = take(data, at, 12)
-    rows, at = take(data, at, 8 * r)
+    rows, at = take(data, at, 6 * r)
     friction_small, at = take(data, at, 27)
     Kf, at = take(data, at, r * r)
     check_size(data, at)
-    return ContactWork(data, g, small, rows.reshape((8, r)), friction_small,
+    return ContactWork(data, g, small, rows.reshape((6, r)), friction_small,
                        Kf.reshape((r, r)))
 
 
@@ -229,7 +229,6 @@ def friction_kernel(rotation, motion, arms, basis, loads, planes, eps, reach, ri
     views, result = contact_work(work, r), contact_output(out, r)
     result.C6[:, :] = 0.0
     result.X[:, :] = 0.0
-    views.Kf[:, :] = 0.0
     arm, w = views.friction_small[3:6], views.friction_small[6:9]
     G = views.rows[0:3]
     pairs = 0

@@ -123,11 +123,14 @@ class FreeBodyPasses:
         times = self._seconds
         times[:] = 0.0
         self.sweeps = 0
-        start, flight = self.time, self.flight_passes
-        if self._contact_at_start():
-            iterations = self._passes(index, start, self.dt, 0, times)
-        else:
-            iterations, self.substeps = self._flight(index, start, flight, times)
+        try:
+            if self._contact_at_start():
+                iterations, self.substeps = self._contact_passes(index, self.time, self.dt,
+                                                                 times)
+            else:
+                iterations, self.substeps = self._flight(index, self.time, times)
+        finally:
+            self._use_length(self.dt)
         # PHASES: weights, target, example force (the generalized load), rigid, contact,
         # internal force and tangent, solve; the rest of the step is overhead
         for mark, part in enumerate((5, 6, 3, 2, 1, 0, 4), start=1):
@@ -135,62 +138,43 @@ class FreeBodyPasses:
         marks[8] = clock()
         return iterations
 
-    def _flight(self, index: int, start: float, flight: int, times: np.ndarray) -> tuple[int, int]:
+    def _flight(self, index: int, start: float, times: np.ndarray) -> tuple[int, int]:
         """The flight passes of a step from ``start``; the rest of the step in contact
         passes from a pass that touched a plane. Returns (Newton iterations, passes)."""
-        iterations = 0
+        flight, iterations = self.flight_passes, 0
+        self._use_length(self.dt / flight)
         for done in range(flight):
             t1 = start + self.dt * (done + 1) / flight
             failure = None
             try:
-                with self._pass_length(self.dt / flight):
-                    taken = self._advance(index, t1, times)
+                taken = self._advance(index, t1, times)
             except SolverError as exc:
                 failure = exc
             if self._retake_in_substeps():
                 rest = self.dt if done == 0 else self.dt * (flight - done) / flight
-                iterations += self._passes(index, start + self.dt * done / flight, rest,
-                                           flight - done, times)
-                return iterations, done + self.substeps
+                more, count = self._contact_passes(index, start + self.dt * done / flight,
+                                                   rest, times)
+                return iterations + more, done + count
             if failure is not None:
                 raise failure
             self._commit(index, t1)
             iterations += taken
         return iterations, flight
 
-    def _passes(self, index: int, start: float, span: float, least: int,
-                times: np.ndarray) -> int:
-        """``span`` s from ``start`` in contact passes (at least ``least`` and the flight
-        passes' share), each committed; returns the Newton iterations and leaves the count
-        in :attr:`substeps`."""
-        count = max(passes(span, self.contact_dt), least,
-                    passes(span, self.flight_dt))
+    def _contact_passes(self, index: int, start: float, span: float,
+                        times: np.ndarray) -> tuple[int, int]:
+        """``span`` s from ``start`` in passes no longer than ``contact_dt`` nor the flight
+        pass, each committed. Returns (Newton iterations, passes)."""
+        count = max(passes(span, self.contact_dt), passes(span, self.flight_dt))
         iterations = 0
-        with self._pass_length(span / count):
-            for k in range(1, count + 1):
-                t1 = start + span * k / count
-                iterations += self._advance(index, t1, times)
-                self._commit(index, t1)
-        self.substeps = count
-        return iterations
+        self._use_length(span / count)
+        for k in range(1, count + 1):
+            t1 = start + span * k / count
+            iterations += self._advance(index, t1, times)
+            self._commit(index, t1)
+        return iterations, count
 
-    def _pass_length(self, h: float) -> _PassLength:
-        """A context in which passes are ``h`` s long (the step length :attr:`dt` after)."""
-        return _PassLength(self, h)
-
-
-class _PassLength:
-    """Sets a body's pass length on entry and :attr:`dt` on exit (only when they differ)."""
-
-    __slots__ = ("body", "h")
-
-    def __init__(self, body, h: float):
-        self.body, self.h = body, h
-
-    def __enter__(self) -> None:
-        if self.h != self.body._h:
-            self.body._set_step_length(self.h)
-
-    def __exit__(self, *exc) -> None:
-        if self.body._h != self.body.dt:
-            self.body._set_step_length(self.body.dt)
+    def _use_length(self, h: float) -> None:
+        """Passes of ``h`` s from now on (the scheme's rates set again only on a change)."""
+        if h != self._h:
+            self._set_step_length(h)
