@@ -24,18 +24,19 @@ ROOT = Path(__file__).resolve().parents[1]
 BEGIN = "<!-- table2:begin -->"
 END = "<!-- table2:end -->"
 SOURCE = "results/table2.json"
+SHORT_COMMIT = 7  # fixed length: git's %h grows with the clone's object count
 
 
 def _git_stamp(root: Path, path: str) -> tuple[str, str]:
     """(short commit, ISO date) of the last commit that changed ``path``; "unstated" without git."""
     try:
         out = subprocess.run(
-            ["git", "log", "-1", "--format=%h %cs", "--", path],
+            ["git", "log", "-1", "--format=%H %cs", "--", path],
             cwd=root, capture_output=True, text=True, check=True,
         ).stdout.split()
     except (OSError, subprocess.CalledProcessError):
         out = []
-    return (out[0], out[1]) if len(out) == 2 else ("unstated", "unstated")
+    return (out[0][:SHORT_COMMIT], out[1]) if len(out) == 2 else ("unstated", "unstated")
 
 
 def _percent(x: float | None) -> str:

@@ -23,6 +23,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = "results"
+SHORT_COMMIT = 7  # fixed length: git's %h grows with the clone's object count
 INDEX = "README.md"
 #: the index and its map: their own commit would change with every commit of the index
 SELF = (INDEX, "SOURCES.toml")
@@ -53,9 +54,9 @@ def source_of(name: str, sources: list[dict]) -> dict:
 
 def last_change(root: Path, name: str) -> tuple[str, str]:
     """(short commit, date) of the last commit that changed ``results/name``."""
-    out = subprocess.run(["git", "log", "-1", "--format=%h %cs", "--", f"{RESULTS}/{name}"],
+    out = subprocess.run(["git", "log", "-1", "--format=%H %cs", "--", f"{RESULTS}/{name}"],
                          cwd=root, capture_output=True, text=True, check=True).stdout.split()
-    return (out[0], out[1]) if len(out) == 2 else ("uncommitted", "uncommitted")
+    return (out[0][:SHORT_COMMIT], out[1]) if len(out) == 2 else ("uncommitted", "uncommitted")
 
 
 def render_index(root: Path = ROOT) -> str:
