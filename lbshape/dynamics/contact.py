@@ -212,6 +212,12 @@ class PlaneContact:
         self._stiffness_rows = np.zeros((s_count * P, r))
         # (4 s P, r) the friction's rows: 2 per pair of √C G (C = L Lᵀ), then Gᵀ T, Gᵀ n
         self._friction_rows = np.zeros((4 * s_count * P, r))
+        # (2 s P, 6) the columns (L e; arm × L e) of the coupling X = Σ Bᵀ C G, one product
+        self._friction_columns = np.zeros((2 * s_count * P, 6))
+        # (s P, 5) the friction's pairs [vertex, plane, world velocity (3)]
+        self._friction_pairs = np.zeros((s_count * P, 5))
+        self._friction_gathered = (self._friction_rows, self._friction_columns,
+                                   self._friction_pairs)
         # the surface deformed in the body frame, y_i = X̄_i + U_i q (one BLAS product
         # per evaluation; the kernels' own loops over r were 6x slower on the car)
         self._basis_rows = self.basis.reshape(-1, r)
@@ -271,7 +277,7 @@ class PlaneContact:
                         self._rest_q if qd is None else qd, float(rate), self._motion)
             friction_kernel(rotation, self._motion, self._arms, self.basis, self._loads,
                             self._planes, SLIP_SPEED, self._reach, rigid, self._work.data,
-                            self._out.data, self._friction_rows)
+                            self._out.data, self._friction_gathered)
         elif self.has_friction:
             self.damping_rigid[:] = 0.0
             self.coupling[:] = 0.0

@@ -169,6 +169,10 @@ def face_kernel(center, rotation, deformed, faces, face_areas, planes, reach, ar
         if not deepest > 0.0:
             continue
         for t in range(faces.shape[0]):  # c_T |T| = max(β |a_T|, −(R a_T)·n)
+            if not (depth[faces[t, 0]] > 0.0 or depth[faces[t, 1]] > 0.0
+                    or depth[faces[t, 2]] > 0.0):
+                shares[t] = 0.0  # nothing of it penetrates: face_loads passes it by
+                continue
             value = 0.0
             for a in range(3):
                 value -= (rotation[a, 0] * face_areas[t, 0] + rotation[a, 1] * face_areas[t, 1]

@@ -77,9 +77,8 @@ class ContactWork(NamedTuple):
     g: np.ndarray
     #: (12,) the normal pass's small work: J (6), arm (3), Rᵀ n (3)
     small: np.ndarray
-    #: (6, r) the friction's G = R U_i (3 rows) and C G (3)
-    rows: np.ndarray
-    #: (27,) the friction's small work: e₁, arm, w, t (3 each), C (9), f, e₂ (3 each)
+    #: (39,) the friction's small work: e₁, arm, w, t (3 each), C (9), f, e₂, U_i q̇
+    #: (3 each), then Rᵀ e₁, Rᵀ e₂, Rᵀ n (3 × 3)
     friction_small: np.ndarray
     #: (r, r) the friction tangent's products: Σ Gᵀ C G, then Σ (Gᵀ T) gᵀ
     Kf: np.ndarray
@@ -87,7 +86,7 @@ class ContactWork(NamedTuple):
     @staticmethod
     def size(r: int) -> int:
         """Floats in the buffer of a basis of r columns."""
-        return r + 12 + 6 * r + 27 + r * r
+        return r + 12 + 39 + r * r
 
     @classmethod
     def allocate(cls, r: int) -> ContactWork:
@@ -116,12 +115,10 @@ def contact_work(data, r):
     """The :class:`ContactWork` views of a buffer of :meth:`ContactWork.size` floats."""
     g, at = take(data, 0, r)
     small, at = take(data, at, 12)
-    rows, at = take(data, at, 6 * r)
-    friction_small, at = take(data, at, 27)
+    friction_small, at = take(data, at, 39)
     Kf, at = take(data, at, r * r)
     check_size(data, at)
-    return ContactWork(data, g, small, rows.reshape((6, r)), friction_small,
-                       Kf.reshape((r, r)))
+    return ContactWork(data, g, small, friction_small, Kf.reshape((r, r)))
 
 
 @njit
@@ -212,25 +209,27 @@ def contact_kernel(arms, basis, loads, rotation, planes, reach, rigid, work, out
 
 @njit
 def friction_kernel(rotation, motion, arms, basis, loads, planes, eps, reach, rigid, work,
-                    out, rows):
+                    out, gathered):
     """The friction of the loaded vertices (:mod:`lbshape.dynamics.contact`), added to
     ``force``, ``torque``, ``generalized`` and ``Kq`` of ``out``; its ``C6`` (6, 6)
-    receives ``C₆``.
+    receives ``C₆`` and its ``X`` (6, r) the coupling.
 
     Vertex i (arm a, row i of ``arms``, :func:`~lbshape.dynamics.contact_faces.face_kernel`),
     world velocity ``w = v + ω × a + R U_i q̇`` (``motion`` = [v, ω, rate, q̇],
-    :func:`pack_motion`); per
-    reached plane with μ > 0 on which it has a stiffness, :func:`_plane_friction` with its
-    normal force and stiffness (``loads``). ``work`` and ``out`` are the buffers of
-    :class:`ContactWork` and :class:`ContactOutput`; ``rows`` (4 pairs, r) gathers each
-    pair's rows of ``Σ Gᵀ C G`` and ``Σ (Gᵀ T)(Gᵀ n)ᵀ``, summed as BLAS products.
+    :func:`pack_motion`), pressed onto a reached plane p with μ > 0 on which it has a
+    stiffness is a pair; the pairs are listed first, then :func:`_pairs_friction` takes
+    them in one pass. ``work`` and ``out`` are the buffers of :class:`ContactWork` and
+    :class:`ContactOutput`; ``gathered`` = (rows (4 pairs, r), columns (2 pairs, 6),
+    pairs (pairs, 5)): ``rows`` gathers each pair's rows of ``Σ Gᵀ C G`` and
+    ``Σ (Gᵀ T)(Gᵀ n)ᵀ``, ``columns`` the matching columns of X (each sum is one BLAS
+    product), ``pairs`` the list [i, p, w].
     """
     r = basis.shape[2]
     views, result = contact_work(work, r), contact_output(out, r)
     result.C6[:, :] = 0.0
     result.X[:, :] = 0.0
-    arm, w = views.friction_small[3:6], views.friction_small[6:9]
-    G = views.rows[0:3]
+    rows, columns, listed = gathered
+    w, rate_body = views.friction_small[6:9], views.friction_small[27:30]
     pairs = 0
     for i in range(arms.shape[0]):
         touching = False
@@ -239,27 +238,26 @@ def friction_kernel(rotation, motion, arms, basis, loads, planes, eps, reach, ri
                 touching = True
         if not touching:
             continue
-        for a in range(3):
-            arm[a] = arms[i, a]
-        for a in range(3):  # G = R U_i, w = v + ω × a + G q̇
-            for j in range(r):
-                G[a, j] = (rotation[a, 0] * basis[i, 0, j] + rotation[a, 1] * basis[i, 1, j]
-                           + rotation[a, 2] * basis[i, 2, j])
-        w[0] = motion[0] + motion[4] * arm[2] - motion[5] * arm[1]
-        w[1] = motion[1] + motion[5] * arm[0] - motion[3] * arm[2]
-        w[2] = motion[2] + motion[3] * arm[1] - motion[4] * arm[0]
-        for a in range(3):
+        for a in range(3):  # U_i q̇, the vertex's deformation rate in the body frame
             value = 0.0
             for j in range(r):
-                value += G[a, j] * motion[7 + j]
-            w[a] += value
+                value += basis[i, a, j] * motion[7 + j]
+            rate_body[a] = value
+        w[0] = motion[0] + motion[4] * arms[i, 2] - motion[5] * arms[i, 1]
+        w[1] = motion[1] + motion[5] * arms[i, 0] - motion[3] * arms[i, 2]
+        w[2] = motion[2] + motion[3] * arms[i, 1] - motion[4] * arms[i, 0]
+        for a in range(3):  # + R U_i q̇
+            w[a] += (rotation[a, 0] * rate_body[0] + rotation[a, 1] * rate_body[1]
+                     + rotation[a, 2] * rate_body[2])
         for p in range(planes.shape[0]):
             if reach[p] and planes[p, 7] != 0.0 and loads[p, 2, i] > 0.0:
-                _plane_friction(planes, p, loads[p, 1, i], loads[p, 2, i], eps, rigid, views,
-                                result, rows, pairs)
+                listed[pairs, 0], listed[pairs, 1] = i, p
+                listed[pairs, 2], listed[pairs, 3], listed[pairs, 4] = w[0], w[1], w[2]
                 pairs += 1
     if pairs == 0:
         return
+    _pairs_friction(planes, loads, eps, rigid, rotation, basis, arms, views, result,
+                    gathered, pairs)
     rate, Kq, Kf, limit = motion[6], result.Kq, views.Kf, rows.shape[0] // 4
     np.dot(rows[:2 * pairs].T, rows[:2 * pairs], Kf)  # Σ Gᵀ C G
     for j in range(r):  # rate Σ Gᵀ C G from its upper triangle
@@ -272,61 +270,76 @@ def friction_kernel(rotation, motion, arms, basis, loads, planes, eps, reach, ri
     for j in range(r):  # − μ k Σ (Gᵀ T) gᵀ
         for k2 in range(r):
             Kq[j, k2] -= Kf[j, k2]
+    if rigid:  # X = Σ Bᵀ C G = Σ (L e; a × L e)(L eᵀ G)
+        np.dot(columns[:2 * pairs].T, rows[:2 * pairs], result.X)
 
 
 @njit
-def _plane_friction(planes, p, fn, kn, eps, rigid, views, result, rows, pair):
-    """The friction of one vertex pressed onto plane p with the normal force fn (N) and
-    the lumped stiffness kn (N/m), its arm and velocity w and its G = R U_i in ``views``
-    (:class:`ContactWork`): ``t = (I − n nᵀ) w``, ``s = √(|t|² + ε²)``, ``T = t/s``,
+def _pairs_friction(planes, loads, eps, rigid, rotation, basis, arms, views, result,
+                    gathered, count):
+    """The friction of the ``count`` listed pairs (vertex i on plane p, velocity w; see
+    :func:`friction_kernel`) with the normal force fn (N) and the lumped stiffness kn (N/m)
+    of ``loads[p, 1:3, i]``: ``t = (I − n nᵀ) w``, ``s = √(|t|² + ε²)``, ``T = t/s``,
     ``f_t = −μ fn T``, ``C = μ fn (P − T Tᵀ)/s``, added to ``result``
-    (:class:`ContactOutput`); the ``pair``-th rows of the deformation tangent into
-    ``rows`` (:func:`friction_kernel`): C = L Lᵀ on the plane's directions e₁ ∥ T
-    (eigenvalue μ fn (1 − |T|²)/s) and e₂ = n × e₁ (μ fn / s), so that Gᵀ C G is the
-    product of the rows Lᵀ G; then μ k Gᵀ T and g = Gᵀ n."""
-    r = views.g.shape[0]
-    G, CG = views.rows[0:3], views.rows[3:6]
+    (:class:`ContactOutput`).
+
+    On the plane's directions e₁ ∥ T and e₂ = n × e₁ (T = τ e₁), C = L Lᵀ with the columns
+    √(μ fn (1 − τ²)/s) e₁ and √(μ fn / s) e₂, so every r-vector the tangents need is a
+    multiple of ``eᵀ G`` (G = R U_i, taken as ``U_iᵀ (Rᵀ e)``): the pair's rows ``Lᵀ G``
+    into ``gathered``'s rows, then μ k Gᵀ T = μ k τ e₁ᵀ G and g = Gᵀ n, and the columns
+    ``(L e; arm × L e)`` of X into its columns. One call for all pairs: a call per pair,
+    with the buffers' views, cost more than its arithmetic."""
+    r = basis.shape[2]
+    rows, columns, listed = gathered
     limit = rows.shape[0] // 4
-    GT, GN = rows[2 * limit + pair], rows[3 * limit + pair]
     small = views.friction_small
-    arm, w, t = small[3:6], small[6:9], small[9:12]
+    t, f, e1, e2 = small[9:12], small[21:24], small[0:3], small[24:27]
     C = small[12:21].reshape((3, 3))
-    f = small[21:24]
+    projections = small[30:39].reshape((3, 3))  # Rᵀ e₁, Rᵀ e₂, Rᵀ n
     force, torque, generalized = result.force, result.torque, result.generalized
-    n = planes[p, 3:6]
-    wn = w[0] * n[0] + w[1] * n[1] + w[2] * n[2]
-    for a in range(3):
-        t[a] = w[a] - wn * n[a]
-    s = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + eps * eps)
-    mu = planes[p, 7]
-    mu_k = mu * kn
-    scale = mu * fn / s
-    for a in range(3):
-        t[a] /= s  # T
-        f[a] = -scale * s * t[a]
-    for a in range(3):  # C = μ k d / s (P − T Tᵀ)
-        for b in range(3):
-            C[a, b] = scale * ((1.0 if a == b else 0.0) - n[a] * n[b] - t[a] * t[b])
-    for a in range(3):
-        force[a] += f[a]
-    # deformation tangent: rate Gᵀ C G − μ k (Gᵀ T) gᵀ, g = Gᵀ n: the rows of each
-    e1, e2 = small[0:3], small[24:27]
-    _plane_directions(n, t, e1, e2)
-    tau2 = t[0] * t[0] + t[1] * t[1] + t[2] * t[2]
-    size = max(scale, 0.0)  # μ fn / s; fn ≥ 0 but for round-off
-    root1, root2 = np.sqrt(size * max(1.0 - tau2, 0.0)), np.sqrt(size)
-    for j in range(r):
-        generalized[j] += G[0, j] * f[0] + G[1, j] * f[1] + G[2, j] * f[2]
-        CG[0, j] = C[0, 0] * G[0, j] + C[0, 1] * G[1, j] + C[0, 2] * G[2, j]
-        CG[1, j] = C[1, 0] * G[0, j] + C[1, 1] * G[1, j] + C[1, 2] * G[2, j]
-        CG[2, j] = C[2, 0] * G[0, j] + C[2, 1] * G[1, j] + C[2, 2] * G[2, j]
-        GT[j] = mu_k * (G[0, j] * t[0] + G[1, j] * t[1] + G[2, j] * t[2])
-        GN[j] = G[0, j] * n[0] + G[1, j] * n[1] + G[2, j] * n[2]
-    for j in range(r):
-        rows[2 * pair, j] = root1 * (G[0, j] * e1[0] + G[1, j] * e1[1] + G[2, j] * e1[2])
-        rows[2 * pair + 1, j] = root2 * (G[0, j] * e2[0] + G[1, j] * e2[1] + G[2, j] * e2[2])
-    if rigid:
-        _friction_rigid(arm, f, C, CG, torque, result.C6, result.X)
+    for pair in range(count):
+        i, p = int(listed[pair, 0]), int(listed[pair, 1])
+        fn, kn, mu = loads[p, 1, i], loads[p, 2, i], planes[p, 7]
+        n = planes[p, 3:6]
+        wn = listed[pair, 2] * n[0] + listed[pair, 3] * n[1] + listed[pair, 4] * n[2]
+        for a in range(3):
+            t[a] = listed[pair, 2 + a] - wn * n[a]
+        s = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + eps * eps)
+        scale = mu * fn / s
+        for a in range(3):
+            t[a] /= s  # T
+            f[a] = -scale * s * t[a]
+            force[a] += f[a]
+        for a in range(3):  # C = μ k d / s (P − T Tᵀ)
+            for b in range(3):
+                C[a, b] = scale * ((1.0 if a == b else 0.0) - n[a] * n[b] - t[a] * t[b])
+        _plane_directions(n, t, e1, e2)
+        tau = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+        size = max(scale, 0.0)  # μ fn / s; fn ≥ 0 but for round-off
+        root1, root2 = np.sqrt(size * max(1.0 - tau * tau, 0.0)), np.sqrt(size)
+        R = rotation
+        for a in range(3):
+            projections[0, a] = R[0, a] * e1[0] + R[1, a] * e1[1] + R[2, a] * e1[2]
+            projections[1, a] = R[0, a] * e2[0] + R[1, a] * e2[1] + R[2, a] * e2[2]
+            projections[2, a] = R[0, a] * n[0] + R[1, a] * n[1] + R[2, a] * n[2]
+        along, tangent = -mu * fn * tau, mu * kn * tau  # f = along e₁; μ k Gᵀ T / e₁ᵀ G
+        for j in range(r):
+            b0, b1, b2 = basis[i, 0, j], basis[i, 1, j], basis[i, 2, j]
+            g1 = b0 * projections[0, 0] + b1 * projections[0, 1] + b2 * projections[0, 2]
+            g2 = b0 * projections[1, 0] + b1 * projections[1, 1] + b2 * projections[1, 2]
+            generalized[j] += along * g1
+            rows[2 * pair, j], rows[2 * pair + 1, j] = root1 * g1, root2 * g2
+            rows[2 * limit + pair, j] = tangent * g1
+            rows[3 * limit + pair, j] = (b0 * projections[2, 0] + b1 * projections[2, 1]
+                                         + b2 * projections[2, 2])
+        if rigid:
+            arm = arms[i]
+            torque[0] += arm[1] * f[2] - arm[2] * f[1]
+            torque[1] += arm[2] * f[0] - arm[0] * f[2]
+            torque[2] += arm[0] * f[1] - arm[1] * f[0]
+            _add_rigid_rate(C, arm, result.C6)
+            _rigid_column(arm, e1, root1, columns[2 * pair])
+            _rigid_column(arm, e2, root2, columns[2 * pair + 1])
 
 
 @njit
@@ -350,24 +363,6 @@ def _plane_directions(n, t, e1, e2):
     e2[0] = n[1] * e1[2] - n[2] * e1[1]
     e2[1] = n[2] * e1[0] - n[0] * e1[2]
     e2[2] = n[0] * e1[1] - n[1] * e1[0]
-
-
-@njit
-def _friction_rigid(arm, f, C, CG, torque, C6, X):
-    """A friction force f at the arm: its torque, its rate on the rigid motion C₆ and the
-    coupling X += Bᵀ C G: (C G; arm × C G) per column."""
-    torque[0] += arm[1] * f[2] - arm[2] * f[1]
-    torque[1] += arm[2] * f[0] - arm[0] * f[2]
-    torque[2] += arm[0] * f[1] - arm[1] * f[0]
-    _add_rigid_rate(C, arm, C6)
-    for j in range(CG.shape[1]):
-        c0, c1, c2 = CG[0, j], CG[1, j], CG[2, j]
-        X[0, j] += c0
-        X[1, j] += c1
-        X[2, j] += c2
-        X[3, j] += arm[1] * c2 - arm[2] * c1
-        X[4, j] += arm[2] * c0 - arm[0] * c2
-        X[5, j] += arm[0] * c1 - arm[1] * c0
 
 
 @njit
@@ -397,3 +392,12 @@ def _add_rigid_rate(C, arm, C6):
         C6[3, col] += a1 * d2 - a2 * d1
         C6[4, col] += a2 * d0 - a0 * d2
         C6[5, col] += a0 * d1 - a1 * d0
+
+
+@njit
+def _rigid_column(arm, e, root, column):
+    """``column`` (6,) = root (e; arm × e): a column of Bᵀ L."""
+    column[0], column[1], column[2] = root * e[0], root * e[1], root * e[2]
+    column[3] = root * (arm[1] * e[2] - arm[2] * e[1])
+    column[4] = root * (arm[2] * e[0] - arm[0] * e[2])
+    column[5] = root * (arm[0] * e[1] - arm[1] * e[0])

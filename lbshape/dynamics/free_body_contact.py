@@ -21,10 +21,12 @@ q̇₁ (the scheme's kinematics of Δq), with its tangent (``∂q̇₁/∂q₁ =
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from lbshape.dynamics.free_body_kernels import contact_theta_into
-from lbshape.dynamics.kernels import lu_solve
+from lbshape.dynamics.kernels import lu_solve_rows
 
 #: contact sweeps of a step stop when the end momenta move by less than this share of
 #: the momenta and the step's impulse. On the car (no examples, 800 steps) 1e-6, 1e-4 and
@@ -33,6 +35,17 @@ from lbshape.dynamics.kernels import lu_solve
 #: it): 1e-4 keeps 10× margin over the smallest change that showed (rotation error
 #: 12.640° → 12.649° at 1e-3)
 SWEEP_RTOL = 1e-4
+#: the change test above accepts a sweep whose own error is about ρ/(1 − ρ) times its
+#: change (ρ the sweeps' contraction): up to this share of SWEEP_RTOL wherever ρ ≤ 0.1.
+#: The second sweep is accepted when its estimated error is within the same bound, with ρ
+#: measured (third sweep's change over the second's) on a pass of the same contact no more
+#: than :data:`CONTRACTION_AGE` passes before (resting on the floor with friction the
+#: car's sweeps contract by ρ ≈ 0.005, and its second sweep changes ~3e-4)
+SWEEP_ERROR_SHARE = 0.1
+#: passes a measured contraction is used for before a pass measures it again
+CONTRACTION_AGE = 8
+#: a contraction above this is not used to accept a second sweep
+CONTRACTION_LIMIT = 0.1
 #: at most this many contact sweeps per step (the last one is accepted)
 MAX_CONTACT_SWEEPS = 12
 
@@ -79,6 +92,7 @@ class FreeBodyContact:
         :data:`MAX_CONTACT_SWEEPS`). Stores the contact and ν₁ the next sweep uses."""
         contact, kick, end = self.contact, self._kick_arrays, self._next
         if contact is None or contact.scalars[1] == 0 or kick.theta[0] != 0.5:
+            self._contraction_age = CONTRACTION_AGE  # a new contact measures it afresh
             return False
         momentum, radius = kick.momentum_end, contact.radius0
         p1, L1, dp, dL = end.p, end.L, kick.dp, kick.dL
@@ -88,7 +102,7 @@ class FreeBodyContact:
             change += (p1[a] - momentum[a]) ** 2 + ((L1[a] / radius - momentum[3 + a]) ** 2)
             size += (p1[a] ** 2 + (L1[a] / radius) ** 2 + dp[a] ** 2 + (dL[a] / radius) ** 2)
             momentum[a], momentum[3 + a] = p1[a], L1[a] / radius
-        if sweeps > 1 and change <= (SWEEP_RTOL**2) * size:
+        if sweeps > 1 and self._sweep_converged(sweeps, change, size):
             return False
         if sweeps >= MAX_CONTACT_SWEEPS:
             return False
@@ -105,6 +119,26 @@ class FreeBodyContact:
                           + R1[a, 2] * omega_body[2])
         return True
 
+    def _sweep_converged(self, sweeps: int, change: float, size: float) -> bool:
+        """Whether sweep ``sweeps`` (≥ 2), which moved the end momenta by √``change``
+        against their size √``size``, is accepted: by the change test
+        (:data:`SWEEP_RTOL`), or, the second sweep, by its error estimated from a recent
+        contraction (:data:`SWEEP_ERROR_SHARE`). A third sweep measures the contraction."""
+        if sweeps == 3 and self._sweep_change > 0.0:
+            self._contraction = math.sqrt(change / self._sweep_change)
+            self._contraction_age = 0
+        self._sweep_change = change
+        if change <= (SWEEP_RTOL**2) * size:
+            return True
+        if sweeps != 2 or self._contraction_age >= CONTRACTION_AGE:
+            return False
+        ratio = self._contraction
+        if ratio > CONTRACTION_LIMIT:
+            return False
+        self._contraction_age += 1
+        estimate = ratio / (1.0 - ratio)
+        return estimate * estimate * change <= (SWEEP_ERROR_SHARE * SWEEP_RTOL) ** 2 * size
+
     def _effective_friction_rate(self, out: np.ndarray) -> None:
         """The friction's rate matrix on the rigid velocity with the deformation's answer:
         a change δν of (v, ω) changes the slip, the deformation solve answers with
@@ -113,17 +147,14 @@ class FreeBodyContact:
         symmetric part into ``out`` (6, 6). With C₆ alone the sweeps converged by ~0.8
         per sweep on the car's wall impact (the deformation takes the slip)."""
         contact, solve = self.contact, self._solve
-        X, Y = contact.coupling, self._coupling_work
-        for a in range(6):
-            if not lu_solve(solve.base, solve.K, X[a], solve.J, Y[a]):
-                out[:] = contact.damping_rigid
-                return
-        np.dot(X, Y.T, out=self._rate6)
-        rate = self._cv_dt
-        for a in range(6):
-            for b in range(6):
-                out[a, b] = contact.damping_rigid[a, b] - 0.5 * rate * (
-                    self._rate6[a, b] + self._rate6[b, a])
+        X, Y, product = contact.coupling, self._coupling_work, self._rate6
+        if not lu_solve_rows(solve.base, solve.K, X, solve.J, Y):
+            out[:] = contact.damping_rigid
+            return
+        np.dot(X, Y.T, out=product)
+        np.add(product, product.T, out=out)
+        out *= -0.5 * self._cv_dt
+        out += contact.damping_rigid
 
 
 def contact_theta(mass6: np.ndarray, stiffness6: np.ndarray, dt: float) -> float:

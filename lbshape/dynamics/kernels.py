@@ -136,6 +136,46 @@ def lu_solve(base, K, rhs, J, x):
 
 
 @njit
+def lu_solve_rows(base, K, rhs, J, x):
+    """x[m] = (base + K)⁻¹ rhs[m] for each row m of ``rhs`` (M, n), one LU factorisation
+    (partial pivoting, in J) for all: each row gets the operations :func:`lu_solve` gives
+    it. False if singular."""
+    n, count = K.shape[0], rhs.shape[0]
+    for i in range(n):
+        for j in range(n):
+            J[i, j] = base[i, j] + K[i, j]
+    for m in range(count):
+        for i in range(n):
+            x[m, i] = rhs[m, i]
+    for k in range(n):
+        pivot, big = k, abs(J[k, k])
+        for i in range(k + 1, n):
+            if abs(J[i, k]) > big:
+                pivot, big = i, abs(J[i, k])
+        if not (big > 0.0 and np.isfinite(big)):
+            return False
+        if pivot != k:
+            for j in range(n):
+                J[k, j], J[pivot, j] = J[pivot, j], J[k, j]
+            for m in range(count):
+                x[m, k], x[m, pivot] = x[m, pivot], x[m, k]
+        for i in range(k + 1, n):
+            factor = J[i, k] / J[k, k]
+            J[i, k] = factor
+            for j in range(k + 1, n):
+                J[i, j] -= factor * J[k, j]
+            for m in range(count):
+                x[m, i] -= factor * x[m, k]
+    for m in range(count):
+        for i in range(n - 1, -1, -1):
+            value = x[m, i]
+            for j in range(i + 1, n):
+                value -= J[i, j] * x[m, j]
+            x[m, i] = value / J[i, i]
+    return True
+
+
+@njit
 def max_symmetric_eigenvalue(A):
     """Largest eigenvalue of the symmetric matrix A (n, n) by cyclic Jacobi (A destroyed)."""
     n = A.shape[0]

@@ -22,8 +22,15 @@ from lbshape.dynamics.contact import ContactPlane, PlaneContact
 from lbshape.dynamics.contact_faces import FACING_FLOOR, face_loads
 from lbshape.dynamics.fictitious import LEVI_CIVITA
 from lbshape.dynamics.free_body import PHASES, FreeLoad
-from lbshape.dynamics.free_body_contact import MAX_CONTACT_SWEEPS, SWEEP_RTOL, contact_theta
-from lbshape.dynamics.kernels import lu_solve, max_symmetric_eigenvalue
+from lbshape.dynamics.free_body_contact import (
+    CONTRACTION_AGE,
+    CONTRACTION_LIMIT,
+    MAX_CONTACT_SWEEPS,
+    SWEEP_ERROR_SHARE,
+    SWEEP_RTOL,
+    contact_theta,
+)
+from lbshape.dynamics.kernels import lu_solve, lu_solve_rows, max_symmetric_eigenvalue
 from lbshape.dynamics.loads import TimeProfile
 from lbshape.dynamics.reduced import REALTIME_RTOL
 from lbshape.dynamics.rigid_frame import cayley, orthonormality_error, rotate
@@ -146,6 +153,10 @@ class ReferenceFreeBody:
         self.R = np.eye(3)
         self.L = ref_inertia(frame, self.q) @ np.asarray(angular_velocity, dtype=float)
         self.time = 0.0
+        # the sweeps' contraction last measured and the passes it has served since
+        self.contraction, self.contraction_age = 1.0, CONTRACTION_AGE
+        self.last_change = 0.0  # the last sweep's squared change of the end momenta
+        self.estimated = 0  # second sweeps accepted by their estimated error
         omega = self.omega()
         f = elastic.force_and_tangent(self.q)[0] + k_ex * self.q
         f = f + ref_fictitious(frame, self.q, omega, np.zeros(3))[0]
@@ -222,12 +233,14 @@ class ReferenceFreeBody:
                 break
             res1 = ref_contact(self.contact, pose[0], pose[1], self.q + deformation[0])
             if res1["active"] == 0 or theta != 0.5:
+                self.contraction_age = CONTRACTION_AGE
                 break
             radius = self.contact.radius0
             momentum = np.concatenate([pose[2], pose[3] / radius])
             size = np.sum(momentum**2) + np.sum(impulse[:3] ** 2) + np.sum(
                 (impulse[3:] / radius) ** 2)
-            if sweeps > 1 and np.sum((momentum - previous) ** 2) <= SWEEP_RTOL**2 * size:
+            if sweeps > 1 and self.sweep_accepted(sweeps, np.sum((momentum - previous) ** 2),
+                                                  size):
                 break
             previous = momentum
             if sweeps == MAX_CONTACT_SWEEPS:
@@ -242,6 +255,23 @@ class ReferenceFreeBody:
         self.q, self.qd, self.qa = self.q + dq, v1, a1
         self.time = t1
         return iterations
+
+    def sweep_accepted(self, sweeps, change, size):
+        """The change test, or the second sweep's error estimated from the contraction
+        (third sweep's change over the second's) of a recent pass."""
+        if sweeps == 3 and self.last_change > 0:
+            self.contraction, self.contraction_age = np.sqrt(change / self.last_change), 0
+        self.last_change = change
+        if change <= SWEEP_RTOL**2 * size:
+            return True
+        if (sweeps != 2 or self.contraction_age >= CONTRACTION_AGE
+                or self.contraction > CONTRACTION_LIMIT):
+            return False
+        self.contraction_age += 1
+        error = self.contraction / (1 - self.contraction) * np.sqrt(change)
+        accepted = error <= SWEEP_ERROR_SHARE * SWEEP_RTOL * np.sqrt(size)
+        self.estimated += accepted
+        return accepted
 
     def kick(self, dp, dL):
         """(c₁, R₁, p₁, L₁, ω₁, ω̇) (body ω) after the impulse (dp, dL), world."""
@@ -373,12 +403,22 @@ def test_small_dense_kernels_match_lapack():
         rhs, x, J = rng.standard_normal(n), np.zeros(n), np.zeros((n, n))
         assert lu_solve(base, K, rhs, J, x)
         np.testing.assert_allclose(x, np.linalg.solve(base + K, rhs), rtol=1e-9, atol=1e-12)
+        rows = rng.standard_normal((6, n))  # several right-hand sides, one factorisation
+        solved = np.zeros((6, n))
+        assert lu_solve_rows(base, K, rows, J, solved)
+        for row, got in zip(rows, solved, strict=True):
+            assert lu_solve(base, K, row, J, x)
+            np.testing.assert_array_equal(got, x)
+        np.testing.assert_allclose(solved.T, np.linalg.solve(base + K, rows.T), rtol=1e-9,
+                                   atol=1e-12)
         S = rng.standard_normal((n, n))
         S = S + S.T
         assert max_symmetric_eigenvalue(S.copy()) == pytest.approx(
             np.linalg.eigvalsh(S).max(), rel=1e-12)
     singular = np.zeros((4, 4))
     assert not lu_solve(singular, singular, np.ones(4), np.zeros((4, 4)), np.zeros(4))
+    assert not lu_solve_rows(singular, singular, np.ones((2, 4)), np.zeros((4, 4)),
+                             np.zeros((2, 4)))
     for scale in (1e-2, 1.0, 1e2, 1e4):  # θ in all three regimes
         A = rng.standard_normal((6, 6))
         M6 = A @ A.T + 6 * np.eye(6)
@@ -426,7 +466,8 @@ def _scenario(body: Body, *, integrator: str, push: bool = False):
                                                   ("newmark", True)])
 def test_compiled_step_matches_the_reference_step(soft, integrator, push):
     """200 steps (free flight, impact, rolling contact): the compiled path follows the
-    numpy reference to round-off, with the same Newton iterations."""
+    numpy reference to round-off, with the same Newton iterations (and sweeps: the
+    resting bar's second sweeps are accepted on their estimated error, 326 sweeps of 399)."""
     reference, sim, contact = _scenario(soft, integrator=integrator, push=push)
     worst = dict(q=0.0, c=0.0, R=0.0, p=0.0, L=0.0)
     touched = 0
@@ -442,6 +483,7 @@ def test_compiled_step_matches_the_reference_step(soft, integrator, push):
                                                / max(np.abs(want).max(), 1e-12)))
         touched += contact.scalars[1] > 0
     assert touched >= 50, touched  # the bar did land and stay on the floor
+    assert reference.estimated > 10  # second sweeps accepted on their estimated error
     assert max(worst.values()) <= 1e-9, worst
 
 
