@@ -106,40 +106,13 @@ def cholesky_solve_in_place(L, b):
 def lu_solve(base, K, rhs, J, x):
     """x = (base + K)⁻¹ rhs by LU with partial pivoting in J; False if singular."""
     n = rhs.shape[0]
-    for i in range(n):
-        x[i] = rhs[i]
-        for j in range(n):
-            J[i, j] = base[i, j] + K[i, j]
-    for k in range(n):
-        pivot, big = k, abs(J[k, k])
-        for i in range(k + 1, n):
-            if abs(J[i, k]) > big:
-                pivot, big = i, abs(J[i, k])
-        if not (big > 0.0 and np.isfinite(big)):
-            return False
-        if pivot != k:
-            for j in range(n):
-                J[k, j], J[pivot, j] = J[pivot, j], J[k, j]
-            x[k], x[pivot] = x[pivot], x[k]
-        for i in range(k + 1, n):
-            factor = J[i, k] / J[k, k]
-            J[i, k] = factor
-            for j in range(k + 1, n):
-                J[i, j] -= factor * J[k, j]
-            x[i] -= factor * x[k]
-    for i in range(n - 1, -1, -1):
-        value = x[i]
-        for j in range(i + 1, n):
-            value -= J[i, j] * x[j]
-        x[i] = value / J[i, i]
-    return True
+    return lu_solve_rows(base, K, rhs.reshape((1, n)), J, x.reshape((1, n)))
 
 
 @njit
 def lu_solve_rows(base, K, rhs, J, x):
-    """x[m] = (base + K)⁻¹ rhs[m] for each row m of ``rhs`` (M, n), one LU factorisation
-    (partial pivoting, in J) for all: each row gets the operations :func:`lu_solve` gives
-    it. False if singular."""
+    """x[m] = (base + K)⁻¹ rhs[m] for each row m of ``rhs`` (M, n) by LU with partial
+    pivoting in J, one factorisation for all rows; False if singular."""
     n, count = K.shape[0], rhs.shape[0]
     for i in range(n):
         for j in range(n):
