@@ -31,8 +31,9 @@ reaches a plane):
    contact frequency is resolved, θ = ½), steps 2–4 are repeated with the kick
    ``(M₆ + θ² Δt² K₆) Δν = Δt F_loads + ½ Δt (C₀ + C₁) + θ² Δt² K₆ (ν₁ − ν₀)``, C₁ and
    ν₁ the contact (force, torque) and the velocity at the end of the previous sweep,
-   until the end momenta settle (:data:`SWEEP_RTOL`, at most :data:`MAX_CONTACT_SWEEPS`
-   passes): the fixed point is the trapezoidal contact impulse ``M₆ Δν = Δt F_loads +
+   until the end momenta settle (:data:`SWEEP_RTOL`, or a second sweep's error estimated
+   from a recent contraction, :data:`SWEEP_ERROR_SHARE`; at most
+   :data:`MAX_CONTACT_SWEEPS` passes): the fixed point is the trapezoidal contact impulse ``M₆ Δν = Δt F_loads +
    ½ Δt (C₀ + C₁)`` of the rigid motion and the deformation together (why:
    ``docs/decisions.md``, free bodies).
 
