@@ -6,8 +6,10 @@ free bodies, at their own m, r, s).
 
 Per scene (:func:`lbshape.studies.bench.bench_scene`): ``full`` and ``reduced`` once for the
 error vs ``full`` (both deterministic), then ``reduced`` alone ``--repeats`` times for the
-times; writes, atomically (:func:`lbshape.studies.realtime.write_free_body_step`), the
-reduced step's median wall time per step, its parts and the error. Single-threaded.
+times; then, ``--repeats`` times, the body on the floor after its bounces
+(:func:`resting_step`: the steps from 1.5 s to 2.5 s, each timed). Writes, atomically
+(:func:`lbshape.studies.realtime.write_free_body_step`), the reduced step's median wall
+time per step, its parts, the error and the resting step. Single-threaded.
 """
 
 from __future__ import annotations
@@ -21,9 +23,13 @@ if __name__ == "__main__":  # single-threaded BLAS for the timings, set before n
 import argparse
 import dataclasses
 import logging
+import time
 from pathlib import Path
 
+import numpy as np
+
 from lbshape.pipeline.precompute import precompute
+from lbshape.pipeline.simulation import simulation
 from lbshape.scene import load_scene
 from lbshape.studies.bench import DEFAULT_OUT, bench_scene
 from lbshape.studies.realtime import write_free_body_step
@@ -32,6 +38,44 @@ log = logging.getLogger(__name__)
 
 #: the paper's free bodies (Figures 4 and 5)
 FREE_SCENES = ("car", "bar-s-cuboid", "bar-s-cylinder")
+#: the resting window (s): every built-in free body is on the floor after its bounces
+REST_WINDOW = (1.5, 2.5)
+
+
+def resting_step(scene, pre, repeats: int) -> dict:
+    """The reduced step of the body on the floor: ``repeats`` runs to the start of
+    :data:`REST_WINDOW`, then its steps timed one by one. Returns the median over the runs
+    of the median and the mean ms per step, the sweeps and passes per step, the share of
+    steps that end touching a plane and the centre's mean speed (m/s) in the window."""
+    medians, means, sweeps, passes, touching, speed = [], [], [], [], [], []
+    for _ in range(repeats):
+        sim = simulation(scene, pre, method="reduced")
+        engine = sim.engine
+        first, last = (round(t / sim.dt) for t in REST_WINDOW)
+        for _ in range(first):
+            sim.step()
+        start_center, start_sweeps = engine.rigid.center.copy(), engine.total_sweeps
+        times, substeps, contact = np.empty(last - first), 0, 0
+        for k in range(last - first):
+            started = time.perf_counter()
+            sim.step()
+            times[k] = time.perf_counter() - started
+            substeps += engine.substeps
+            contact += engine.contact.scalars[1] > 0
+        medians.append(1e3 * float(np.median(times)))
+        means.append(1e3 * float(times.mean()))
+        sweeps.append((engine.total_sweeps - start_sweeps) / times.size)
+        passes.append(substeps / times.size)
+        touching.append(contact / times.size)
+        speed.append(float(np.linalg.norm(engine.rigid.center - start_center))
+                     / (REST_WINDOW[1] - REST_WINDOW[0]))
+    return {"scene": scene.name, "window_s": list(REST_WINDOW), "repeats": repeats,
+            "median_ms": float(np.median(medians)), "median_ms_range": [min(medians),
+                                                                      max(medians)],
+            "mean_ms": float(np.median(means)), "sweeps_per_step": float(np.median(sweeps)),
+            "passes_per_step": float(np.median(passes)),
+            "touching_share": float(np.median(touching)),
+            "center_speed": float(np.median(speed))}
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -46,7 +90,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> tuple[Path, Path]:
     """Run the measurement; return the two paths written."""
     args = parse_args(argv)
-    results = []
+    results, resting = [], []
     for name in args.scenes:
         log.info("free-body step: %s", name)
         scene = load_scene(name)
@@ -56,7 +100,8 @@ def main(argv: list[str] | None = None) -> tuple[Path, Path]:
         timed = bench_scene(scene, steps=args.steps, repeats=args.repeats, pre=pre,
                             methods=("reduced",), influence=False)
         results.append(dataclasses.replace(timed, rows=(accuracy.row("reduced"),)))
-    return write_free_body_step(results, args.out_dir)
+        resting.append(resting_step(scene, pre, args.repeats))
+    return write_free_body_step(results, args.out_dir, resting=resting)
 
 
 if __name__ == "__main__":

@@ -33,9 +33,9 @@ reaches a plane):
    ν₁ the contact (force, torque) and the velocity at the end of the previous sweep,
    until the end momenta settle (:data:`SWEEP_RTOL`, or a second sweep's error estimated
    from a recent contraction, :data:`SWEEP_ERROR_SHARE`; at most
-   :data:`MAX_CONTACT_SWEEPS` passes): the fixed point is the trapezoidal contact impulse ``M₆ Δν = Δt F_loads +
-   ½ Δt (C₀ + C₁)`` of the rigid motion and the deformation together (why:
-   ``docs/decisions.md``, free bodies).
+   :data:`MAX_CONTACT_SWEEPS` passes): the fixed point is the trapezoidal contact
+   impulse ``M₆ Δν = Δt F_loads + ½ Δt (C₀ + C₁)`` of the rigid motion and the
+   deformation together (why: ``docs/decisions.md``, free bodies).
 
 **Passes**: a step of Δt is one or more passes of steps 1–5, each committed: in flight
 as many as resolve the deformation's highest frequency (the example spring's included),

@@ -372,6 +372,7 @@ def free_body_step_markdown(payload: dict) -> str:
         phases = row["phase_ms"] or {}
         lines.append(f"| {row['scene']} | " + " | ".join(
             f"{1e3 * phases[name]:.1f}" if name in phases else "—" for name in columns) + " |")
+    lines += _resting_markdown(payload.get("resting") or [])
     repeats = sorted({row["repeats"] for row in rows})
     lines += ["", "## Conditions", "",
               f"- dt = 1 ms, the scenes' own (m, r, s); {', '.join(map(str, repeats))} "
@@ -383,12 +384,38 @@ def free_body_step_markdown(payload: dict) -> str:
     return "\n".join(lines)
 
 
-def write_free_body_step(results: Sequence[SceneBenchmark], out_dir: str | Path
-                         ) -> tuple[Path, Path]:
-    """Write ``free_body_step.md`` and ``free_body_step.json`` to ``out_dir`` atomically;
-    their paths."""
+def _resting_markdown(resting: Sequence[dict]) -> list[str]:
+    """The section on the step of a body resting on the floor (rows of
+    ``scripts/bench_free_body.py``'s ``resting_step``); none without rows."""
+    if not resting:
+        return []
+    first, last = resting[0]["window_s"]
+    lines = ["", f"## On the floor ({first:g}-{last:g} s, after the bounces)", "",
+             "Each step timed alone, median over the runs of the median [min, max] and of "
+             "the mean; sweeps and passes per step; the share of steps that end touching "
+             "a plane; the centre's mean speed over the window (it slides and rocks).", "",
+             "| model | runs | median per step (ms) | mean (ms) | ≤ 1 ms | sweeps / passes "
+             "per step | touching | centre speed (m/s) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for row in resting:
+        low, high = row["median_ms_range"]
+        met = "yes" if row["mean_ms"] <= TARGET_T_TOTAL_MS else "**no**"
+        lines.append(
+            f"| {row['scene']} | {row['repeats']} | {row['median_ms']:.3f} [{low:.3f}, "
+            f"{high:.3f}] | {row['mean_ms']:.3f} | {met} | {row['sweeps_per_step']:.2f} / "
+            f"{row['passes_per_step']:.2f} | {row['touching_share']:.0%} | "
+            f"{row['center_speed']:.3f} |")
+    return lines
+
+
+def write_free_body_step(results: Sequence[SceneBenchmark], out_dir: str | Path, *,
+                         resting: Sequence[dict] = ()) -> tuple[Path, Path]:
+    """Write ``free_body_step.md`` and ``free_body_step.json`` to ``out_dir`` atomically
+    (``resting``: the rows of the step on the floor, a section of their own); their
+    paths."""
     out_dir = Path(out_dir)
     payload = free_body_step_payload(results, machine_description())
+    payload["resting"] = list(resting)
     md = write_text_atomic(out_dir / "free_body_step.md", free_body_step_markdown(payload))
     js = write_json_atomic(out_dir / "free_body_step.json", payload)
     return md, js

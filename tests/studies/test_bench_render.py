@@ -300,3 +300,27 @@ def test_render_command_bad_scene_leaves_no_output(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("error:") and "reduced.r" in err[-1], err
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_resting_step_measures_a_body_on_the_floor(load_script):
+    """The free-body bench's resting window: bar-s-cuboid from 1.5 s is on the floor
+    (most steps touch a plane, in contact passes of 1/3 ms, swept); the step file's
+    section marks a mean over 1 ms as missed."""
+    from lbshape.pipeline.precompute import precompute
+    from lbshape.scene import load_scene
+    from lbshape.studies.realtime import free_body_step_markdown
+
+    module = load_script("bench_free_body")
+    scene = load_scene("bar-s-cuboid")
+    row = module.resting_step(scene, precompute(scene), repeats=1)
+    assert row["touching_share"] > 0.5
+    assert 2.0 <= row["passes_per_step"] <= 3.0  # contact passes, a few in flight
+    assert row["sweeps_per_step"] >= row["passes_per_step"]
+    assert row["center_speed"] < 0.5  # resting, sliding or rocking: not thrown
+    payload = {"rows": [], "machine": {"cpu": "x", "cores": 2, "threads": {}},
+               "resting": [dict(row, mean_ms=1.2), dict(row, scene="fast", mean_ms=0.5)]}
+    text = free_body_step_markdown(payload)
+    assert "| bar-s-cuboid | 1 |" in text and "| 1.200 | **no** |" in text
+    assert "| 0.500 | yes |" in text
+    assert "On the floor" not in free_body_step_markdown(dict(payload, resting=[]))
