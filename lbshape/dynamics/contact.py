@@ -39,7 +39,13 @@ deformation as the generalized force ``Σ_i U_iᵀ Rᵀ f_i`` (r,); its stiffnes
 Only surface vertices are touched, and not even those when a bounding sphere
 shows that no plane can be reached: the sphere is centred at c with radius
 ``ρ₀ + u_max |q|``, ``ρ₀ = max |X̄_i|`` over the surface and ``u_max`` the largest
-spectral norm of the vertex blocks U_i (so ``|U_i q| ≤ u_max |q|``).
+spectral norm of the vertex blocks U_i (so ``|U_i q| ≤ u_max |q|``). Within reach, an
+evaluation over every surface vertex also makes the **near set**: the faces with a
+corner closer than :data:`NEAR_MARGIN` ρ₀ to a reached plane, and their corners. Until a
+surface point may have moved by that margin since (bounded by
+``|Δc| + ‖ΔR‖_F (ρ₀ + u_max |q|) + u_max |Δq|``) or a new plane comes within reach, the
+evaluations take only the near set: every other vertex stays clear of the planes, so
+the outputs are those of the whole surface, bit for bit.
 
 **Run-time path.** :meth:`PlaneContact.evaluate_into` writes every output into arrays
 the contact owns (:attr:`PlaneContact.force`, …), through one compiled kernel that
@@ -59,7 +65,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from lbshape.dynamics.contact_faces import (
+    deform_kernel,
     face_kernel,
+    near_holds,
+    near_lists,
     surface_areas,
     surface_faces,
 )
@@ -74,6 +83,10 @@ from lbshape.dynamics.contact_kernels import (
 from lbshape.errors import LbshapeError
 from lbshape.geometry.mesh import boundary_faces
 
+#: the near set's margin, a share of the body's radius ρ₀: the face pass takes only the
+#: faces with a corner this close to a reached plane (and their corners) until some
+#: surface point may have moved by as much (:meth:`PlaneContact._face_pass`)
+NEAR_MARGIN = 0.05
 #: ε of the regularised Coulomb friction (m/s): the slip speed below which the friction
 #: force grows linearly with the slip (module docstring). Held by friction a block creeps
 #: at about ε (tests/dynamics/test_friction.py; results/contact.md); the kick and the
@@ -182,11 +195,13 @@ class PlaneContact:
         self._shares = np.zeros(self.faces.shape[0])
         self._blocks = np.zeros((self.faces.shape[0], 9))
         self._face_work = np.zeros((6, 3))
+        self._face_buffers = (self._shares, self._blocks, self._face_work)
         self._arms = np.zeros((s_count, 3))
         r = self.basis.shape[2]
         self.r = r
         self.radius0 = float(np.linalg.norm(self.body_points, axis=1).max())
         self.u_max = float(max((np.linalg.norm(b, 2) for b in self.basis), default=0.0))
+        self._near_init(s_count, P, r)
         #: vertex loops skipped by the bounding-sphere test / evaluated (counters)
         self.skipped = 0
         self.evaluated = 0
@@ -212,17 +227,14 @@ class PlaneContact:
         self._stiffness_rows = np.zeros((s_count * P, r))
         # (4 s P, r) the friction's rows: 2 per pair of √C G (C = L Lᵀ), then Gᵀ T, Gᵀ n
         self._friction_rows = np.zeros((4 * s_count * P, r))
-        # (2 s P, 6) the columns (L e; arm × L e) of the coupling X = Σ Bᵀ C G, one product
-        self._friction_columns = np.zeros((2 * s_count * P, 6))
-        # (s P, 5) the friction's pairs [vertex, plane, world velocity (3)]
-        self._friction_pairs = np.zeros((s_count * P, 5))
-        self._friction_gathered = (self._friction_rows, self._friction_columns,
-                                   self._friction_pairs)
-        # the surface deformed in the body frame, y_i = X̄_i + U_i q (one BLAS product
-        # per evaluation; the kernels' own loops over r were 6x slower on the car)
-        self._basis_rows = self.basis.reshape(-1, r)
+        # the columns (L e; arm × L e) (2 s P, 6) of the coupling X = Σ Bᵀ C G, one
+        # product, and the friction's pairs [vertex, plane, world velocity (3)] (s P, 5)
+        self._friction_gathered = (self._friction_rows, np.zeros((2 * s_count * P, 6)),
+                                   np.zeros((s_count * P, 5)))
+        # the surface deformed in the body frame, y_i = X̄_i + U_i q, of the vertices the
+        # face pass takes (the near set's: a BLAS product over the whole surface took
+        # 4 µs of a 30 µs evaluation on the resting car)
         self._deformed = np.zeros(self.body_points.shape)
-        self._deformed_flat = self._deformed.reshape(-1)
         # friction: the velocities of an evaluation without them (at rest), and the motion
         # the friction kernel reads: [v (3), ω (3), rate, q̇ (r)]
         self._rest3, self._rest_q = np.zeros(3), np.zeros(r)
@@ -263,11 +275,9 @@ class PlaneContact:
         if reach_kernel(center, q, self.radius0, self.u_max, self.points, self.normals,
                         self._reach):
             self.evaluated += 1
-            np.dot(self._basis_rows, q, out=self._deformed_flat)
-            np.add(self._deformed, self.body_points, out=self._deformed)
+            self._face_pass(center, rotation, q)
         else:
             self.skipped += 1
-        self._face_pass(center, rotation)
         active = contact_kernel(self._arms, self.basis, self._loads, rotation, self._planes,
                                 self._reach, rigid, self._work.data, self._out.data,
                                 self._stiffness_rows)
@@ -283,15 +293,51 @@ class PlaneContact:
             self.coupling[:] = 0.0
         return active
 
-    def _face_pass(self, center: np.ndarray, rotation: np.ndarray) -> None:
+    def _near_init(self, s_count: int, planes: int, r: int) -> None:
+        """The near set's arrays: the faces within :data:`NEAR_MARGIN` of a plane and
+        their corners, made at an evaluation of every vertex, the pose it was made at
+        ([c, R, q], (12 + r,)) and the planes reached then."""
+        self._all_listed = (np.arange(s_count), np.arange(self.faces.shape[0]))
+        self._near_vertices = np.zeros(s_count, dtype=np.int64)
+        self._near_faces = np.zeros(self.faces.shape[0], dtype=np.int64)
+        self._near_marks = np.zeros(s_count, dtype=np.int8)
+        self._near_reference = np.zeros(12 + r)
+        self._near_reach = np.zeros(planes, dtype=np.bool_)
+        self._near_listed: tuple[np.ndarray, np.ndarray] | None = None
+        self.margin = NEAR_MARGIN * self.radius0
+        #: face passes over the near set / over every vertex (counters)
+        self.near_passes = 0
+        self.full_passes = 0
+
+    def _face_pass(self, center: np.ndarray, rotation: np.ndarray, q: np.ndarray) -> None:
         """The vertices' arms and, per reached plane, their depths, normal forces and
         lumped stiffnesses (:func:`~lbshape.dynamics.contact_faces.face_kernel`) into
-        ``_arms`` and ``_loads``."""
-        if self._reach.any():
-            self.scalars[0] = face_kernel(center, rotation, self._deformed, self.faces,
-                                           self.face_areas, self._planes, self._reach,
-                                           self._arms, self._loads, self._shares,
-                                           self._blocks, self._face_work)
+        ``_arms`` and ``_loads``: over the near set while it holds
+        (:func:`~lbshape.dynamics.contact_faces.near_holds`; the same numbers bit for bit,
+        every other vertex stays clear of the planes), else over every vertex, and the
+        near set made again."""
+        listed = self._near_listed
+        if listed is not None and near_holds(center, rotation, q, self._near_reference,
+                                             self.radius0, self.u_max, self.margin,
+                                             self._reach, self._near_reach):
+            self.near_passes += 1
+        else:
+            listed = None
+            self.full_passes += 1
+        vertices = self._all_listed[0] if listed is None else listed[0]
+        deform_kernel(vertices, self.body_points, self.basis, q, self._deformed)
+        self.scalars[0] = face_kernel(center, rotation, self._deformed, self.faces,
+                                       self.face_areas, self._planes, self._reach,
+                                       self._arms, self._loads, self._face_buffers,
+                                       self._all_listed if listed is None else listed)
+        if listed is None:
+            count, faces = near_lists(self.faces, self._loads, self._reach, self.margin,
+                                      self._near_marks, self._near_vertices,
+                                      self._near_faces)
+            self._near_listed = (self._near_vertices[:count], self._near_faces[:faces])
+            reference = self._near_reference
+            reference[:3], reference[3:12], reference[12:] = center, rotation.ravel(), q
+            self._near_reach[:] = self._reach
 
     def evaluate(self, center: np.ndarray, rotation: np.ndarray, q: np.ndarray,
                  *, rigid: bool = True, velocity: np.ndarray | None = None,

@@ -56,16 +56,17 @@ def surface_faces(points: np.ndarray, tets: np.ndarray,
 
 
 @njit
-def face_loads(faces, depths, shares, k, F, S, blocks, work):
-    """The pressure k d over the triangles (module docstring) into the vertices' normal
-    forces ``F`` (s,) N and lumped stiffnesses ``S`` (s,) N/m (both added to) and
-    ``blocks`` (f, 9) the triangles' ``k c_T M`` (zero where nothing penetrates);
-    ``depths`` (s,) the vertices' penetrations d (m, negative outside), ``shares`` (f,)
-    the triangles' facing areas ``c_T |T|`` (m²), ``work`` (6, 3). Returns the energy (J).
+def face_loads(faces, face_list, depths, shares, k, F, S, blocks, work):
+    """The pressure k d over the triangles ``face_list`` (indices into ``faces``, rising;
+    module docstring) into the vertices' normal forces ``F`` (s,) N and lumped stiffnesses
+    ``S`` (s,) N/m (both added to) and ``blocks`` (f, 9) the triangles' ``k c_T M`` (zero
+    where nothing penetrates); ``depths`` (s,) the vertices' penetrations d (m, negative
+    outside), ``shares`` (f,) the triangles' facing areas ``c_T |T|`` (m²), ``work``
+    (6, 3). Returns the energy (J).
     """
     energy = 0.0
     M = work[0:3]
-    for t in range(faces.shape[0]):
+    for t in face_list:
         for e in range(9):
             blocks[t, e] = 0.0
         if shares[t] <= 0.0:
@@ -147,13 +148,17 @@ def plane_gap(arm, center, planes, p):
 
 @njit
 def face_kernel(center, rotation, deformed, faces, face_areas, planes, reach, arms, loads,
-                 shares, blocks, work):
-    """The vertices' world arms ``R y_i`` into ``arms`` (s, 3) and, per reached plane p,
-    ``loads[p]`` = [depth d (m, negative outside), normal force F (N), lumped stiffness
-    S (N/m)] of each vertex from the pressure over the triangles
-    (:func:`~lbshape.dynamics.contact_faces.face_loads`; ``shares`` (f,), ``blocks``
-    (f, 9), ``work`` (6, 3) its work). Returns the penalty energy (J)."""
-    for i in range(deformed.shape[0]):
+                buffers, listed):
+    """The world arms ``R y_i`` of the ``listed`` vertices into ``arms`` (s, 3) and, per
+    reached plane p, ``loads[p]`` = [depth d (m, negative outside), normal force F (N),
+    lumped stiffness S (N/m)] of each from the pressure over the listed triangles
+    (:func:`~lbshape.dynamics.contact_faces.face_loads`; ``buffers`` = (shares (f,),
+    blocks (f, 9), work (6, 3)) its work). ``listed`` = (vertices, faces), rising
+    indices: every vertex and face, or a near set (:func:`near_lists`) outside which
+    nothing penetrates and every F and S is zero. Returns the penalty energy (J)."""
+    shares, blocks, work = buffers
+    vertices, face_list = listed
+    for i in vertices:
         body_arm(i, rotation, deformed, arms[i])
     energy = 0.0
     for p in range(planes.shape[0]):
@@ -161,14 +166,14 @@ def face_kernel(center, rotation, deformed, faces, face_areas, planes, reach, ar
             continue
         depth, F, S = loads[p, 0], loads[p, 1], loads[p, 2]
         deepest = 0.0
-        for i in range(arms.shape[0]):
+        for i in vertices:
             depth[i] = -plane_gap(arms[i], center, planes, p)
             F[i] = 0.0
             S[i] = 0.0
             deepest = max(deepest, depth[i])
         if not deepest > 0.0:
             continue
-        for t in range(faces.shape[0]):  # c_T |T| = max(β |a_T|, −(R a_T)·n)
+        for t in face_list:  # c_T |T| = max(β |a_T|, −(R a_T)·n)
             if not (depth[faces[t, 0]] > 0.0 or depth[faces[t, 1]] > 0.0
                     or depth[faces[t, 2]] > 0.0):
                 shares[t] = 0.0  # nothing of it penetrates: face_loads passes it by
@@ -180,5 +185,70 @@ def face_kernel(center, rotation, deformed, faces, face_areas, planes, reach, ar
             least = FACING_FLOOR * np.sqrt(face_areas[t, 0] ** 2 + face_areas[t, 1] ** 2
                                            + face_areas[t, 2] ** 2)
             shares[t] = value if value > least else least
-        energy += face_loads(faces, depth, shares, planes[p, 6], F, S, blocks, work)
+        energy += face_loads(faces, face_list, depth, shares, planes[p, 6], F, S, blocks,
+                             work)
     return energy
+
+
+@njit
+def deform_kernel(vertices, body_points, basis, q, deformed):
+    """``deformed[i] = X̄_i + U_i q`` (body frame, m) for the ``vertices`` listed
+    (``body_points`` (s, 3), ``basis`` (s, 3, r)): the same sums whichever vertices are
+    listed, so a near set's vertices sit where a pass over every vertex puts them."""
+    r = q.shape[0]
+    for i in vertices:
+        for a in range(3):
+            value = 0.0
+            for j in range(r):
+                value += basis[i, a, j] * q[j]
+            deformed[i, a] = body_points[i, a] + value
+
+
+@njit
+def near_lists(faces, loads, reach, margin, marks, vertices, face_list):
+    """The near set of an evaluation of every vertex (``loads`` as :func:`face_kernel`
+    left it): the faces with a corner less than ``margin`` (m) from a reached plane into
+    ``face_list``, their corners into ``vertices`` (both rising); ``marks`` (s,) int8
+    work. Returns (vertices, faces) counts."""
+    marks[:] = 0
+    for p in range(reach.shape[0]):
+        if reach[p]:
+            for i in range(marks.shape[0]):
+                if loads[p, 0, i] > -margin:
+                    marks[i] = 1
+    count = 0
+    for t in range(faces.shape[0]):
+        if marks[faces[t, 0]] == 1 or marks[faces[t, 1]] == 1 or marks[faces[t, 2]] == 1:
+            face_list[count] = t
+            count += 1
+    for u in range(count):
+        for c in range(3):
+            marks[faces[face_list[u], c]] = max(marks[faces[face_list[u], c]], 2)
+    listed = 0
+    for i in range(marks.shape[0]):
+        if marks[i]:
+            vertices[listed] = i
+            listed += 1
+    return listed, count
+
+
+@njit
+def near_holds(center, rotation, q, reference, radius0, u_max, margin, reach, reach_then):
+    """Whether a near set made at ``reference`` = [c (3), R (9, row-major), q (r)] still
+    holds at (c, R, q): no plane reached now that was not then, and every surface point
+    moved by less than ``margin`` (m): ``|Δc| + ‖ΔR‖_F (ρ₀ + u_max |q|) + u_max |Δq|``
+    (``radius0`` ρ₀ the largest |X̄_i|, ``u_max`` the largest ‖U_i‖₂) bounds it."""
+    for p in range(reach.shape[0]):
+        if reach[p] and not reach_then[p]:
+            return False
+    dc = dR = dq = size = 0.0
+    for a in range(3):
+        dc += (center[a] - reference[a]) ** 2
+        for b in range(3):
+            dR += (rotation[a, b] - reference[3 + 3 * a + b]) ** 2
+    for j in range(q.shape[0]):
+        dq += (q[j] - reference[12 + j]) ** 2
+        size += q[j] * q[j]
+    moved = (np.sqrt(dc) + np.sqrt(dR) * (radius0 + u_max * np.sqrt(size))
+             + u_max * np.sqrt(dq))
+    return moved < margin

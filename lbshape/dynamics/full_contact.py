@@ -140,7 +140,8 @@ class FullSpaceContact:
                 continue
             F, S = np.zeros(s_count), np.zeros(s_count)
             blocks = np.zeros((self.faces.shape[0], 9))
-            energy += face_loads(self.faces, depth, self.face_shares(x, n),
+            energy += face_loads(self.faces, np.arange(self.faces.shape[0]), depth,
+                                 self.face_shares(x, n),
                                  float(plane.stiffness), F, S, blocks, np.zeros((6, 3)))
             loaded = np.flatnonzero(S > 0.0)
             np.add.at(force, self.vertices[loaded], -F[loaded, None] * n[None, :])

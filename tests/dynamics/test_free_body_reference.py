@@ -10,6 +10,7 @@ kernels, and these tests make sure the two agree.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -18,7 +19,7 @@ import pytest
 import scipy.linalg as sla
 from test_free_body import Body, _gravity
 
-from lbshape.dynamics.contact import ContactPlane, PlaneContact
+from lbshape.dynamics.contact import ContactPlane, ContactResult, PlaneContact
 from lbshape.dynamics.contact_faces import FACING_FLOOR, face_loads
 from lbshape.dynamics.fictitious import LEVI_CIVITA
 from lbshape.dynamics.free_body import PHASES, FreeLoad
@@ -106,7 +107,8 @@ def ref_contact(contact, center, R, q, rigid=True):
         shares = np.maximum(-(contact.face_areas @ R.T) @ n,
                             FACING_FLOOR * np.linalg.norm(contact.face_areas, axis=1))
         F, S = np.zeros(len(depth)), np.zeros(len(depth))
-        out["energy"] += face_loads(contact.faces, depth, shares, k, F, S,
+        out["energy"] += face_loads(contact.faces, np.arange(len(shares)), depth, shares, k,
+                                    F, S,
                                     np.zeros((len(shares), 9)), np.zeros((6, 3)))
         hit = np.flatnonzero(S > 0.0)
         out["active"] += hit.size
@@ -360,6 +362,39 @@ def test_contact_kernel_matches_reference(soft):
                            np.zeros(8))
     assert far.active == 0 and not far.generalized.any() and contact.skipped >= 1
 
+
+
+def test_near_set_evaluation_equals_the_whole_surface(soft):
+    """While the body moves less than the near set's margin the face pass takes only
+    the faces near a plane, and every output equals an evaluation over the whole surface
+    bit for bit (friction, two planes); a larger move makes the set again."""
+    planes = [ContactPlane((0.0, 0.0, 0.05), (0.0, 0.3, 1.0), 1e4, 0.4),
+              ContactPlane((0.12, 0.0, 0.0), (-1.0, 0.1, 0.0), 3e4, 0.2)]
+    near, whole = (PlaneContact.for_mesh(planes, soft.mesh.points, soft.mesh.tets, soft.U,
+                                         center=soft.frame.center) for _ in range(2))
+    rng = np.random.default_rng(13)
+    center, R, q = soft.frame.center.copy(), cayley(np.array([0.1, -0.2, 0.3])), np.zeros(8)
+    touched = 0
+    for k in range(40):
+        step = 0.02 if k % 10 == 9 else 2e-4 * near.margin / near.radius0
+        center = center + step * rng.standard_normal(3)
+        R = R @ cayley(step * rng.standard_normal(3))
+        q = q + step * rng.standard_normal(8)
+        motion = (rng.standard_normal(3), rng.standard_normal(3), rng.standard_normal(8))
+        whole._near_listed = None  # every vertex, every time
+        got = near.evaluate(center, R, q, velocity=motion[0], omega=motion[1],
+                            qd=motion[2], rate=50.0)
+        want = whole.evaluate(center, R, q, velocity=motion[0], omega=motion[1],
+                              qd=motion[2], rate=50.0)
+        for field in (f.name for f in dataclasses.fields(ContactResult)):
+            np.testing.assert_array_equal(getattr(got, field), getattr(want, field),
+                                          err_msg=field)
+        np.testing.assert_array_equal(near.coupling, whole.coupling)
+        touched += got.active > 0
+    assert touched >= 30
+    assert near.near_passes >= 25 and 4 <= near.full_passes <= 10, (near.near_passes,
+                                                                     near.full_passes)
+    assert len(near._near_listed[1]) < near.faces.shape[0]  # it left faces out
 
 def test_frame_kernels_match_the_formulas(soft):
     """Inertia, relative momentum, Euler, centrifugal and Coriolis terms (compiled) equal
