@@ -46,8 +46,9 @@ def resting_step(scene, pre, repeats: int) -> dict:
     """The reduced step of the body on the floor: ``repeats`` runs to the start of
     :data:`REST_WINDOW`, then its steps timed one by one. Returns the median over the runs
     of the median and the mean ms per step, the sweeps and passes per step, the share of
-    steps that end touching a plane and the centre's mean speed (m/s) in the window."""
-    medians, means, sweeps, passes, touching, speed = [], [], [], [], [], []
+    steps that end touching a plane and the centre's drift (m/s): the distance between
+    the window's ends over its length."""
+    medians, means, sweeps, passes, touching, drift = [], [], [], [], [], []
     for _ in range(repeats):
         sim = simulation(scene, pre, method="reduced")
         engine = sim.engine
@@ -67,7 +68,7 @@ def resting_step(scene, pre, repeats: int) -> dict:
         sweeps.append((engine.total_sweeps - start_sweeps) / times.size)
         passes.append(substeps / times.size)
         touching.append(contact / times.size)
-        speed.append(float(np.linalg.norm(engine.rigid.center - start_center))
+        drift.append(float(np.linalg.norm(engine.rigid.center - start_center))
                      / (REST_WINDOW[1] - REST_WINDOW[0]))
     return {"scene": scene.name, "window_s": list(REST_WINDOW), "repeats": repeats,
             "median_ms": float(np.median(medians)), "median_ms_range": [min(medians),
@@ -75,7 +76,7 @@ def resting_step(scene, pre, repeats: int) -> dict:
             "mean_ms": float(np.median(means)), "sweeps_per_step": float(np.median(sweeps)),
             "passes_per_step": float(np.median(passes)),
             "touching_share": float(np.median(touching)),
-            "center_speed": float(np.median(speed))}
+            "center_drift": float(np.median(drift))}
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -48,11 +48,12 @@ evaluations take only the near set: every other vertex stays clear of the planes
 the outputs are those of the whole surface, bit for bit.
 
 **Run-time path.** :meth:`PlaneContact.evaluate_into` writes every output into arrays
-the contact owns (:attr:`PlaneContact.force`, …), through one compiled kernel that
-loops over the surface vertices once (positions, gaps, forces and stiffnesses of all
-reached planes) and, when a plane has friction and a vertex penetrates, a second one
-over the surface vertices for the friction (:mod:`lbshape.dynamics.contact_kernels`);
-it allocates nothing.
+the contact owns (:attr:`PlaneContact.force`, …), through compiled kernels: the face
+pass over the near set or every surface vertex (positions, gaps, forces and stiffnesses
+of all reached planes; :mod:`lbshape.dynamics.contact_faces`), then the normal pass and,
+when a plane has friction and a vertex penetrates, the friction pass over the loaded
+vertices (:mod:`lbshape.dynamics.contact_kernels`); it allocates nothing but the near
+set's two index views when it makes the set again.
 :meth:`PlaneContact.evaluate` returns a copy as a :class:`ContactResult`.
 """
 
@@ -316,21 +317,17 @@ class PlaneContact:
         (:func:`~lbshape.dynamics.contact_faces.near_holds`; the same numbers bit for bit,
         every other vertex stays clear of the planes), else over every vertex, and the
         near set made again."""
-        listed = self._near_listed
-        if listed is not None and near_holds(center, rotation, q, self._near_reference,
-                                             self.radius0, self.u_max, self.margin,
-                                             self._reach, self._near_reach):
-            self.near_passes += 1
-        else:
-            listed = None
-            self.full_passes += 1
-        vertices = self._all_listed[0] if listed is None else listed[0]
-        deform_kernel(vertices, self.body_points, self.basis, q, self._deformed)
+        near = self._near_listed is not None and near_holds(
+            center, rotation, q, self._near_reference, self.radius0, self.u_max,
+            self.margin, self._reach, self._near_reach)
+        listed = self._near_listed if near else self._all_listed
+        self.near_passes += near
+        self.full_passes += not near
+        deform_kernel(listed[0], self.body_points, self.basis, q, self._deformed)
         self.scalars[0] = face_kernel(center, rotation, self._deformed, self.faces,
                                        self.face_areas, self._planes, self._reach,
-                                       self._arms, self._loads, self._face_buffers,
-                                       self._all_listed if listed is None else listed)
-        if listed is None:
+                                       self._arms, self._loads, self._face_buffers, listed)
+        if not near:
             count, faces = near_lists(self.faces, self._loads, self._reach, self.margin,
                                       self._near_marks, self._near_vertices,
                                       self._near_faces)

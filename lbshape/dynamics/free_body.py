@@ -98,7 +98,7 @@ from lbshape.dynamics.engine import (
     snapshot,
 )
 from lbshape.dynamics.fictitious import FrameTensors
-from lbshape.dynamics.free_body_contact import CONTRACTION_AGE, FreeBodyContact
+from lbshape.dynamics.free_body_contact import FreeBodyContact
 from lbshape.dynamics.free_body_drag import FreeBodyDrag
 from lbshape.dynamics.free_body_kernels import (
     KICK_ROTATION_FAILED,
@@ -254,9 +254,7 @@ class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
         self.sweeps = 0  # rigid kick + deformation solve passes of the last step (1: no sweep)
         self.substeps = 1  # the sub-steps the last step took
         self.total_sweeps = 0  # the same, summed over every step taken
-        # the contact sweeps' contraction (free_body_contact): the last measured, the
-        # passes since, and the last sweep's squared change
-        self._contraction, self._contraction_age, self._sweep_change = 1.0, CONTRACTION_AGE, 0.0
+        self._forget_contraction()
         self._initial_state(q, qd, velocity, omega_world)
         self._initial = self.state
 

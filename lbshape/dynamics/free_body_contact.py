@@ -55,6 +55,11 @@ class FreeBodyContact:
     :class:`~lbshape.dynamics.free_body.FreeBodySimulation` (which holds the arrays the
     methods read: ``contact``, ``_now``, ``_next``, ``_kick_arrays``, ``_solve`` …)."""
 
+    def _forget_contraction(self) -> None:
+        """No contraction measured yet (:meth:`_sweep_converged`'s state: the last
+        measured contraction, the passes since, and the last sweep's squared change)."""
+        self._contraction, self._contraction_age, self._sweep_change = 1.0, CONTRACTION_AGE, 0.0
+
     def _contact_fresh(self) -> bool:
         """The contact's arrays hold the evaluation at the current state (c, R, q)."""
         contact = self.contact

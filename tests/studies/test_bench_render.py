@@ -317,7 +317,7 @@ def test_resting_step_measures_a_body_on_the_floor(load_script):
     assert row["touching_share"] > 0.5
     assert 2.0 <= row["passes_per_step"] <= 3.0  # contact passes, a few in flight
     assert row["sweeps_per_step"] >= row["passes_per_step"]
-    assert row["center_speed"] < 0.5  # resting, sliding or rocking: not thrown
+    assert row["center_drift"] < 0.5  # resting, sliding or rocking: not thrown
     payload = {"rows": [], "machine": {"cpu": "x", "cores": 2, "threads": {}},
                "resting": [dict(row, mean_ms=1.2), dict(row, scene="fast", mean_ms=0.5)]}
     text = free_body_step_markdown(payload)
