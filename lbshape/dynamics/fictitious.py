@@ -245,16 +245,17 @@ def inertia_momentum_into(q, qd, frame, inertia, h):
 
 
 @njit
-def fictitious_into(q, omega, omega_dot, frame, f, K):
-    """Add the Euler and centrifugal forces (r,) to ``f`` and their tangents (r, r) to ``K``
-    (``frame`` a :class:`FrameArrays`).
+def fictitious_parts_into(omega, omega_dot, frame, force0, T):
+    """The Euler and centrifugal forces at (ω, ω̇), linear in q: their value at q = 0
+    (r,) into ``force0`` and their tangent (r, r) into ``T`` (``frame`` a
+    :class:`FrameArrays`); the forces at q are ``force0 + T q`` (:func:`add_fictitious`).
 
-    Euler: ``H_jᵀ ω̇ + Σ_k q_k (−ω̇ · S_jk)``, tangent ``−ω̇ · S_jk``; centrifugal:
-    ``G_j : ωωᵀ − |ω|² tr G_j + Σ_k q_k T_jk``, ``T_jk = C_jk : ωωᵀ − |ω|² tr C_jk``.
+    Euler: ``H_jᵀ ω̇ + Σ_k q_k (−ω̇ · S_jk)``; centrifugal: ``G_j : ωωᵀ − |ω|² tr G_j +
+    Σ_k q_k (C_jk : ωωᵀ − |ω|² tr C_jk)``.
     """
     G9, C9, S3, H = frame.G9, frame.C9, frame.S3, frame.H
     G_trace, C_trace = frame.G_trace, frame.C_trace
-    r = q.shape[0]
+    r = force0.shape[0]
     w2 = omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2]
     for j in range(r):
         value = 0.0
@@ -263,7 +264,7 @@ def fictitious_into(q, omega, omega_dot, frame, f, K):
         for a in range(3):
             for b in range(3):
                 value += G9[j, 3 * a + b] * omega[a] * omega[b]
-        value -= w2 * G_trace[j]
+        force0[j] = value - w2 * G_trace[j]
         for k in range(r):
             row = j * r + k
             tangent = -(S3[row, 0] * omega_dot[0] + S3[row, 1] * omega_dot[1]
@@ -271,9 +272,30 @@ def fictitious_into(q, omega, omega_dot, frame, f, K):
             for a in range(3):
                 for b in range(3):
                     tangent += C9[row, 3 * a + b] * omega[a] * omega[b]
-            K[j, k] += tangent
-            value += tangent * q[k]
+            T[j, k] = tangent
+
+
+@njit
+def add_fictitious(q, force0, T, f, K):
+    """Add the Euler and centrifugal forces ``force0 + T q`` (r,) to ``f`` and their
+    tangent T (r, r) to ``K`` (:func:`fictitious_parts_into`)."""
+    r = q.shape[0]
+    for j in range(r):
+        value = force0[j]
+        for k in range(r):
+            K[j, k] += T[j, k]
+            value += T[j, k] * q[k]
         f[j] += value
+
+
+@njit
+def fictitious_into(q, omega, omega_dot, frame, f, K):
+    """Add the Euler and centrifugal forces (r,) at (q, ω, ω̇) to ``f`` and their tangent
+    (r, r) to ``K`` (``frame`` a :class:`FrameArrays`; see :func:`fictitious_parts_into`)."""
+    r = q.shape[0]
+    force0, T = np.empty(r), np.empty((r, r))
+    fictitious_parts_into(omega, omega_dot, frame, force0, T)
+    add_fictitious(q, force0, T, f, K)
 
 
 @njit

@@ -255,6 +255,8 @@ class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
         self.substeps = 1  # the sub-steps the last step took
         self.total_sweeps = 0  # the same, summed over every step taken
         self._forget_contraction()
+        self._rate_held = False  # kick.C6 holds the last pass's effective friction rate
+        self._sweep_scale = 0.0  # the residual scale of the step's first deformation solve
         self._initial_state(q, qd, velocity, omega_world)
         self._initial = self.state
 
@@ -347,7 +349,7 @@ class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
 
     _SCALARS = ("time", "steps_taken", "work", "energy0", "_elastic_energy",
                 "_contact_calls", "sweeps", "total_sweeps", "substeps", "_contraction",
-                "_contraction_age", "_sweep_change")
+                "_contraction_age", "_sweep_change", "_rate_held", "_sweep_scale")
 
     @property
     def state(self) -> EngineState:
@@ -484,8 +486,8 @@ class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
                                            self._omega, end.qd, self._cv_dt) > 0
         after = clock()
         norm = deformation_residual(
-            self.r, self._h, self.k_ex, active, self._frame_arrays.data, self._now.data,
-            end.data, self._kick_arrays.data, solve.data, self._dqt,
+            self.r, self._h, self.k_ex, active, self._now.data, end.data, solve.data,
+            self._dqt,
             contact.generalized if contact is not None else self._gen,
             contact.stiffness_q if contact is not None else solve.K)
         finished = clock()
@@ -518,20 +520,26 @@ class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
         times[2] += rigid_done - started
         times[3] += self._clock() - rigid_done
 
-    def _solve_deformation(self, index: int, t1: float, times: np.ndarray) -> int:
+    def _solve_deformation(self, index: int, t1: float, times: np.ndarray, *,
+                           sweep: bool = False) -> int:
         """Newton on the deformation at the kicked pose (contact implicit in q₁); returns
-        the iterations. ``times`` accumulates [internal force, contact, -, -, solve] s."""
+        the iterations. A ``sweep`` starts from the last sweep's Δq and keeps its residual
+        scale (the same step's problem, moved by the kick). ``times`` accumulates
+        [internal force, contact, -, -, solve] s."""
         started = self._clock()
         before = times[0] + times[1]
         dt, state, solve = self._h, self._now, self._solve
         newton_base(solve.damping, self._ca_dt2, self._cv_dt, solve.base)
-        predict(state.qd, state.qa, dt, self._dqt, solve.rates)
+        if sweep:
+            self._dqt[:] = self._dq
+        else:
+            predict(state.qd, state.qa, dt, self._dqt, solve.rates)
         np.add(state.q, self._dqt, out=self._next.q)
         b_norm, qa_norm, qd_norm = _norm(solve.b), _norm(state.qa), _norm(state.qd)
-        scale = max(b_norm, qa_norm)
+        scale = max(b_norm, qa_norm, self._sweep_scale) if sweep else max(b_norm, qa_norm)
         norm = self._evaluate(index, t1, times)
         self._dq, self._dqt = self._dqt, self._dq
-        scale = max(scale, norm, solve.norms[0], solve.norms[1])
+        scale = self._sweep_scale = max(scale, norm, solve.norms[0], solve.norms[1])
         # in contact the residual is not monotone where a vertex touches a plane to
         # round-off (its penalty force, and its friction, switch with the gap's last
         # bits): the contact's round-off joins the noise level. Without it a frictionless
@@ -574,7 +582,7 @@ class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
         iterations = sweeps = 0
         while True:
             self._kick(index, t1, active, sweep=sweeps > 0, times=times)
-            iterations += self._solve_deformation(index, t1, times)
+            iterations += self._solve_deformation(index, t1, times, sweep=sweeps > 0)
             sweeps += 1
             if not self._sweep_again(sweeps):
                 break

@@ -33,8 +33,9 @@ import numpy as np
 
 from lbshape._jit import njit, py_func
 from lbshape.dynamics.fictitious import (
+    add_fictitious,
     coriolis_into,
-    fictitious_into,
+    fictitious_parts_into,
     frame_arrays,
     inertia_momentum_into,
 )
@@ -169,11 +170,15 @@ class DeformationSolve(NamedTuple):
     J: np.ndarray
     #: (2,) ``[‖f‖, max(‖f_elastic‖, ‖f_contact‖)]`` of the last evaluation
     norms: np.ndarray
+    #: (r,) the Euler and centrifugal forces at q = 0 and the kick's (ω₁, ω̇)
+    fictitious0: np.ndarray
+    #: (r, r) their tangent (the forces are linear in q)
+    fictitious_K: np.ndarray
 
     @staticmethod
     def size(r: int) -> int:
         """Floats in the buffer of a basis of r columns."""
-        return 5 + 5 + 5 * r * r + 4 * r + 2
+        return 5 + 5 + 6 * r * r + 5 * r + 2
 
     @classmethod
     def allocate(cls, r: int) -> DeformationSolve:
@@ -270,11 +275,13 @@ def deformation_solve(data, r):
     delta, at = take(data, at, r)
     J, at = take(data, at, r * r)
     norms, at = take(data, at, 2)
+    fictitious0, at = take(data, at, r)
+    fictitious_K, at = take(data, at, r * r)
     check_size(data, at)
     square = (r, r)
     return DeformationSolve(data, scheme, rates, D.reshape(square), damping.reshape(square),
                             base.reshape(square), b, f, K.reshape(square), residual, delta,
-                            J.reshape(square), norms)
+                            J.reshape(square), norms, fictitious0, fictitious_K.reshape(square))
 
 
 @njit
@@ -297,7 +304,8 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
                  scratch_data):
     """The rigid update (step 2 of :mod:`lbshape.dynamics.free_body`) from the state
     ``start`` to the rigid part (c₁, p₁, R₁, L₁) of ``end``, then ``D + Γ(ω₁)`` into
-    ``solve.damping``. Returns :data:`KICK_DONE`, :data:`KICK_ROTATION_FAILED` or
+    ``solve.damping`` and the Euler and centrifugal forces' parts at (ω₁, ω̇) into
+    ``solve.fictitious0``, ``solve.fictitious_K``. Returns :data:`KICK_DONE`, :data:`KICK_ROTATION_FAILED` or
     :data:`KICK_SINGULAR`.
 
     ``active``: the contact at t₀ acts (or a sweep). With ``sweep`` (a contact sweep) the
@@ -364,6 +372,7 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
         omega_dot[a] = (omega1[a] - before[a]) / dt
     solve = deformation_solve(solve_data, r)
     coriolis_into(omega1, frame, solve.D, solve.damping)
+    fictitious_parts_into(omega1, omega_dot, frame, solve.fictitious0, solve.fictitious_K)
     return KICK_DONE
 
 
@@ -422,21 +431,20 @@ def _contact_impulse(dt, mass, sweep, R0, inertia, omega0, F6, kick, work, world
 
 
 @njit
-def deformation_residual(r, dt, k_ex, active, frame_data, start_data, end_data, kick_data,
-                         solve_data, dq, contact_generalized, contact_stiffness):
+def deformation_residual(r, dt, k_ex, active, start_data, end_data, solve_data, dq,
+                         contact_generalized, contact_stiffness):
     """The deformation's residual at ``end.q`` = q₁ = q₀ + ``dq``; returns its norm.
 
     Completes ``solve.f``, ``solve.K`` (the elastic force and tangent on entry; the
     elastic force is copied to ``end.f_elastic``) with the example spring, the Euler and
-    centrifugal forces (ω₁, ω̇ of ``kick``) and, if ``active``, the contact
+    centrifugal forces (``solve.fictitious0``, ``solve.fictitious_K``: the kick's ω₁, ω̇)
+    and, if ``active``, the contact
     (``contact_generalized`` (r,), ``contact_stiffness`` (r, r)); writes the kinematics
     ``end.qd``, ``end.qa`` of ``dq`` (:func:`end_rates_into`), the residual
     ``a₁ + (D + Γ) v₁ + f − b`` into ``solve.residual`` and
     ``solve.norms = [‖f‖, max(‖f_elastic‖, ‖f_contact‖)]``.
     """
-    frame = frame_arrays(frame_data, r)
     start, end = body_state(start_data, r), body_state(end_data, r)
-    kick = rigid_kick(kick_data)
     solve = deformation_solve(solve_data, r)
     q1, f, K = end.q, solve.f, solve.K
     elastic2 = 0.0
@@ -447,7 +455,7 @@ def deformation_residual(r, dt, k_ex, active, frame_data, start_data, end_data, 
         for j in range(r):
             f[j] += k_ex * q1[j]
             K[j, j] += k_ex
-    fictitious_into(q1, kick.omega1, kick.omega_dot, frame, f, K)
+    add_fictitious(q1, solve.fictitious0, solve.fictitious_K, f, K)
     contact2 = 0.0
     if active:
         for j in range(r):

@@ -99,12 +99,13 @@ class FreeBodyPasses:
 
     def _retake_in_substeps(self) -> bool:
         """Whether a flight pass, not committed, is taken again in contact passes: it ended
-        (or failed) with a plane touching the body. If so, its sweeps are uncounted and the
-        contact is evaluated afresh at the start."""
+        (or failed) with a plane touching the body. If so, its sweeps are uncounted, their
+        friction rate is dropped and the contact is evaluated afresh at the start."""
         contact = self.contact
         if contact is None or self.contact_substeps == 1 or contact.scalars[1] == 0:
             return False
         self._contact_calls = -1
+        self._rate_held = False
         self.total_sweeps -= self.sweeps
         self.sweeps = 0
         return True

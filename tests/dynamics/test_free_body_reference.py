@@ -217,6 +217,7 @@ class ReferenceFreeBody:
         nu0 = np.concatenate([self.p / m, self.R @ omega0])
         M6 = sla.block_diag(m * np.eye(3), self.R @ inertia @ self.R.T)
         end, previous, iterations = None, None, 0
+        deformation, scale = None, 0.0
         for sweeps in range(1, MAX_CONTACT_SWEEPS + 1):
             if not active and end is None:
                 impulse, theta = dt * (loads + contact0), 0.5
@@ -229,7 +230,9 @@ class ReferenceFreeBody:
                            + theta**2 * dt * dt * K6 @ (end[1] - nu0))
                 impulse = M6 @ np.linalg.solve(M6 + theta**2 * dt * dt * K6, rhs)
             pose = self.kick(impulse[:3], impulse[3:])
-            iteration, deformation = self.deform(pose, t1)
+            # a sweep's Newton starts from the last sweep's Δq, at the first one's scale
+            iteration, deformation, scale = self.deform(
+                pose, t1, None if end is None else (deformation[0], scale))
             iterations += iteration
             if self.contact is None:
                 break
@@ -288,15 +291,19 @@ class ReferenceFreeBody:
         omega_dot = (omega1 - np.linalg.solve(I_mid, self.R.T @ self.L - h_mid)) / dt
         return c1, R1, p1, L1, omega1, omega_dot
 
-    def deform(self, pose, t1):
-        """Newton with backtracking on the deformation at the pose; (iterations,
-        (Δq, q̇₁, q̈₁))."""
+    def deform(self, pose, t1, start=None):
+        """Newton with backtracking on the deformation at the pose, from the predictor or
+        ``start`` = (Δq, residual scale) of the last sweep; (iterations, (Δq, q̇₁, q̈₁),
+        residual scale)."""
         dt, frame = self.dt, self.frame
         c1, R1, _, _, omega1, omega_dot = pose
         ca, cv = (4.0, 2.0) if self.scheme == "newmark" else (1.0, 1.0)
         damping = self.damping + ref_coriolis(frame, omega1)
         b = self.load_q(R1, t1)
-        dq = dt * self.qd + (0.5 * dt * dt * self.qa if self.scheme == "newmark" else 0.0)
+        if start is None:
+            dq = dt * self.qd + (0.5 * dt * dt * self.qa if self.scheme == "newmark" else 0.0)
+        else:
+            dq = start[0]
         base = ca / dt**2 * np.eye(self.q.size) + cv / dt * damping
 
         def evaluate(dq):
@@ -307,7 +314,7 @@ class ReferenceFreeBody:
 
         f, K, v1, a1, residual, norm, force_scale = evaluate(dq)
         scale = max(np.linalg.norm(b), np.linalg.norm(self.qa), norm, np.linalg.norm(f),
-                    force_scale)
+                    force_scale, 0.0 if start is None else start[1])
         for iteration in range(self.max_iterations + 1):
             noise = 64 * np.finfo(float).eps * (
                 ca / dt**2 * np.linalg.norm(dq) + np.linalg.norm(f) + np.linalg.norm(b)
@@ -324,7 +331,7 @@ class ReferenceFreeBody:
                 fraction *= 0.5
             dq = dq - fraction * delta
             f, K, v1, a1, residual, norm, _ = trial
-        return iteration, (dq, v1, a1)
+        return iteration, (dq, v1, a1), scale
 
 
 # ------------------------------------------------------------------------ tests
