@@ -305,8 +305,8 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
     """The rigid update (step 2 of :mod:`lbshape.dynamics.free_body`) from the state
     ``start`` to the rigid part (c₁, p₁, R₁, L₁) of ``end``, then ``D + Γ(ω₁)`` into
     ``solve.damping`` and the Euler and centrifugal forces' parts at (ω₁, ω̇) into
-    ``solve.fictitious0``, ``solve.fictitious_K``. Returns :data:`KICK_DONE`, :data:`KICK_ROTATION_FAILED` or
-    :data:`KICK_SINGULAR`.
+    ``solve.fictitious0``, ``solve.fictitious_K``. Returns :data:`KICK_DONE`,
+    :data:`KICK_ROTATION_FAILED` or :data:`KICK_SINGULAR`.
 
     ``active``: the contact at t₀ acts (or a sweep). With ``sweep`` (a contact sweep) the
     kick is ``(M₆ + θ Δt C₆ + θ² Δt² K₆) Δν = Δt F_loads + ½ Δt (C₀ + C₁) + (θ Δt C₆ +

@@ -9,7 +9,8 @@ This stage makes such columns without knowing the scene's impacts:
 1. **Throws** (:func:`throw`): the body, at rest shape and without spin, thrown at a
    plane along each of its hull directions (:func:`lbshape.geometry.hull_directions.
    hull_directions`: a plane flat on each side, on each crease between two sides and on
-   each corner), at :func:`throw_speed`, with the scene's first plane's stiffness, no
+   each corner), at :data:`THROW_SPEED_MARGIN` × :func:`throw_speed` (the fastest speed
+   the body reaches a plane at), with the scene's first plane's stiffness, no
    friction and no loads, but with the scene's global examples' pull (and its ramp),
    which shapes the body as it flies in the scene; the full-space reference
    (:class:`~lbshape.dynamics.full.FullSpaceSimulator`) runs from touching until
@@ -62,6 +63,13 @@ THROW_MAX_STEPS = 80
 THROW_CLEAR_STEPS = 4
 #: the slowest throw (m/s): a body that starts at rest above a plane it never falls onto
 MIN_THROW_SPEED = 0.5
+#: the throws run this much faster than the fastest speed the body reaches a plane at
+#: (:func:`throw_speed`): a column holds a crush as deep as its throw's, and the scene's
+#: impacts can be faster than that estimate (a bounce turns spin into speed, the example
+#: pull drives parts of the body). At the reach speed itself the Figure 4 bar's 3 m/s edge
+#: hit (the bar reaches its floor at 2.9 m/s) missed 5 % in restitution (5.03 %); of
+#: 1.1-1.4 this margin leaves the most room to both targets (``docs/decisions.md``)
+THROW_SPEED_MARGIN = 1.2
 
 
 class ImpactBasis(NamedTuple):
@@ -150,7 +158,7 @@ def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness, basis: NonlinearB
     """
     count = int(scene.reduced.impact_columns)
     directions = hull_directions(mesh.points).all
-    speed = throw_speed(scene, mesh.points)
+    speed = THROW_SPEED_MARGIN * throw_speed(scene, mesh.points)
     rigid = rigid_body_modes(mesh.points, mass)
     U = basis.U
 

@@ -31,6 +31,7 @@ from lbshape.pipeline.impact_columns import (
     MIN_THROW_SPEED,
     THROW_CLEAR_STEPS,
     THROW_MAX_STEPS,
+    THROW_SPEED_MARGIN,
 )
 from lbshape.pipeline.precomputed import PIPELINE_VERSION
 from lbshape.pipeline.responses import (
@@ -108,7 +109,7 @@ def impact_throw_key(scene: Scene) -> dict:
         "gravity": [list(load.vector) for load in scene.loads if load.type == "gravity"],
         "ramp": 0.0 if scene.examples is None else float(scene.examples.ramp),
         "constants": [THROW_MAX_STEPS, THROW_CLEAR_STEPS, MIN_THROW_SPEED,
-                      GROUP_ANGLE_DEG, MAX_FACES]}
+                      THROW_SPEED_MARGIN, GROUP_ANGLE_DEG, MAX_FACES]}
 
 
 def stage_keys(scene: Scene, names: list[str], settings: list) -> dict[str, str]:
