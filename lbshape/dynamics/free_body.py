@@ -30,12 +30,13 @@ reaches a plane):
 5. **contact sweeps**: while a plane touches the body at the end of the step (and its
    contact frequency is resolved, θ = ½), steps 2–4 are repeated with the kick
    ``(M₆ + θ² Δt² K₆) Δν = Δt F_loads + ½ Δt (C₀ + C₁) + θ² Δt² K₆ (ν₁ − ν₀)``, C₁ and
-   ν₁ the contact (force, torque) and the velocity at the end of the previous sweep,
-   until the end momenta settle (:data:`SWEEP_RTOL`, or a second sweep's error estimated
-   from a recent contraction, :data:`SWEEP_ERROR_SHARE`; at most
-   :data:`MAX_CONTACT_SWEEPS` passes): the fixed point is the trapezoidal contact
-   impulse ``M₆ Δν = Δt F_loads + ½ Δt (C₀ + C₁)`` of the rigid motion and the
-   deformation together (why: ``docs/decisions.md``, free bodies).
+   ν₁ the contact (force, torque) and the velocity at the end of the previous sweep
+   (its Newton from the previous sweep's Δq), until the end momenta settle
+   (:data:`SWEEP_RTOL`, or a second sweep's error estimated from a recent contraction,
+   :data:`SWEEP_ERROR_SHARE`; at most :data:`MAX_CONTACT_SWEEPS` passes): the fixed
+   point is the trapezoidal contact impulse ``M₆ Δν = Δt F_loads + ½ Δt (C₀ + C₁)`` of
+   the rigid motion and the deformation together (why: ``docs/decisions.md``, free
+   bodies).
 
 **Passes**: a step of Δt is one or more passes of steps 1–5, each committed: in flight
 as many as resolve the deformation's highest frequency (the example spring's included),
