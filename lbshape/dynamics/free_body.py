@@ -94,6 +94,7 @@ from lbshape.dynamics.engine import (
     NewtonSettings,
     OnStep,
     check_run,
+    collector_paused,
     forget_warm_starts,
     restore_arrays,
     snapshot,
@@ -649,18 +650,21 @@ class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
         phases = np.zeros((steps, len(PHASES)))
         self.phase_seconds = phases[:0]
         marks = self._marks
-        for index in range(steps):
-            try:
-                iterations = self.step()
-            except SolverError as exc:
-                scales = [load.profile(self.time + self.dt) for load in self.loads]
-                message = sanity.stop_message(exc, load_reach=self.load_reach, scales=scales,
-                                              omega_max=self.omega_max, dt=self.dt)
-                log.error("free-body simulation stopped: %s", message)
-                return recorder.record(stable=False, message=message)
-            np.subtract(marks[1:], marks[:-1], out=phases[index])
-            self.phase_seconds = phases[:index + 1]
-            recorder.step(iterations, marks[2] - marks[0], marks[-1] - marks[0], self._depth)
-            if on_step is not None:
-                on_step(index, self.time, self.q)
+        with collector_paused():
+            for index in range(steps):
+                try:
+                    iterations = self.step()
+                except SolverError as exc:
+                    scales = [load.profile(self.time + self.dt) for load in self.loads]
+                    message = sanity.stop_message(exc, load_reach=self.load_reach,
+                                                  scales=scales, omega_max=self.omega_max,
+                                                  dt=self.dt)
+                    log.error("free-body simulation stopped: %s", message)
+                    return recorder.record(stable=False, message=message)
+                np.subtract(marks[1:], marks[:-1], out=phases[index])
+                self.phase_seconds = phases[:index + 1]
+                recorder.step(iterations, marks[2] - marks[0], marks[-1] - marks[0],
+                              self._depth)
+                if on_step is not None:
+                    on_step(index, self.time, self.q)
         return recorder.record()

@@ -65,6 +65,7 @@ from lbshape.dynamics.engine import (
     OnStep,
     basis_rows,
     check_run,
+    collector_paused,
     forget_warm_starts,
     restore_arrays,
     snapshot,
@@ -587,41 +588,37 @@ class ReducedSimulation:
 
     # ------------------------------------------------------------------ run
     def run(self, steps: int, *, stride: int = 1, on_step: OnStep | None = None) -> RunRecord:
-        """Advance ``steps`` steps; a solver failure ends the run with ``stable=False``.
-
-        Args:
-            steps: number of steps.
-            stride: keep every ``stride``-th state (and the initial one), ≥ 1.
-            on_step: called after each step with (step index from 0, time in s, q (r,)).
-
-        Returns:
-            The :class:`~lbshape.dynamics.record.RunRecord`; its states are the
-            reduced coordinates q (r,). The split of each step's time into
-            :data:`PHASES` is kept in :attr:`phase_seconds`.
-        """
+        """Advance ``steps`` steps keeping every ``stride``-th state (≥ 1; and the initial
+        one); a solver failure ends the run with ``stable=False``. ``on_step`` is called
+        after each step with (step index from 0, time in s, q (r,)). Returns the
+        :class:`~lbshape.dynamics.record.RunRecord` of the reduced coordinates q (r,);
+        the split of each step's time into :data:`PHASES` is kept in
+        :attr:`phase_seconds`."""
         steps, stride = check_run(steps, stride)
         recorder = RunRecorder(stride=stride)
         recorder.start(self.time, self.x)
         phases = np.zeros((steps, len(PHASES)))
         self.phase_seconds = phases[:0]
         marks = self._marks
-        for index in range(steps):
-            try:
-                iterations = self.step()
-            except SolverError as exc:
-                message = stop_message(
-                    exc, load_reach=self.load_reach, omega_max=self.omega_max, dt=self.dt,
-                    scales=[profile(self.time + self.dt) for profile in self._profiles])
-                log.error("reduced simulation stopped: %s", message)
-                return recorder.record(stable=False, message=message)
-            row = phases[index]
-            row[:5] = np.diff(marks[:6])
-            row[5] = (marks[6] - marks[0]) - row[:5].sum()
-            self.phase_seconds = phases[:index + 1]
-            recorder.step(self.time, self.x, interp_seconds=marks[2] - marks[0],
-                          total_seconds=marks[6] - marks[0], iterations=iterations)
-            if on_step is not None:
-                on_step(index, self.time, self.x)
+        with collector_paused():
+            for index in range(steps):
+                try:
+                    iterations = self.step()
+                except SolverError as exc:
+                    message = stop_message(
+                        exc, load_reach=self.load_reach, omega_max=self.omega_max,
+                        dt=self.dt,
+                        scales=[profile(self.time + self.dt) for profile in self._profiles])
+                    log.error("reduced simulation stopped: %s", message)
+                    return recorder.record(stable=False, message=message)
+                row = phases[index]
+                row[:5] = np.diff(marks[:6])
+                row[5] = (marks[6] - marks[0]) - row[:5].sum()
+                self.phase_seconds = phases[:index + 1]
+                recorder.step(self.time, self.x, interp_seconds=marks[2] - marks[0],
+                              total_seconds=marks[6] - marks[0], iterations=iterations)
+                if on_step is not None:
+                    on_step(index, self.time, self.x)
         return recorder.record()
 
 

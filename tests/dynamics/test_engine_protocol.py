@@ -189,3 +189,40 @@ def test_settings_and_drag_are_checked():
         Drag(-1, (0.0, 0.0, 0.0), 1.0)
     drag = Drag(np.int64(3), [1, 2, 3], 5)
     assert drag.vertex == 3 and drag.stiffness == 5.0 and drag.target.dtype == float
+
+
+@pytest.mark.parametrize("kind", ["reduced", "free-body"])
+@pytest.mark.parametrize("enabled", [True, False])
+def test_a_reduced_run_pauses_the_garbage_collector(demo, free, kind, enabled):
+    """No cyclic collection runs among a reduced run's steps, even at a threshold that
+    collects at almost every allocation; after a run, a stopped one too, the collector is
+    as it was (a full collection of a large process landed among the steps otherwise)."""
+    import gc
+
+    scene, pre = free if kind == "free-body" else demo
+    sim = reduced_simulation(scene, pre)
+    collections = []
+    during = []
+
+    def count(phase, info):
+        if phase == "start":
+            collections.append(info["generation"])
+
+    threshold = gc.get_threshold()
+    was = gc.isenabled()
+    gc.callbacks.append(count)
+    try:
+        gc.enable() if enabled else gc.disable()
+        gc.set_threshold(1)
+        sim.run(STEPS, on_step=lambda *_: during.append(len(collections)))
+        def failing() -> int:
+            raise SolverError("Newton did not converge at step 1 (t = 0 s)")
+
+        sim.step = failing  # the next run stops at its first step
+        assert not sim.run(STEPS).stable
+        assert gc.isenabled() is enabled
+        assert len(during) == STEPS and len(set(during)) == 1, during
+    finally:
+        gc.callbacks.remove(count)
+        gc.set_threshold(*threshold)
+        gc.enable() if was else gc.disable()
