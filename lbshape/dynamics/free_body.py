@@ -538,7 +538,7 @@ class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
             predict(state.qd, state.qa, dt, self._dqt, solve.rates)
         np.add(state.q, self._dqt, out=self._next.q)
         b_norm, qa_norm, qd_norm = _norm(solve.b), _norm(state.qa), _norm(state.qd)
-        scale = max(b_norm, qa_norm, self._sweep_scale) if sweep else max(b_norm, qa_norm)
+        scale = max(b_norm, qa_norm, self._sweep_scale if sweep else 0.0)
         norm = self._evaluate(index, t1, times)
         self._dq, self._dqt = self._dqt, self._dq
         scale = self._sweep_scale = max(scale, norm, solve.norms[0], solve.norms[1])
