@@ -106,6 +106,15 @@ class FrameTensors:
     def r(self) -> int:
         return int(self.G.shape[0])
 
+    def leading(self, count: int) -> FrameTensors:
+        """The tensors of the basis's leading ``count`` columns: the blocks of these (every
+        tensor is a sum over the columns' coordinates, so a sub-basis's are its blocks)."""
+        if not 0 < count <= self.r:
+            raise LbshapeError(f"a frame of {self.r} columns has no leading {count}")
+        return FrameTensors(self.mass, self.center, self.Y0, self.G[:count].copy(),
+                            self.C[:count, :count].copy(), self.H[:, :count].copy(),
+                            self.S[:count, :count].copy(), self.translation[:count].copy())
+
     @property
     def inertia0(self) -> np.ndarray:
         """(3, 3) rest inertia tensor about the centre of mass (kg·m²)."""

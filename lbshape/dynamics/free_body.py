@@ -645,26 +645,34 @@ class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
         a failure ends the run with ``stable=False`` and the message. ``on_step`` is
         called after each step (outside its timing) with (step index from 0, time in s,
         q (r,))."""
-        steps, stride = check_run(steps, stride)
-        recorder = FreeBodyRecorder(self, steps, stride)
-        phases = np.zeros((steps, len(PHASES)))
-        self.phase_seconds = phases[:0]
-        marks = self._marks
-        with collector_paused():
-            for index in range(steps):
-                try:
-                    iterations = self.step()
-                except SolverError as exc:
-                    scales = [load.profile(self.time + self.dt) for load in self.loads]
-                    message = sanity.stop_message(exc, load_reach=self.load_reach,
-                                                  scales=scales, omega_max=self.omega_max,
-                                                  dt=self.dt)
-                    log.error("free-body simulation stopped: %s", message)
-                    return recorder.record(stable=False, message=message)
-                np.subtract(marks[1:], marks[:-1], out=phases[index])
-                self.phase_seconds = phases[:index + 1]
-                recorder.step(iterations, marks[2] - marks[0], marks[-1] - marks[0],
-                              self._depth)
-                if on_step is not None:
-                    on_step(index, self.time, self.q)
-        return recorder.record()
+        return run_free_body(self, steps, stride, on_step)
+
+
+def run_free_body(body, steps: int, stride: int, on_step: OnStep | None) -> FreeBodyRecord:
+    """The run of a free body's engine (:meth:`FreeBodySimulation.run`, or an engine of
+    two bases, :mod:`lbshape.dynamics.impact_switch`): its ``step()`` ``steps`` times,
+    every ``stride``-th state recorded, the parts of each step (its ``_marks``) into
+    ``phase_seconds``; a failure ends the record with ``stable=False`` and the message."""
+    steps, stride = check_run(steps, stride)
+    recorder = FreeBodyRecorder(body, steps, stride)
+    phases = np.zeros((steps, len(PHASES)))
+    body.phase_seconds = phases[:0]
+    with collector_paused():
+        for index in range(steps):
+            try:
+                iterations = body.step()
+            except SolverError as exc:
+                scales = [load.profile(body.time + body.dt) for load in body.loads]
+                message = sanity.stop_message(exc, load_reach=body.load_reach,
+                                              scales=scales, omega_max=body.omega_max,
+                                              dt=body.dt)
+                log.error("free-body simulation stopped: %s", message)
+                return recorder.record(stable=False, message=message)
+            marks = body._marks
+            np.subtract(marks[1:], marks[:-1], out=phases[index])
+            body.phase_seconds = phases[:index + 1]
+            recorder.step(iterations, marks[2] - marks[0], marks[-1] - marks[0],
+                          body._depth)
+            if on_step is not None:
+                on_step(index, body.time, body.q)
+    return recorder.record()

@@ -84,9 +84,10 @@ class FreeBodyRecorder:
     def sample(self) -> None:
         """The engine's current state into the sampled arrays."""
         sim = self.sim
-        state = sim._now
-        for key, value in zip(self._KEYS, (sim.time, state.q, state.c, state.R, state.p,
-                                           state.L, sim.energy()), strict=True):
+        rigid = sim.rigid
+        for key, value in zip(self._KEYS, (sim.time, sim.q, rigid.center, rigid.rotation,
+                                           rigid.momentum, rigid.angular_momentum,
+                                           sim.energy()), strict=True):
             self.sampled[key].append(np.array(value, dtype=float))
 
     def step(self, iterations: int, interp_seconds: float, total_seconds: float,

@@ -46,6 +46,7 @@ from lbshape.dynamics.full import (
     FullSpaceSimulator,
     rigid_velocity,
 )
+from lbshape.dynamics.impact_switch import ImpactSwitchedBody, LeadingDriver
 from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord
 from lbshape.dynamics.reduced import REALTIME_NEWTON, ReducedSimulation
@@ -64,6 +65,7 @@ from lbshape.io.atomic import (
 from lbshape.io.trajectory import TrajectoryWriter
 from lbshape.pipeline.diagnosis import basis_omega_max, load_reach, run_warnings
 from lbshape.pipeline.estimate import estimate_stats
+from lbshape.pipeline.impact_columns import throw_speed
 from lbshape.pipeline.influence import (
     STATS_KEYS,
     Influence,
@@ -188,7 +190,8 @@ def example_ramp(scene: Scene) -> float:
 def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced",
                        newton_iterations: int | None = None,
                        newton: NewtonSettings = REALTIME_NEWTON,
-                       exact_forces: bool = False) -> ReducedSimulation:
+                       exact_forces: bool = False, impact_switch: bool = True
+                       ) -> ReducedSimulation:
     """The :class:`~lbshape.dynamics.reduced.ReducedSimulation` of a scene.
 
     ``method`` picks the example target's route: the scene's
@@ -217,7 +220,7 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
         driver = local_example_driver(pre.mesh, pre.material, pre.local,
                                       route=local_route(route, pre.material))
     if scene.is_free:
-        return _free_body_simulation(scene, pre, elastic, driver, k_ex, newton)
+        return _free_body_simulation(scene, pre, elastic, driver, k_ex, newton, impact_switch)
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
@@ -262,37 +265,57 @@ def force_elements(pre: Precomputed) -> int:
         pre.elastic.cubature_elements.size)
 
 
-def _contact(scene: Scene, pre: Precomputed, center):
-    """The scene's plane contact on the object's surface, or None without planes."""
+def _contact(scene: Scene, pre: Precomputed, center, U: np.ndarray | None = None):
+    """The scene's plane contact on the object's surface with the basis U (3n, r; the
+    precompute's by default), or None without planes."""
     if not scene.planes:
         return None
-    return PlaneContact.for_mesh(list(scene.planes), pre.mesh.points, pre.mesh.tets, pre.U,
-                                 center=center)
+    return PlaneContact.for_mesh(list(scene.planes), pre.mesh.points, pre.mesh.tets,
+                                 pre.U if U is None else U, center=center)
 
 
 def _free_body_simulation(scene: Scene, pre: Precomputed, elastic, driver, k_ex: float,
-                          newton: NewtonSettings = REALTIME_NEWTON):
-    """The :class:`~lbshape.dynamics.free_body.FreeBodySimulation` of a free scene."""
+                          newton: NewtonSettings = REALTIME_NEWTON, impact_switch: bool = True):
+    """The free-body engine of a free scene: a
+    :class:`~lbshape.dynamics.free_body.FreeBodySimulation`, or with impact columns
+    (``elastic`` a :class:`~lbshape.elastic.column_forces.ColumnForceModel`) and
+    ``impact_switch`` the :class:`~lbshape.dynamics.impact_switch.ImpactSwitchedBody` of
+    one on the leading columns and one on the whole basis."""
     if pre.frame is None:
         raise LbshapeError(f"scene {scene.name}: the precompute has no rigid frame tensors")
     if scene.has_local_examples:
         raise LbshapeError(f"scene {scene.name}: local examples on a free body are not "
                            "supported; fix a region or use global examples")
-    body = pre.mesh.points - pre.frame.center
+    columns = _free_body_engine(scene, pre, elastic, pre.frame, pre.U, driver, k_ex, newton)
+    if not (impact_switch and isinstance(elastic, ColumnForceModel)):
+        return columns
+    r0 = elastic.leading
+    plain = _free_body_engine(
+        scene, pre, elastic.base, pre.frame.leading(r0), np.ascontiguousarray(pre.U[:, :r0]),
+        None if driver is None else LeadingDriver(driver, pre.r, r0), k_ex, newton)
+    return ImpactSwitchedBody(plain, columns, pre.elastic.impact_coupling,
+                              throw_speed(scene, pre.mesh.points))
+
+
+def _free_body_engine(scene: Scene, pre: Precomputed, elastic, frame, U: np.ndarray, driver,
+                      k_ex: float, newton: NewtonSettings):
+    """The :class:`~lbshape.dynamics.free_body.FreeBodySimulation` of a free scene on the
+    basis U (3n, r) with its force model and frame tensors."""
+    body = pre.mesh.points - frame.center
     loads = []
     if scene.loads:
         mass = mass_matrix(pre.mesh, pre.material.density)
-        loads = [FreeLoad.from_pattern(load.pattern, pre.U, body, load.profile)
+        loads = [FreeLoad.from_pattern(load.pattern, U, body, load.profile)
                  for load in load_patterns(scene, pre, mass)]
     ramp = example_ramp(scene)
     engine, extra = ((RampedFreeBody, {"example_ramp": ramp}) if ramp and k_ex > 0
                      else (FreeBodySimulation, {}))
     return engine(
-        elastic, pre.frame, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
+        elastic, frame, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
-        k_ex=k_ex, contact=_contact(scene, pre, pre.frame.center),
+        k_ex=k_ex, contact=_contact(scene, pre, frame.center, U),
         velocity=scene.initial.velocity, angular_velocity=scene.initial.angular_velocity,
-        rest_points=pre.mesh.points, omega_max=basis_omega_max(pre), basis=pre.U,
+        rest_points=pre.mesh.points, omega_max=basis_omega_max(pre), basis=U,
         newton=newton, load_reach=load_reach(scene, pre),
         contact_dt=scene.simulation.contact_dt, flight_dt=scene.simulation.flight_dt, **extra,
     )

@@ -256,6 +256,8 @@ def restart_reduced(sim: Simulation, state, time: float, steps_taken: int = 0) -
     snapshot with the body state replaced, the elastic force at q, the energy monitor
     restarted from the restart's energy (no work done yet)."""
     engine = sim.engine
+    if hasattr(engine, "switch_columns"):  # an impact: the basis with its impact columns
+        engine.switch_columns(True)
     if not hasattr(engine, "elastic") or "now" not in engine.state.arrays:
         raise LbshapeError("a restart needs the reduced free-body engine")
     arrays = dict(engine.state.arrays)

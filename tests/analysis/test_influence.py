@@ -206,7 +206,8 @@ def test_free_body_influence_is_zero_when_the_examples_are_the_rest_shape(method
     pose = scene.examples.poses[0]
     rest_pose = dataclasses.replace(pose, parameters={**pose.parameters, "amplitude": 0.0})
     thrown = dataclasses.replace(
-        scene, loads=(), planes=(), initial=dataclasses.replace(
+        scene, loads=(), planes=(), reduced=dataclasses.replace(scene.reduced, impact_columns=0),
+        initial=dataclasses.replace(
             scene.initial, velocity=(1.0, 0.0, 0.5), angular_velocity=(0.0, 0.0, 0.0)))
     rest_examples = dataclasses.replace(thrown, examples=dataclasses.replace(
         thrown.examples, poses=(rest_pose,)))

@@ -1,5 +1,6 @@
 """The engine protocol (:mod:`lbshape.dynamics.engine`) on every engine: the reduced engine
-of a fixed object, its full-space reference, and a free body's reduced engine — stepping,
+of a fixed object, its full-space reference, a free body's reduced engine and a free body
+with impact columns switched at its impacts — stepping,
 runs, world displacements, snapshots and resets (bit for bit), the examples switch and a
 drag."""
 
@@ -46,11 +47,19 @@ def free():
     return scene, precompute(scene, progress=False)
 
 
-@pytest.fixture(params=["reduced", "full", "free-body"])
-def engine(request, demo, free):
+@pytest.fixture(scope="module")
+def switched():
+    """The free bar with 4 impact columns (:mod:`lbshape.dynamics.impact_switch`)."""
+    scene = scene_from_dict({**FREE, "reduced": {**FREE["reduced"], "impact_columns": 4}},
+                            name="free-demo")
+    return scene, precompute(scene, progress=False)
+
+
+@pytest.fixture(params=["reduced", "full", "free-body", "impact-switch"])
+def engine(request, demo, free, switched):
     """``(engine, precompute, scene)`` of each kind."""
-    if request.param == "free-body":
-        scene, pre = free
+    if request.param in ("free-body", "impact-switch"):
+        scene, pre = free if request.param == "free-body" else switched
         return reduced_simulation(scene, pre), pre, scene
     scene, pre = demo
     make = reduced_simulation if request.param == "reduced" else full_simulation
