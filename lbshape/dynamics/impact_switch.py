@@ -13,15 +13,17 @@ one on ``[U₀ V]`` (columns), can hand one state to each other:
   least :data:`ONSET_KINETIC_SHARE` of the design impact's, is taken back (the plain
   engine's state before it, kept in a copy of its 18 + 4 r₀ floats) and taken again by
   the columns' engine, which starts with the columns at their static answer to the
-  deformation, ``z = A q`` with ``A = −K_zz⁻¹ K_zq`` (the columns couple to q linearly:
-  :class:`~lbshape.elastic.column_forces.ColumnForceModel`), and ``ż = A q̇``,
-  ``z̈ = A q̈``. The design impact is the body at the speed it reaches its planes at
-  (the speed the columns' throws are made for): ``½ m v²``.
+  deformation and the example spring, ``(K_zz + k_ex I) z = k_ex z* − K_zq q`` (the
+  columns couple to q linearly: :class:`~lbshape.elastic.column_forces.ColumnForceModel`;
+  z* the columns' part of the last example target), and ``ż = A q̇``, ``z̈ = A q̈`` with
+  ``A = −(K_zz + k_ex I)⁻¹ K_zq``. The design impact is the body at the speed it
+  reaches its planes at (the speed the columns' throws are made for): ``½ m v²``.
 - **Off once the body rests.** The columns' engine hands the state back when the body
   has touched a plane at the end of every step for :data:`REST_HOLD` s and its kinetic
-  energy (rigid and deformation) is below :data:`REST_KINETIC_SHARE` of the design
-  impact's: the plain engine takes q, q̇, q̈ as the leading coordinates (the columns'
-  share of a resting body's crush is dropped with them).
+  energy (rigid, the rotation's on the rest inertia, and deformation) is below
+  :data:`REST_KINETIC_SHARE` of the design impact's: the plain engine takes q, q̇, q̈
+  as the leading coordinates (the columns' share of a resting body's crush is dropped
+  with them).
 
 Either hand-over keeps the rigid state (c, p, R, L), the time, the step count and the
 energy monitor's work and initial energy; the receiving engine computes its elastic
@@ -89,6 +91,11 @@ class LeadingDriver:
         self.driver.target_from_weights_into(self._target)
         out[:] = self._target[:self.leading]
 
+    @property
+    def columns_target(self) -> np.ndarray:
+        """(r − r₀,) the trailing entries of the last target (0 before the first)."""
+        return self._target[self.leading:]
+
 
 class ImpactSwitchedBody:
     """One free body on two engines, the impact columns on around its impacts (see the
@@ -117,8 +124,9 @@ class ImpactSwitchedBody:
         coupling = np.asarray(coupling, dtype=float)
         self.plain, self.columns = plain, columns
         self.r, self.leading = r, r0
-        #: (k, r₀) the columns' static answer to q: A = −K_zz⁻¹ K_zq
-        self.static = -np.linalg.solve(coupling[r0:, r0:], coupling[r0:, :r0])
+        #: (k, k) K_zz and (k, r₀) K_zq: the columns' rest stiffness and coupling to q
+        self._stiffness = coupling[r0:, r0:].copy()
+        self._coupling = coupling[r0:, :r0].copy()
         if not (math.isfinite(impact_speed) and impact_speed > 0):
             raise LbshapeError(f"the impact speed must be > 0 m/s, got {impact_speed}")
         #: ½ m v² of the design impact (J)
@@ -126,6 +134,9 @@ class ImpactSwitchedBody:
         self._held_steps = max(1, math.ceil(REST_HOLD / plain.dt * (1 - 1e-12)))
         self._q, self._qd = np.zeros(r), np.zeros(r)
         self._saved = np.zeros(plain._now.data.size)
+        self._mass = float(plain.frame.mass)
+        self._inverse_inertia = np.linalg.inv(plain.frame.inertia0)
+        self._spin, self._omega = np.zeros(3), np.zeros(3)
         self.phase_seconds = np.zeros((0, len(PHASES)))
         self._initial = self._start()
 
@@ -221,7 +232,7 @@ class ImpactSwitchedBody:
         iterations = plain.step(index)
         if not plain.contact.scalars[1] > 0:
             return iterations
-        if kinetic_energy(plain) < ONSET_KINETIC_SHARE * self.impact_energy:
+        if self.kinetic_energy(plain) < ONSET_KINETIC_SHARE * self.impact_energy:
             self._touching = True  # a slow touch: the plain basis holds it
             return iterations
         started = plain._marks[0]
@@ -243,8 +254,25 @@ class ImpactSwitchedBody:
         self._held = self._held + 1 if touching else 0
         self._touching = bool(touching)
         if self._held >= self._held_steps and (
-                kinetic_energy(self.columns) <= REST_KINETIC_SHARE * self.impact_energy):
+                self.kinetic_energy(self.columns) <= REST_KINETIC_SHARE * self.impact_energy):
             self.switch_columns(False)
+
+    def static_answer(self, k_ex: float = 0.0) -> np.ndarray:
+        """(k, r₀) A = −(K_zz + k_ex I)⁻¹ K_zq: the columns' static answer to q under the
+        example spring k_ex (1/s²)."""
+        spring = self._stiffness + float(k_ex) * np.eye(self.r - self.leading)
+        return -np.linalg.solve(spring, self._coupling)
+
+    def kinetic_energy(self, body: FreeBodySimulation) -> float:
+        """The kinetic energy of one of the engines (J), the rotation's on the rest
+        inertia: ``½ |p|²/m + ½ (RᵀL)ᵀ I₀⁻¹ (RᵀL) + ½ |q̇|²`` (the deformation's
+        coordinates mass-normalised). Allocation-free: the rest test runs at every step
+        of a resting body on the columns."""
+        state, spin = body._now, self._spin
+        np.dot(state.L, state.R, out=spin)  # Rᵀ L, the body-frame angular momentum
+        np.dot(self._inverse_inertia, spin, out=self._omega)
+        return 0.5 * (float(state.p @ state.p) / self._mass + float(spin @ self._omega)
+                      + float(state.qd @ state.qd))
 
     def switch_columns(self, on: bool) -> None:
         """Hand the body to the columns' engine (``on``) or back to the plain one, now;
@@ -256,13 +284,17 @@ class ImpactSwitchedBody:
         for name in ("c", "p", "R", "L"):
             getattr(get, name)[...] = getattr(have, name)
         r0 = self.leading
+        static = self.static_answer(source.k_ex) if on else None
         for name in ("q", "qd", "qa"):
             value, into = getattr(have, name), getattr(get, name)
             if on:
                 into[:r0] = value
-                np.dot(self.static, value, out=into[r0:])
+                np.dot(static, value, out=into[r0:])
             else:
                 into[:] = value[:r0]
+        if on and source.k_ex > 0 and isinstance(source.driver, LeadingDriver):
+            spring = self._stiffness + source.k_ex * np.eye(self.r - r0)
+            get.q[r0:] += np.linalg.solve(spring, source.k_ex * source.driver.columns_target)
         for name in _CARRIED:
             setattr(target, name, getattr(source, name))
         f, _ = target.elastic.force_and_tangent(get.q)
@@ -327,11 +359,3 @@ class ImpactSwitchedBody:
         self.plain.set_drag(drag)
         self.columns.set_drag(drag)
 
-
-def kinetic_energy(body: FreeBodySimulation) -> float:
-    """The kinetic energy of a free body's engine (J): ``½ |p|²/m + ½ ωᵀ I(q) ω + ½ |q̇|²``
-    (the deformation's coordinates mass-normalised; the coupling ``ω·h`` left out)."""
-    state, frame = body._now, body.frame
-    omega = body.omega()
-    return float(0.5 * (state.p @ state.p) / frame.mass
-                 + 0.5 * omega @ (frame.inertia(state.q) @ omega) + 0.5 * (state.qd @ state.qd))

@@ -129,3 +129,21 @@ def test_the_columns_act_from_the_impact_until_the_body_rests(bar):
     distance = trajectory_error(engine.displacements(record), throughout.displacements(other),
                                 mass)
     assert distance < golden("impact_switch.rest_against_throughout").limit
+
+
+def test_with_examples_the_columns_start_at_their_answer_to_the_example_spring(bar):
+    """The bar with its example in flight: handed over, the columns balance their
+    coupling to q and the example spring's pull to its target's columns part."""
+    _, pre = bar
+    engine = reduced_simulation(load_scene("bar-s-cuboid"), pre)
+    for _ in range(IN_FLIGHT):
+        engine.step()
+    k_ex, r0 = engine.plain.k_ex, engine.leading
+    target = engine.plain.driver.columns_target.copy()
+    assert k_ex > 0 and np.abs(target).max() > 0
+    engine.switch_columns(True)
+    q = engine.columns._now.q
+    coupling = pre.elastic.impact_coupling
+    balance = coupling[r0:] @ q + k_ex * (q[r0:] - target)
+    scale = np.abs(k_ex * target).max() + np.abs(coupling[r0:, :r0] @ q[:r0]).max()
+    assert np.abs(balance).max() < 1e-9 * scale
