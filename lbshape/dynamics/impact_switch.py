@@ -52,8 +52,11 @@ ONSET_KINETIC_SHARE = 0.04
 #: the columns' engine hands the body back after it has touched a plane at the end of
 #: every step for this long (s) ...
 REST_HOLD = 0.05
-#: ... with its kinetic energy below this share of the design impact's (3 % of its speed)
-REST_KINETIC_SHARE = 1e-3
+#: ... with its kinetic energy below this share of the design impact's (a tenth of its
+#: speed): on the built-in free bodies' runs the same errors against full as 1e-3, and the
+#: car with examples, rocking under its pull, back on its plain basis at 1.5 s instead of
+#: 1.8 s (``docs/decisions.md``)
+REST_KINETIC_SHARE = 1e-2
 
 #: the state the engines hand over besides the body's arrays
 _CARRIED = ("time", "steps_taken", "work", "energy0", "total_sweeps", "sweeps", "substeps",
