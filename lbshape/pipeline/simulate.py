@@ -202,6 +202,9 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
     ``exact_forces``: the reduced elastic force summed element by element over every
     element with weight 1 instead of the precompute's force model
     (:func:`reduced_force_model`; a check of the force model's share of the error; slow).
+    ``impact_switch``: a free body with impact columns steps on them from each impact
+    until it rests (:mod:`lbshape.dynamics.impact_switch`); ``False`` keeps them
+    throughout (comparisons).
     """
     elastic = reduced_force_model(pre, exact_forces=exact_forces)
     loads = []
