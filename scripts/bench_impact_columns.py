@@ -4,7 +4,8 @@ Usage: ``.venv/bin/python scripts/bench_impact_columns.py [--columns 26] [--repe
 [--out-dir results] [--scenes car bar-s-cuboid bar-s-cylinder]``.
 
 ``reduced.impact_columns`` (:mod:`lbshape.pipeline.impact_columns`) off (0) and on
-(``--columns``; the built-in free bodies have 26), side by side in one process, the
+(a scene's own ``impact_columns``: the car 16, the bars 26; ``--columns`` for the
+designed impacts and a scene without), side by side in one process, the
 columns either throughout or switched on at each impact and off once the body rests
 (:mod:`lbshape.dynamics.impact_switch`, the engine the scenes run):
 
@@ -86,8 +87,10 @@ VARIANTS = {"off": (False, False), "throughout": (True, False), "switched": (Tru
 
 def scene_rows(name: str, count: int, repeats: int) -> list[dict]:
     """Whole-run error and step times of one free body, with and without its examples,
-    on the plain basis and with the columns throughout or switched."""
+    on the plain basis and with its own impact columns (``count`` for a scene without)
+    throughout or switched."""
     base = load_scene(name)
+    count = base.reduced.impact_columns or count  # a scene's own count, if it has one
     pres = {False: precompute(with_columns(base, 0)), True: precompute(with_columns(base, count))}
     mass = mass_matrix(pres[False].mesh, pres[False].material.density)
     rows = []
@@ -139,10 +142,11 @@ def markdown(payload: dict) -> str:
     lines = [
         "# Impact columns on the free bodies",
         "",
-        f"`reduced.impact_columns` off (0) and {count} "
+        f"`reduced.impact_columns` off (0) and on (the scene's own: the car 16, the bars "
+        f"26; {count} for the designed impacts and a scene without) "
         "(`lbshape.pipeline.impact_columns`: throws at the convex hull's sides, creases and "
         "corners; the columns' own energy exact, their coupling linear), side by side in one "
-        "process. The built-in free bodies have 26, switched: on from each impact's onset "
+        "process. The built-in free bodies run them switched: on from each impact's onset "
         "until the body rests (`lbshape.dynamics.impact_switch`). A designed impact "
         "restarts the body on the columns.",
         "",
