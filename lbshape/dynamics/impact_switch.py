@@ -260,11 +260,10 @@ class ImpactSwitchedBody:
                 self.kinetic_energy(self.columns) <= REST_KINETIC_SHARE * self.impact_energy):
             self.switch_columns(False)
 
-    def static_answer(self, k_ex: float = 0.0) -> np.ndarray:
-        """(k, r₀) A = −(K_zz + k_ex I)⁻¹ K_zq: the columns' static answer to q under the
-        example spring k_ex (1/s²)."""
-        spring = self._stiffness + float(k_ex) * np.eye(self.r - self.leading)
-        return -np.linalg.solve(spring, self._coupling)
+    def _spring(self, k_ex: float) -> np.ndarray:
+        """(k, k) ``K_zz + k_ex I``: the columns' stiffness with the example spring
+        k_ex (1/s²)."""
+        return self._stiffness + float(k_ex) * np.eye(self.r - self.leading)
 
     def kinetic_energy(self, body: FreeBodySimulation) -> float:
         """The kinetic energy of one of the engines (J), the rotation's on the rest
@@ -287,7 +286,9 @@ class ImpactSwitchedBody:
         for name in ("c", "p", "R", "L"):
             getattr(get, name)[...] = getattr(have, name)
         r0 = self.leading
-        static = self.static_answer(source.k_ex) if on else None
+        spring = self._spring(source.k_ex) if on else None
+        # A = −(K_zz + k_ex I)⁻¹ K_zq: the columns' static answer to q (and q̇, q̈)
+        static = -np.linalg.solve(spring, self._coupling) if on else None
         for name in ("q", "qd", "qa"):
             value, into = getattr(have, name), getattr(get, name)
             if on:
@@ -296,7 +297,6 @@ class ImpactSwitchedBody:
             else:
                 into[:] = value[:r0]
         if on and source.k_ex > 0 and isinstance(source.driver, LeadingDriver):
-            spring = self._stiffness + source.k_ex * np.eye(self.r - r0)
             get.q[r0:] += np.linalg.solve(spring, source.k_ex * source.driver.columns_target)
         for name in _CARRIED:
             setattr(target, name, getattr(source, name))
