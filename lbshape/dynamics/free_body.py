@@ -72,7 +72,7 @@ fictitious forces (:mod:`lbshape.dynamics.fictitious`), contact
 (:meth:`~lbshape.dynamics.contact.PlaneContact.evaluate_into`, once per Newton evaluation;
 at a step's start the previous step's last evaluation, same configuration, is reused),
 the residual (:func:`~lbshape.dynamics.free_body_kernels.deformation_residual`) and the
-LU solve (:func:`~lbshape.dynamics.kernels.lu_solve`; the Euler and Coriolis terms are
+LU solve (:class:`~lbshape.dynamics.dense_lu.DenseLU`; the Euler and Coriolis terms are
 skew). Each step's wall time is split into :data:`PHASES`
 (:attr:`FreeBodySimulation.phase_seconds`).
 """
@@ -88,6 +88,7 @@ import numpy as np
 
 from lbshape.dynamics import sanity
 from lbshape.dynamics.contact import PlaneContact
+from lbshape.dynamics.dense_lu import DenseLU
 from lbshape.dynamics.drag import DragSpring
 from lbshape.dynamics.engine import (
     EngineState,
@@ -119,7 +120,7 @@ from lbshape.dynamics.free_body_kernels import (
 from lbshape.dynamics.free_body_loads import FreeLoad, LoadStack
 from lbshape.dynamics.free_body_passes import FreeBodyPasses
 from lbshape.dynamics.free_body_record import FreeBodyRecord, FreeBodyRecorder, world_displacements
-from lbshape.dynamics.kernels import axpy, lu_solve, predict
+from lbshape.dynamics.kernels import axpy, predict
 from lbshape.dynamics.kernels import norm as _norm
 from lbshape.dynamics.reduced import PHASES as FIXED_PHASES
 from lbshape.dynamics.reduced import REALTIME_NEWTON
@@ -269,6 +270,7 @@ class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
         self._now, self._next = BodyState.allocate(r), BodyState.allocate(r)
         self._kick_arrays = RigidKick.allocate()
         self._solve = DeformationSolve.allocate(r)
+        self._lu = DenseLU(r)  # the Newton matrix's factors
         self._scratch = Scratch.allocate(r)
         self._frame_arrays = self.frame.kernel_arrays
         self._dq, self._dqt = np.zeros(r), np.zeros(r)  # accepted and trial increments
@@ -560,9 +562,10 @@ class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
                 raise SolverError(
                     f"Newton did not converge at step {index} (t = {t1:.6g} s): relative "
                     f"residual {norm / scale:.3e} after {iteration} iterations")
-            if not lu_solve(solve.base, solve.K, solve.residual, solve.J, solve.delta):
+            if not self._lu.factor(solve.base, solve.K):
                 raise SolverError(f"singular Newton matrix at step {index} "
                                   f"(t = {t1:.6g} s)")
+            self._lu.solve_into(solve.residual, solve.delta)
             # backtracking: contact makes the residual only piecewise smooth; the last
             # trial is the accepted one
             fraction = 1.0

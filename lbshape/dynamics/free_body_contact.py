@@ -28,7 +28,6 @@ import math
 import numpy as np
 
 from lbshape.dynamics.free_body_kernels import contact_theta_into
-from lbshape.dynamics.kernels import lu_solve_rows
 
 #: contact sweeps of a step stop when the end momenta move by less than this share of
 #: the momenta and the step's impulse. On the car (no examples, 800 steps) 1e-6, 1e-4 and
@@ -160,9 +159,10 @@ class FreeBodyContact:
         per sweep on the car's wall impact (the deformation takes the slip)."""
         contact, solve = self.contact, self._solve
         X, Y, product = contact.coupling, self._coupling_work, self._rate6
-        if not lu_solve_rows(solve.base, solve.K, X, solve.J, Y):
+        if not self._lu.factor(solve.base, solve.K):
             out[:] = contact.damping_rigid
             return
+        self._lu.solve_rows_into(X, Y)
         np.dot(X, Y.T, out=product)
         np.add(product, product.T, out=out)
         out *= -0.5 * self._cv_dt

@@ -166,8 +166,6 @@ class DeformationSolve(NamedTuple):
     residual: np.ndarray
     #: (r,) the Newton update
     delta: np.ndarray
-    #: (r, r) the LU factors
-    J: np.ndarray
     #: (2,) ``[‖f‖, max(‖f_elastic‖, ‖f_contact‖)]`` of the last evaluation
     norms: np.ndarray
     #: (r,) the Euler and centrifugal forces at q = 0 and the kick's (ω₁, ω̇)
@@ -178,7 +176,7 @@ class DeformationSolve(NamedTuple):
     @staticmethod
     def size(r: int) -> int:
         """Floats in the buffer of a basis of r columns."""
-        return 5 + 5 + 6 * r * r + 5 * r + 2
+        return 5 + 5 + 5 * r * r + 5 * r + 2
 
     @classmethod
     def allocate(cls, r: int) -> DeformationSolve:
@@ -205,11 +203,15 @@ class Scratch(NamedTuple):
     qd_mid: np.ndarray
     #: (3,) the new state's energies (:func:`commit_energy`)
     energies: np.ndarray
+    #: (2, 12) the pass's I (9) and h (3) at its start and at the predicted mid-step:
+    #: computed by the kick of its first sweep, reused by the kicks of its other sweeps
+    #: (they start from the same state)
+    held: np.ndarray
 
     @staticmethod
     def size(r: int) -> int:
         """Floats in the buffer of a basis of r columns."""
-        return 72 + 24 + 144 + 2 * r + 3
+        return 72 + 24 + 144 + 2 * r + 3 + 24
 
     @classmethod
     def allocate(cls, r: int) -> Scratch:
@@ -273,7 +275,6 @@ def deformation_solve(data, r):
     K, at = take(data, at, r * r)
     residual, at = take(data, at, r)
     delta, at = take(data, at, r)
-    J, at = take(data, at, r * r)
     norms, at = take(data, at, 2)
     fictitious0, at = take(data, at, r)
     fictitious_K, at = take(data, at, r * r)
@@ -281,7 +282,7 @@ def deformation_solve(data, r):
     square = (r, r)
     return DeformationSolve(data, scheme, rates, D.reshape(square), damping.reshape(square),
                             base.reshape(square), b, f, K.reshape(square), residual, delta,
-                            J.reshape(square), norms, fictitious0, fictitious_K.reshape(square))
+                            norms, fictitious0, fictitious_K.reshape(square))
 
 
 @njit
@@ -293,9 +294,10 @@ def scratch(data, r):
     q_mid, at = take(data, at, r)
     qd_mid, at = take(data, at, r)
     energies, at = take(data, at, 3)
+    held, at = take(data, at, 24)
     check_size(data, at)
     return Scratch(data, m33.reshape((8, 3, 3)), v6.reshape((4, 6)), m66.reshape((4, 6, 6)),
-                   q_mid, qd_mid, energies)
+                   q_mid, qd_mid, energies, held.reshape((2, 12)))
 
 
 # ------------------------------------------------------------------ step kernels
@@ -314,7 +316,9 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
     ``kick.contact_end`` and ν₁ = ``kick.nu_end`` at the end of the previous sweep: its
     fixed point is the trapezoidal rule ``M₆ Δν = Δt F_loads + ½ Δt (C₀ + C₁)``. C₆ is
     the friction's rate matrix (``kick.C6``, zero without friction): the friction of
-    C₀, C₁ depends on the velocities, and C₆ makes that dependence implicit.
+    C₀, C₁ depends on the velocities, and C₆ makes that dependence implicit. A sweep
+    starts from the state its pass's first kick started from, so it takes that kick's
+    I and h (at t₀ and mid-step, ``scratch.held``) instead of computing them again.
     """
     frame = frame_arrays(frame_data, r)
     start, end = body_state(start_data, r), body_state(end_data, r)
@@ -324,7 +328,11 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
     inertia, inverse, world = work.m33[0], work.m33[1], work.m33[2]
     h, before = work.v6[0, :3], work.v6[0, 3:]
     R0, L0, p0 = start.R, start.L, start.p
-    inertia_momentum_into(start.q, start.qd, frame, inertia, h)
+    if sweep:
+        _restore_inertia(work.held[0], inertia, h)
+    else:
+        inertia_momentum_into(start.q, start.qd, frame, inertia, h)
+        _hold_inertia(inertia, h, work.held[0])
     if not inverse3_into(inertia, inverse):
         return KICK_SINGULAR
     omega0, dp, dL, v0 = kick.omega0, kick.dp, kick.dL, kick.v0
@@ -348,11 +356,15 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
         c1[a] = start.c[a] + 0.5 * dt * (p0[a] + p1[a]) / mass
         L1[a] = L0[a] + dL[a]
     # inertia and relative momentum at the predicted mid-step deformation
-    q_mid, qd_mid = work.q_mid, work.qd_mid
-    for j in range(r):
-        q_mid[j] = start.q[j] + 0.5 * dt * start.qd[j] + 0.125 * dt * dt * start.qa[j]
-        qd_mid[j] = start.qd[j] + 0.5 * dt * start.qa[j]
-    inertia_momentum_into(q_mid, qd_mid, frame, inertia, h)
+    if sweep:
+        _restore_inertia(work.held[1], inertia, h)
+    else:
+        q_mid, qd_mid = work.q_mid, work.qd_mid
+        for j in range(r):
+            q_mid[j] = start.q[j] + 0.5 * dt * start.qd[j] + 0.125 * dt * dt * start.qa[j]
+            qd_mid[j] = start.qd[j] + 0.5 * dt * start.qa[j]
+        inertia_momentum_into(q_mid, qd_mid, frame, inertia, h)
+        _hold_inertia(inertia, h, work.held[1])
     # half the impulse, the torque-free rotation, the other half (Strang): Π = R₀ᵀ L½
     body = work.v6[1, :3]
     for a in range(3):
@@ -374,6 +386,24 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
     coriolis_into(omega1, frame, solve.D, solve.damping)
     fictitious_parts_into(omega1, omega_dot, frame, solve.fictitious0, solve.fictitious_K)
     return KICK_DONE
+
+
+@njit
+def _hold_inertia(inertia, h, held):
+    """I (3, 3) and h (3,) into ``held`` (12,)."""
+    for a in range(3):
+        for b in range(3):
+            held[3 * a + b] = inertia[a, b]
+        held[9 + a] = h[a]
+
+
+@njit
+def _restore_inertia(held, inertia, h):
+    """I (3, 3) and h (3,) from ``held`` (12,) (:func:`_hold_inertia`)."""
+    for a in range(3):
+        for b in range(3):
+            inertia[a, b] = held[3 * a + b]
+        h[a] = held[9 + a]
 
 
 @njit

@@ -9,8 +9,7 @@ allocate nothing per step. What both use is here, compiled when numba is present
   ``Δx = h v + ½ k_a h² a``, k_a from :class:`~lbshape.dynamics.schemes.Scheme`);
 * :func:`cholesky_in_place` / :func:`cholesky_solve_in_place` (symmetric positive
   definite systems: the fixed object's Newton matrix, the free body's 6 × 6 rigid
-  kick), :func:`lu_solve` (the free body's non-symmetric Newton matrix) and
-  :func:`max_symmetric_eigenvalue` (cyclic Jacobi);
+  kick) and :func:`max_symmetric_eigenvalue` (cyclic Jacobi);
 * :func:`take` and :func:`check_size`, with which a kernel cuts one float buffer into
   named views.
 
@@ -35,7 +34,7 @@ import numpy as np
 
 from lbshape._jit import njit
 
-__all__ = ["axpy", "check_size", "cholesky_in_place", "cholesky_solve_in_place", "lu_solve",
+__all__ = ["axpy", "check_size", "cholesky_in_place", "cholesky_solve_in_place",
            "max_symmetric_eigenvalue", "norm", "predict", "take"]
 
 
@@ -100,52 +99,6 @@ def cholesky_solve_in_place(L, b):
         for k in range(i + 1, n):
             value -= L[k, i] * b[k]
         b[i] = value / L[i, i]
-
-
-@njit
-def lu_solve(base, K, rhs, J, x):
-    """x = (base + K)⁻¹ rhs by LU with partial pivoting in J; False if singular."""
-    n = rhs.shape[0]
-    return lu_solve_rows(base, K, rhs.reshape((1, n)), J, x.reshape((1, n)))
-
-
-@njit
-def lu_solve_rows(base, K, rhs, J, x):
-    """x[m] = (base + K)⁻¹ rhs[m] for each row m of ``rhs`` (M, n) by LU with partial
-    pivoting in J, one factorisation for all rows; False if singular."""
-    n, count = K.shape[0], rhs.shape[0]
-    for i in range(n):
-        for j in range(n):
-            J[i, j] = base[i, j] + K[i, j]
-    for m in range(count):
-        for i in range(n):
-            x[m, i] = rhs[m, i]
-    for k in range(n):
-        pivot, big = k, abs(J[k, k])
-        for i in range(k + 1, n):
-            if abs(J[i, k]) > big:
-                pivot, big = i, abs(J[i, k])
-        if not (big > 0.0 and np.isfinite(big)):
-            return False
-        if pivot != k:
-            for j in range(n):
-                J[k, j], J[pivot, j] = J[pivot, j], J[k, j]
-            for m in range(count):
-                x[m, k], x[m, pivot] = x[m, pivot], x[m, k]
-        for i in range(k + 1, n):
-            factor = J[i, k] / J[k, k]
-            J[i, k] = factor
-            for j in range(k + 1, n):
-                J[i, j] -= factor * J[k, j]
-            for m in range(count):
-                x[m, i] -= factor * x[m, k]
-    for m in range(count):
-        for i in range(n - 1, -1, -1):
-            value = x[m, i]
-            for j in range(i + 1, n):
-                value -= J[i, j] * x[m, j]
-            x[m, i] = value / J[i, i]
-    return True
 
 
 @njit

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from lbshape._jit import njit
+
 
 class ColumnForceModel:
     """E₀ on the leading coordinates, E_V on the trailing ones, a linear coupling.
@@ -73,15 +75,11 @@ class ColumnForceModel:
         """∇E (r,) into ``f`` and ∇²E (r, r) into ``K`` at y (r,)."""
         r0 = self.leading
         self.base.force_and_tangent_into(np.ascontiguousarray(y[:r0]), self._f0, self._K0)
-        np.dot(self.linear, y, out=f)
-        f[:r0] += self._f0
-        K[...] = self.linear
-        K[:r0, :r0] += self._K0
         if self.columns is not None:
             self.columns.force_and_tangent_into(np.ascontiguousarray(y[r0:]), self._fv,
                                                 self._Kv)
-            f[r0:] += self._fv
-            K[r0:, r0:] += self._Kv
+        _combine(self.linear, y, self._f0, self._K0, self._fv, self._Kv,
+                 self.columns is not None, f, K)
 
     def force_and_tangent(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(∇E (r,), ∇²E (r, r)) at y (r,)."""
@@ -98,3 +96,26 @@ class ColumnForceModel:
     def min_jacobian_into(self, y: np.ndarray) -> float:
         """The base model's smallest element Jacobian at the leading coordinates."""
         return self.base.min_jacobian_into(np.ascontiguousarray(y[:self.leading]))
+
+
+@njit
+def _combine(linear, y, f0, K0, fv, Kv, with_columns, f, K):
+    """``f = linear y`` and ``K = linear`` (r, r), then the leading model's force f0 and
+    tangent K0 added to the leading block and, ``with_columns``, the columns' fv, Kv to
+    the trailing one."""
+    r, r0 = y.shape[0], f0.shape[0]
+    for a in range(r):
+        value = 0.0
+        for b in range(r):
+            K[a, b] = linear[a, b]
+            value += linear[a, b] * y[b]
+        f[a] = value
+    for a in range(r0):
+        f[a] += f0[a]
+        for b in range(r0):
+            K[a, b] += K0[a, b]
+    if with_columns:
+        for a in range(r - r0):
+            f[r0 + a] += fv[a]
+            for b in range(r - r0):
+                K[r0 + a, r0 + b] += Kv[a, b]

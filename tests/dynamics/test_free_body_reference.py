@@ -21,6 +21,7 @@ from test_free_body import Body, _gravity
 
 from lbshape.dynamics.contact import ContactPlane, ContactResult, PlaneContact
 from lbshape.dynamics.contact_faces import FACING_FLOOR, face_loads
+from lbshape.dynamics.dense_lu import DenseLU
 from lbshape.dynamics.fictitious import LEVI_CIVITA
 from lbshape.dynamics.free_body import PHASES, FreeLoad
 from lbshape.dynamics.free_body_contact import (
@@ -31,7 +32,7 @@ from lbshape.dynamics.free_body_contact import (
     SWEEP_RTOL,
     contact_theta,
 )
-from lbshape.dynamics.kernels import lu_solve, lu_solve_rows, max_symmetric_eigenvalue
+from lbshape.dynamics.kernels import max_symmetric_eigenvalue
 from lbshape.dynamics.loads import TimeProfile
 from lbshape.dynamics.reduced import REALTIME_RTOL
 from lbshape.dynamics.rigid_frame import cayley, orthonormality_error, rotate
@@ -440,16 +441,18 @@ def test_rotation_kernel_matches_reference():
 def test_small_dense_kernels_match_lapack():
     """LU with pivoting (Newton system), Jacobi eigenvalue and θ against LAPACK."""
     rng = np.random.default_rng(14)
-    for n in (3, 8, 30):
+    for n in (3, 8, 30, 58):
         base, K = rng.standard_normal((n, n)), rng.standard_normal((n, n))
-        rhs, x, J = rng.standard_normal(n), np.zeros(n), np.zeros((n, n))
-        assert lu_solve(base, K, rhs, J, x)
+        lu = DenseLU(n)
+        assert lu.factor(base, K)
+        rhs, x = rng.standard_normal(n), np.zeros(n)
+        lu.solve_into(rhs, x)
         np.testing.assert_allclose(x, np.linalg.solve(base + K, rhs), rtol=1e-9, atol=1e-12)
         rows = rng.standard_normal((6, n))  # several right-hand sides, one factorisation
         solved = np.zeros((6, n))
-        assert lu_solve_rows(base, K, rows, J, solved)
+        lu.solve_rows_into(rows, solved)
         for row, got in zip(rows, solved, strict=True):
-            assert lu_solve(base, K, row, J, x)
+            lu.solve_into(row, x)
             np.testing.assert_array_equal(got, x)
         np.testing.assert_allclose(solved.T, np.linalg.solve(base + K, rows.T), rtol=1e-9,
                                    atol=1e-12)
@@ -457,10 +460,9 @@ def test_small_dense_kernels_match_lapack():
         S = S + S.T
         assert max_symmetric_eigenvalue(S.copy()) == pytest.approx(
             np.linalg.eigvalsh(S).max(), rel=1e-12)
-    singular = np.zeros((4, 4))
-    assert not lu_solve(singular, singular, np.ones(4), np.zeros((4, 4)), np.zeros(4))
-    assert not lu_solve_rows(singular, singular, np.ones((2, 4)), np.zeros((4, 4)),
-                             np.zeros((2, 4)))
+    singular, lu = np.zeros((4, 4)), DenseLU(4)
+    assert not lu.factor(singular, singular)
+    assert not lu.factor(np.full((4, 4), np.nan), singular)
     for scale in (1e-2, 1.0, 1e2, 1e4):  # θ in all three regimes
         A = rng.standard_normal((6, 6))
         M6 = A @ A.T + 6 * np.eye(6)
