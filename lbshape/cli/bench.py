@@ -196,7 +196,7 @@ def _free_bodies(args) -> int:
     for scene in scenes:  # built once here, read from the cache by the workers
         precompute(scene)
     jobs = run_jobs(functools.partial(free_bodies.free_body_job, steps=args.steps),
-                    [scene.name for scene in scenes] + [free_bodies.IMPACTS_JOB],
+                    [scene.name for scene in scenes] + free_bodies.impact_jobs(),
                     jobs=args.jobs, progress=not args.json, desc="free bodies")
     failed = [job for job in jobs if not job.ok]
     if failed:

@@ -14,9 +14,9 @@ bar-s-cylinder), with and without its examples:
   interpolated onto this mesh's vertices); the largest change of its trajectory (the same
   norm as the error) is the floor printed beside every whole-trajectory error, with the
   ratio error / floor;
-* **designed impacts** (:func:`designed_impact`) — the bar thrown at a plane so that a
-  face, an edge or a corner hits (:data:`IMPACT_NORMALS`) at two speeds
-  (:data:`IMPACT_SPEEDS`), with and without examples; the reduced body restarts from the
+* **designed impacts** (:func:`designed_impact`) — the bar and the car
+  (:data:`IMPACT_DESIGNS`) thrown at a plane so that a face, an edge or a corner hits at
+  two speeds, with and without examples; the reduced body restarts from the
   full run's state projected onto its coordinates and frame
   (:func:`~lbshape.analysis.free_body_eval.project_state`, :func:`restart_reduced`)
   :data:`PRE_STEPS` steps before the first contact, and both run through the impact:
@@ -88,19 +88,47 @@ PERTURBATIONS: tuple[tuple[str, str, float], ...] = (
 #: the noise floor's mesh refinement: the object's mesh size times this, and its label
 REFINEMENT = 0.5
 REFINEMENT_LABEL = "mesh h/2"
-#: the designed impacts' body and plane normals (body frame = world at rest; the bar's
-#: long axis is z, its square section in x, y)
+
+
+@dataclass(frozen=True)
+class ImpactDesign:
+    """The designed impacts of one free body: plane normals (body frame = world at rest)
+    of a face, an edge and a corner hit, the speeds (m/s), and the words the report
+    describes them with."""
+
+    normals: dict[str, tuple[float, float, float]]
+    speeds: tuple[float, ...]
+    description: str
+
+
+#: the free bodies with designed impacts (the bars of bar-s-cuboid and bar-s-cylinder
+#: are one body): the Figure 4 bar at 1.5 and 3 m/s; the car's front, where its scene
+#: hits the wall, at its throw speed (5 m/s) and half of it
+IMPACT_DESIGNS: dict[str, ImpactDesign] = {
+    "bar-s-cuboid": ImpactDesign(
+        {"face": (1.0, 0.0, 0.0), "edge": (1.0, 1.0, 0.0), "corner": (1.0, 1.0, 1.0)},
+        (1.5, 3.0), "the Figure 4 bar (long axis z, square section in x, y) thrown along −n "
+        "at a plane of normal n: face hit n = x, edge hit n = (x + y)/√2, corner hit "
+        "n = (x + y + z)/√3"),
+    "car": ImpactDesign(
+        {"face": (-1.0, 0.0, 0.0), "edge": (-1.0, -1.0, 0.0), "corner": (-1.0, -1.0, 1.0)},
+        (2.5, 5.0), "the car (length along x, front at +x, bottom at z = 0) thrown along "
+        "−n at a plane of normal n: its front face n = −x (its scene's wall hit), the "
+        "front left edge n = −(x + y)/√2, the lower front left corner "
+        "n = (−x − y + z)/√3"),
+}
+#: the Figure 4 bar's impacts, the ones ``scripts/bench_impact_columns.py`` compares
 IMPACT_BODY = "bar-s-cuboid"
-IMPACT_NORMALS: dict[str, tuple[float, float, float]] = {
-    "face": (1.0, 0.0, 0.0), "edge": (1.0, 1.0, 0.0), "corner": (1.0, 1.0, 1.0)}
-#: impact speeds (m/s) and the flight time (s) to the plane: the gap between the body
-#: and the plane at t = 0 is speed × flight
-IMPACT_SPEEDS: tuple[float, ...] = (1.5, 3.0)
+IMPACT_NORMALS = IMPACT_DESIGNS[IMPACT_BODY].normals
+IMPACT_SPEEDS = IMPACT_DESIGNS[IMPACT_BODY].speeds
+#: the flight time (s) to the plane: the gap between the body and the plane at t = 0 is
+#: speed × flight
 IMPACT_FLIGHT = 0.008
 #: steps of a designed impact's runs
 IMPACT_STEPS = 200
-#: the job name of the designed impacts among :func:`free_body_job`'s scene names
-IMPACTS_JOB = "@impacts"
+#: the job names of the designed impacts among :func:`free_body_job`'s scene names start
+#: with this, the body's name after it
+IMPACTS_JOB = "@impacts:"
 #: the reduced body restarts this many steps before the reference's first contact
 PRE_STEPS = 3
 #: an impact is over after this many consecutive samples without penetration
@@ -299,6 +327,7 @@ class ImpactComparison:
 
     Attributes:
         kind, speed, examples: the impact (``face``/``edge``/``corner``, m/s, examples on).
+        body: the free body's scene name.
         full, reduced: the :class:`~lbshape.analysis.free_body_eval.ImpactMeasures`.
         restart_error: the reduced body's displacement right after the restart against
             the reference's (M-norm, over the reference's).
@@ -316,10 +345,12 @@ class ImpactComparison:
     restart_error: float | None = None
     message: str = ""
     arm: float = 0.5
+    body: str = IMPACT_BODY
 
     def stats(self) -> dict:
         """The JSON entry: each measure of both methods and the relative differences."""
-        out = {"kind": self.kind, "speed": self.speed, "examples": self.examples,
+        out = {"body": self.body, "kind": self.kind, "speed": self.speed,
+               "examples": self.examples,
                "restart_error": self.restart_error, "message": self.message}
         if self.full is None or self.reduced is None:
             return out
@@ -342,15 +373,18 @@ class ImpactComparison:
 
 def designed_impact(base, pre, kind: str, speed: float, *, examples: bool,
                     steps: int = IMPACT_STEPS) -> ImpactComparison:
-    """One designed impact of the free body ``base`` (its precompute ``pre``)."""
+    """One designed impact of the free body ``base`` (its precompute ``pre``; the normals
+    of its :data:`IMPACT_DESIGNS` entry, the bar's for a body without one)."""
     rest = pre.mesh.points
-    scene = impact_scene(base, rest, IMPACT_NORMALS[kind], speed, speed * IMPACT_FLIGHT,
+    normal = impact_design(base.name).normals[kind]
+    scene = impact_scene(base, rest, normal, speed, speed * IMPACT_FLIGHT,
                          f"{base.name}-{kind}-{speed:g}")
     if not examples:
         scene = without_examples(scene)
     mass = mass_matrix(pre.mesh, pre.material.density)
     dt = scene.simulation.dt
-    result = ImpactComparison(kind, float(speed), examples, arm=0.5 * _diagonal(rest))
+    result = ImpactComparison(kind, float(speed), examples, arm=0.5 * _diagonal(rest),
+                              body=base.name)
     full = Simulation(scene, pre, method="full")
     record = full.run(steps)
     if not record.stable:
@@ -384,14 +418,22 @@ def designed_impact(base, pre, kind: str, speed: float, *, examples: bool,
                                restart_error=restart_error)
 
 
-def designed_impacts(base, pre, *, kinds: Sequence[str] = tuple(IMPACT_NORMALS),
-                     speeds: Sequence[float] = IMPACT_SPEEDS,
+def impact_design(name: str) -> ImpactDesign:
+    """The :data:`IMPACT_DESIGNS` entry of the scene ``name`` (the bar's for a body
+    without one)."""
+    return IMPACT_DESIGNS.get(name, IMPACT_DESIGNS[IMPACT_BODY])
+
+
+def designed_impacts(base, pre, *, kinds: Sequence[str] | None = None,
+                     speeds: Sequence[float] | None = None,
                      steps: int = IMPACT_STEPS) -> list[ImpactComparison]:
-    """Every designed impact (kinds × speeds × with/without examples)."""
+    """Every designed impact (kinds × speeds × with/without examples; by default the
+    body's :func:`impact_design`)."""
+    design = impact_design(base.name)
     out = []
     for examples in (False, True):
-        for kind in kinds:
-            for speed in speeds:
+        for kind in kinds or tuple(design.normals):
+            for speed in speeds or design.speeds:
                 log.info("impact %s %s %g m/s examples %s", base.name, kind, speed, examples)
                 out.append(designed_impact(base, pre, kind, speed, examples=examples,
                                            steps=steps))
@@ -457,12 +499,17 @@ def evaluate_scene(scene, pre, *, steps: int | None = None,
     return out
 
 
+def impact_jobs() -> list[str]:
+    """The job names of the designed impacts of every body of :data:`IMPACT_DESIGNS`."""
+    return [IMPACTS_JOB + name for name in IMPACT_DESIGNS]
+
+
 def free_body_job(item: str, *, steps: int | None = None) -> tuple[str, list]:
     """One job of ``lbshape bench --free-bodies`` (picklable, for worker processes):
-    ``("impacts", designed impacts of IMPACT_BODY)`` for :data:`IMPACTS_JOB`, else
-    ``("whole", evaluate_scene of the scene item)``."""
-    if item == IMPACTS_JOB:
-        body = load_scene(IMPACT_BODY)
+    ``("impacts", designed impacts of the body)`` for ``IMPACTS_JOB + body``
+    (:func:`impact_jobs`), else ``("whole", evaluate_scene of the scene item)``."""
+    if item.startswith(IMPACTS_JOB):
+        body = load_scene(item[len(IMPACTS_JOB):])
         return "impacts", designed_impacts(body, precompute(body))
     scene = load_scene(item)
     return "whole", evaluate_scene(scene, precompute(scene), steps=steps)
@@ -517,6 +564,26 @@ def whole_lines(runs: Sequence[WholeRun]) -> list[str]:
     return lines
 
 
+def impact_met(impact: ImpactComparison) -> bool | None:
+    """Whether the impact meets its target (restitution, Δp and ΔL within 5 % without
+    examples, 10 % with); None when it did not run."""
+    if impact.full is None or impact.reduced is None:
+        return None
+    s = impact.stats()
+    limit = 0.10 if impact.examples else 0.05
+    return max(s["restitution_error"], s["delta_p_error"], s["delta_L_error"]) <= limit
+
+
+def impacts_summary(impacts: Sequence[ImpactComparison]) -> str:
+    """'k of n within 5 % without examples, k of n within 10 % with'."""
+    parts = []
+    for examples, limit, words in ((False, 5, "without examples"), (True, 10, "with")):
+        rows = [impact for impact in impacts if impact.examples == examples]
+        met = sum(bool(impact_met(impact)) for impact in rows)
+        parts.append(f"{met} of {len(rows)} within {limit} % {words}")
+    return ", ".join(parts)
+
+
 def impact_lines(impacts: Sequence[ImpactComparison]) -> list[str]:
     """The designed impacts' table, full against reduced."""
     lines = [
@@ -532,15 +599,26 @@ def impact_lines(impacts: Sequence[ImpactComparison]) -> list[str]:
             lines.append(head + f"{_sci(impact.restart_error)} | — | {impact.message} |"
                          + " — |" * 5)
             continue
-        limit = 0.10 if impact.examples else 0.05
-        met = max(s["restitution_error"], s["delta_p_error"], s["delta_L_error"]) <= limit
         lines.append(
             head + f"{_sci(impact.restart_error)} | {s['restitution_full']:.3f} / "
             f"{s['restitution_reduced']:.3f} | {_pct(s['restitution_error'])} | "
             f"{_pct(s['delta_p_error'])} | {_pct(s['delta_L_error'])} | "
             f"{_pct(s['energy_lost_full'])} / {_pct(s['energy_lost_reduced'])} | "
             f"{s['depth_full_mm']:.2f} / {s['depth_reduced_mm']:.2f} | "
-            f"{'yes' if met else '**no**'} |")
+            f"{'yes' if impact_met(impact) else '**no**'} |")
+    return lines
+
+
+def _impact_sections(impacts: Sequence[ImpactComparison]) -> list[str]:
+    """One section per body: its design, the count within target and the table."""
+    lines = []
+    for body in dict.fromkeys(impact.body for impact in impacts):
+        rows = [impact for impact in impacts if impact.body == body]
+        design = impact_design(body)
+        lines += [f"### {body}: {impacts_summary(rows)}", "",
+                  f"{design.description[0].upper()}{design.description[1:]}; "
+                  f"{' and '.join(f'{v:g}' for v in design.speeds)} m/s.", "",
+                  *impact_lines(rows), ""]
     return lines
 
 
@@ -576,10 +654,9 @@ def write_free_bodies(runs: Sequence[WholeRun], impacts: Sequence[ImpactComparis
         "",
         "## Designed impacts from a synchronised pre-impact state",
         "",
-        f"The {IMPACT_BODY} bar (long axis z, square section) thrown along −n at a plane of "
-        "normal n — face hit n = x, edge hit n = (x + y)/√2, corner hit n = (x + y + z)/√3 "
-        f"— without gravity (the impact alone), from {1e3 * IMPACT_FLIGHT:g} ms of flight away, "
-        f"{IMPACT_STEPS} steps. The full run goes first; {PRE_STEPS} steps before its "
+        "Each body thrown at a plane (below) without gravity (the impact alone), from "
+        f"{1e3 * IMPACT_FLIGHT:g} ms of flight away, {IMPACT_STEPS} steps. The full run "
+        f"goes first; {PRE_STEPS} steps before its "
         "first contact its state (positions and central-difference velocities) is "
         "projected onto the reduced coordinates and frame (best mass-weighted rigid fit, "
         "momenta, q and its differences by least squares in M) and the reduced body "
@@ -595,8 +672,7 @@ def write_free_bodies(runs: Sequence[WholeRun], impacts: Sequence[ImpactComparis
         "the centre's kinetic energy before (the vibration's elastic energy counts as lost). "
         "Target: restitution, Δp and ΔL within 5 % without examples, 10 % with.",
         "",
-        *impact_lines(impacts),
-        "",
+        *_impact_sections(impacts),
         "## Conditions",
         "",
         f"- Machine: {machine['cpu']}, {machine['cores']} cores, Python {machine['python']},"
