@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from lbshape._jit import njit
+from lbshape.elastic.polynomial_forces import linear_part_into
 
 
 class ColumnForceModel:
@@ -104,12 +105,7 @@ def _combine(linear, y, f0, K0, fv, Kv, with_columns, f, K):
     tangent K0 added to the leading block and, ``with_columns``, the columns' fv, Kv to
     the trailing one."""
     r, r0 = y.shape[0], f0.shape[0]
-    for a in range(r):
-        value = 0.0
-        for b in range(r):
-            K[a, b] = linear[a, b]
-            value += linear[a, b] * y[b]
-        f[a] = value
+    linear_part_into(linear, y, f, K)
     for a in range(r0):
         f[a] += f0[a]
         for b in range(r0):

@@ -175,16 +175,23 @@ def _pairs(q, first, second, w):
 
 
 @njit
-def _assemble(q, K0, first, second, y, z, f, K):
-    """Force and tangent from y = C̃ q and z = D̃ w (pairs): ``K = K₀ + 6y + 12z``,
-    ``f = K₀ q + Σ_b (3 y_ab + 4 z_ab) q_b``."""
-    r = q.shape[0]
+def linear_part_into(A, x, f, K):
+    """``K = A`` and ``f = A x`` (A (r, r), x (r,)): the linear part a force model's
+    nonlinear terms are then added to."""
+    r = x.shape[0]
     for a in range(r):
         value = 0.0
         for b in range(r):
-            K[a, b] = K0[a, b]
-            value += K0[a, b] * q[b]
+            K[a, b] = A[a, b]
+            value += A[a, b] * x[b]
         f[a] = value
+
+
+@njit
+def _assemble(q, K0, first, second, y, z, f, K):
+    """Force and tangent from y = C̃ q and z = D̃ w (pairs): ``K = K₀ + 6y + 12z``,
+    ``f = K₀ q + Σ_b (3 y_ab + 4 z_ab) q_b``."""
+    linear_part_into(K0, q, f, K)
     for p in range(first.shape[0]):
         a, b = first[p], second[p]
         K[a, b] += 6.0 * y[p] + 12.0 * z[p]
