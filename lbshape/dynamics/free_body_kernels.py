@@ -328,11 +328,7 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
     inertia, inverse, world = work.m33[0], work.m33[1], work.m33[2]
     h, before = work.v6[0, :3], work.v6[0, 3:]
     R0, L0, p0 = start.R, start.L, start.p
-    if sweep:
-        _restore_inertia(work.held[0], inertia, h)
-    else:
-        inertia_momentum_into(start.q, start.qd, frame, inertia, h)
-        _hold_inertia(inertia, h, work.held[0])
+    _pass_inertia(start.q, start.qd, frame, sweep, work.held[0], inertia, h)
     if not inverse3_into(inertia, inverse):
         return KICK_SINGULAR
     omega0, dp, dL, v0 = kick.omega0, kick.dp, kick.dL, kick.v0
@@ -356,15 +352,11 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
         c1[a] = start.c[a] + 0.5 * dt * (p0[a] + p1[a]) / mass
         L1[a] = L0[a] + dL[a]
     # inertia and relative momentum at the predicted mid-step deformation
-    if sweep:
-        _restore_inertia(work.held[1], inertia, h)
-    else:
-        q_mid, qd_mid = work.q_mid, work.qd_mid
-        for j in range(r):
-            q_mid[j] = start.q[j] + 0.5 * dt * start.qd[j] + 0.125 * dt * dt * start.qa[j]
-            qd_mid[j] = start.qd[j] + 0.5 * dt * start.qa[j]
-        inertia_momentum_into(q_mid, qd_mid, frame, inertia, h)
-        _hold_inertia(inertia, h, work.held[1])
+    q_mid, qd_mid = work.q_mid, work.qd_mid
+    for j in range(r):
+        q_mid[j] = start.q[j] + 0.5 * dt * start.qd[j] + 0.125 * dt * dt * start.qa[j]
+        qd_mid[j] = start.qd[j] + 0.5 * dt * start.qa[j]
+    _pass_inertia(q_mid, qd_mid, frame, sweep, work.held[1], inertia, h)
     # half the impulse, the torque-free rotation, the other half (Strang): Π = R₀ᵀ L½
     body = work.v6[1, :3]
     for a in range(3):
@@ -389,21 +381,21 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
 
 
 @njit
-def _hold_inertia(inertia, h, held):
-    """I (3, 3) and h (3,) into ``held`` (12,)."""
+def _pass_inertia(q, qd, frame, sweep, held, inertia, h):
+    """I(q) (3, 3) into ``inertia`` and h(q, q̇) (3,) into ``h``: computed and kept in
+    ``held`` (12,) by a pass's first kick, taken from it by the pass's sweeps."""
+    if not sweep:
+        inertia_momentum_into(q, qd, frame, inertia, h)
     for a in range(3):
         for b in range(3):
-            held[3 * a + b] = inertia[a, b]
-        held[9 + a] = h[a]
-
-
-@njit
-def _restore_inertia(held, inertia, h):
-    """I (3, 3) and h (3,) from ``held`` (12,) (:func:`_hold_inertia`)."""
-    for a in range(3):
-        for b in range(3):
-            inertia[a, b] = held[3 * a + b]
-        h[a] = held[9 + a]
+            if sweep:
+                inertia[a, b] = held[3 * a + b]
+            else:
+                held[3 * a + b] = inertia[a, b]
+        if sweep:
+            h[a] = held[9 + a]
+        else:
+            held[9 + a] = h[a]
 
 
 @njit
