@@ -615,15 +615,18 @@ class FreeBodySimulation(FreeBodyPasses, FreeBodyContact, FreeBodyDrag):
             raise SolverError(f"non-finite state at step {index} (t = {t1:.6g} s)")
         if self._inversion and not (jacobian := self.elastic.min_jacobian_into(self._next.q)) > 0:
             raise SolverError(sanity.inverted_message(index, t1, jacobian, "a cubature element"))
-        elastic = max(self._elastic_energy + energies[2], 0.0)
-        energy = energies[0] + elastic
+        elastic = self._elastic_energy + energies[2]  # tracked by the elastic force's work
+        energy = energies[0] + max(elastic, 0.0)
         limit = sanity.ENERGY_FACTOR * budget
-        if not math.isfinite(energy) or (budget > 0 and energy > EXACT_ENERGY_FRACTION * limit):
+        if not math.isfinite(energy) or (budget > 0 and max(
+                energy, -elastic) > EXACT_ENERGY_FRACTION * limit):
             elastic = float(self.elastic.energy(self._next.q))
             energy = energies[0] + elastic
             if not math.isfinite(energy) or (budget > 0 and energy > limit):
                 raise SolverError(f"energy blew up ({energy:.3e} J > {sanity.ENERGY_FACTOR:g} x "
                                   f"budget {budget:.3e} J) at step {index} (t = {t1:.6g} s)")
+            if budget > 0 and elastic < -limit:
+                raise SolverError(sanity.negative_energy_message(index, t1, elastic, budget))
         self._elastic_energy = elastic
         self.work = work
         self._now, self._next = self._next, self._now

@@ -10,6 +10,11 @@ or thrown object moves by more than its own size):
   and a drag): a conservative or damped system stays below 1 times it (Newmark keeps the
   energy of a linear system exactly; the work is summed as absolute values, an upper
   bound), so a state beyond 10 times it holds energy nothing put in;
+* a free body's reduced elastic energy below −:data:`ENERGY_FACTOR` times that energy:
+  the material's energy is never negative, so a reduced force model that far below
+  zero (the impact columns couple to the other coordinates linearly) is outside the
+  deformations it holds, its body sinking into a well of the model, not of the
+  material;
 * an inverted element (det F ≤ 0) for a material that forbids inversion
   (:data:`INVERSION_FORBIDDEN`: Neo-Hookean, whose energy grows without bound as
   J → 0; the stable variant the project uses stays finite there only to keep Newton
@@ -56,6 +61,14 @@ def checks_inversion(elastic) -> bool:
     """True when the material of a reduced force model (its ``material``) forbids
     inversion: the engine then checks det F of its cubature elements each step."""
     return forbids_inversion(getattr(getattr(elastic, "material", None), "model", None))
+
+
+def negative_energy_message(index: int, t: float, elastic: float, budget: float) -> str:
+    """The one-line stop message of a reduced elastic energy ``elastic`` (J) below
+    −:data:`ENERGY_FACTOR` times the ``budget`` (J) at step ``index`` (time t in s)."""
+    return (f"the elastic energy fell to {elastic:.3e} J (below -{ENERGY_FACTOR:g} x budget "
+            f"{budget:.3e} J) at step {index} (t = {t:.6g} s): the state left the range the "
+            "reduced force model holds")
 
 
 def inverted_message(index: int, t: float, jacobian: float, where: str) -> str:
