@@ -4,8 +4,8 @@ A free body's deformation solve (:mod:`lbshape.dynamics.free_body`) has the Newt
 matrix ``base + K`` (r, r): ``base = c_a/Δt² I + c_v/Δt (D + Γ(ω₁))`` and K the
 tangent of the elastic, example, fictitious and contact forces. The Coriolis matrix Γ
 is skew, so the matrix is not symmetric and is solved by LU with partial pivoting. The
-same factors serve the friction's effective rate (six right-hand sides,
-:mod:`lbshape.dynamics.free_body_contact`).
+friction's effective rate (:mod:`lbshape.dynamics.free_body_contact`) factorises the
+same matrix at the end of a sweep and solves it for six right-hand sides.
 
 The factorisation, r³ work, is LAPACK's ``dgetrf`` (SciPy's wrapper) in place on one
 preallocated Fortran-ordered array; the sum ``base + K`` into it and the solves, r² work
@@ -36,6 +36,7 @@ class DenseLU:
 
     def __init__(self, r: int):
         self.r = int(r)
+        #: (r, r) Fortran-ordered: ``base + K``, then (dgetrf in place) its factors
         self._factors = np.zeros((self.r, self.r), order="F")
         self._pivots = np.arange(self.r, dtype=np.int32)
 
@@ -43,9 +44,8 @@ class DenseLU:
         """Factorise ``base + K`` (both (r, r)); False if it is singular or not finite
         (the factors are then not to be used)."""
         sum_into(base, K, self._factors)
-        factors, self._pivots, info = lapack.dgetrf(self._factors, overwrite_a=1)
-        if factors is not self._factors:  # SciPy copied (it does not for this layout)
-            self._factors[...] = factors
+        # in place for a Fortran-ordered float64 array (SciPy returns that array)
+        self._factors, self._pivots, info = lapack.dgetrf(self._factors, overwrite_a=1)
         return info == 0 and finite_diagonal(self._factors)
 
     def solve_into(self, rhs: np.ndarray, out: np.ndarray) -> None:

@@ -384,18 +384,17 @@ def rigid_update(r, dt, active, sweep, frame_data, start_data, end_data, kick_da
 def _pass_inertia(q, qd, frame, sweep, held, inertia, h):
     """I(q) (3, 3) into ``inertia`` and h(q, q̇) (3,) into ``h``: computed and kept in
     ``held`` (12,) by a pass's first kick, taken from it by the pass's sweeps."""
-    if not sweep:
-        inertia_momentum_into(q, qd, frame, inertia, h)
+    if sweep:
+        for a in range(3):
+            for b in range(3):
+                inertia[a, b] = held[3 * a + b]
+            h[a] = held[9 + a]
+        return
+    inertia_momentum_into(q, qd, frame, inertia, h)
     for a in range(3):
         for b in range(3):
-            if sweep:
-                inertia[a, b] = held[3 * a + b]
-            else:
-                held[3 * a + b] = inertia[a, b]
-        if sweep:
-            h[a] = held[9 + a]
-        else:
-            held[9 + a] = h[a]
+            held[3 * a + b] = inertia[a, b]
+        held[9 + a] = h[a]
 
 
 @njit
