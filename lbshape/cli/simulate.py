@@ -81,8 +81,8 @@ def run(args) -> int:
     else:
         s = result.stats
         print(f"simulate {s['scene']} [{s['method']}]: {s['steps']} steps of {s['dt']} s, "
-              f"t_interp {s['t_interp_ms']:.3f} ms, t_total {s['t_total_ms']:.3f} ms per step, "
-              f"max displacement {s['max_displacement']:.4g} m, "
+              f"t_interp {s['t_interp_ms']:.3f} ms, t_total {s['t_total_ms']:.3f} ms per step"
+              f"{spread_phrase(s)}, max displacement {s['max_displacement']:.4g} m, "
               f"{estimate_phrase(s)} -> "
               f"{out / FAILED_MARKER if result.message else out}")
         if s.get("influence_message"):
@@ -136,3 +136,12 @@ def estimate_phrase(stats: dict) -> str:
     if value is not None:
         return f"error estimate {100 * value:.2f}%"
     return f"no error estimate ({stats.get('error_estimate_message') or 'not computed'})"
+
+
+def spread_phrase(stats: dict) -> str:
+    """The summary's words on the slow steps: `` (95th percentile 0.41, largest 1.20 ms;
+    3 of 990 steps slower than dt)``, or nothing without timed steps."""
+    if stats.get("t_max_ms") is None:
+        return ""
+    return (f" (95th percentile {stats['t_p95_ms']:.3f}, largest {stats['t_max_ms']:.3f} ms; "
+            f"{stats['steps_over_dt']} of {stats['timed_steps']} steps slower than dt)")

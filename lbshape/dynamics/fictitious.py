@@ -107,13 +107,20 @@ class FrameTensors:
         return int(self.G.shape[0])
 
     def leading(self, count: int) -> FrameTensors:
-        """The tensors of the basis's leading ``count`` columns: the blocks of these (every
-        tensor is a sum over the columns' coordinates, so a sub-basis's are its blocks)."""
+        """The tensors of the basis's leading ``count`` columns."""
         if not 0 < count <= self.r:
             raise LbshapeError(f"a frame of {self.r} columns has no leading {count}")
-        return FrameTensors(self.mass, self.center, self.Y0, self.G[:count].copy(),
-                            self.C[:count, :count].copy(), self.H[:, :count].copy(),
-                            self.S[:count, :count].copy(), self.translation[:count].copy())
+        return self.columns(np.arange(count))
+
+    def columns(self, indices: np.ndarray) -> FrameTensors:
+        """The tensors of the sub-basis of the columns ``indices`` (k,), in that order:
+        the blocks of these (every tensor is a sum over the columns' coordinates, so a
+        sub-basis's are its blocks)."""
+        i = np.asarray(indices, dtype=np.int64)
+        if i.ndim != 1 or not i.size or i.min() < 0 or i.max() >= self.r:
+            raise LbshapeError(f"a frame of {self.r} columns has no columns {i}")
+        return FrameTensors(self.mass, self.center, self.Y0, self.G[i], self.C[np.ix_(i, i)],
+                            self.H[:, i], self.S[np.ix_(i, i)], self.translation[i])
 
     @property
     def inertia0(self) -> np.ndarray:

@@ -35,8 +35,10 @@ force and energy at the state and evaluates its contact afresh. The engine proto
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
+from scipy.spatial import ConvexHull
 
 from lbshape.dynamics.engine import Drag, EngineState
 from lbshape.dynamics.free_body import PHASES, FreeBodySimulation, run_free_body
@@ -74,8 +76,10 @@ class LeadingDriver:
         r: the whole basis's coordinates; ``leading``: r₀.
     """
 
-    def __init__(self, driver, r: int, leading: int):
+    def __init__(self, driver, r: int, leading: int, slots: np.ndarray | None = None):
         self.driver, self.leading = driver, int(leading)
+        #: the whole basis's columns this engine runs on, in its order (its leading r₀)
+        self.slots = np.arange(self.leading) if slots is None else np.asarray(slots)
         self.drivers = (driver,)  # its warm starts are the driver's
         self._q, self._target = np.zeros(r), np.zeros(r)
 
@@ -85,14 +89,18 @@ class LeadingDriver:
         return self.driver.w
 
     def weights_into(self, q: np.ndarray) -> np.ndarray:
-        """The weights for q₀ (r₀,) into :attr:`w` (returned)."""
-        self._q[:self.leading] = q
+        """The weights for the engine's q (its :attr:`slots`) into :attr:`w` (returned)."""
+        self._q[self.slots] = q
         return self.driver.weights_into(self._q)
 
     def target_from_weights_into(self, out: np.ndarray) -> None:
-        """The leading r₀ entries of ``q*`` for the weights in :attr:`w` into ``out``."""
+        """The :attr:`slots` entries of ``q*`` for the weights in :attr:`w` into ``out``."""
         self.driver.target_from_weights_into(self._target)
-        out[:] = self._target[:self.leading]
+        out[:] = self._target[self.slots]
+
+    def target_entries(self, slots: np.ndarray) -> np.ndarray:
+        """(k,) the last target's entries of the whole basis's columns ``slots``."""
+        return self._target[slots]
 
     @property
     def columns_target(self) -> np.ndarray:
@@ -100,46 +108,76 @@ class LeadingDriver:
         return self._target[self.leading:]
 
 
+class ColumnSet(NamedTuple):
+    """One set of impact columns and the engine on the plain basis with them."""
+
+    engine: FreeBodySimulation  #: on ``[U₀ V_S]`` (r₀ + k columns)
+    slots: np.ndarray  #: (k,) the set's columns V_S in the whole basis
+    #: (3,) the rest-frame normal of the plane its throw hit; None: the only set
+    direction: np.ndarray | None = None
+
+
+def hull_points(points: np.ndarray) -> np.ndarray:
+    """(h, 3) the vertices of the convex hull of ``points`` (n, 3)."""
+    return np.asarray(points, dtype=float)[ConvexHull(points).vertices]
+
+
 class ImpactSwitchedBody:
-    """One free body on two engines, the impact columns on around its impacts (see the
-    module docstring).
+    """One free body on a plain engine and one or more column sets, the columns on around
+    its impacts (see the module docstring).
 
     Args:
         plain: the engine on the leading r₀ columns U₀.
-        columns: the engine on the whole basis ``[U₀ V]`` (r columns), same scene.
-        coupling: (r, r) ``[U₀ V]ᵀ K₀ [U₀ V]`` (1/s²).
+        sets: the :class:`ColumnSet` s: one on the whole basis ``[U₀ V]``, or one per hull
+            feature (each with its throw's direction), same scene.
+        coupling: (r, r) ``Uᵀ K₀ U`` of the whole basis (1/s²).
         impact_speed: v, the speed the body reaches its planes at (m/s, > 0).
+        basis: (3n, r) the whole basis, and ``frame`` its frame tensors, where the sets
+            are several (one set: its engine's).
 
     Attributes:
-        columns_on: the columns' engine is the one stepping.
-        onsets, rests: hand-overs to the columns' engine (taken-back steps) and back.
-        column_steps: steps the columns' engine took.
+        columns_on: a set's engine is the one stepping (:attr:`columns`).
+        onsets, rests: hand-overs to a set's engine (taken-back steps) and back.
+        column_steps: steps the sets' engines took.
     """
 
     phases: tuple[str, ...] = PHASES  #: the parts of a step timed in ``phase_seconds``
 
-    def __init__(self, plain: FreeBodySimulation, columns: FreeBodySimulation,
-                 coupling: np.ndarray, impact_speed: float):
-        r0, r = plain.r, columns.r
-        if not 0 < r0 < r or plain.contact is None or columns.contact is None:
-            raise LbshapeError(f"an impact switch needs two engines with contact, the plain "
-                               f"one on fewer columns (got {r0} and {r})")
+    def __init__(self, plain: FreeBodySimulation, sets, coupling: np.ndarray,
+                 impact_speed: float, *, basis: np.ndarray | None = None, frame=None):
+        sets = [s if isinstance(s, ColumnSet) else ColumnSet(s, np.arange(plain.r, s.r))
+                for s in ([sets] if isinstance(sets, FreeBodySimulation) else sets)]
         coupling = np.asarray(coupling, dtype=float)
-        self.plain, self.columns = plain, columns
+        r0, r = plain.r, coupling.shape[0]
+        if not sets or plain.contact is None or any(
+                s.engine.contact is None or s.engine.r != r0 + len(s.slots) or not len(s.slots)
+                for s in sets) or (len(sets) > 1 and any(s.direction is None for s in sets)):
+            raise LbshapeError(f"an impact switch needs engines with contact, each set's on "
+                               f"the plain engine's {r0} columns and its own, and a "
+                               "direction for each of several sets")
+        self.plain, self.sets, self._set = plain, sets, 0
         self.r, self.leading = r, r0
-        #: (k, k) K_zz and (k, r₀) K_zq: the columns' rest stiffness and coupling to q
-        self._stiffness = coupling[r0:, r0:].copy()
-        self._coupling = coupling[r0:, :r0].copy()
+        #: per set: (k, k) K_zz and (k, r₀) K_zq, the columns' rest stiffness and coupling
+        self._blocks = [(coupling[np.ix_(s.slots, s.slots)].copy(),
+                         coupling[s.slots, :r0].copy()) for s in sets]
+        #: (t, 3) the sets' directions (one set: none to choose from)
+        self._directions = (None if len(sets) == 1
+                            else np.array([s.direction for s in sets], dtype=float))
+        self._whole = len(sets) == 1 and np.array_equal(sets[0].slots, np.arange(r0, r))
+        self._basis = sets[0].engine.basis if basis is None else basis
+        self._frame = sets[0].engine.frame if frame is None else frame
         if not (math.isfinite(impact_speed) and impact_speed > 0):
             raise LbshapeError(f"the impact speed must be > 0 m/s, got {impact_speed}")
         #: ½ m v² of the design impact (J)
         self.impact_energy = 0.5 * plain.frame.mass * float(impact_speed) ** 2
         self._held_steps = max(1, math.ceil(REST_HOLD / plain.dt * (1 - 1e-12)))
         self._q, self._qd = np.zeros(r), np.zeros(r)
-        self._saved = np.zeros(plain._now.data.size)
+        self._saved = np.zeros(max(e.engine._now.data.size for e in sets))
         self._mass = float(plain.frame.mass)
         self._inverse_inertia = np.linalg.inv(plain.frame.inertia0)
         self._spin, self._omega = np.zeros(3), np.zeros(3)
+        # the hull's points about the centre (body frame): which plane a hit touches
+        self._hull = hull_points(plain.rest_points) - plain.frame.center
         self.phase_seconds = np.zeros((0, len(PHASES)))
         self._initial = self._start()
 
@@ -148,14 +186,29 @@ class ImpactSwitchedBody:
         state = self.plain._now
         touching = self.plain.contact.evaluate(state.c, state.R, state.q, rigid=False).active
         self.columns_on, self.onsets, self.rests, self.column_steps = False, 0, 0, 0
-        self._touching, self._held = bool(touching > 0), 0
+        self._touching, self._held, self._set = bool(touching > 0), 0, 0
         return self.state
 
     # ------------------------------------------------------------- protocol
     @property
+    def columns(self) -> FreeBodySimulation:
+        """The engine of the set chosen last (the only one: always)."""
+        return self.sets[self._set].engine
+
+    @property
     def active(self) -> FreeBodySimulation:
         """The engine that steps now."""
         return self.columns if self.columns_on else self.plain
+
+    @property
+    def per_feature(self) -> bool:
+        """Several sets, one per hull feature, chosen at each hit."""
+        return self._directions is not None
+
+    @property
+    def engines(self) -> list[FreeBodySimulation]:
+        """The plain engine and every set's."""
+        return [self.plain] + [s.engine for s in self.sets]
 
     @property
     def dt(self) -> float:
@@ -167,7 +220,8 @@ class ImpactSwitchedBody:
 
     @newton.setter
     def newton(self, settings) -> None:
-        self.plain.newton = self.columns.newton = settings
+        for engine in self.engines:
+            engine.newton = settings
 
     @property
     def time(self) -> float:
@@ -188,14 +242,27 @@ class ImpactSwitchedBody:
         return self._lifted(self.active.qd, self._qd)
 
     def _lifted(self, value: np.ndarray, out: np.ndarray) -> np.ndarray:
-        if self.columns_on:
+        if self.columns_on and self._whole:
             return value
-        out[:self.leading] = value
+        out[:] = 0.0
+        out[:self.leading] = value[:self.leading]
+        if self.columns_on:
+            out[self.sets[self._set].slots] = value[self.leading:]
         return out
 
     @property
     def rigid(self) -> RigidState:
         return self.active.rigid
+
+    @property
+    def basis(self) -> np.ndarray:
+        """(3n, r) the whole basis."""
+        return self._basis
+
+    @property
+    def frame(self):
+        """The whole basis's frame tensors."""
+        return self._frame
 
     def omega(self) -> np.ndarray:
         return self.active.omega()
@@ -204,11 +271,14 @@ class ImpactSwitchedBody:
         return self.active.energy()
 
     def __getattr__(self, name: str):
-        """The scene's parts both engines share (``frame``, ``loads``, ``rest_points``,
-        ``basis`` …) from the columns' engine, the step's read-outs (``sweeps``,
-        ``substeps``, ``contact``, ``elastic`` …) from the one that steps."""
-        if name in ("frame", "basis", "rest_points", "loads", "load_reach", "omega_max",
-                    "warnings", "driver", "contact_substeps", "contact_dt", "configured_k_ex",
+        """The scene's parts every engine shares (``loads``, ``rest_points`` …) from the
+        current set's engine, the whole basis's example driver, the step's read-outs
+        (``sweeps``, ``substeps``, ``contact``, ``elastic`` …) from the one that steps."""
+        if name == "driver":
+            driver = self.plain.driver
+            return driver.driver if isinstance(driver, LeadingDriver) else driver
+        if name in ("rest_points", "loads", "load_reach", "omega_max",
+                    "warnings", "contact_substeps", "contact_dt", "configured_k_ex",
                     "example_ramp"):
             return getattr(self.columns, name)
         if name in ("sweeps", "substeps", "total_sweeps", "contact", "elastic", "k_ex",
@@ -220,50 +290,72 @@ class ImpactSwitchedBody:
         """One step of :attr:`dt` (see the module docstring); returns its Newton
         iterations. A step taken back counts its wall time as the retaken step's
         overhead."""
-        if self.columns_on:
-            iterations = self.columns.step(index)
-            self.column_steps += 1
-            self._after_columns_step()
-            return iterations
-        plain = self.plain
-        if self._touching:
-            iterations = plain.step(index)
-            self._touching = plain.contact.scalars[1] > 0
-            return iterations
-        np.copyto(self._saved, plain._now.data)
-        saved = {name: getattr(plain, name) for name in _CARRIED + ("_elastic_energy",)}
-        iterations = plain.step(index)
-        if not plain.contact.scalars[1] > 0:
-            return iterations
-        if self.kinetic_energy(plain) < ONSET_KINETIC_SHARE * self.impact_energy:
-            self._touching = True  # a slow touch: the plain basis holds it
-            return iterations
-        started = plain._marks[0]
-        plain._now.data[:] = self._saved
-        for name, value in saved.items():
-            setattr(plain, name, value)
+        engine = self.active
+        if self._touching or (self.columns_on and self._directions is None):
+            iterations = engine.step(index)
+            return self._after_step(engine, iterations)
+        saved = self._save(engine)
+        iterations = engine.step(index)
+        if not engine.contact.scalars[1] > 0:
+            return self._after_step(engine, iterations)
+        if self.kinetic_energy(engine) < ONSET_KINETIC_SHARE * self.impact_energy:
+            self._touching = True  # a slow touch: the basis it is on holds it
+            return self._after_step(engine, iterations)
+        chosen = self.choose_set(engine)
+        if self.columns_on and chosen == self._set:
+            return self._after_step(engine, iterations)
+        started = engine._marks[0]
+        self._restore(engine, saved)
+        self.switch_columns(False, count=False)
+        self._set = chosen
         self.switch_columns(True)
         iterations = self.columns.step(index)
-        self.column_steps += 1
         marks = self.columns._marks
         marks[:-1] -= marks[0] - started  # the taken-back step's time: overhead
-        self._after_columns_step()
+        return self._after_step(self.columns, iterations)
+
+    def _save(self, engine: FreeBodySimulation) -> dict:
+        """The engine's state before a step that may be taken back."""
+        np.copyto(self._saved[:engine._now.data.size], engine._now.data)
+        return {name: getattr(engine, name) for name in _CARRIED + ("_elastic_energy",)}
+
+    def _restore(self, engine: FreeBodySimulation, saved: dict) -> None:
+        engine._now.data[:] = self._saved[:engine._now.data.size]
+        for name, value in saved.items():
+            setattr(engine, name, value)
+
+    def _after_step(self, engine: FreeBodySimulation, iterations: int) -> int:
+        """Count the steps the body has touched a plane at their end (on a set: hand it
+        back once it rests); returns ``iterations``."""
+        touching = engine.contact.scalars[1] > 0
+        self._touching = bool(touching)
+        if not self.columns_on:
+            return iterations
+        self.column_steps += 1
+        self._held = self._held + 1 if touching else 0
+        if self._held >= self._held_steps and (
+                self.kinetic_energy(engine) <= REST_KINETIC_SHARE * self.impact_energy):
+            self.switch_columns(False)
         return iterations
 
-    def _after_columns_step(self) -> None:
-        """Count the steps the body has touched a plane at their end, and hand it back
-        once it rests."""
-        touching = self.columns.contact.scalars[1] > 0
-        self._held = self._held + 1 if touching else 0
-        self._touching = bool(touching)
-        if self._held >= self._held_steps and (
-                self.kinetic_energy(self.columns) <= REST_KINETIC_SHARE * self.impact_energy):
-            self.switch_columns(False)
+    def choose_set(self, engine: FreeBodySimulation) -> int:
+        """The set for a hit of the body of ``engine`` (its state now): the one whose
+        throw's plane normal is nearest the body-frame normal of the plane the body is
+        deepest behind (or nearest: its hull's points); the only set when there is one."""
+        if self._directions is None:
+            return 0
+        state, planes = engine._now, engine.contact
+        world = state.c + self._hull @ state.R.T
+        gaps = np.einsum("pj,hj->ph", planes.normals, world).min(axis=1) - np.einsum(
+            "pj,pj->p", planes.normals, planes.points)
+        normal = state.R.T @ planes.normals[int(np.argmin(gaps))]  # body frame
+        return int(np.argmax(self._directions @ normal))
 
     def _spring(self, k_ex: float) -> np.ndarray:
-        """(k, k) ``K_zz + k_ex I``: the columns' stiffness with the example spring
+        """(k, k) ``K_zz + k_ex I``: the current set's stiffness with the example spring
         k_ex (1/s²)."""
-        return self._stiffness + float(k_ex) * np.eye(self.r - self.leading)
+        stiffness = self._blocks[self._set][0]
+        return stiffness + float(k_ex) * np.eye(stiffness.shape[0])
 
     def kinetic_energy(self, body: FreeBodySimulation) -> float:
         """The kinetic energy of one of the engines (J), the rotation's on the rest
@@ -276,9 +368,9 @@ class ImpactSwitchedBody:
         return 0.5 * (float(state.p @ state.p) / self._mass + float(spin @ self._omega)
                       + float(state.qd @ state.qd))
 
-    def switch_columns(self, on: bool) -> None:
-        """Hand the body to the columns' engine (``on``) or back to the plain one, now;
-        nothing if it is already there."""
+    def switch_columns(self, on: bool, *, count: bool = True) -> None:
+        """Hand the body to the current set's engine (``on``) or back to the plain one,
+        now; nothing if it is already there. ``count``: a hand-back counts as a rest."""
         if on == self.columns_on:
             return
         source, target = (self.plain, self.columns) if on else (self.columns, self.plain)
@@ -288,7 +380,7 @@ class ImpactSwitchedBody:
         r0 = self.leading
         spring = self._spring(source.k_ex) if on else None
         # A = −(K_zz + k_ex I)⁻¹ K_zq: the columns' static answer to q (and q̇, q̈)
-        static = -np.linalg.solve(spring, self._coupling) if on else None
+        static = -np.linalg.solve(spring, self._blocks[self._set][1]) if on else None
         for name in ("q", "qd", "qa"):
             value, into = getattr(have, name), getattr(get, name)
             if on:
@@ -297,7 +389,8 @@ class ImpactSwitchedBody:
             else:
                 into[:] = value[:r0]
         if on and source.k_ex > 0 and isinstance(source.driver, LeadingDriver):
-            get.q[r0:] += np.linalg.solve(spring, source.k_ex * source.driver.columns_target)
+            get.q[r0:] += np.linalg.solve(spring, source.k_ex * source.driver.target_entries(
+                self.sets[self._set].slots))
         for name in _CARRIED:
             setattr(target, name, getattr(source, name))
         f, _ = target.elastic.force_and_tangent(get.q)
@@ -311,7 +404,7 @@ class ImpactSwitchedBody:
         if on:
             self.onsets += 1
             self._held = 0
-        else:
+        elif count:
             self.rests += 1
 
     def run(self, steps: int, *, stride: int = 1, on_step=None) -> FreeBodyRecord:
@@ -324,9 +417,9 @@ class ImpactSwitchedBody:
 
     def displacements(self, record: FreeBodyRecord) -> np.ndarray:
         """(f, n, 3) the world displacements (m) of a record of :meth:`run`."""
-        return record.displacements(self.columns.basis)
+        return record.displacements(self.basis)
 
-    _SWITCH = ("columns_on", "onsets", "rests", "column_steps", "_touching", "_held")
+    _SWITCH = ("columns_on", "onsets", "rests", "column_steps", "_touching", "_held", "_set")
 
     @property
     def state(self) -> EngineState:
@@ -340,8 +433,8 @@ class ImpactSwitchedBody:
     def reset(self, state: EngineState | None = None) -> None:
         """Back to ``state`` (from :attr:`state`) or, with ``None``, to t = 0."""
         if state is None:
-            self.plain.reset(None)
-            self.columns.reset(None)
+            for engine in self.engines:
+                engine.reset(None)
             state = self._initial
         arrays = dict(state.arrays)
         try:
@@ -355,10 +448,8 @@ class ImpactSwitchedBody:
         self.phase_seconds = np.zeros((0, len(PHASES)))
 
     def set_examples(self, on: bool) -> bool:
-        self.plain.set_examples(on)
-        return self.columns.set_examples(on)
+        return [engine.set_examples(on) for engine in self.engines][-1]
 
     def set_drag(self, drag: Drag | None) -> None:
-        self.plain.set_drag(drag)
-        self.columns.set_drag(drag)
-
+        for engine in self.engines:
+            engine.set_drag(drag)

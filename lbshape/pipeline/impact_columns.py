@@ -35,6 +35,7 @@ throws take about 10 s).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from typing import NamedTuple
@@ -77,9 +78,13 @@ class ImpactBasis(NamedTuple):
     :func:`lbshape.pipeline.precomputed.artifact`)."""
 
     basis: NonlinearBasis  #: U (3n, r) with ``n_impact_columns`` columns last
-    coupling: np.ndarray  #: (r, r) ``Uᵀ K₀ U`` (1/s², U M-orthonormal)
-    #: the columns' own exact energy E_V (the StVK polynomial on them), or None (quadratic)
-    columns: PolynomialForceModel | None
+    coupling: np.ndarray  #: (r, r) ``Uᵀ K₀ U`` (1/s²)
+    #: the columns' own exact energy E_V (the StVK polynomial on them), or None (quadratic);
+    #: per feature (``sets``): one polynomial a set
+    columns: PolynomialForceModel | list[PolynomialForceModel] | None
+    #: per feature: (t, 3) the throw direction of each set (rest frame), the sets of
+    #: ``reduced.impact_columns`` columns each in that order; None: one set of them all
+    directions: np.ndarray | None = None
 
 
 def throw_speed(scene: Scene, points: np.ndarray) -> float:
@@ -157,6 +162,7 @@ def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness, basis: NonlinearB
         examples: the scene's global examples' pull for the throws (:func:`throw`), or None.
     """
     count = int(scene.reduced.impact_columns)
+    per_feature = scene.reduced.impact_columns_per == "feature"
     directions = hull_directions(mesh.points).all
     speed = THROW_SPEED_MARGIN * throw_speed(scene, mesh.points)
     rigid = rigid_body_modes(mesh.points, mass)
@@ -169,7 +175,7 @@ def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness, basis: NonlinearB
         return X
 
     scalar_mass = mass[0::3, 0::3]
-    each = math.ceil(count / len(directions))
+    each = count if per_feature else math.ceil(count / len(directions))
     columns = []
     for index, direction in enumerate(directions):
         u = throw(scene, mesh, direction, speed, examples)
@@ -182,6 +188,8 @@ def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness, basis: NonlinearB
                  index + 1, len(directions), speed, len(u))
     if not columns:
         raise LbshapeError("impact columns: no throw reached its plane")
+    if per_feature:
+        return _feature_sets(scene, mesh, mass, stiffness, basis, directions, columns)
     grown = append_directions(basis, np.hstack(columns), mass, stiffness,
                               kind="impact_columns", max_columns=count, rtol=0.0,
                               min_outside=0.0)
@@ -195,6 +203,37 @@ def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness, basis: NonlinearB
                                 V.shape[1]) == "polynomial"
     return ImpactBasis(grown, U.T @ (stiffness @ U), PolynomialForceModel(
         mesh.points, mesh.tets, scene.material, V) if exact else None)
+
+
+def _feature_sets(scene: Scene, mesh: TetMesh, mass, stiffness, basis: NonlinearBasis,
+                  directions: np.ndarray, columns: list[np.ndarray]) -> ImpactBasis:
+    """Per feature: each throw's own ``reduced.impact_columns`` leading components as one
+    set, M-orthonormal and M-orthogonal to U₀ (``basis``), the sets one after another
+    (not orthogonal to each other: only one acts at a time,
+    :mod:`lbshape.dynamics.impact_switch`), each with its own polynomial energy."""
+    count = int(scene.reduced.impact_columns)
+    r0 = basis.r
+    fewest = min(c.shape[1] for c in columns)
+    if len(columns) < len(directions) or fewest < count:
+        raise LbshapeError(f"reduced.impact_columns = {count} per feature: {len(columns)} of "
+                           f"the {len(directions)} throws reached their plane, the fewest "
+                           f"independent columns a throw gave is {fewest}; set "
+                           f"impact_columns <= {fewest}")
+    sets = [append_directions(basis, block, mass, stiffness, kind="impact_columns",
+                              max_columns=count, rtol=0.0, min_outside=0.0).U[:, r0:]
+            for block in columns]
+    if min(v.shape[1] for v in sets) < count:
+        raise LbshapeError(f"reduced.impact_columns = {count} per feature: a throw's "
+                           "components are not independent of the basis; set it lower")
+    U = np.hstack([basis.U, *sets])
+    grown = dataclasses.replace(basis, U=U, r=int(U.shape[1]),
+                                omega2=np.einsum("ij,ij->j", U, stiffness @ U),
+                                n_impact_columns=count * len(sets))
+    exact = resolve_force_model(scene.reduced.forces, scene.material.model, mesh.n_tets,
+                                count) == "polynomial"
+    return ImpactBasis(grown, U.T @ (stiffness @ U), [
+        PolynomialForceModel(mesh.points, mesh.tets, scene.material, np.ascontiguousarray(v))
+        for v in sets] if exact else None, np.asarray(directions, dtype=float))
 
 
 def leading_columns(basis: NonlinearBasis) -> int:

@@ -108,7 +108,11 @@ class ElasticSpace:
         leading: the columns before the impact columns (those of the force model
             above), or None without them.
         impact_forces: the impact columns' own polynomial energy (the
-            :class:`ForceCoefficients` on them), or None (their energy quadratic).
+            :class:`ForceCoefficients` on them), or None (their energy quadratic); per
+            feature each array has a leading axis of the t sets.
+        impact_directions: per feature (``reduced.impact_columns_per = "feature"``): (t, 3)
+            the rest-frame plane normal each set's throw hit, the sets of
+            (r − leading) / t columns in that order; None: one set.
     """
 
     U: np.ndarray
@@ -121,6 +125,7 @@ class ElasticSpace:
     impact_coupling: np.ndarray | None = None
     leading: int | None = None
     impact_forces: ForceCoefficients | None = None
+    impact_directions: np.ndarray | None = None
 
     @property
     def r(self) -> int:
@@ -384,7 +389,9 @@ class Precomputed:
                      if "impact_leading" in arrays else None),
             impact_forces=(ForceCoefficients(*(np.asarray(arrays[f"impact_poly_{name}"])
                                                for name in ("K", "cubic", "quartic")))
-                           if "impact_poly_K" in arrays else None))
+                           if "impact_poly_K" in arrays else None),
+            impact_directions=(np.asarray(arrays["impact_directions"])
+                               if "impact_directions" in arrays else None))
         shape = (ShapeBasis(arrays["eigenvalues"], arrays["eigenvectors"],
                             tuple(meta.get("example_names", ())), mesh, fixed)
                  if "eigenvalues" in arrays else None)
@@ -451,10 +458,15 @@ def artifact(scene: Scene, *, mesh: TetMesh, fixed: np.ndarray, U: np.ndarray,
     if impact is not None:
         arrays.update({"impact_coupling": impact.coupling,
                        "impact_leading": np.array([leading_columns(impact.basis)])})
-        if impact.columns is not None:
-            arrays.update({"impact_poly_K": impact.columns.K,
-                           "impact_poly_cubic": impact.columns.pair_cubic,
-                           "impact_poly_quartic": impact.columns.pair_quartic})
+        if impact.directions is not None:
+            arrays["impact_directions"] = impact.directions
+        models = ([impact.columns] if isinstance(impact.columns, PolynomialForceModel)
+                  else impact.columns)
+        if models:  # per feature: stacked, a leading axis of the sets
+            stack = (lambda a: a[0]) if impact.directions is None else np.stack
+            arrays.update({"impact_poly_K": stack([m.K for m in models]),
+                           "impact_poly_cubic": stack([m.pair_cubic for m in models]),
+                           "impact_poly_quartic": stack([m.pair_quartic for m in models])})
     meta = {"scene": scene.name, "cubature_errors": {
         "train": cubature.train_error, "holdout": cubature.holdout_error,
         "tolerance": cubature.tol, "reached_tolerance": bool(cubature.reached_tol)},
@@ -493,6 +505,8 @@ def required_arrays(scene: Scene) -> tuple[str, ...]:
         required = required + (ESTIMATE_FLAG,)
     if scene.reduced.impact_columns:
         required = required + ("impact_coupling", "impact_leading")
+    if scene.reduced.impact_columns_per == "feature":
+        required = required + ("impact_directions",)
     return required
 
 

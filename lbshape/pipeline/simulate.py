@@ -46,7 +46,7 @@ from lbshape.dynamics.full import (
     FullSpaceSimulator,
     rigid_velocity,
 )
-from lbshape.dynamics.impact_switch import ImpactSwitchedBody, LeadingDriver
+from lbshape.dynamics.impact_switch import ColumnSet, ImpactSwitchedBody, LeadingDriver
 from lbshape.dynamics.loads import TimedLoad
 from lbshape.dynamics.record import RunRecord
 from lbshape.dynamics.reduced import REALTIME_NEWTON, ReducedSimulation
@@ -242,6 +242,9 @@ def reduced_force_model(pre: Precomputed, *, exact_forces: bool = False):
     polynomials for StVK). A basis ending with impact columns: either on the columns before
     them, with the columns' own energy and a linear coupling
     (:class:`~lbshape.elastic.column_forces.ColumnForceModel`)."""
+    if exact_forces and pre.elastic.impact_directions is not None:
+        raise LbshapeError("exact forces: impact columns per feature have no whole-basis "
+                           "force (one set acts at a time)")
     if exact_forces:
         every = np.arange(pre.mesh.n_tets, dtype=np.int64)
         return ReducedForceModel(pre.mesh.points, pre.mesh.tets, pre.material, pre.U, every,
@@ -256,9 +259,28 @@ def reduced_force_model(pre: Precomputed, *, exact_forces: bool = False):
                                   elastic.cubature_elements, elastic.cubature_weights)
     if elastic.impact_coupling is None:
         return model
+    if elastic.impact_directions is not None:  # per feature: each set's, column_set_models
+        return model
     columns = (None if elastic.impact_forces is None
                else PolynomialForceModel.from_arrays(*elastic.impact_forces))
     return ColumnForceModel(model, elastic.impact_coupling, leading, columns)
+
+
+def column_set_models(pre: Precomputed, base) -> list[tuple[np.ndarray, ColumnForceModel]]:
+    """Per feature (``reduced.impact_columns_per = "feature"``): each set's columns of the
+    whole basis (r₀ + k,), the leading r₀ first, and its force model on them (``base``
+    the leading columns' model, the set's own polynomial energy and coupling)."""
+    elastic = pre.elastic
+    r0, sets = elastic.leading, len(elastic.impact_directions)
+    k = (pre.r - r0) // sets
+    out = []
+    for j in range(sets):
+        index = np.concatenate([np.arange(r0), r0 + j * k + np.arange(k)])
+        own = (None if elastic.impact_forces is None else PolynomialForceModel.from_arrays(
+            *(array[j] for array in elastic.impact_forces)))
+        out.append((index, ColumnForceModel(
+            base, elastic.impact_coupling[np.ix_(index, index)], r0, own)))
+    return out
 
 
 def force_elements(pre: Precomputed) -> int:
@@ -289,15 +311,31 @@ def _free_body_simulation(scene: Scene, pre: Precomputed, elastic, driver, k_ex:
     if scene.has_local_examples:
         raise LbshapeError(f"scene {scene.name}: local examples on a free body are not "
                            "supported; fix a region or use global examples")
-    columns = _free_body_engine(scene, pre, elastic, pre.frame, pre.U, driver, k_ex, newton)
-    if not (impact_switch and isinstance(elastic, ColumnForceModel)):
-        return columns
-    r0 = elastic.leading
+    directions = pre.elastic.impact_directions
+    if directions is not None and not impact_switch:
+        raise LbshapeError(f"scene {scene.name}: impact columns per feature run switched "
+                           "only (one set at a time)")
+    if directions is None:
+        columns = _free_body_engine(scene, pre, elastic, pre.frame, pre.U, driver, k_ex,
+                                    newton)
+        if not (impact_switch and isinstance(elastic, ColumnForceModel)):
+            return columns
+    r0 = pre.elastic.leading
+    base = elastic.base if isinstance(elastic, ColumnForceModel) else elastic
     plain = _free_body_engine(
-        scene, pre, elastic.base, pre.frame.leading(r0), np.ascontiguousarray(pre.U[:, :r0]),
+        scene, pre, base, pre.frame.leading(r0), np.ascontiguousarray(pre.U[:, :r0]),
         None if driver is None else LeadingDriver(driver, pre.r, r0), k_ex, newton)
-    return ImpactSwitchedBody(plain, columns, pre.elastic.impact_coupling,
-                              throw_speed(scene, pre.mesh.points))
+    if directions is None:
+        return ImpactSwitchedBody(plain, columns, pre.elastic.impact_coupling,
+                                  throw_speed(scene, pre.mesh.points))
+    sets = [ColumnSet(_free_body_engine(
+        scene, pre, model, pre.frame.columns(index), np.ascontiguousarray(pre.U[:, index]),
+        None if driver is None else LeadingDriver(driver, pre.r, r0, index), k_ex, newton),
+        index[r0:], direction) for (index, model), direction in zip(
+            column_set_models(pre, base), directions, strict=True)]
+    return ImpactSwitchedBody(plain, sets, pre.elastic.impact_coupling,
+                              throw_speed(scene, pre.mesh.points), basis=pre.U,
+                              frame=pre.frame)
 
 
 def _free_body_engine(scene: Scene, pre: Precomputed, elastic, frame, U: np.ndarray, driver,
@@ -416,6 +454,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "forces": "full" if method == "full" else pre.elastic.force_model,
         "example_stiffness": example_stiffness(scene, pre) if scene.examples else None,
         "timed_steps": int(record.steps - warmup),
+        **step_time_spread(record.t_total_ms[warmup:], scene.simulation.dt),
         **_force_stats(pre, method),
         **estimate_stats(scene, pre, method, record, frames),
         "warnings": run_warnings(scene, pre),
@@ -431,6 +470,23 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
     if out is not None:
         write_outputs(Path(out), pre, output)
     return output
+
+
+def step_time_spread(totals_ms: np.ndarray, dt: float) -> dict:
+    """``{"t_p95_ms", "t_max_ms", "steps_over_dt"}`` of a run's timed steps: the 95th
+    percentile and the largest wall time of a step (ms), and how many steps took longer
+    than the simulated time they advance (``dt``, s: a step slower than real time); the
+    times ``None`` (and the count 0) without timed steps.
+
+    Args:
+        totals_ms: (k,) wall time of each timed step (ms).
+        dt: the step (s).
+    """
+    totals = np.asarray(totals_ms, dtype=float)
+    if not totals.size:
+        return {"t_p95_ms": None, "t_max_ms": None, "steps_over_dt": 0}
+    return {"t_p95_ms": float(np.percentile(totals, 95)), "t_max_ms": float(totals.max()),
+            "steps_over_dt": int(np.count_nonzero(totals > 1e3 * dt))}
 
 
 def _force_stats(pre: Precomputed, method: str) -> dict:

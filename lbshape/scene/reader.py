@@ -64,6 +64,9 @@ from lbshape.scene.schema import (
 )
 from lbshape.shapespace.interpolation import ROUTE_CHOICES
 
+#: ``reduced.impact_columns_per``: one set for the body, or one for each hull feature
+IMPACT_COLUMN_SETS = ("body", "feature")
+
 __all__ = ["builtin_scene_names", "load_scene", "mesh_source", "scene_from_dict"]
 
 
@@ -167,6 +170,9 @@ def scene_from_dict(
                         "only; this object " + ("has '[fixed]'" if fixed is not None
                                                 else "has no '[[planes]]'")
                         + " (set impact_columns = 0)")
+    if reduced.impact_columns_per != "body" and not reduced.impact_columns:
+        raise ctx.error(f"'reduced.impact_columns_per' = '{reduced.impact_columns_per}' "
+                        "needs impact columns (set reduced.impact_columns > 0)")
     simulation = _simulation(top)
     if simulation.contact_dt is not None and (fixed is not None or not planes):
         raise ctx.error("'simulation.contact_dt' sets a free body's step in contact only; "
@@ -220,7 +226,8 @@ def _damping(top: _Table) -> Damping:
 
 def _reduced(top: _Table) -> Reduced:
     red = top.subtable("reduced", ("m", "r", "s", "linear_modes", "cubature_tolerance",
-                                   "interpolation", "forces", "impact_columns"))
+                                   "interpolation", "forces", "impact_columns",
+                                   "impact_columns_per"))
     r = red.integer("r", Reduced.r, low=1)
     return Reduced(
         m=red.integer("m", Reduced.m, low=1),
@@ -232,6 +239,8 @@ def _reduced(top: _Table) -> Reduced:
         interpolation=red.choice("interpolation", Reduced.interpolation, ROUTE_CHOICES),
         forces=red.choice("forces", Reduced.forces, FORCE_CHOICES),
         impact_columns=red.integer("impact_columns", Reduced.impact_columns, low=0),
+        impact_columns_per=red.choice("impact_columns_per", Reduced.impact_columns_per,
+                                      IMPACT_COLUMN_SETS),
     )
 
 

@@ -290,6 +290,10 @@ class Reduced:
             for the mesh, :func:`lbshape.elastic.polynomial_forces.resolve_force_model`).
         impact_columns: a free body's impact columns appended to its basis (0: none;
             free bodies with contact planes only; :mod:`lbshape.pipeline.impact_columns`).
+        impact_columns_per: ``"body"``: one set of ``impact_columns`` columns for every
+            impact; ``"feature"``: ``impact_columns`` for each convex-hull feature (side,
+            crease, corner), the set of the feature that hits switched on
+            (:mod:`lbshape.dynamics.impact_switch`).
     """
 
     m: int = 10
@@ -300,6 +304,7 @@ class Reduced:
     interpolation: str = "auto"
     forces: str = "auto"
     impact_columns: int = 0
+    impact_columns_per: str = "body"
 
 
 @dataclass(frozen=True)
@@ -536,7 +541,9 @@ class Scene:
                         "cubature_tolerance": self.reduced.cubature_tolerance,
                         "forces": self.reduced.forces,
                         **({"impact_columns": self.reduced.impact_columns}
-                           if self.reduced.impact_columns else {})},
+                           if self.reduced.impact_columns else {}),
+                        **({"impact_columns_per": self.reduced.impact_columns_per}
+                           if self.reduced.impact_columns_per != "body" else {})},
             "examples": None if self.examples is None
             else [pose.key() for pose in self.examples.poses],
             "fixed": None if self.fixed is None else self.fixed.key(),

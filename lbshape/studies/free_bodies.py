@@ -284,12 +284,16 @@ def restart_reduced(sim: Simulation, state, time: float, steps_taken: int = 0) -
     snapshot with the body state replaced, the elastic force at q, the energy monitor
     restarted from the restart's energy (no work done yet)."""
     engine = sim.engine
-    if hasattr(engine, "switch_columns"):  # an impact: the basis with its impact columns
+    r = int(np.size(state.q))
+    if getattr(engine, "per_feature", False):
+        # impact columns per feature: on the plain basis, the hit's onset picks the set
+        r = engine.leading
+    elif hasattr(engine, "switch_columns"):  # an impact: the basis with its impact columns
         engine.switch_columns(True)
     if not hasattr(engine, "elastic") or "now" not in engine.state.arrays:
         raise LbshapeError("a restart needs the reduced free-body engine")
     arrays = dict(engine.state.arrays)
-    r = int(np.size(state.q))
+    state = dataclasses.replace(state, q=state.q[:r], qd=state.qd[:r], qa=state.qa[:r])
     force = np.asarray(engine.elastic.force_and_tangent(np.asarray(state.q))[0], dtype=float)
     for key in ("now", "next"):
         body = BodyState.allocate(r)

@@ -55,11 +55,21 @@ def switched():
     return scene, precompute(scene, progress=False)
 
 
-@pytest.fixture(params=["reduced", "full", "free-body", "impact-switch"])
-def engine(request, demo, free, switched):
+@pytest.fixture(scope="module")
+def feature_sets():
+    """The free bar with 2 impact columns for each hull feature."""
+    scene = scene_from_dict({**FREE, "reduced": {**FREE["reduced"], "impact_columns": 2,
+                                                 "impact_columns_per": "feature"}},
+                            name="free-demo")
+    return scene, precompute(scene, progress=False)
+
+
+@pytest.fixture(params=["reduced", "full", "free-body", "impact-switch", "feature-sets"])
+def engine(request, demo, free, switched, feature_sets):
     """``(engine, precompute, scene)`` of each kind."""
-    if request.param in ("free-body", "impact-switch"):
-        scene, pre = free if request.param == "free-body" else switched
+    bodies = {"free-body": free, "impact-switch": switched, "feature-sets": feature_sets}
+    if request.param in bodies:
+        scene, pre = bodies[request.param]
         return reduced_simulation(scene, pre), pre, scene
     scene, pre = demo
     make = reduced_simulation if request.param == "reduced" else full_simulation

@@ -5,6 +5,7 @@ impact until the body rests, beside the same run with the columns throughout."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -25,10 +26,16 @@ from lbshape.scene.variants import without_examples
 IN_FLIGHT = 100
 
 
+def _body(scene):
+    """One set of 26 impact columns for the whole body (the sets per hull feature:
+    ``tests/pipeline/test_impact_feature_sets.py``)."""
+    return dataclasses.replace(scene, reduced=dataclasses.replace(
+        scene.reduced, impact_columns=26, impact_columns_per="body"))
+
+
 @pytest.fixture(scope="module")
 def bar():
-    scene = load_scene("bar-s-cuboid")
-    assert scene.reduced.impact_columns > 0
+    scene = _body(load_scene("bar-s-cuboid"))
     return without_examples(scene), precompute(scene, progress=False)
 
 
@@ -135,7 +142,7 @@ def test_with_examples_the_columns_start_at_their_answer_to_the_example_spring(b
     """The bar with its example in flight: handed over, the columns balance their
     coupling to q and the example spring's pull to its target's columns part."""
     _, pre = bar
-    engine = reduced_simulation(load_scene("bar-s-cuboid"), pre)
+    engine = reduced_simulation(_body(load_scene("bar-s-cuboid")), pre)
     for _ in range(IN_FLIGHT):
         engine.step()
     k_ex, r0 = engine.plain.k_ex, engine.leading

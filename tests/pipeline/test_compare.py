@@ -123,6 +123,27 @@ def test_short_runs_time_after_their_warm_up_and_say_which_forces_ran(demo):
     assert full["timed_steps"] == 1
 
 
+def test_the_slow_steps_are_counted_against_dt():
+    from lbshape.pipeline.simulate import step_time_spread
+
+    # 1..100 ms: the 95th percentile interpolates between the 95th and 96th value
+    spread = step_time_spread(np.arange(1.0, 101.0), dt=0.05)
+    assert spread == {"t_p95_ms": pytest.approx(95.05), "t_max_ms": 100.0,
+                      "steps_over_dt": 50}  # 51..100 ms are slower than 50 ms
+    assert step_time_spread(np.array([1.0, 1.0]), dt=1e-3)["steps_over_dt"] == 0  # not above
+    assert step_time_spread(np.zeros(0), dt=1e-3) == {"t_p95_ms": None, "t_max_ms": None,
+                                                     "steps_over_dt": 0}
+
+
+def test_a_run_reports_its_slowest_steps(demo):
+    scene, pre = demo
+    output = lbshape.simulate(scene, pre, steps=40, influence=False)
+    stats = output.stats
+    assert stats["t_max_ms"] >= stats["t_p95_ms"] >= output.step_median_ms > 0.0
+    assert stats["t_max_ms"] >= stats["t_total_ms"]  # the largest is at least the mean
+    assert 0 <= stats["steps_over_dt"] <= stats["timed_steps"] == 30
+
+
 @pytest.mark.parametrize("method", ["reduced", "full"])
 def test_the_progress_bar_counts_steps_not_states(demo, capsys, method):
     scene, pre = demo

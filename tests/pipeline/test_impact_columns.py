@@ -29,8 +29,10 @@ COLUMNS = 26
 
 
 def _with_columns(scene, count: int = COLUMNS):
-    return dataclasses.replace(scene, reduced=dataclasses.replace(scene.reduced,
-                                                                  impact_columns=count))
+    """The scene with one set of ``count`` impact columns for the whole body (the sets
+    per hull feature: ``test_impact_feature_sets.py``)."""
+    return dataclasses.replace(scene, reduced=dataclasses.replace(
+        scene.reduced, impact_columns=count, impact_columns_per="body"))
 
 
 def _document(**extra) -> dict:
@@ -83,8 +85,7 @@ def test_the_throw_speed_is_the_speed_at_the_floor():
 
 @pytest.fixture(scope="module")
 def bars():
-    scene = load_scene("bar-s-cuboid")
-    assert scene.reduced.impact_columns == COLUMNS  # the built-in bar has them
+    scene = _with_columns(load_scene("bar-s-cuboid"))
     return scene, precompute(_with_columns(scene, 0)), precompute(scene)
 
 

@@ -201,7 +201,8 @@ def test_simulate_command_writes_contract_outputs(tmp_path, capsys):
     # the demo has examples: the contract keys, the error estimate, then the example influence
     assert list(stats) == ["scene", "method", "n_vertices", "n_tets", "m", "r", "s", "dt",
                            "steps", "t_interp_ms", "t_total_ms", "stable", "max_displacement",
-                           "phase_ms", "forces", "example_stiffness", "timed_steps", "force_model",
+                           "phase_ms", "forces", "example_stiffness", "timed_steps", "t_p95_ms",
+                           "t_max_ms", "steps_over_dt", "force_model",
                            "force_elements", *ESTIMATE_KEYS, "warnings", *STATS_KEYS]
     assert stats["warnings"] == []
     assert stats["example_influence"] > 0.0
