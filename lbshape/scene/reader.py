@@ -47,6 +47,7 @@ from lbshape.geometry.poses import POSE_CHOICES, POSE_PARAMETERS, POSES
 from lbshape.geometry.regions import parse_region
 from lbshape.geometry.shapes import SHAPES, is_script_path
 from lbshape.scene.schema import (
+    IMPACT_COLUMN_SETS,
     LOAD_TYPES,
     Damping,
     ExamplePose,
@@ -63,9 +64,6 @@ from lbshape.scene.schema import (
     Simulation,
 )
 from lbshape.shapespace.interpolation import ROUTE_CHOICES
-
-#: ``reduced.impact_columns_per``: one set for the body, or one for each hull feature
-IMPACT_COLUMN_SETS = ("body", "feature")
 
 __all__ = ["builtin_scene_names", "load_scene", "mesh_source", "scene_from_dict"]
 
@@ -171,8 +169,7 @@ def scene_from_dict(
                                                 else "has no '[[planes]]'")
                         + " (set impact_columns = 0)")
     if reduced.impact_columns_per != "body" and not reduced.impact_columns:
-        raise ctx.error(f"'reduced.impact_columns_per' = '{reduced.impact_columns_per}' "
-                        "needs impact columns (set reduced.impact_columns > 0)")
+        raise ctx.error("'reduced.impact_columns_per' needs impact_columns > 0")
     simulation = _simulation(top)
     if simulation.contact_dt is not None and (fixed is not None or not planes):
         raise ctx.error("'simulation.contact_dt' sets a free body's step in contact only; "

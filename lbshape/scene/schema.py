@@ -268,6 +268,10 @@ class Damping:
     beta: float = 0.0
 
 
+#: ``reduced.impact_columns_per``: one set for the body, or one for each hull feature
+IMPACT_COLUMN_SETS = ("body", "feature")
+
+
 @dataclass(frozen=True)
 class Reduced:
     """Sizes of the reduced model.

@@ -54,7 +54,7 @@ def _sets(pre):
 def test_the_key_needs_columns_and_names_a_choice():
     document = {"object": {"shape": "demo-bar"},
                 "planes": [{"point": [0, 0, -1], "normal": [0, 0, 1], "stiffness": 1e6}]}
-    with pytest.raises(LbshapeError, match="impact_columns_per.*needs impact columns"):
+    with pytest.raises(LbshapeError, match="impact_columns_per. needs impact_columns > 0"):
         scene_from_dict({**document, "reduced": {"impact_columns_per": "feature"}}, name="x")
     with pytest.raises(LbshapeError, match="impact_columns_per"):
         scene_from_dict({**document, "reduced": {"impact_columns": 2,
@@ -123,7 +123,7 @@ def test_the_edge_hit_is_held_by_its_own_set(bar):
     scene, pre = bar
     hit = designed_impact(scene, pre, "edge", 1.5, examples=False).stats()
     assert not hit["message"], hit["message"]
-    assert hit["restitution_error"] < golden("impact_columns.edge_hit_per_feature").limit
+    assert hit["restitution_error"] < golden("impact_feature_sets.edge_hit").limit
 
 
 def test_the_whole_run_switches_sets_and_follows_the_full_reference(bar):
@@ -143,7 +143,7 @@ def test_the_whole_run_switches_sets_and_follows_the_full_reference(bar):
     mass = mass_matrix(pre.mesh, pre.material.density)
     error = trajectory_error(reduced.displacements(record), full.displacements(reference),
                              mass)
-    assert error < golden("impact_columns.whole_run_per_feature").limit
+    assert error < golden("impact_feature_sets.whole_run").limit
 
 
 def test_per_feature_columns_run_switched_only(bar):
