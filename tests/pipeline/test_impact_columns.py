@@ -156,3 +156,13 @@ def test_more_columns_than_the_throws_give_is_a_one_line_error(bars, monkeypatch
     assert grown.basis.n_impact_columns == COLUMNS
     with pytest.raises(LbshapeError, match="impact_columns = 40: the 26 throws give 26"):
         impact_basis(_with_columns(scene, 40), mesh, mass, stiffness, basis)
+    # per hull feature: one column a throw, one a set
+    per_feature = dataclasses.replace(scene, reduced=dataclasses.replace(
+        scene.reduced, impact_columns=1, impact_columns_per="feature"))
+    one = impact_basis(per_feature, mesh, mass, stiffness, basis)
+    assert one.basis.r == plain.r + len(one.directions) == plain.r + len(one.columns)
+    with pytest.raises(LbshapeError, match="impact_columns = 3 per feature: 26 of the 26 "
+                                           "throws reached their plane, the fewest independent "
+                                           "columns a throw gave is 1; set impact_columns <= 1"):
+        impact_basis(dataclasses.replace(per_feature, reduced=dataclasses.replace(
+            per_feature.reduced, impact_columns=3)), mesh, mass, stiffness, basis)

@@ -16,11 +16,8 @@ from scipy.spatial.transform import Rotation
 from lbshape.analysis.norms import trajectory_error
 from lbshape.dynamics.fictitious import frame_tensors
 from lbshape.dynamics.impact_switch import ImpactSwitchedBody
-from lbshape.elastic.basis import NonlinearBasis
-from lbshape.elastic.element_kernels import mass_matrix, tangent_stiffness
+from lbshape.elastic.element_kernels import mass_matrix
 from lbshape.errors import LbshapeError
-from lbshape.pipeline import impact_columns
-from lbshape.pipeline.impact_columns import impact_basis
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.precompute_key import scene_cache_key
 from lbshape.pipeline.precomputed import required_arrays
@@ -153,21 +150,3 @@ def test_per_feature_columns_run_switched_only(bar):
     with pytest.raises(LbshapeError, match="per feature"):
         reduced_simulation(scene, pre, exact_forces=True)
 
-
-def test_more_columns_than_a_throw_gives_is_a_one_line_error(bar, monkeypatch):
-    scene, pre = bar
-    mesh = pre.mesh
-    rng = np.random.default_rng(5)
-    # one snapshot per throw: one column a throw
-    monkeypatch.setattr(impact_columns, "throw", lambda *args, **kwargs: 1e-3 * rng.standard_normal(
-        (1, mesh.n_vertices, 3)))
-    mass = mass_matrix(mesh, pre.material.density)
-    stiffness = tangent_stiffness(mesh, pre.material, np.zeros(3 * mesh.n_vertices))
-    r0 = pre.elastic.leading
-    basis = NonlinearBasis(pre.U[:, :r0], np.ones(r0), r0, np.ones(r0), r0, 0)
-    one = impact_basis(_per(scene, "feature", 1), mesh, mass, stiffness, basis)
-    assert one.basis.r == r0 + len(one.directions) and len(one.columns) == len(one.directions)
-    with pytest.raises(LbshapeError, match="impact_columns = 3 per feature: 26 of the 26 "
-                                           "throws reached their plane, the fewest independent "
-                                           "columns a throw gave is 1; set impact_columns <= 1"):
-        impact_basis(scene, mesh, mass, stiffness, basis)
