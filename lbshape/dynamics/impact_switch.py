@@ -6,7 +6,11 @@ the body flies or rests (the Figure 4 bar without its example: 1.76 ms a step at
 with 26 columns against 0.95 without, ``docs/decisions.md``). The columns are the trailing
 k of the basis ``[U₀ V]`` and its leading r₀ columns are the plain basis, so two
 :class:`~lbshape.dynamics.free_body.FreeBodySimulation` engines, one on U₀ (plain) and
-one on ``[U₀ V]`` (columns), can hand one state to each other:
+one on ``[U₀ V]`` (columns), can hand one state to each other. Per hull feature
+(``reduced.impact_columns_per = "feature"``) V is t sets of k, one engine on ``[U₀ V_j]``
+a set (:class:`ColumnSet`), and a hit switches on the set of the feature it hits
+(:meth:`ImpactSwitchedBody.choose_set`); a hit with another feature while on a set (a
+step that starts clear of every plane) is taken again on that feature's set:
 
 - **On at a contact's onset.** The plain engine steps while the body flies. A step that
   starts clear of every plane and ends touching one, with the body's kinetic energy at
