@@ -38,7 +38,6 @@ if __name__ == "__main__":  # single-threaded BLAS for the timings, set before n
         os.environ.setdefault(_var, "1")
 
 import argparse
-import dataclasses
 import datetime
 import subprocess
 import sys
@@ -53,7 +52,7 @@ from lbshape.io.machine import load_text, machine_description, machine_text
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulation import Simulation
 from lbshape.scene.reader import load_scene
-from lbshape.scene.variants import without_examples
+from lbshape.scene.variants import with_impact_columns, without_examples
 from lbshape.studies.free_bodies import (
     IMPACT_BODY,
     designed_impacts,
@@ -83,17 +82,14 @@ def arranged(scene, arrangement: str):
         if scene.reduced.impact_columns_per != "feature":
             raise SystemExit(f"{scene.name}: its impact columns are not per feature")
         return scene
-    count = 0 if arrangement == "off" else BODY_COLUMNS.get(scene.name, BODY_COLUMNS_DEFAULT)
-    return dataclasses.replace(scene, reduced=dataclasses.replace(
-        scene.reduced, impact_columns=count, impact_columns_per="body"))
+    return with_impact_columns(scene, 0 if arrangement == "off" else BODY_COLUMNS.get(
+        scene.name, BODY_COLUMNS_DEFAULT))
 
 
 def stepping_r(pre) -> int:
     """The coordinates a step on the columns solves for: r, or r₀ + one set's."""
-    directions = pre.elastic.impact_directions
-    if directions is None:
-        return pre.r
-    return pre.elastic.leading + (pre.r - pre.elastic.leading) // len(directions)
+    sets = pre.elastic.impact_column_sets()
+    return pre.r if len(sets) < 2 else pre.elastic.leading + len(sets[0])
 
 
 def impacts() -> dict:

@@ -18,7 +18,6 @@ An oracle (the hit's own frames), not a method: it locates the limit.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 
 import numpy as np
 
@@ -27,7 +26,7 @@ from lbshape.analysis.free_body_eval import penetration
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulation import Simulation
 from lbshape.scene import load_scene
-from lbshape.scene.variants import impact_scene
+from lbshape.scene.variants import impact_scene, with_impact_columns
 from lbshape.studies.free_bodies import IMPACT_BODY, IMPACT_FLIGHT, IMPACT_NORMALS, designed_impact
 
 #: the columns built, as in results/impact_columns.md
@@ -61,8 +60,7 @@ def main(argv: list[str] | None = None) -> None:
         return original(scene, mesh, direction, speed, examples)
 
     impact_columns.throw = throw
-    scene = dataclasses.replace(base, reduced=dataclasses.replace(base.reduced,
-                                                                  impact_columns=COLUMNS))
+    scene = with_impact_columns(base, COLUMNS)
     pre = precompute(scene)
     print(f"face throw replaced by {frames.shape[0]} frames of the designed hit with the "
           f"example at {args.speed:g} m/s")

@@ -42,13 +42,13 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import ConvexHull
 
 from lbshape.dynamics.engine import Drag, EngineState
 from lbshape.dynamics.free_body import PHASES, FreeBodySimulation, run_free_body
 from lbshape.dynamics.free_body_record import FreeBodyRecord
 from lbshape.dynamics.rigid_frame import RigidState
 from lbshape.errors import LbshapeError
+from lbshape.geometry.hull_directions import hull_points
 
 #: a contact's onset hands the body to the columns' engine when its kinetic energy is
 #: at least this share of the design impact's ``½ m v²`` (v the speed the body reaches its
@@ -103,13 +103,9 @@ class LeadingDriver:
         out[:] = self._target[self.slots]
 
     def target_entries(self, slots: np.ndarray) -> np.ndarray:
-        """(k,) the last target's entries of the whole basis's columns ``slots``."""
+        """(k,) the last target's entries of the whole basis's columns ``slots`` (0 before
+        the first)."""
         return self._target[slots]
-
-    @property
-    def columns_target(self) -> np.ndarray:
-        """(r − r₀,) the trailing entries of the last target (0 before the first)."""
-        return self._target[self.leading:]
 
 
 class ColumnSet(NamedTuple):
@@ -119,11 +115,6 @@ class ColumnSet(NamedTuple):
     slots: np.ndarray  #: (k,) the set's columns V_S in the whole basis
     #: (3,) the rest-frame normal of the plane its throw hit; None: the only set
     direction: np.ndarray | None = None
-
-
-def hull_points(points: np.ndarray) -> np.ndarray:
-    """(h, 3) the vertices of the convex hull of ``points`` (n, 3)."""
-    return np.asarray(points, dtype=float)[ConvexHull(points).vertices]
 
 
 class ImpactSwitchedBody:
@@ -149,8 +140,7 @@ class ImpactSwitchedBody:
 
     def __init__(self, plain: FreeBodySimulation, sets, coupling: np.ndarray,
                  impact_speed: float, *, basis: np.ndarray | None = None, frame=None):
-        sets = [s if isinstance(s, ColumnSet) else ColumnSet(s, np.arange(plain.r, s.r))
-                for s in ([sets] if isinstance(sets, FreeBodySimulation) else sets)]
+        sets = list(sets)
         coupling = np.asarray(coupling, dtype=float)
         r0, r = plain.r, coupling.shape[0]
         if not sets or plain.contact is None or any(

@@ -58,6 +58,12 @@ class HullDirections:
                 + ("corner",) * len(self.corners))
 
 
+def hull_points(points: np.ndarray) -> np.ndarray:
+    """(h, 3) the vertices of the convex hull of ``points`` (n, 3)."""
+    points = np.asarray(points, dtype=float)
+    return points[scipy.spatial.ConvexHull(points).vertices]
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 

@@ -132,6 +132,15 @@ class ElasticSpace:
         """The number of reduced coordinates."""
         return int(self.U.shape[1])
 
+    def impact_column_sets(self) -> list[np.ndarray]:
+        """Each set of impact columns as its (k,) columns of U: per feature one a row of
+        :attr:`impact_directions`, else the one set of them all (none without)."""
+        if self.impact_coupling is None:
+            return []
+        sets = 1 if self.impact_directions is None else len(self.impact_directions)
+        k = (self.r - self.leading) // sets
+        return [self.leading + j * k + np.arange(k) for j in range(sets)]
+
 
 @dataclass(frozen=True)
 class ShapeBasis:
@@ -460,13 +469,12 @@ def artifact(scene: Scene, *, mesh: TetMesh, fixed: np.ndarray, U: np.ndarray,
                        "impact_leading": np.array([leading_columns(impact.basis)])})
         if impact.directions is not None:
             arrays["impact_directions"] = impact.directions
-        models = ([impact.columns] if isinstance(impact.columns, PolynomialForceModel)
-                  else impact.columns)
-        if models:  # per feature: stacked, a leading axis of the sets
-            stack = (lambda a: a[0]) if impact.directions is None else np.stack
-            arrays.update({"impact_poly_K": stack([m.K for m in models]),
-                           "impact_poly_cubic": stack([m.pair_cubic for m in models]),
-                           "impact_poly_quartic": stack([m.pair_quartic for m in models])})
+        if impact.columns is not None:  # per feature: stacked, a leading axis of the sets
+            arrays.update({f"impact_poly_{name}": getattr(impact.columns, attribute)
+                           if impact.directions is None else
+                           np.stack([getattr(m, attribute) for m in impact.columns])
+                           for name, attribute in (("K", "K"), ("cubic", "pair_cubic"),
+                                                   ("quartic", "pair_quartic"))})
     meta = {"scene": scene.name, "cubature_errors": {
         "train": cubature.train_error, "holdout": cubature.holdout_error,
         "tolerance": cubature.tol, "reached_tolerance": bool(cubature.reached_tol)},

@@ -271,11 +271,10 @@ def column_set_models(pre: Precomputed, base) -> list[tuple[np.ndarray, ColumnFo
     whole basis (r₀ + k,), the leading r₀ first, and its force model on them (``base``
     the leading columns' model, the set's own polynomial energy and coupling)."""
     elastic = pre.elastic
-    r0, sets = elastic.leading, len(elastic.impact_directions)
-    k = (pre.r - r0) // sets
+    r0 = elastic.leading
     out = []
-    for j in range(sets):
-        index = np.concatenate([np.arange(r0), r0 + j * k + np.arange(k)])
+    for j, slots in enumerate(elastic.impact_column_sets()):
+        index = np.concatenate([np.arange(r0), slots])
         own = (None if elastic.impact_forces is None else PolynomialForceModel.from_arrays(
             *(array[j] for array in elastic.impact_forces)))
         out.append((index, ColumnForceModel(
@@ -326,7 +325,8 @@ def _free_body_simulation(scene: Scene, pre: Precomputed, elastic, driver, k_ex:
         scene, pre, base, pre.frame.leading(r0), np.ascontiguousarray(pre.U[:, :r0]),
         None if driver is None else LeadingDriver(driver, pre.r, r0), k_ex, newton)
     if directions is None:
-        return ImpactSwitchedBody(plain, columns, pre.elastic.impact_coupling,
+        return ImpactSwitchedBody(plain, [ColumnSet(columns, np.arange(r0, pre.r))],
+                                  pre.elastic.impact_coupling,
                                   throw_speed(scene, pre.mesh.points))
     sets = [ColumnSet(_free_body_engine(
         scene, pre, model, pre.frame.columns(index), np.ascontiguousarray(pre.U[:, index]),
@@ -443,6 +443,7 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         r, s = pre.r, force_elements(pre)
     warmup = warmup_steps(record.steps)
     t_interp, t_total = record.mean_ms(warmup=warmup)
+    totals = record.t_total_ms[warmup:]
     max_disp = float(np.max(np.linalg.norm(frames, axis=2))) if frames.size else 0.0
     stats = {
         "scene": scene.name, "method": method,
@@ -454,12 +455,11 @@ def simulate(scene: Scene, pre: Precomputed, *, method: str = "reduced",
         "forces": "full" if method == "full" else pre.elastic.force_model,
         "example_stiffness": example_stiffness(scene, pre) if scene.examples else None,
         "timed_steps": int(record.steps - warmup),
-        **step_time_spread(record.t_total_ms[warmup:], scene.simulation.dt),
+        **step_time_spread(totals, scene.simulation.dt),
         **_force_stats(pre, method),
         **estimate_stats(scene, pre, method, record, frames),
         "warnings": run_warnings(scene, pre),
     }
-    totals = record.t_total_ms[warmup:]
     output = SimulationOutput(stats, record.times, frames, record.message, phase_ms=phase_ms,
                               step_median_ms=float(np.median(totals)) if totals.size else None)
     if influence and record.stable and has_example_force(scene, pre):

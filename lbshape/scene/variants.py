@@ -24,7 +24,7 @@ from lbshape.errors import LbshapeError
 from lbshape.geometry.shapes import get_shape
 from lbshape.io.toml_writer import dumps
 from lbshape.scene.reader import builtin_scene_names, load_scene
-from lbshape.scene.schema import Scene
+from lbshape.scene.schema import IMPACT_COLUMN_SETS, Scene
 
 
 def without_examples(scene: Scene) -> Scene:
@@ -54,6 +54,16 @@ def with_reduced(scene: Scene, m: int, r: int, s: int, forces: str | None = None
         scene, reduced=dataclasses.replace(red, m=int(m), r=int(r), s=int(s),
                                            linear_modes=linear,
                                            forces=red.forces if forces is None else forces))
+
+
+def with_impact_columns(scene: Scene, count: int, per: str = "body") -> Scene:
+    """The scene with ``reduced.impact_columns`` = ``count`` (0: none) arranged ``per``
+    ``"body"`` (one set) or ``"feature"`` (``count`` for each hull feature)."""
+    if per not in IMPACT_COLUMN_SETS or count < 0 or (per == "feature" and not count):
+        raise LbshapeError(f"impact columns: {count} per {per!r} (per one of "
+                           f"{IMPACT_COLUMN_SETS}, 'feature' needs count > 0)")
+    return dataclasses.replace(scene, reduced=dataclasses.replace(
+        scene.reduced, impact_columns=int(count), impact_columns_per=per))
 
 
 def with_step(scene: Scene, dt: float, duration: float) -> Scene:

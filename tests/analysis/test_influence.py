@@ -27,7 +27,7 @@ from lbshape.pipeline.influence import (
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import example_influence, simulate
 from lbshape.scene import load_scene
-from lbshape.scene.variants import with_stiffness, without_examples
+from lbshape.scene.variants import with_impact_columns, with_stiffness, without_examples
 
 
 @pytest.fixture(scope="module")
@@ -206,7 +206,7 @@ def test_free_body_influence_is_zero_when_the_examples_are_the_rest_shape(method
     pose = scene.examples.poses[0]
     rest_pose = dataclasses.replace(pose, parameters={**pose.parameters, "amplitude": 0.0})
     thrown = dataclasses.replace(
-        scene, loads=(), planes=(), reduced=dataclasses.replace(scene.reduced, impact_columns=0),
+        with_impact_columns(scene, 0), loads=(), planes=(),
         initial=dataclasses.replace(
             scene.initial, velocity=(1.0, 0.0, 0.5), angular_velocity=(0.0, 0.0, 0.0)))
     rest_examples = dataclasses.replace(thrown, examples=dataclasses.replace(

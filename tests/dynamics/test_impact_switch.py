@@ -5,7 +5,6 @@ impact until the body rests, beside the same run with the columns throughout."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -20,7 +19,7 @@ from lbshape.errors import LbshapeError
 from lbshape.pipeline.precompute import precompute
 from lbshape.pipeline.simulate import reduced_simulation
 from lbshape.scene.reader import load_scene
-from lbshape.scene.variants import without_examples
+from lbshape.scene.variants import with_impact_columns, without_examples
 
 #: the bar's first contact is at 0.287 s (dt = 1 ms)
 IN_FLIGHT = 100
@@ -29,8 +28,7 @@ IN_FLIGHT = 100
 def _body(scene):
     """One set of 26 impact columns for the whole body (the sets per hull feature:
     ``tests/pipeline/test_impact_feature_sets.py``)."""
-    return dataclasses.replace(scene, reduced=dataclasses.replace(
-        scene.reduced, impact_columns=26, impact_columns_per="body"))
+    return with_impact_columns(scene, 26)
 
 
 @pytest.fixture(scope="module")
@@ -146,7 +144,7 @@ def test_with_examples_the_columns_start_at_their_answer_to_the_example_spring(b
     for _ in range(IN_FLIGHT):
         engine.step()
     k_ex, r0 = engine.plain.k_ex, engine.leading
-    target = engine.plain.driver.columns_target.copy()
+    target = engine.plain.driver.target_entries(np.arange(r0, pre.r)).copy()
     assert k_ex > 0 and np.abs(target).max() > 0
     engine.switch_columns(True)
     q = engine.columns._now.q

@@ -23,6 +23,7 @@ from lbshape.pipeline.precompute_key import scene_cache_key
 from lbshape.pipeline.precomputed import ESTIMATE_FLAG, required_arrays
 from lbshape.pipeline.simulate import example_stiffness, reduced_force_model
 from lbshape.scene.reader import load_scene, scene_from_dict
+from lbshape.scene.variants import with_impact_columns
 from lbshape.studies.free_bodies import designed_impact
 
 COLUMNS = 26
@@ -31,8 +32,7 @@ COLUMNS = 26
 def _with_columns(scene, count: int = COLUMNS):
     """The scene with one set of ``count`` impact columns for the whole body (the sets
     per hull feature: ``test_impact_feature_sets.py``)."""
-    return dataclasses.replace(scene, reduced=dataclasses.replace(
-        scene.reduced, impact_columns=count, impact_columns_per="body"))
+    return with_impact_columns(scene, count)
 
 
 def _document(**extra) -> dict:
@@ -157,12 +157,10 @@ def test_more_columns_than_the_throws_give_is_a_one_line_error(bars, monkeypatch
     with pytest.raises(LbshapeError, match="impact_columns = 40: the 26 throws give 26"):
         impact_basis(_with_columns(scene, 40), mesh, mass, stiffness, basis)
     # per hull feature: one column a throw, one a set
-    per_feature = dataclasses.replace(scene, reduced=dataclasses.replace(
-        scene.reduced, impact_columns=1, impact_columns_per="feature"))
+    per_feature = with_impact_columns(scene, 1, "feature")
     one = impact_basis(per_feature, mesh, mass, stiffness, basis)
     assert one.basis.r == plain.r + len(one.directions) == plain.r + len(one.columns)
     with pytest.raises(LbshapeError, match="impact_columns = 3 per feature: 26 of the 26 "
                                            "throws reached their plane, the fewest independent "
                                            "columns a throw gave is 1; set impact_columns <= 1"):
-        impact_basis(dataclasses.replace(per_feature, reduced=dataclasses.replace(
-            per_feature.reduced, impact_columns=3)), mesh, mass, stiffness, basis)
+        impact_basis(with_impact_columns(scene, 3, "feature"), mesh, mass, stiffness, basis)

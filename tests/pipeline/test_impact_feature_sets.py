@@ -5,7 +5,6 @@ the Figure 4 bar then holds a designed edge hit and its whole run."""
 
 from __future__ import annotations
 
-import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
@@ -24,28 +23,22 @@ from lbshape.pipeline.precomputed import required_arrays
 from lbshape.pipeline.simulate import reduced_simulation
 from lbshape.pipeline.simulation import Simulation
 from lbshape.scene.reader import load_scene, scene_from_dict
-from lbshape.scene.variants import without_examples
+from lbshape.scene.variants import with_impact_columns, without_examples
 from lbshape.studies.free_bodies import designed_impact
 
 #: columns a set
 COLUMNS = 3
 
 
-def _per(scene, per: str, count: int = COLUMNS):
-    return dataclasses.replace(scene, reduced=dataclasses.replace(
-        scene.reduced, impact_columns=count, impact_columns_per=per))
-
-
 @pytest.fixture(scope="module")
 def bar():
     """The Figure 4 bar without its example, 3 columns a hull feature."""
-    scene = _per(without_examples(load_scene("bar-s-cuboid")), "feature")
+    scene = with_impact_columns(without_examples(load_scene("bar-s-cuboid")), COLUMNS, "feature")
     return scene, precompute(scene, progress=False)
 
 
 def _sets(pre):
-    r0, directions = pre.elastic.leading, pre.elastic.impact_directions
-    return r0, [r0 + j * COLUMNS + np.arange(COLUMNS) for j in range(len(directions))]
+    return pre.elastic.leading, pre.elastic.impact_column_sets()
 
 
 def test_the_key_needs_columns_and_names_a_choice():
@@ -56,8 +49,8 @@ def test_the_key_needs_columns_and_names_a_choice():
     with pytest.raises(LbshapeError, match="impact_columns_per"):
         scene_from_dict({**document, "reduced": {"impact_columns": 2,
                                                  "impact_columns_per": "side"}}, name="x")
-    body = _per(load_scene("bar-s-cuboid"), "body")
-    feature = _per(body, "feature")
+    body = with_impact_columns(load_scene("bar-s-cuboid"), COLUMNS)
+    feature = with_impact_columns(body, COLUMNS, "feature")
     assert scene_cache_key(body) != scene_cache_key(feature)
     assert "impact_directions" in required_arrays(feature)
     assert "impact_directions" not in required_arrays(body)
