@@ -3,14 +3,17 @@
 Usage: ``.venv/bin/python scripts/bench_impact_columns.py [--repeats 3]
 [--out-dir results] [--scenes car bar-s-cuboid bar-s-cylinder]``.
 
-Three arrangements of ``reduced.impact_columns`` (:mod:`lbshape.pipeline.impact_columns`)
+Four arrangements of ``reduced.impact_columns`` (:mod:`lbshape.pipeline.impact_columns`)
 side by side in one process, all switched on at each impact and off once the body rests
 (:mod:`lbshape.dynamics.impact_switch`):
 
 * ``off``: none (the plain basis);
 * ``body``: one set for the whole body (:data:`BODY_COLUMNS`: the car 16, the bars 26);
-* ``feature``: the scene's own, ``impact_columns_per = "feature"`` (3 columns for each
-  hull feature, the set of the feature a hit touches switched on).
+* ``feature``: ``impact_columns_per = "feature"``, the scene's own count for each hull
+  feature (3), the set of the feature a hit touches switched on;
+* ``feature-pair``: the scene's own, ``impact_columns_per = "feature-pair"`` (both
+  features' columns for each pair of neighbouring hull features, the set of the pair
+  nearest a hit switched on).
 
 Measured:
 
@@ -72,16 +75,18 @@ BODY_COLUMNS = {"car": 16}
 #: ... and every other body's
 BODY_COLUMNS_DEFAULT = 26
 #: the arrangements compared
-ARRANGEMENTS = ("off", "body", "feature")
+ARRANGEMENTS = ("off", "body", "feature", "feature-pair")
 
 
 def arranged(scene, arrangement: str):
     """The scene with its impact columns as ``arrangement`` (:data:`ARRANGEMENTS`;
-    ``feature``: the scene's own, which must be per feature)."""
-    if arrangement == "feature":
-        if scene.reduced.impact_columns_per != "feature":
-            raise SystemExit(f"{scene.name}: its impact columns are not per feature")
+    ``feature-pair``: the scene's own, which must be per pair of features)."""
+    if scene.reduced.impact_columns_per != "feature-pair":
+        raise SystemExit(f"{scene.name}: its impact columns are not per pair of features")
+    if arrangement == "feature-pair":
         return scene
+    if arrangement == "feature":
+        return with_impact_columns(scene, scene.reduced.impact_columns, "feature")
     return with_impact_columns(scene, 0 if arrangement == "off" else BODY_COLUMNS.get(
         scene.name, BODY_COLUMNS_DEFAULT))
 
@@ -163,11 +168,13 @@ def markdown(payload: dict) -> str:
         "",
         "`reduced.impact_columns` (`lbshape.pipeline.impact_columns`: throws at the convex "
         "hull's sides, creases and corners; the columns' own energy exact, their coupling "
-        "linear) in three arrangements, side by side in one process, each switched on at "
+        "linear) in four arrangements, side by side in one process, each switched on at "
         "an impact's onset and off once the body rests (`lbshape.dynamics.impact_switch`): "
         "off (the plain basis); `body`, one set for the whole body (the car 16 columns, the "
-        "bars 26); `feature`, the built-in scenes' own: 3 columns for each hull feature, the "
-        "set of the feature a hit touches switched on. A designed impact restarts the body "
+        "bars 26); `feature`, 3 columns for each hull feature, the set of the feature a hit "
+        "touches switched on; `feature-pair`, the built-in scenes' own: one set of 6 for "
+        "each pair of neighbouring features (both features' 3), the set of the pair "
+        "nearest a hit switched on. A designed impact restarts the body "
         "in flight, 3 steps before its contact.",
         "",
         f"Command: `{payload['command']}`  ",
@@ -192,7 +199,8 @@ def markdown(payload: dict) -> str:
         f"percentile, the steps over the {BUDGET_MS:g} ms budget (a step advances 1 ms: "
         "those are slower than real time) and the mean over the run's last third, median "
         f"over {payload['repeats']} interleaved repeats. r: the precompute's basis; "
-        "stepping: what a step on the columns solves for (per feature r₀ + one set's 3); "
+        "stepping: what a step on the columns solves for (r₀ + one set's: 3 per feature, "
+        "6 per pair); "
         "column steps: the steps taken on the columns.",
         "",
         "| scene | examples | impact columns | r | r stepping | steps | column steps | "

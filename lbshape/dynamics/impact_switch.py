@@ -9,8 +9,10 @@ k of the basis ``[U₀ V]`` and its leading r₀ columns are the plain basis, so
 one on ``[U₀ V]`` (columns), can hand one state to each other. Per hull feature
 (``reduced.impact_columns_per = "feature"``) V is t sets of k, one engine on ``[U₀ V_j]``
 a set (:class:`ColumnSet`), and a hit switches on the set of the feature it hits
-(:meth:`ImpactSwitchedBody.choose_set`); a hit with another feature while on a set (a
-step that starts clear of every plane) is taken again on that feature's set:
+(:meth:`ImpactSwitchedBody.choose_set`; per pair of neighbouring features,
+``"feature-pair"``, the set of the pair nearest the hit, so that a hit on the border of
+two features takes the same set from either side); a hit with another feature while on
+a set (a step that starts clear of every plane) is taken again on that feature's set:
 
 - **On at a contact's onset.** The plain engine steps while the body flies. A step that
   starts clear of every plane and ends touching one, with the body's kinetic energy at
@@ -113,7 +115,8 @@ class ColumnSet(NamedTuple):
 
     engine: FreeBodySimulation  #: on ``[U₀ V_S]`` (r₀ + k columns)
     slots: np.ndarray  #: (k,) the set's columns V_S in the whole basis
-    #: (3,) the rest-frame normal of the plane its throw hit; None: the only set
+    #: (3,) the rest-frame normals of the planes its features' throws hit, summed (one
+    #: feature: its normal); None: the only set
     direction: np.ndarray | None = None
 
 
@@ -124,7 +127,7 @@ class ImpactSwitchedBody:
     Args:
         plain: the engine on the leading r₀ columns U₀.
         sets: the :class:`ColumnSet` s: one on the whole basis ``[U₀ V]``, or one per hull
-            feature (each with its throw's direction), same scene.
+            feature or pair of features (each with its direction), same scene.
         coupling: (r, r) ``Uᵀ K₀ U`` of the whole basis (1/s²).
         impact_speed: v, the speed the body reaches its planes at (m/s, > 0).
         basis: (3n, r) the whole basis, and ``frame`` its frame tensors, where the sets
@@ -334,8 +337,10 @@ class ImpactSwitchedBody:
 
     def choose_set(self, engine: FreeBodySimulation) -> int:
         """The set for a hit of the body of ``engine`` (its state now): the one whose
-        throw's plane normal is nearest the body-frame normal of the plane the body is
-        deepest behind (or nearest: its hull's points); the only set when there is one."""
+        direction (:attr:`ColumnSet.direction`) is nearest the body-frame normal n of the
+        plane the body is deepest behind (or nearest: its hull's points), the largest
+        ``d · n``: per feature the nearest throw's normal, per pair the pair whose
+        normals' cosines to n sum largest; the only set when there is one."""
         if self._directions is None:
             return 0
         state, planes = engine._now, engine.contact

@@ -125,3 +125,29 @@ def hull_directions(points: np.ndarray) -> HullDirections:
     corners = [_unit(normals[list(t)].sum(axis=0)) for t in sorted(triples)]
     return HullDirections(normals[np.sort(kept)], np.reshape(edges, (-1, 3)),
                           np.reshape(corners, (-1, 3)))
+
+
+def neighbouring_pairs(directions: np.ndarray) -> np.ndarray:
+    """(e, 2) the pairs of ``directions`` (t, 3) whose regions on the unit sphere meet
+    (indices, each pair ascending, the pairs sorted): the edges of the convex hull of the
+    unit directions, their spherical Delaunay triangulation. A normal on the border of
+    two directions' regions is nearest to both, so a set of columns for the pair holds a
+    hit there from either side; 26 directions give 3 · 26 − 6 = 72 pairs.
+
+    Raises:
+        LbshapeError: the directions do not surround the origin (fewer than 4, or flat).
+    """
+    directions = np.asarray(directions, dtype=float)
+    unit = directions / np.linalg.norm(directions, axis=1)[:, None]
+    try:
+        hull = scipy.spatial.ConvexHull(unit)
+    except scipy.spatial.QhullError as exc:
+        raise LbshapeError(f"{len(unit)} hull directions have no neighbours on the sphere "
+                           f"(flat or too few): {str(exc).splitlines()[0]}") from None
+    if len(hull.vertices) < len(unit) or not np.all(hull.equations[:, -1] < 0):
+        raise LbshapeError(f"{len(unit)} hull directions do not surround the object "
+                           "(some lie inside the others' hull, or all on one side)")
+    pairs = {tuple(sorted((int(a), int(b)))) for simplex in hull.simplices
+             for a, b in ((simplex[0], simplex[1]), (simplex[1], simplex[2]),
+                          (simplex[0], simplex[2]))}
+    return np.array(sorted(pairs), dtype=int).reshape(-1, 2)

@@ -22,7 +22,9 @@ This stage makes such columns without knowing the scene's impacts:
    (:func:`~lbshape.analysis.free_body.body_deformations`), their rigid motions and span U
    removed M-orthogonally, give its leading principal components (``ceil(k / throws)``
    each); :func:`~lbshape.elastic.basis.append_directions` appends the k principal
-   directions of them all (``reduced.impact_columns`` = k).
+   directions of them all (``reduced.impact_columns`` = k). Per feature
+   (``reduced.impact_columns_per``) each throw's own k are one set, or each pair of
+   neighbouring directions' 2k (``"feature-pair"``), the sets one after another.
 3. **Energy** (:class:`~lbshape.elastic.column_forces.ColumnForceModel`): the columns'
    own energy exact (the StVK polynomial on them, where ``reduced.forces`` resolves to
    polynomials for k columns; else quadratic), their coupling to the other coordinates
@@ -52,7 +54,7 @@ from lbshape.elastic.basis import NonlinearBasis, append_directions, principal_c
 from lbshape.elastic.modes import rigid_body_modes
 from lbshape.elastic.polynomial_forces import PolynomialForceModel, resolve_force_model
 from lbshape.errors import LbshapeError, SolverError
-from lbshape.geometry.hull_directions import hull_directions
+from lbshape.geometry.hull_directions import hull_directions, neighbouring_pairs
 from lbshape.geometry.mesh import TetMesh
 from lbshape.scene.schema import Scene
 
@@ -162,7 +164,7 @@ def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness, basis: NonlinearB
         examples: the scene's global examples' pull for the throws (:func:`throw`), or None.
     """
     count = int(scene.reduced.impact_columns)
-    per_feature = scene.reduced.impact_columns_per == "feature"
+    per_feature = scene.reduced.impact_columns_per != "body"
     directions = hull_directions(mesh.points).all
     speed = THROW_SPEED_MARGIN * throw_speed(scene, mesh.points)
     rigid = rigid_body_modes(mesh.points, mass)
@@ -208,9 +210,12 @@ def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness, basis: NonlinearB
 def _feature_sets(scene: Scene, mesh: TetMesh, mass, stiffness, basis: NonlinearBasis,
                   directions: np.ndarray, columns: list[np.ndarray]) -> ImpactBasis:
     """Per feature: each throw's own ``reduced.impact_columns`` leading components as one
-    set, M-orthonormal and M-orthogonal to U₀ (``basis``), the sets one after another
-    (not orthogonal to each other: only one acts at a time,
-    :mod:`lbshape.dynamics.impact_switch`), each with its own polynomial energy."""
+    set, M-orthonormal and M-orthogonal to U₀ (``basis``); per pair of features
+    (``"feature-pair"``) the two sets of each pair of neighbouring directions
+    (:func:`~lbshape.geometry.hull_directions.neighbouring_pairs`) made one, M-orthonormal.
+    The sets follow one another after U₀ (not orthogonal to each other: only one acts at
+    a time, :mod:`lbshape.dynamics.impact_switch`), each with its own polynomial energy
+    and its direction, its features' directions summed."""
     count = int(scene.reduced.impact_columns)
     r0 = basis.r
     fewest = min(c.shape[1] for c in columns)
@@ -219,21 +224,34 @@ def _feature_sets(scene: Scene, mesh: TetMesh, mass, stiffness, basis: Nonlinear
                            f"the {len(directions)} throws reached their plane, the fewest "
                            f"independent columns a throw gave is {fewest}; set "
                            f"impact_columns <= {fewest}")
-    sets = [append_directions(basis, block, mass, stiffness, kind="impact_columns",
-                              max_columns=count, rtol=0.0, min_outside=0.0).U[:, r0:]
-            for block in columns]
-    if min(v.shape[1] for v in sets) < count:
-        raise LbshapeError(f"reduced.impact_columns = {count} per feature: a throw's "
-                           "components are not independent of the basis; set it lower")
+    groups = (neighbouring_pairs(directions) if scene.reduced.impact_columns_per
+              == "feature-pair" else np.arange(len(directions))[:, None])
+    own = _orthonormal_sets(basis, columns, mass, stiffness, count)
+    sets = own if groups.shape[1] == 1 else _orthonormal_sets(
+        basis, [np.hstack([own[i] for i in group]) for group in groups], mass, stiffness,
+        groups.shape[1] * count)
     U = np.hstack([basis.U, *sets])
     grown = dataclasses.replace(basis, U=U, r=int(U.shape[1]),
                                 omega2=np.einsum("ij,ij->j", U, stiffness @ U),
-                                n_impact_columns=count * len(sets))
+                                n_impact_columns=int(U.shape[1]) - r0)
     exact = resolve_force_model(scene.reduced.forces, scene.material.model, mesh.n_tets,
-                                count) == "polynomial"
+                                sets[0].shape[1]) == "polynomial"
     return ImpactBasis(grown, U.T @ (stiffness @ U), [
         PolynomialForceModel(mesh.points, mesh.tets, scene.material, np.ascontiguousarray(v))
-        for v in sets] if exact else None, np.asarray(directions, dtype=float))
+        for v in sets] if exact else None, np.asarray(directions, dtype=float)[groups].sum(1))
+
+
+def _orthonormal_sets(basis: NonlinearBasis, blocks: list[np.ndarray], mass, stiffness,
+                      size: int) -> list[np.ndarray]:
+    """Each block's ``size`` leading directions outside the basis, M-orthonormal
+    ((3n, size) each); a one-line error where a block holds fewer."""
+    sets = [append_directions(basis, block, mass, stiffness, kind="impact_columns",
+                              max_columns=size, rtol=0.0, min_outside=0.0).U[:, basis.r:]
+            for block in blocks]
+    if min(v.shape[1] for v in sets) < size:
+        raise LbshapeError(f"reduced.impact_columns: a set of {size} columns per feature "
+                           "is not independent of the basis; set impact_columns lower")
+    return sets
 
 
 def leading_columns(basis: NonlinearBasis) -> int:

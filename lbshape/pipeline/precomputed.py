@@ -110,9 +110,10 @@ class ElasticSpace:
         impact_forces: the impact columns' own polynomial energy (the
             :class:`ForceCoefficients` on them), or None (their energy quadratic); per
             feature each array has a leading axis of the t sets.
-        impact_directions: per feature (``reduced.impact_columns_per = "feature"``): (t, 3)
-            the rest-frame plane normal each set's throw hit, the sets of
-            (r − leading) / t columns in that order; None: one set.
+        impact_directions: per feature (``reduced.impact_columns_per`` ``"feature"`` or
+            ``"feature-pair"``): (t, 3) each set's direction, the rest-frame plane
+            normals its features' throws hit, summed (one feature: its normal), the
+            sets of (r − leading) / t columns in that order; None: one set.
     """
 
     U: np.ndarray
@@ -513,7 +514,7 @@ def required_arrays(scene: Scene) -> tuple[str, ...]:
         required = required + (ESTIMATE_FLAG,)
     if scene.reduced.impact_columns:
         required = required + ("impact_coupling", "impact_leading")
-    if scene.reduced.impact_columns_per == "feature":
+    if scene.reduced.impact_columns_per != "body":
         required = required + ("impact_directions",)
     return required
 

@@ -267,9 +267,10 @@ def reduced_force_model(pre: Precomputed, *, exact_forces: bool = False):
 
 
 def column_set_models(pre: Precomputed, base) -> list[tuple[np.ndarray, ColumnForceModel]]:
-    """Per feature (``reduced.impact_columns_per = "feature"``): each set's columns of the
-    whole basis (r₀ + k,), the leading r₀ first, and its force model on them (``base``
-    the leading columns' model, the set's own polynomial energy and coupling)."""
+    """Per feature (``reduced.impact_columns_per`` ``"feature"`` or ``"feature-pair"``):
+    each set's columns of the whole basis (r₀ + k,), the leading r₀ first, and its force
+    model on them (``base`` the leading columns' model, the set's own polynomial energy
+    and coupling)."""
     elastic = pre.elastic
     r0 = elastic.leading
     out = []

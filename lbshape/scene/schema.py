@@ -268,8 +268,9 @@ class Damping:
     beta: float = 0.0
 
 
-#: ``reduced.impact_columns_per``: one set for the body, or one for each hull feature
-IMPACT_COLUMN_SETS = ("body", "feature")
+#: ``reduced.impact_columns_per``: one set for the body, one for each hull feature, or one
+#: for each pair of neighbouring hull features
+IMPACT_COLUMN_SETS = ("body", "feature", "feature-pair")
 
 
 @dataclass(frozen=True)
@@ -297,7 +298,9 @@ class Reduced:
         impact_columns_per: ``"body"``: one set of ``impact_columns`` columns for every
             impact; ``"feature"``: ``impact_columns`` for each convex-hull feature (side,
             crease, corner), the set of the feature that hits switched on
-            (:mod:`lbshape.dynamics.impact_switch`).
+            (:mod:`lbshape.dynamics.impact_switch`); ``"feature-pair"``: one set of
+            2 × ``impact_columns`` for each pair of neighbouring features (both
+            features' columns), the pair nearest the hit switched on.
     """
 
     m: int = 10

@@ -58,10 +58,11 @@ def with_reduced(scene: Scene, m: int, r: int, s: int, forces: str | None = None
 
 def with_impact_columns(scene: Scene, count: int, per: str = "body") -> Scene:
     """The scene with ``reduced.impact_columns`` = ``count`` (0: none) arranged ``per``
-    ``"body"`` (one set) or ``"feature"`` (``count`` for each hull feature)."""
-    if per not in IMPACT_COLUMN_SETS or count < 0 or (per == "feature" and not count):
+    ``"body"`` (one set), ``"feature"`` (``count`` for each hull feature) or
+    ``"feature-pair"`` (both features' for each pair of neighbouring features)."""
+    if per not in IMPACT_COLUMN_SETS or count < 0 or (per != "body" and not count):
         raise LbshapeError(f"impact columns: {count} per {per!r} (per one of "
-                           f"{IMPACT_COLUMN_SETS}, 'feature' needs count > 0)")
+                           f"{IMPACT_COLUMN_SETS}, sets per feature need count > 0)")
     return dataclasses.replace(scene, reduced=dataclasses.replace(
         scene.reduced, impact_columns=int(count), impact_columns_per=per))
 
