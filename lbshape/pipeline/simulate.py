@@ -37,6 +37,7 @@ import numpy as np
 from lbshape.analysis.free_body import KEYS as FREE_BODY_KEYS
 from lbshape.analysis.reference import reference_error
 from lbshape.dynamics.contact import PlaneContact
+from lbshape.dynamics.contact_warmup import warm_contact
 from lbshape.dynamics.engine import Engine, NewtonSettings
 from lbshape.dynamics.free_body import FreeBodySimulation, FreeLoad
 from lbshape.dynamics.free_body_ramp import RampedFreeBody
@@ -223,7 +224,9 @@ def reduced_simulation(scene: Scene, pre: Precomputed, *, method: str = "reduced
         driver = local_example_driver(pre.mesh, pre.material, pre.local,
                                       route=local_route(route, pre.material))
     if scene.is_free:
-        return _free_body_simulation(scene, pre, elastic, driver, k_ex, newton, impact_switch)
+        body = _free_body_simulation(scene, pre, elastic, driver, k_ex, newton, impact_switch)
+        warm_contact(body)  # its contact kernels loaded now, not at its first contact
+        return body
     return ReducedSimulation(
         elastic, r=pre.r, dt=scene.simulation.dt, integrator=scene.simulation.integrator,
         alpha=scene.damping.alpha, beta=scene.damping.beta, loads=loads, driver=driver,
