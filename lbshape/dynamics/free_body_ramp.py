@@ -28,6 +28,12 @@ class RampedFreeBody(FreeBodySimulation):
         self.configured_k_ex = self.k_ex
         self.k_ex = self.configured_k_ex * ramp_factor(self.time, self.example_ramp)
 
+    def reset(self, state=None) -> None:
+        """As :meth:`FreeBodySimulation.reset`, ``k_ex`` the ramp's at the state's time
+        (the next step's work of the ramp counts from it)."""
+        super().reset(state)
+        self.k_ex = self.configured_k_ex * ramp_factor(self.time, self.example_ramp)
+
     def step(self, index: int | None = None) -> int:
         """:meth:`FreeBodySimulation.step` at ``k_ex(t₁)``; the spring energy ``½ Δk |q|²``
         of the change is work for the energy monitor."""

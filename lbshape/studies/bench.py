@@ -153,6 +153,8 @@ class SceneBenchmark:
             s counts every element; ``"cubature"``).
         settings: the settings comparison (``paper`` then ``lbshape``; empty when it was
             not run): :class:`SettingResult`.
+        plain_r: a free body with impact columns: r₀, its plain basis, which every step
+            solves for (the columns only around impacts); None: r.
     """
 
     scene: str
@@ -165,6 +167,7 @@ class SceneBenchmark:
     influence: tuple[tuple[str, dict], ...] = ()
     force_model: str = "cubature"
     settings: tuple[SettingResult, ...] = ()
+    plain_r: int | None = None
 
     def row(self, method: str) -> dict | None:
         """The row of ``method`` (None if it was not run)."""
@@ -385,7 +388,8 @@ def bench_scene(
                              variant_pre, failure, steps=steps, mass=mass)
     return SceneBenchmark(scene.name, float(scene.simulation.dt), steps, repeats, WARMUP_STEPS,
                           rows, tuple(timings[m] for m in methods), effects,
-                          force_model=pre.elastic.force_model, settings=settings)
+                          force_model=pre.elastic.force_model, settings=settings,
+                          plain_r=pre.elastic.leading)
 
 
 def _free_eval_rows(scene, pre, rows: tuple[dict, ...], outputs: dict, mass, *,

@@ -144,7 +144,9 @@ def breakdown_lines(results: Sequence[SceneBenchmark], *, rate: float | None = N
               "element, the force and tangent are two matrix-vector products with "
               f"r(r+1)/2 rows instead) at {rate:.1f} GFlop/s, the best "
               "single-thread rate of this machine on the step's largest matrix product "
-              "(r × 9s by 9s × r), measured in the same process.", "",
+              "(r × 9s by 9s × r), measured in the same process. A free body with impact "
+              "columns: at its plain basis r₀ (r (r₀)), which every step solves for; a step "
+              "on a set of columns solves for a few more.", "",
               "| model | r | s | " + " | ".join(columns) + " | total | floor total "
               "| flops (one iteration) |",
               "|---|---|---|" + "---|" * (len(columns) + 3)]
@@ -152,13 +154,14 @@ def breakdown_lines(results: Sequence[SceneBenchmark], *, rate: float | None = N
         phases = timing.phase_summary()
         row = result.row("reduced")
         r, s, m = row["r"], row["s"], row["m"]
-        flops = newton_flops(r, s, m=m, forces=result.force_model)
+        flops = newton_flops(result.plain_r or r, s, m=m, forces=result.force_model)
         floor = {name: 1e6 * value / (rate * 1e9) for name, value in flops.items()}
         cells = ["—" if name not in phases
                  else f"{1e3 * phases[name]:.1f} (≥ {floor[name]:.2f})" if name in floor
                  else f"{1e3 * phases[name]:.1f}" for name in columns]
         total = 1e3 * sum(phases.values())
-        lines.append(f"| {result.scene} | {r} | {s} | " + " | ".join(cells)
+        sizes = f"{r} ({result.plain_r})" if result.plain_r else f"{r}"
+        lines.append(f"| {result.scene} | {sizes} | {s} | " + " | ".join(cells)
                      + f" | {total:.1f} | {floor['total']:.1f} | {flops['total']:,} |")
     lines += ["", "In parentheses: that part's floor (µs). Overhead: the rest of the step "
               "(predictor, state swap, checks, Python). Free bodies (rigid and contact "
