@@ -164,7 +164,7 @@ def impact_basis(scene: Scene, mesh: TetMesh, mass, stiffness, basis: NonlinearB
         examples: the scene's global examples' pull for the throws (:func:`throw`), or None.
     """
     count = int(scene.reduced.impact_columns)
-    per_feature = scene.reduced.impact_columns_per != "body"
+    per_feature = scene.reduced.sets_per_feature
     directions = hull_directions(mesh.points).all
     speed = THROW_SPEED_MARGIN * throw_speed(scene, mesh.points)
     rigid = rigid_body_modes(mesh.points, mass)

@@ -157,10 +157,9 @@ def stage_keys(scene: Scene, names: list[str], settings: list) -> dict[str, str]
     current = key("example-basis", current, modes, derivatives, material, shape, k_ex,
                   settings, EXAMPLE_RESPONSE_DEPTH, POLYNOMIAL_BUILD_FLOPS,
                   reduced.forces) or current
+    arrangement = [reduced.impact_columns_per] if reduced.sets_per_feature else []
     current = key("impact-basis", current, mesh, material, reduced.impact_columns,
-                  impact_throw_key(scene), shape, k_ex,
-                  *([reduced.impact_columns_per] if reduced.impact_columns_per != "body"
-                    else [])) or current
+                  impact_throw_key(scene), shape, k_ex, *arrangement) or current
     cubature = key("cubature", current, mesh, material, reduced.s,
                    reduced.cubature_tolerance, CUBATURE_TRAINING_POSES, PRECOMPUTE_SEED)
     key("forces", cubature, mesh, material, reduced.forces)

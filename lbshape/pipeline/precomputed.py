@@ -514,7 +514,7 @@ def required_arrays(scene: Scene) -> tuple[str, ...]:
         required = required + (ESTIMATE_FLAG,)
     if scene.reduced.impact_columns:
         required = required + ("impact_coupling", "impact_leading")
-    if scene.reduced.impact_columns_per != "body":
+    if scene.reduced.sets_per_feature:
         required = required + ("impact_directions",)
     return required
 

@@ -168,7 +168,7 @@ def scene_from_dict(
                         "only; this object " + ("has '[fixed]'" if fixed is not None
                                                 else "has no '[[planes]]'")
                         + " (set impact_columns = 0)")
-    if reduced.impact_columns_per != "body" and not reduced.impact_columns:
+    if reduced.sets_per_feature and not reduced.impact_columns:
         raise ctx.error("'reduced.impact_columns_per' needs impact_columns > 0")
     simulation = _simulation(top)
     if simulation.contact_dt is not None and (fixed is not None or not planes):

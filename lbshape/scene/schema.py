@@ -313,6 +313,12 @@ class Reduced:
     impact_columns: int = 0
     impact_columns_per: str = "body"
 
+    @property
+    def sets_per_feature(self) -> bool:
+        """The impact columns come in sets per hull feature or pair of features (not one
+        set for the body)."""
+        return self.impact_columns_per != "body"
+
 
 @dataclass(frozen=True)
 class PosedPart:
@@ -550,7 +556,7 @@ class Scene:
                         **({"impact_columns": self.reduced.impact_columns}
                            if self.reduced.impact_columns else {}),
                         **({"impact_columns_per": self.reduced.impact_columns_per}
-                           if self.reduced.impact_columns_per != "body" else {})},
+                           if self.reduced.sets_per_feature else {})},
             "examples": None if self.examples is None
             else [pose.key() for pose in self.examples.poses],
             "fixed": None if self.fixed is None else self.fixed.key(),
